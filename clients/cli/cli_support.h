@@ -1,0 +1,40 @@
+// Shared pieces of the CLI: status reporting, progress bars, global options.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <cstdint>
+#include <string>
+
+#include "posewarp/common/progress.h"
+#include "posewarp/common/status.h"
+#include "posewarp/io/volume_io.h"
+
+namespace posewarp::cli {
+
+// Options every command shares; filled by CLI11 before a command runs.
+struct GlobalOptions {
+  int threads = 0;  // 0 = all cores
+  int64_t max_voxels = int64_t{1} << 29;
+  bool quiet = false;
+};
+
+GlobalOptions& global_options();
+io::ReadOptions read_options();
+
+// Prints "error: <message>" (and the code) to stderr and returns the process exit code for the status.
+int report(const Status& status);
+
+// A progress bar on stderr for ProgressHooks; silent when --quiet or stderr is not a terminal (then one line per
+// stage at completion).
+ProgressHooks progress_bar();
+
+// Prints to stdout unless --quiet.
+void say(const std::string& line);
+
+// Registers the subcommands of each area.
+void add_volume_commands(CLI::App& app);
+void add_phantom_commands(CLI::App& app);
+void add_label_commands(CLI::App& app);
+
+}  // namespace posewarp::cli

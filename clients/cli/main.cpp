@@ -1,0 +1,35 @@
+// posewarp: re-pose segmented CT/MRI volumes (command-line entry point).
+#include <CLI/CLI.hpp>
+
+#include <iostream>
+
+#include "cli_support.h"
+#include "posewarp/common/parallel.h"
+
+int main(int argc, char** argv) {
+  using namespace posewarp;
+  CLI::App app{
+      "posewarp re-poses segmented CT/MRI volumes: it builds a tetrahedral rig from a label volume (and its CT)\n"
+      "once, then warps labels and CT into new poses without holes or new label values.\n\n"
+      "Volumes: NIfTI (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd) or a DICOM series (a directory).",
+      "posewarp"};
+  app.set_version_flag("--version", std::string("posewarp ") + POSEWARP_VERSION);
+  app.require_subcommand(1);
+  cli::GlobalOptions& global = cli::global_options();
+  app.add_option("--threads", global.threads, "Worker threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  app.add_option("--max-voxels", global.max_voxels, "Refuse volumes with more voxels than this")
+      ->check(CLI::PositiveNumber);
+  app.add_flag("-q,--quiet", global.quiet, "Print only errors");
+  app.parse_complete_callback([&global] { set_thread_count(global.threads); });
+
+  cli::add_volume_commands(app);
+  cli::add_phantom_commands(app);
+  cli::add_label_commands(app);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& error) {
+    return app.exit(error);
+  }
+  return 0;
+}

@@ -1,0 +1,65 @@
+// Progress and cancellation hooks that long stages call, and the per-stage reporter they call them through.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <string_view>
+
+#include "posewarp/common/status.h"
+
+namespace posewarp {
+
+// What the caller (CLI, server job) hands to a long stage. Both hooks may be empty.
+struct ProgressHooks {
+  // Called with the stage name and its completed fraction in [0, 1]; may be called from any thread, but never
+  // concurrently (the reporter serializes calls).
+  std::function<void(std::string_view stage, double fraction)> on_progress;
+  // Polled from inside long loops; returning true makes the stage stop with CANCELLED.
+  std::function<bool()> cancel_requested;
+};
+
+// A flag a caller can set from another thread to cancel work; hooks() wires it into ProgressHooks.
+class CancelFlag {
+ public:
+  void cancel() { cancelled_->store(true); }
+  bool cancelled() const { return cancelled_->load(); }
+  std::function<bool()> as_hook() const {
+    return [flag = cancelled_] { return flag->load(); };
+  }
+
+ private:
+  std::shared_ptr<std::atomic<bool>> cancelled_ = std::make_shared<std::atomic<bool>>(false);
+};
+
+// Reports one stage's progress through the hooks, throttled to 1% steps, thread-safe.
+class StageProgress {
+ public:
+  StageProgress(const ProgressHooks& hooks, std::string stage);
+  StageProgress(const StageProgress&) = delete;
+  StageProgress& operator=(const StageProgress&) = delete;
+
+  // Sets the completed fraction; values outside [0, 1] are clamped, and progress never goes backwards.
+  void update(double fraction);
+  // Adds `units` of `total` (call from parallel workers as they finish chunks).
+  void advance(int64_t units, int64_t total);
+  // CANCELLED naming the stage once cancellation was requested, else OK.
+  Status check_cancel() const;
+  bool cancel_requested() const;
+  // Reports 100%.
+  void finish();
+
+  const std::string& stage() const { return stage_; }
+
+ private:
+  const ProgressHooks& hooks_;
+  std::string stage_;
+  std::mutex mutex_;
+  std::atomic<int64_t> done_units_{0};
+  int last_percent_ = -1;
+  bool finished_ = false;
+};
+
+}  // namespace posewarp

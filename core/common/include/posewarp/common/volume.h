@@ -1,0 +1,81 @@
+// Volume<T>: a typed, contiguous 3D image with physical geometry; LabelVolume and IntensityVolume.
+#pragma once
+
+#include <cstdint>
+#include <string_view>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include "posewarp/common/image_geometry.h"
+
+namespace posewarp {
+
+// The voxel type a volume had on disk, kept so that writing gives back what was read.
+enum class PixelType { kUInt8, kInt8, kUInt16, kInt16, kUInt32, kInt32, kUInt64, kInt64, kFloat32, kFloat64 };
+
+std::string_view pixel_type_name(PixelType type);
+bool is_floating(PixelType type);
+// Smallest and largest value the type holds.
+double pixel_type_min(PixelType type);
+double pixel_type_max(PixelType type);
+
+template <typename T>
+class Volume {
+ public:
+  using value_type = T;
+
+  Volume() = default;
+  explicit Volume(ImageGeometry geometry, T fill = T{})
+      : geometry_(geometry), voxels_(static_cast<size_t>(geometry.voxel_count()), fill) {}
+
+  const ImageGeometry& geometry() const { return geometry_; }
+  // Changes placement only (origin, spacing, direction); the size must stay the same.
+  void set_placement(const ImageGeometry& geometry) {
+    const Index3 size = geometry_.size;
+    geometry_ = geometry;
+    geometry_.size = size;
+  }
+
+  const Index3& size() const { return geometry_.size; }
+  int64_t voxel_count() const { return static_cast<int64_t>(voxels_.size()); }
+  bool empty() const { return voxels_.empty(); }
+
+  T* data() { return voxels_.data(); }
+  const T* data() const { return voxels_.data(); }
+  std::vector<T>& voxels() { return voxels_; }
+  const std::vector<T>& voxels() const { return voxels_; }
+
+  T& at(int64_t i, int64_t j, int64_t k) { return voxels_[static_cast<size_t>(geometry_.offset(i, j, k))]; }
+  const T& at(int64_t i, int64_t j, int64_t k) const {
+    return voxels_[static_cast<size_t>(geometry_.offset(i, j, k))];
+  }
+  bool contains(int64_t i, int64_t j, int64_t k) const {
+    return i >= 0 && j >= 0 && k >= 0 && i < geometry_.size[0] && j < geometry_.size[1] && k < geometry_.size[2];
+  }
+
+  PixelType source_type() const { return source_type_; }
+  void set_source_type(PixelType type) { source_type_ = type; }
+
+ private:
+  ImageGeometry geometry_;
+  std::vector<T> voxels_;
+  PixelType source_type_ = default_source_type();
+
+  static constexpr PixelType default_source_type() {
+    if constexpr (std::is_same_v<T, float>) return PixelType::kFloat32;
+    if constexpr (std::is_same_v<T, double>) return PixelType::kFloat64;
+    if constexpr (std::is_same_v<T, uint8_t>) return PixelType::kUInt8;
+    if constexpr (std::is_same_v<T, int16_t>) return PixelType::kInt16;
+    if constexpr (std::is_same_v<T, uint16_t>) return PixelType::kUInt16;
+    return PixelType::kInt32;
+  }
+};
+
+// Labels are held as int32 whatever their type on disk (uint8 ... int32); source_type() remembers that type.
+using Label = int32_t;
+using LabelVolume = Volume<Label>;
+// Intensities (CT in HU, MRI) are held as float; source_type() remembers the type on disk.
+using IntensityVolume = Volume<float>;
+
+}  // namespace posewarp

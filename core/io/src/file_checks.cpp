@@ -1,0 +1,212 @@
+// NIfTI and MetaImage header and completeness checks (no ITK here).
+#include "file_checks.h"
+
+#include <zlib.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <vector>
+
+namespace posewarp::io::detail {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string in_quotes(const std::string& path) { return "'" + path + "'"; }
+
+template <typename T>
+T read_field(const unsigned char* header, size_t offset, bool swap) {
+  unsigned char bytes[sizeof(T)];
+  std::memcpy(bytes, header + offset, sizeof(T));
+  if (swap) std::reverse(bytes, bytes + sizeof(T));
+  T value;
+  std::memcpy(&value, bytes, sizeof(T));
+  return value;
+}
+
+// Bytes per voxel of a NIfTI datatype code; 0 when unknown.
+int nifti_bits(int16_t datatype) {
+  switch (datatype) {
+    case 2: case 256: return 8;                       // uint8, int8
+    case 4: case 512: return 16;                      // int16, uint16
+    case 8: case 16: case 768: return 32;             // int32, float32, uint32
+    case 64: case 1024: case 1280: case 32: return 64;  // float64, int64, uint64, complex64
+    case 128: return 24;                              // rgb24
+    case 2304: return 32;                             // rgba32
+    default: return 0;
+  }
+}
+
+// Counts the bytes a (possibly gzip-compressed) file decompresses to, or -1 when the stream is corrupt.
+int64_t decompressed_size(const std::string& path) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (!file) return -1;
+  std::vector<char> buffer(1 << 18);
+  int64_t total = 0;
+  for (;;) {
+    const int n = gzread(file, buffer.data(), static_cast<unsigned>(buffer.size()));
+    if (n < 0) {
+      gzclose(file);
+      return -1;
+    }
+    if (n == 0) break;
+    total += n;
+  }
+  int err = 0;
+  gzerror(file, &err);
+  gzclose(file);
+  return err == Z_OK || err == Z_STREAM_END ? total : -1;
+}
+
+}  // namespace
+
+Status check_nifti_file(const std::string& path) {
+  unsigned char header[348];
+  {
+    gzFile file = gzopen(path.c_str(), "rb");
+    if (!file) return not_found_error("cannot open " + in_quotes(path));
+    const int n = gzread(file, header, sizeof(header));
+    gzclose(file);
+    if (n != static_cast<int>(sizeof(header))) {
+      return invalid_argument_error(in_quotes(path) + " is too short to hold a NIfTI header (" +
+                                    std::to_string(std::max(n, 0)) + " bytes); the file is truncated or not NIfTI");
+    }
+  }
+  int32_t sizeof_hdr = read_field<int32_t>(header, 0, false);
+  bool swap = false;
+  if (sizeof_hdr != 348) {
+    swap = true;
+    sizeof_hdr = read_field<int32_t>(header, 0, true);
+  }
+  if (sizeof_hdr != 348) return ok_status();  // NIfTI-2 or not NIfTI at all: ITK decides and reports
+  const int16_t ndim = read_field<int16_t>(header, 40, swap);
+  if (ndim < 1 || ndim > 7) {
+    return invalid_argument_error(in_quotes(path) + " declares " + std::to_string(ndim) +
+                                  " dimensions (dim[0] must be 1..7); the header is corrupt");
+  }
+  int64_t voxels = 1;
+  for (int d = 1; d <= ndim; ++d) {
+    const int16_t size = read_field<int16_t>(header, 40 + 2 * static_cast<size_t>(d), swap);
+    if (size < 1) {
+      return invalid_argument_error(in_quotes(path) + " declares size " + std::to_string(size) + " along axis " +
+                                    std::to_string(d - 1) + "; every dimension must be at least 1 (corrupt header)");
+    }
+    voxels *= size;
+  }
+  for (int d = 1; d <= std::min<int>(ndim, 3); ++d) {
+    const float spacing = read_field<float>(header, 76 + 4 * static_cast<size_t>(d), swap);
+    if (!(spacing > 0.0f) || !std::isfinite(spacing)) {
+      std::ostringstream out;
+      out << in_quotes(path) << " declares a voxel spacing of " << spacing << " mm along axis " << d - 1
+          << "; spacing must be positive (fix pixdim in the header)";
+      return invalid_argument_error(out.str());
+    }
+  }
+  const int bits = nifti_bits(read_field<int16_t>(header, 70, swap));
+  const float vox_offset = read_field<float>(header, 108, swap);
+  if (bits == 0 || !(vox_offset >= 0.0f)) return ok_status();  // ITK reports unsupported types itself
+  const int64_t needed = static_cast<int64_t>(vox_offset) + voxels * bits / 8;
+  std::error_code ec;
+  const bool compressed = path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0;
+  int64_t present = 0;
+  if (compressed) {
+    present = decompressed_size(path);
+    if (present < 0) {
+      return data_loss_error(in_quotes(path) + " is not a complete gzip stream (truncated or corrupt); copy it again");
+    }
+  } else {
+    present = static_cast<int64_t>(fs::file_size(path, ec));
+  }
+  if (present < needed) {
+    return data_loss_error(in_quotes(path) + " is truncated: its header promises " + std::to_string(needed) +
+                           " bytes but it holds " + std::to_string(present) + "; copy the file again");
+  }
+  return ok_status();
+}
+
+Status check_metaimage_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open " + in_quotes(path));
+  std::map<std::string, std::string> fields;
+  std::string line;
+  std::streamoff data_offset = -1;
+  while (std::getline(in, line)) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) continue;
+    auto trim = [](std::string s) {
+      s.erase(0, s.find_first_not_of(" \t\r"));
+      s.erase(s.find_last_not_of(" \t\r") + 1);
+      return s;
+    };
+    const std::string key = trim(line.substr(0, eq));
+    fields[key] = trim(line.substr(eq + 1));
+    if (key == "ElementDataFile") {
+      data_offset = in.tellg();
+      break;
+    }
+  }
+  if (data_offset < 0 || !fields.count("DimSize") || !fields.count("ElementType")) return ok_status();  // ITK reports
+  static const std::map<std::string, int> kElementBytes{
+      {"MET_UCHAR", 1}, {"MET_CHAR", 1},   {"MET_USHORT", 2}, {"MET_SHORT", 2},  {"MET_UINT", 4},
+      {"MET_INT", 4},   {"MET_FLOAT", 4},  {"MET_ULONG", 8},  {"MET_LONG", 8},   {"MET_DOUBLE", 8},
+      {"MET_ULONG_LONG", 8}, {"MET_LONG_LONG", 8}};
+  auto element = kElementBytes.find(fields["ElementType"]);
+  if (element == kElementBytes.end()) return ok_status();
+  int64_t voxels = 1;
+  {
+    std::istringstream dims(fields["DimSize"]);
+    int64_t size = 0;
+    while (dims >> size) {
+      if (size < 1) {
+        return invalid_argument_error(in_quotes(path) + " declares DimSize " + fields["DimSize"] +
+                                      "; every dimension must be at least 1 (corrupt header)");
+      }
+      voxels *= size;
+    }
+  }
+  int channels = 1;
+  if (fields.count("ElementNumberOfChannels")) channels = std::max(1, std::atoi(fields["ElementNumberOfChannels"].c_str()));
+  if (fields.count("ElementSpacing")) {
+    std::istringstream spacings(fields["ElementSpacing"]);
+    double spacing = 0.0;
+    while (spacings >> spacing) {
+      if (!(spacing > 0.0) || !std::isfinite(spacing)) {
+        return invalid_argument_error(in_quotes(path) + " declares ElementSpacing " + fields["ElementSpacing"] +
+                                      "; spacing must be positive");
+      }
+    }
+  }
+  const std::string data_file = fields["ElementDataFile"];
+  if (data_file != "LOCAL" && data_file.find('%') != std::string::npos) return ok_status();  // file lists: ITK checks
+  if (data_file == "LIST") return ok_status();
+  int64_t available = 0;
+  std::error_code ec;
+  if (data_file == "LOCAL") {
+    available = static_cast<int64_t>(fs::file_size(path, ec)) - static_cast<int64_t>(data_offset);
+  } else {
+    const fs::path data_path = fs::path(path).parent_path() / data_file;
+    if (!fs::exists(data_path, ec)) {
+      return not_found_error(in_quotes(path) + " names its data file " + in_quotes(data_path.string()) +
+                             ", which does not exist; keep the .mhd and its data file together");
+    }
+    available = static_cast<int64_t>(fs::file_size(data_path, ec));
+  }
+  const bool compressed = fields["CompressedData"] == "True" || fields["CompressedData"] == "true";
+  const int64_t needed = compressed && fields.count("CompressedDataSize")
+                             ? std::atoll(fields["CompressedDataSize"].c_str())
+                             : (compressed ? 0 : voxels * channels * element->second);
+  if (available < needed) {
+    return data_loss_error(in_quotes(path) + " is truncated: its header promises " + std::to_string(needed) +
+                           " bytes of data but " + std::to_string(std::max<int64_t>(available, 0)) +
+                           " are there; copy the file again");
+  }
+  return ok_status();
+}
+
+}  // namespace posewarp::io::detail

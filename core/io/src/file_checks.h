@@ -1,0 +1,19 @@
+// Checks ITK does not make: raw header values it silently "repairs" and data it silently reads short.
+#pragma once
+
+#include <string>
+
+#include "posewarp/common/status.h"
+
+namespace posewarp::io::detail {
+
+// NIfTI-1 (.nii, .nii.gz): dimensions and spacings in the raw header must be positive (niftilib replaces bad ones
+// with 1), and the file must hold every voxel byte the header promises (a .nii.gz is decompressed once to count
+// them, which also catches a corrupt gzip stream).
+Status check_nifti_file(const std::string& path);
+
+// MetaImage (.mha, .mhd): the data (inline or in the named file) must hold every byte the header promises,
+// compressed or not (ITK's reader only prints a warning when it reads short).
+Status check_metaimage_file(const std::string& path);
+
+}  // namespace posewarp::io::detail

@@ -1,0 +1,98 @@
+// LabelMap: what each label value of a segmentation is (bone of which rigid segment, soft tissue, background).
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "posewarp/common/result.h"
+#include "posewarp/common/volume.h"
+
+namespace posewarp::labels {
+
+enum class LabelRole {
+  kBackground,  // outside the body
+  kBone,        // rigid: moves with its segment
+  kTissue,      // soft: moves with the deformation field
+  kIgnore,      // inside the body but not used to build the rig (e.g. a table or an implant label)
+};
+
+std::string_view role_name(LabelRole role);
+Result<LabelRole> role_from_name(std::string_view name);
+
+struct LabelEntry {
+  Label value = 0;
+  std::string name;
+  LabelRole role = LabelRole::kTissue;
+  // For bones: the rigid segment the label belongs to (several labels may form one segment). Empty otherwise.
+  std::string segment;
+};
+
+// A joint name for a pair of adjacent segments (order does not matter), used when the rig names its joints.
+struct JointName {
+  std::string name;
+  std::string segment_a;
+  std::string segment_b;
+};
+
+class LabelMap {
+ public:
+  LabelMap() = default;
+
+  // Builds and validates a map: values unique, names non-empty, bones with a segment (defaulting to the
+  // label's name), value 0 only as background, joint names only between known segments.
+  static Result<LabelMap> create(std::string name, std::vector<LabelEntry> entries,
+                                 std::vector<JointName> joint_names = {}, std::string root_segment = {});
+
+  const std::string& name() const { return name_; }
+  const std::vector<LabelEntry>& entries() const { return entries_; }
+  const std::vector<JointName>& joint_names() const { return joint_names_; }
+  // Preferred root of the skeleton; empty lets the rig choose.
+  const std::string& root_segment() const { return root_segment_; }
+
+  // The entry of a value, or nullptr when the map does not name it.
+  const LabelEntry* find(Label value) const;
+  // The role of a value; values the map does not name are soft tissue (and reported by census()).
+  LabelRole role_of(Label value) const;
+
+  // Bone segments in the order they first appear in the map.
+  std::vector<std::string> bone_segments() const;
+  // The label values that make up one bone segment.
+  std::vector<Label> labels_of_segment(std::string_view segment) const;
+  // The joint name the map gives to a pair of segments, if any.
+  std::optional<std::string> joint_name(std::string_view segment_a, std::string_view segment_b) const;
+
+ private:
+  std::string name_;
+  std::vector<LabelEntry> entries_;
+  std::vector<JointName> joint_names_;
+  std::string root_segment_;
+  std::map<Label, size_t> index_;
+};
+
+// JSON form:
+// {"format": "posewarp.label_map", "version": 1, "name": "...", "root_segment": "sacrum",
+//  "labels": [{"value": 75, "name": "femur_left", "role": "bone", "segment": "femur_left"}, ...],
+//  "joints": [{"name": "hip_left", "segments": ["hip_left", "femur_left"]}, ...]}
+// `source` names the text's origin (a file path) in error messages.
+Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source);
+std::string label_map_to_json(const LabelMap& map);
+
+Result<LabelMap> read_label_map(const std::string& path);
+Status write_label_map(const LabelMap& map, const std::string& path);
+
+// What a label volume holds compared with its map.
+struct LabelCensus {
+  std::map<Label, int64_t> voxel_counts;  // every value present, with its voxel count (0 included)
+  std::vector<Label> unknown;             // present in the volume, not named by the map
+  std::vector<Label> absent;              // named by the map (non-background), not present in the volume
+  std::vector<std::string> present_bone_segments;
+  std::vector<std::string> absent_bone_segments;  // bone segments none of whose labels is present
+};
+
+LabelCensus census(const LabelMap& map, const LabelVolume& volume);
+
+}  // namespace posewarp::labels

@@ -1,0 +1,258 @@
+// LabelMap validation, JSON form and census against a label volume.
+#include "posewarp/labels/label_map.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace posewarp::labels {
+namespace {
+
+using json = nlohmann::json;
+
+constexpr std::string_view kFormat = "posewarp.label_map";
+constexpr int kVersion = 1;
+
+}  // namespace
+
+std::string_view role_name(LabelRole role) {
+  switch (role) {
+    case LabelRole::kBackground: return "background";
+    case LabelRole::kBone: return "bone";
+    case LabelRole::kTissue: return "tissue";
+    case LabelRole::kIgnore: return "ignore";
+  }
+  return "tissue";
+}
+
+Result<LabelRole> role_from_name(std::string_view name) {
+  if (name == "background") return LabelRole::kBackground;
+  if (name == "bone") return LabelRole::kBone;
+  if (name == "tissue") return LabelRole::kTissue;
+  if (name == "ignore") return LabelRole::kIgnore;
+  return invalid_argument_error("unknown label role '" + std::string(name) +
+                                "'; use one of background, bone, tissue, ignore");
+}
+
+Result<LabelMap> LabelMap::create(std::string name, std::vector<LabelEntry> entries,
+                                  std::vector<JointName> joint_names, std::string root_segment) {
+  LabelMap map;
+  map.name_ = std::move(name);
+  for (size_t i = 0; i < entries.size(); ++i) {
+    LabelEntry& entry = entries[i];
+    if (entry.name.empty()) {
+      return invalid_argument_error("label " + std::to_string(entry.value) + " has no name; give every label a name");
+    }
+    if (entry.value == 0 && entry.role != LabelRole::kBackground) {
+      return invalid_argument_error("label 0 ('" + entry.name + "') must have role background: 0 is outside the body");
+    }
+    if (entry.role == LabelRole::kBone && entry.segment.empty()) entry.segment = entry.name;
+    if (entry.role != LabelRole::kBone) entry.segment.clear();
+    auto [it, inserted] = map.index_.emplace(entry.value, i);
+    if (!inserted) {
+      return invalid_argument_error("label value " + std::to_string(entry.value) + " is listed twice ('" +
+                                    entries[it->second].name + "' and '" + entry.name +
+                                    "'); each value may appear once");
+    }
+  }
+  map.entries_ = std::move(entries);
+  const std::vector<std::string> segments = map.bone_segments();
+  const std::set<std::string> known(segments.begin(), segments.end());
+  for (const JointName& joint : joint_names) {
+    for (const std::string* segment : {&joint.segment_a, &joint.segment_b}) {
+      if (!known.count(*segment)) {
+        return invalid_argument_error("joint name '" + joint.name + "' refers to segment '" + *segment +
+                                      "', which no bone label of the map belongs to");
+      }
+    }
+  }
+  if (!root_segment.empty() && !known.count(root_segment)) {
+    return invalid_argument_error("root segment '" + root_segment + "' is not a bone segment of the label map");
+  }
+  map.joint_names_ = std::move(joint_names);
+  map.root_segment_ = std::move(root_segment);
+  return map;
+}
+
+const LabelEntry* LabelMap::find(Label value) const {
+  auto it = index_.find(value);
+  return it == index_.end() ? nullptr : &entries_[it->second];
+}
+
+LabelRole LabelMap::role_of(Label value) const {
+  if (const LabelEntry* entry = find(value)) return entry->role;
+  return value == 0 ? LabelRole::kBackground : LabelRole::kTissue;
+}
+
+std::vector<std::string> LabelMap::bone_segments() const {
+  std::vector<std::string> segments;
+  for (const LabelEntry& entry : entries_) {
+    if (entry.role == LabelRole::kBone &&
+        std::find(segments.begin(), segments.end(), entry.segment) == segments.end()) {
+      segments.push_back(entry.segment);
+    }
+  }
+  return segments;
+}
+
+std::vector<Label> LabelMap::labels_of_segment(std::string_view segment) const {
+  std::vector<Label> values;
+  for (const LabelEntry& entry : entries_) {
+    if (entry.role == LabelRole::kBone && entry.segment == segment) values.push_back(entry.value);
+  }
+  return values;
+}
+
+std::optional<std::string> LabelMap::joint_name(std::string_view segment_a, std::string_view segment_b) const {
+  for (const JointName& joint : joint_names_) {
+    if ((joint.segment_a == segment_a && joint.segment_b == segment_b) ||
+        (joint.segment_a == segment_b && joint.segment_b == segment_a)) {
+      return joint.name;
+    }
+  }
+  return std::nullopt;
+}
+
+Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source) {
+  const std::string where(source);
+  json doc;
+  try {
+    doc = json::parse(json_text);
+  } catch (const json::parse_error& error) {
+    return invalid_argument_error("label map " + where + " is not valid JSON: " + error.what());
+  }
+  try {
+    if (!doc.is_object()) return invalid_argument_error("label map " + where + " must be a JSON object");
+    if (doc.contains("format") && doc["format"].get<std::string>() != kFormat) {
+      return invalid_argument_error("label map " + where + " has format '" + doc["format"].get<std::string>() +
+                                    "', expected '" + std::string(kFormat) + "'");
+    }
+    const int version = doc.value("version", kVersion);
+    if (version > kVersion) {
+      return invalid_argument_error("label map " + where + " has version " + std::to_string(version) +
+                                    "; this posewarp reads up to version " + std::to_string(kVersion) +
+                                    ". Upgrade posewarp");
+    }
+    if (!doc.contains("labels") || !doc["labels"].is_array()) {
+      return invalid_argument_error("label map " + where + " needs a \"labels\" array");
+    }
+    std::vector<LabelEntry> entries;
+    for (const json& item : doc["labels"]) {
+      if (!item.is_object() || !item.contains("value") || !item["value"].is_number_integer()) {
+        return invalid_argument_error("label map " + where + ": every entry of \"labels\" needs an integer \"value\" (" +
+                                      item.dump() + ")");
+      }
+      LabelEntry entry;
+      const int64_t value = item["value"].get<int64_t>();
+      if (value < std::numeric_limits<Label>::min() || value > std::numeric_limits<Label>::max()) {
+        return invalid_argument_error("label map " + where + ": value " + std::to_string(value) + " is out of range");
+      }
+      entry.value = static_cast<Label>(value);
+      entry.name = item.value("name", std::string());
+      Result<LabelRole> role = role_from_name(item.value("role", std::string("tissue")));
+      if (!role.ok()) return role.status().with_context("label map " + where + ", value " + std::to_string(value));
+      entry.role = *role;
+      entry.segment = item.value("segment", std::string());
+      entries.push_back(std::move(entry));
+    }
+    std::vector<JointName> joints;
+    if (doc.contains("joints")) {
+      for (const json& item : doc["joints"]) {
+        const json segments = item.value("segments", json::array());
+        if (!segments.is_array() || segments.size() != 2) {
+          return invalid_argument_error("label map " + where + ": joint " + item.dump() +
+                                        " needs \"segments\": [a, b]");
+        }
+        joints.push_back({item.value("name", std::string()), segments[0].get<std::string>(),
+                          segments[1].get<std::string>()});
+      }
+    }
+    Result<LabelMap> map = LabelMap::create(doc.value("name", std::string(source)), std::move(entries),
+                                            std::move(joints), doc.value("root_segment", std::string()));
+    if (!map.ok()) return map.status().with_context("label map " + where);
+    return map;
+  } catch (const json::exception& error) {
+    return invalid_argument_error("label map " + where + " has a field of the wrong type: " + error.what());
+  }
+}
+
+std::string label_map_to_json(const LabelMap& map) {
+  json doc;
+  doc["format"] = kFormat;
+  doc["version"] = kVersion;
+  doc["name"] = map.name();
+  if (!map.root_segment().empty()) doc["root_segment"] = map.root_segment();
+  json labels = json::array();
+  for (const LabelEntry& entry : map.entries()) {
+    json item{{"value", entry.value}, {"name", entry.name}, {"role", role_name(entry.role)}};
+    if (entry.role == LabelRole::kBone) item["segment"] = entry.segment;
+    labels.push_back(std::move(item));
+  }
+  doc["labels"] = std::move(labels);
+  json joints = json::array();
+  for (const JointName& joint : map.joint_names()) {
+    joints.push_back({{"name", joint.name}, {"segments", {joint.segment_a, joint.segment_b}}});
+  }
+  doc["joints"] = std::move(joints);
+  return doc.dump(2) + "\n";
+}
+
+Result<LabelMap> read_label_map(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open label map '" + path + "': no such file or not readable");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return label_map_from_json(text.str(), "'" + path + "'");
+}
+
+Status write_label_map(const LabelMap& map, const std::string& path) {
+  const std::filesystem::path target(path);
+  const std::filesystem::path temporary = target.string() + ".partial";
+  {
+    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+    if (!out) return invalid_argument_error("cannot write label map '" + path + "'");
+    out << label_map_to_json(map);
+    if (!out.flush()) return internal_error("writing label map '" + path + "' failed (disk full?)");
+  }
+  std::error_code ec;
+  std::filesystem::rename(temporary, target, ec);
+  if (ec) return internal_error("cannot move label map into place at '" + path + "': " + ec.message());
+  return ok_status();
+}
+
+LabelCensus census(const LabelMap& map, const LabelVolume& volume) {
+  LabelCensus result;
+  // Dense counting for the usual small label range, sparse for the rest.
+  constexpr Label kDense = 1 << 16;
+  std::vector<int64_t> dense(kDense, 0);
+  for (const Label value : volume.voxels()) {
+    if (value >= 0 && value < kDense) {
+      ++dense[static_cast<size_t>(value)];
+    } else {
+      ++result.voxel_counts[value];
+    }
+  }
+  for (Label value = 0; value < kDense; ++value) {
+    if (dense[static_cast<size_t>(value)] > 0) result.voxel_counts[value] = dense[static_cast<size_t>(value)];
+  }
+  for (const auto& [value, count] : result.voxel_counts) {
+    if (value != 0 && map.find(value) == nullptr) result.unknown.push_back(value);
+  }
+  for (const LabelEntry& entry : map.entries()) {
+    if (entry.role != LabelRole::kBackground && !result.voxel_counts.count(entry.value)) {
+      result.absent.push_back(entry.value);
+    }
+  }
+  for (const std::string& segment : map.bone_segments()) {
+    bool present = false;
+    for (const Label value : map.labels_of_segment(segment)) present = present || result.voxel_counts.count(value);
+    (present ? result.present_bone_segments : result.absent_bone_segments).push_back(segment);
+  }
+  return result;
+}
+
+}  // namespace posewarp::labels

@@ -1,0 +1,370 @@
+// The bar and mannequin phantoms: label volumes, CTs, label maps and true joint centres.
+#include "posewarp/phantom/phantom.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "raster.h"
+
+namespace posewarp::phantom {
+namespace {
+
+using detail::Shape;
+using labels::JointName;
+using labels::LabelEntry;
+using labels::LabelRole;
+
+// Hounsfield units of the phantom tissues.
+constexpr float kAirHu = -1000.0f;
+constexpr float kFatHu = -100.0f;
+constexpr float kSoftHu = 40.0f;
+constexpr float kLiverHu = 60.0f;
+constexpr float kBrainHu = 35.0f;
+constexpr float kBoneHu = 700.0f;
+
+Status validate_direction(const std::array<double, 9>& d) {
+  ImageGeometry probe;
+  probe.size = {1, 1, 1};
+  probe.direction = d;
+  return probe.validate().with_context("phantom direction");
+}
+
+Status check_positive(double value, const char* name) {
+  if (!(value > 0.0) || !std::isfinite(value)) {
+    return invalid_argument_error(std::string(name) + " must be positive and finite (got " + std::to_string(value) +
+                                  ")");
+  }
+  return ok_status();
+}
+
+Status check_size(const ImageGeometry& g) {
+  constexpr int64_t kMaxPhantomVoxels = int64_t{1} << 30;
+  if (g.voxel_count() > kMaxPhantomVoxels) {
+    return resource_exhausted_error("the phantom would have " + std::to_string(g.voxel_count()) +
+                                    " voxels (" + g.describe() + "); use a coarser spacing");
+  }
+  return ok_status();
+}
+
+// Sets the grid of `labels` to hold the union of shapes' bounds.
+ImageGeometry grid_for(const std::vector<Shape>& shapes, double spacing, const std::array<double, 9>& direction,
+                       double margin) {
+  Vec3 lo{detail::kInf, detail::kInf, detail::kInf};
+  Vec3 hi{-detail::kInf, -detail::kInf, -detail::kInf};
+  for (const Shape& shape : shapes) {
+    Vec3 slo{};
+    Vec3 shi{};
+    shape.bounds(slo, shi);
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
+  }
+  return detail::fit_grid(lo, hi, spacing, direction, margin);
+}
+
+// ---- mannequin layout -------------------------------------------------------------------------------------------
+
+namespace mannequin_labels {
+constexpr Label kSoft = 1, kFat = 2, kLiver = 3, kBrain = 4;
+constexpr Label kPelvis = 10, kL5 = 11, kL4 = 12, kL3 = 13, kL2 = 14, kL1 = 15;
+constexpr Label kThoracicSpine = 16, kRibs = 17, kShoulderGirdle = 18;
+constexpr Label kFemurLeft = 20, kFemurRight = 21, kTibiaLeft = 22, kTibiaRight = 23;
+constexpr Label kHumerusLeft = 24, kHumerusRight = 25, kForearmLeft = 26, kForearmRight = 27;
+constexpr Label kSkull = 30, kCervicalSpine = 31;
+}  // namespace mannequin_labels
+
+// Every length of the mannequin, in mm at the requested height.
+struct MannequinLayout {
+  double f;    // scale: height / 1700 mm
+  double gap;  // joint gap, mm
+  double z(double mm_at_1700) const { return mm_at_1700 * f; }
+
+  Vec3 hip(int side) const { return {side * 90 * f, 0.0, 900 * f}; }        // side: +1 left, -1 right
+  Vec3 knee(int side) const { return {side * 90 * f, 0.0, 480 * f}; }
+  Vec3 shoulder(int side) const { return {side * 215 * f, 0.0, 1390 * f}; }
+  Vec3 elbow(int side) const { return {side * 215 * f, 0.0, 1110 * f}; }
+  double spine_y() const { return 45 * f; }
+  double pelvis_top() const { return 990 * f; }
+  double vertebra_height() const { return 30 * f; }
+  // Bottom of lumbar vertebra n (0 = L5 ... 4 = L1).
+  double lumbar_bottom(int n) const { return pelvis_top() + gap + n * (vertebra_height() + gap); }
+  double thoracic_bottom() const { return lumbar_bottom(5); }
+  double thoracic_top() const { return 1420 * f; }
+  double head_radius() const { return 100 * f; }
+  Vec3 head_centre() const { return {0.0, 0.0, 1600 * f}; }
+};
+
+std::vector<Shape> mannequin_body(const MannequinLayout& m) {
+  const double f = m.f;
+  std::vector<Shape> body;
+  body.push_back(detail::elliptic_cylinder_z(0, 0, 160 * f, 110 * f, 850 * f, 1440 * f));  // trunk
+  body.push_back(detail::capsule({-215 * f, 0, 1395 * f}, {215 * f, 0, 1395 * f}, 58 * f));  // shoulders
+  body.push_back(detail::capsule({0, 0, 1420 * f}, {0, 0, 1530 * f}, 55 * f));              // neck
+  body.push_back(detail::sphere(m.head_centre(), m.head_radius()));
+  for (int side : {+1, -1}) {
+    body.push_back(detail::capsule(m.hip(side), m.knee(side), 75 * f));                            // thigh
+    body.push_back(detail::capsule(m.knee(side), {side * 90 * f, 0, 60 * f}, 55 * f));             // shank
+    body.push_back(detail::capsule(m.shoulder(side), m.elbow(side), 45 * f));                      // upper arm
+    body.push_back(detail::capsule(m.elbow(side), {side * 215 * f, 0, 840 * f}, 38 * f));          // forearm
+  }
+  return body;
+}
+
+}  // namespace
+
+Status validate(const BarParams& p) {
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.spacing_mm, "bar spacing_mm"));
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.length_mm, "bar length_mm"));
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.radius_mm, "bar radius_mm"));
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.bone_radius_mm, "bar bone_radius_mm"));
+  if (p.bone_radius_mm >= p.radius_mm) {
+    return invalid_argument_error("bar bone_radius_mm must be smaller than radius_mm so soft tissue surrounds bone");
+  }
+  if (p.bone_count < 2 || p.bone_count > 16) {
+    return invalid_argument_error("bar bone_count must lie in 2..16 (got " + std::to_string(p.bone_count) + ")");
+  }
+  if (p.joint_gap_mm < 0.0 || p.margin_mm < 0.0 || p.noise_hu < 0.0) {
+    return invalid_argument_error("bar joint_gap_mm, margin_mm and noise_hu must not be negative");
+  }
+  const double gap = p.joint_gap_mm > 0.0 ? p.joint_gap_mm : 2.0 * p.spacing_mm;
+  const double bone_length = (p.length_mm - 2.0 * gap - (p.bone_count - 1) * gap) / p.bone_count;
+  if (bone_length < 2.0 * p.spacing_mm) {
+    return invalid_argument_error("bar bones would be shorter than two voxels; lengthen the bar or use fewer bones");
+  }
+  return validate_direction(p.direction);
+}
+
+Status validate(const MannequinParams& p) {
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.spacing_mm, "mannequin spacing_mm"));
+  POSEWARP_RETURN_IF_ERROR(check_positive(p.height_mm, "mannequin height_mm"));
+  if (p.height_mm < 200.0 || p.height_mm > 3000.0) {
+    return invalid_argument_error("mannequin height_mm must lie in 200..3000 (got " + std::to_string(p.height_mm) + ")");
+  }
+  if (p.joint_gap_mm < 0.0 || p.fat_mm < 0.0 || p.margin_mm < 0.0 || p.noise_hu < 0.0) {
+    return invalid_argument_error("mannequin joint_gap_mm, fat_mm, margin_mm and noise_hu must not be negative");
+  }
+  const double f = p.height_mm / 1700.0;
+  const double gap = p.joint_gap_mm > 0.0 ? p.joint_gap_mm : 2.0 * p.spacing_mm;
+  if (gap > 25.0 * f) {
+    return invalid_argument_error("mannequin joint gap of " + std::to_string(gap) +
+                                  " mm is too wide for its size; use a finer spacing or a smaller joint_gap_mm");
+  }
+  if (p.spacing_mm > 14.0 * f) {
+    return invalid_argument_error("mannequin spacing of " + std::to_string(p.spacing_mm) +
+                                  " mm is too coarse to resolve its bones; use at most " + std::to_string(14.0 * f) +
+                                  " mm");
+  }
+  return validate_direction(p.direction);
+}
+
+Result<Phantom> make_bar(const BarParams& p) {
+  POSEWARP_RETURN_IF_ERROR(validate(p));
+  const double gap = p.joint_gap_mm > 0.0 ? p.joint_gap_mm : 2.0 * p.spacing_mm;
+  // Bones fill the axis from gap to length - gap, with `gap` of soft tissue between neighbours.
+  const double bone_length = (p.length_mm - 2.0 * gap - (p.bone_count - 1) * gap) / p.bone_count;
+
+  Phantom phantom;
+  phantom.name = "bar";
+  phantom.joint_gap_mm = gap;
+  const Shape body = detail::cylinder({0, 0, 0}, {0, 0, p.length_mm}, p.radius_mm);
+  const ImageGeometry grid = grid_for({body}, p.spacing_mm, p.direction, p.margin_mm);
+  POSEWARP_RETURN_IF_ERROR(check_size(grid));
+  phantom.labels = LabelVolume(grid, 0);
+  phantom.labels.set_source_type(PixelType::kUInt8);
+  detail::paint(phantom.labels, body, 1);
+
+  std::vector<LabelEntry> entries{{0, "background", LabelRole::kBackground, ""}, {1, "soft_tissue", LabelRole::kTissue, ""}};
+  std::vector<JointName> joint_names;
+  std::vector<std::pair<Label, float>> hu{{1, kSoftHu}};
+  for (int b = 0; b < p.bone_count; ++b) {
+    const Label value = static_cast<Label>(10 + b);
+    const std::string segment = "bar_bone_" + std::to_string(b + 1);
+    const double z0 = gap + b * (bone_length + gap);
+    detail::paint(phantom.labels, detail::cylinder({0, 0, z0}, {0, 0, z0 + bone_length}, p.bone_radius_mm), value);
+    entries.push_back({value, segment, LabelRole::kBone, segment});
+    hu.emplace_back(value, kBoneHu);
+    if (b > 0) {
+      const std::string parent = "bar_bone_" + std::to_string(b);
+      const std::string name = "joint_" + std::to_string(b) + "_" + std::to_string(b + 1);
+      joint_names.push_back({name, parent, segment});
+      phantom.joints.push_back({name, parent, segment, {0.0, 0.0, z0 - 0.5 * gap}, "plane"});
+    }
+  }
+  phantom.root_segment = "bar_bone_1";
+  POSEWARP_ASSIGN_OR_RETURN(phantom.label_map,
+                            labels::LabelMap::create("bar_phantom", std::move(entries), std::move(joint_names),
+                                                     phantom.root_segment));
+  phantom.ct = detail::synthesize_ct(phantom.labels, hu, kAirHu, p.noise_hu, p.seed);
+  return phantom;
+}
+
+double mannequin_spacing_for_voxels(const MannequinParams& params, int64_t target_voxels) {
+  const MannequinLayout layout{params.height_mm / 1700.0, 0.0};
+  MannequinParams probe = params;
+  probe.spacing_mm = 1.0;
+  const ImageGeometry g = grid_for(mannequin_body(layout), 1.0, params.direction, params.margin_mm);
+  const double volume_mm3 = static_cast<double>(g.voxel_count());
+  return std::cbrt(volume_mm3 / static_cast<double>(std::max<int64_t>(1, target_voxels)));
+}
+
+Result<Phantom> make_mannequin(const MannequinParams& p) {
+  namespace L = mannequin_labels;
+  POSEWARP_RETURN_IF_ERROR(validate(p));
+  const double f = p.height_mm / 1700.0;
+  const double gap = p.joint_gap_mm > 0.0 ? p.joint_gap_mm : 2.0 * p.spacing_mm;
+  const MannequinLayout m{f, gap};
+
+  Phantom phantom;
+  phantom.name = "mannequin";
+  phantom.joint_gap_mm = gap;
+  const std::vector<Shape> body = mannequin_body(m);
+  const ImageGeometry grid = grid_for(body, p.spacing_mm, p.direction, p.margin_mm);
+  POSEWARP_RETURN_IF_ERROR(check_size(grid));
+  LabelVolume& labels = phantom.labels;
+  labels = LabelVolume(grid, 0);
+  labels.set_source_type(PixelType::kUInt8);
+
+  // Later paints win: body with its fat shell, organs, bones, then soft joint spaces carved, then the balls.
+  detail::paint_body(labels, body, L::kSoft, L::kFat, p.fat_mm * f);
+  detail::paint(labels, detail::ellipsoid({-70 * f, -10 * f, 1120 * f}, {60 * f, 55 * f, 50 * f}), L::kLiver);
+
+  // Pelvis: a block whose lower face passes through both hip centres, with hemispherical sockets.
+  detail::paint(labels, detail::box({-125 * f, -30 * f, m.hip(1)[2]}, {125 * f, 55 * f, m.pelvis_top()}), L::kPelvis);
+  // Sacral block under the spine, so the lumbosacral contact is the whole lower face of L5.
+  detail::paint(labels, detail::box({-40 * f, 20 * f, m.hip(1)[2]}, {40 * f, 75 * f, m.pelvis_top()}), L::kPelvis);
+  // Lumbar vertebrae L5 (n = 0) up to L1 (n = 4), then the thoracic spine.
+  const Label lumbar[5] = {L::kL5, L::kL4, L::kL3, L::kL2, L::kL1};
+  for (int n = 0; n < 5; ++n) {
+    const double z0 = m.lumbar_bottom(n);
+    detail::paint(labels, detail::cylinder({0, m.spine_y(), z0}, {0, m.spine_y(), z0 + m.vertebra_height()}, 22 * f),
+                  lumbar[n]);
+  }
+  detail::paint(labels, detail::cylinder({0, m.spine_y(), m.thoracic_bottom()}, {0, m.spine_y(), m.thoracic_top()}, 22 * f),
+                L::kThoracicSpine);
+  // Rib shell joined to the thoracic spine by a posterior bar.
+  {
+    const double z0 = m.thoracic_bottom() + 10 * f;
+    const double z1 = 1400 * f;
+    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 140 * f, 95 * f, z0, z1), L::kRibs);
+    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 132 * f, 87 * f, z0 - 1, z1 + 1), L::kSoft);
+    detail::paint(labels, detail::box({-10 * f, m.spine_y(), z0}, {10 * f, 90 * f, z1}), L::kRibs);
+  }
+  // Shoulder girdle: a bar across the upper chest ending in glenoid domes over the shoulder centres.
+  detail::paint(labels, detail::capsule({-175 * f, 20 * f, 1395 * f}, {175 * f, 20 * f, 1395 * f}, 14 * f),
+                L::kShoulderGirdle);
+  for (int side : {+1, -1}) {
+    Shape dome = detail::sphere(m.shoulder(side), 22 * f + gap + 12 * f);
+    dome.clip_min[2] = m.shoulder(side)[2];
+    detail::paint(labels, dome, L::kShoulderGirdle);
+  }
+  // Cervical spine fused to the skull; brain inside.
+  detail::paint(labels, detail::sphere(m.head_centre(), 92 * f), L::kSkull);
+  detail::paint(labels, detail::sphere(m.head_centre(), 84 * f), L::kBrain);
+  detail::paint(labels,
+                detail::cylinder({0, m.spine_y(), m.thoracic_top() + gap}, {0, m.spine_y(), m.head_centre()[2] - 80 * f},
+                                 18 * f),
+                L::kCervicalSpine);
+
+  for (int side : {+1, -1}) {
+    const bool left = side > 0;
+    // Hip: socket carved into the pelvis, femoral head in it, shaft down to the knee gap; tibia below.
+    detail::paint(labels, detail::sphere(m.hip(side), 24 * f + gap), L::kSoft);
+    detail::paint(labels, detail::sphere(m.hip(side), 24 * f), left ? L::kFemurLeft : L::kFemurRight);
+    detail::paint(labels, detail::cylinder(m.hip(side), {m.knee(side)[0], 0, m.knee(side)[2] + gap / 2}, 16 * f),
+                  left ? L::kFemurLeft : L::kFemurRight);
+    detail::paint(labels, detail::cylinder({m.knee(side)[0], 0, m.knee(side)[2] - gap / 2}, {side * 90 * f, 0, 80 * f}, 15 * f),
+                  left ? L::kTibiaLeft : L::kTibiaRight);
+    // Shoulder: socket carved into the dome, humeral head, shaft to the elbow gap; forearm below.
+    detail::paint(labels, detail::sphere(m.shoulder(side), 22 * f + gap), L::kSoft);
+    detail::paint(labels, detail::sphere(m.shoulder(side), 22 * f), left ? L::kHumerusLeft : L::kHumerusRight);
+    detail::paint(labels,
+                  detail::cylinder(m.shoulder(side), {m.elbow(side)[0], 0, m.elbow(side)[2] + gap / 2}, 14 * f),
+                  left ? L::kHumerusLeft : L::kHumerusRight);
+    detail::paint(labels,
+                  detail::cylinder({m.elbow(side)[0], 0, m.elbow(side)[2] - gap / 2}, {side * 215 * f, 0, 860 * f}, 12 * f),
+                  left ? L::kForearmLeft : L::kForearmRight);
+  }
+
+  std::vector<LabelEntry> entries{
+      {0, "background", LabelRole::kBackground, ""},
+      {L::kSoft, "soft_tissue", LabelRole::kTissue, ""},
+      {L::kFat, "fat", LabelRole::kTissue, ""},
+      {L::kLiver, "liver", LabelRole::kTissue, ""},
+      {L::kBrain, "brain", LabelRole::kTissue, ""},
+      {L::kPelvis, "pelvis", LabelRole::kBone, "pelvis"},
+      {L::kL5, "vertebrae_L5", LabelRole::kBone, "vertebrae_L5"},
+      {L::kL4, "vertebrae_L4", LabelRole::kBone, "vertebrae_L4"},
+      {L::kL3, "vertebrae_L3", LabelRole::kBone, "vertebrae_L3"},
+      {L::kL2, "vertebrae_L2", LabelRole::kBone, "vertebrae_L2"},
+      {L::kL1, "vertebrae_L1", LabelRole::kBone, "vertebrae_L1"},
+      {L::kThoracicSpine, "thoracic_spine", LabelRole::kBone, "thorax"},
+      {L::kRibs, "ribs", LabelRole::kBone, "thorax"},
+      {L::kShoulderGirdle, "shoulder_girdle", LabelRole::kBone, "thorax"},
+      {L::kFemurLeft, "femur_left", LabelRole::kBone, "femur_left"},
+      {L::kFemurRight, "femur_right", LabelRole::kBone, "femur_right"},
+      {L::kTibiaLeft, "tibia_left", LabelRole::kBone, "tibia_left"},
+      {L::kTibiaRight, "tibia_right", LabelRole::kBone, "tibia_right"},
+      {L::kHumerusLeft, "humerus_left", LabelRole::kBone, "humerus_left"},
+      {L::kHumerusRight, "humerus_right", LabelRole::kBone, "humerus_right"},
+      {L::kForearmLeft, "forearm_left", LabelRole::kBone, "forearm_left"},
+      {L::kForearmRight, "forearm_right", LabelRole::kBone, "forearm_right"},
+      {L::kSkull, "skull", LabelRole::kBone, "skull"},
+      {L::kCervicalSpine, "cervical_spine", LabelRole::kBone, "skull"},
+  };
+
+  const double y = m.spine_y();
+  auto spine_joint = [&](const std::string& name, const std::string& parent, const std::string& child, double z) {
+    phantom.joints.push_back({name, parent, child, {0.0, y, z}, "plane"});
+  };
+  spine_joint("lumbosacral", "pelvis", "vertebrae_L5", m.pelvis_top() + gap / 2);
+  const char* lumbar_names[5] = {"vertebrae_L5", "vertebrae_L4", "vertebrae_L3", "vertebrae_L2", "vertebrae_L1"};
+  const char* lumbar_joints[4] = {"L4_L5", "L3_L4", "L2_L3", "L1_L2"};
+  for (int n = 1; n < 5; ++n) {
+    spine_joint(lumbar_joints[n - 1], lumbar_names[n - 1], lumbar_names[n], m.lumbar_bottom(n) - gap / 2);
+  }
+  spine_joint("thoracolumbar", "vertebrae_L1", "thorax", m.thoracic_bottom() - gap / 2);
+  spine_joint("neck", "thorax", "skull", m.thoracic_top() + gap / 2);
+  for (int side : {+1, -1}) {
+    const std::string s = side > 0 ? "left" : "right";
+    phantom.joints.push_back({"hip_" + s, "pelvis", "femur_" + s, m.hip(side), "ball"});
+    phantom.joints.push_back({"knee_" + s, "femur_" + s, "tibia_" + s, m.knee(side), "plane"});
+    phantom.joints.push_back({"shoulder_" + s, "thorax", "humerus_" + s, m.shoulder(side), "ball"});
+    phantom.joints.push_back({"elbow_" + s, "humerus_" + s, "forearm_" + s, m.elbow(side), "plane"});
+  }
+  std::vector<JointName> joint_names;
+  for (const JointTruth& joint : phantom.joints) {
+    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment});
+  }
+  phantom.root_segment = "pelvis";
+  POSEWARP_ASSIGN_OR_RETURN(phantom.label_map, labels::LabelMap::create("mannequin_phantom", std::move(entries),
+                                                                        std::move(joint_names), phantom.root_segment));
+
+  std::vector<std::pair<Label, float>> hu{{L::kSoft, kSoftHu}, {L::kFat, kFatHu}, {L::kLiver, kLiverHu},
+                                          {L::kBrain, kBrainHu}};
+  for (const LabelEntry& entry : phantom.label_map.entries()) {
+    if (entry.role == LabelRole::kBone) hu.emplace_back(entry.value, kBoneHu);
+  }
+  phantom.ct = detail::synthesize_ct(labels, hu, kAirHu, p.noise_hu, p.seed);
+  return phantom;
+}
+
+std::string joints_to_json(const Phantom& phantom) {
+  nlohmann::json doc;
+  doc["phantom"] = phantom.name;
+  doc["root_segment"] = phantom.root_segment;
+  doc["joint_gap_mm"] = phantom.joint_gap_mm;
+  doc["space"] = "LPS, mm";
+  nlohmann::json joints = nlohmann::json::array();
+  for (const JointTruth& joint : phantom.joints) {
+    joints.push_back({{"name", joint.name},
+                      {"parent", joint.parent_segment},
+                      {"child", joint.child_segment},
+                      {"centre_mm", {joint.centre_mm[0], joint.centre_mm[1], joint.centre_mm[2]}},
+                      {"kind", joint.kind}});
+  }
+  doc["joints"] = std::move(joints);
+  return doc.dump(2) + "\n";
+}
+
+}  // namespace posewarp::phantom

@@ -1,0 +1,282 @@
+// Rasterizing signed-distance primitives onto label grids.
+#include "raster.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+
+#include "posewarp/common/parallel.h"
+
+namespace posewarp::phantom::detail {
+namespace {
+
+double dot(const Vec3& u, const Vec3& v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
+Vec3 sub(const Vec3& u, const Vec3& v) { return {u[0] - v[0], u[1] - v[1], u[2] - v[2]}; }
+double norm(const Vec3& u) { return std::sqrt(dot(u, u)); }
+
+// Distance from p to segment [a, b], and the segment parameter of the closest point (unclamped).
+double segment_parameter(const Vec3& p, const Vec3& a, const Vec3& b) {
+  const Vec3 ab = sub(b, a);
+  const double length2 = dot(ab, ab);
+  return length2 > 0.0 ? dot(sub(p, a), ab) / length2 : 0.0;
+}
+
+// A SplitMix64 step: a well-mixed 64-bit hash for deterministic noise.
+uint64_t mix(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+// Index box [lo, hi] (inclusive) of the voxels whose centres may lie in the physical box, clamped to the grid.
+bool index_box(const ImageGeometry& g, const Vec3& lo, const Vec3& hi, Index3& first, Index3& last) {
+  Vec3 imin{kInf, kInf, kInf};
+  Vec3 imax{-kInf, -kInf, -kInf};
+  for (int corner = 0; corner < 8; ++corner) {
+    const Vec3 p{(corner & 1) ? hi[0] : lo[0], (corner & 2) ? hi[1] : lo[1], (corner & 4) ? hi[2] : lo[2]};
+    const Vec3 index = g.physical_to_index(p);
+    for (int a = 0; a < 3; ++a) {
+      imin[a] = std::min(imin[a], index[a]);
+      imax[a] = std::max(imax[a], index[a]);
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    first[a] = std::max<int64_t>(0, static_cast<int64_t>(std::floor(imin[a])));
+    last[a] = std::min<int64_t>(g.size[a] - 1, static_cast<int64_t>(std::ceil(imax[a])));
+    if (first[a] > last[a]) return false;
+  }
+  return true;
+}
+
+// Calls visit(offset, physical point) for every voxel of the index box, slices in parallel.
+template <typename Visit>
+void for_each_voxel(const ImageGeometry& g, const Index3& first, const Index3& last, const Visit& visit) {
+  parallel_for(first[2], last[2] + 1, 1, [&](int64_t k0, int64_t k1) {
+    for (int64_t k = k0; k < k1; ++k) {
+      for (int64_t j = first[1]; j <= last[1]; ++j) {
+        for (int64_t i = first[0]; i <= last[0]; ++i) {
+          const Vec3 p = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+          visit(g.offset(i, j, k), p);
+        }
+      }
+    }
+  });
+}
+
+}  // namespace
+
+double Shape::sdf(const Vec3& p) const {
+  double d = 0.0;
+  switch (kind) {
+    case Kind::kSphere: d = norm(sub(p, a)) - radius; break;
+    case Kind::kCapsule: {
+      const double t = std::clamp(segment_parameter(p, a, b), 0.0, 1.0);
+      const Vec3 closest{a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2])};
+      d = norm(sub(p, closest)) - radius;
+      break;
+    }
+    case Kind::kCylinder: {
+      const Vec3 axis = sub(b, a);
+      const double length = norm(axis);
+      const double along = dot(sub(p, a), axis) / length;  // mm from a along the axis
+      const Vec3 foot{a[0] + axis[0] * along / length, a[1] + axis[1] * along / length,
+                      a[2] + axis[2] * along / length};
+      const double radial = norm(sub(p, foot)) - radius;
+      const double axial = std::max(-along, along - length);
+      d = std::max(radial, axial);
+      if (radial > 0.0 && axial > 0.0) d = std::hypot(radial, axial);
+      break;
+    }
+    case Kind::kEllipticCylinderZ: {
+      const double u = (p[0] - a[0]) / radii[0];
+      const double v = (p[1] - a[1]) / radii[1];
+      const double radial = (std::sqrt(u * u + v * v) - 1.0) * std::min(radii[0], radii[1]);
+      const double axial = std::max(b[0] - p[2], p[2] - b[1]);
+      d = std::max(radial, axial);
+      if (radial > 0.0 && axial > 0.0) d = std::hypot(radial, axial);
+      break;
+    }
+    case Kind::kEllipsoid: {
+      const double u = (p[0] - a[0]) / radii[0];
+      const double v = (p[1] - a[1]) / radii[1];
+      const double w = (p[2] - a[2]) / radii[2];
+      d = (std::sqrt(u * u + v * v + w * w) - 1.0) * std::min({radii[0], radii[1], radii[2]});
+      break;
+    }
+    case Kind::kBox: {
+      Vec3 outside{};
+      double inside = -kInf;
+      for (int axis = 0; axis < 3; ++axis) {
+        const double q = std::max(a[axis] - p[axis], p[axis] - b[axis]);
+        outside[axis] = std::max(q, 0.0);
+        inside = std::max(inside, q);
+      }
+      d = norm(outside) + std::min(inside, 0.0);
+      break;
+    }
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    if (p[axis] < clip_min[axis] || p[axis] > clip_max[axis]) return std::max(d, 1e-9);
+  }
+  return d;
+}
+
+bool Shape::contains(const Vec3& p) const { return sdf(p) <= 0.0; }
+
+void Shape::bounds(Vec3& lo, Vec3& hi) const {
+  switch (kind) {
+    case Kind::kSphere:
+      for (int i = 0; i < 3; ++i) lo[i] = a[i] - radius, hi[i] = a[i] + radius;
+      break;
+    case Kind::kCapsule:
+    case Kind::kCylinder:
+      for (int i = 0; i < 3; ++i) lo[i] = std::min(a[i], b[i]) - radius, hi[i] = std::max(a[i], b[i]) + radius;
+      break;
+    case Kind::kEllipticCylinderZ:
+      lo = {a[0] - radii[0], a[1] - radii[1], b[0]};
+      hi = {a[0] + radii[0], a[1] + radii[1], b[1]};
+      break;
+    case Kind::kEllipsoid:
+      for (int i = 0; i < 3; ++i) lo[i] = a[i] - radii[i], hi[i] = a[i] + radii[i];
+      break;
+    case Kind::kBox:
+      lo = a;
+      hi = b;
+      break;
+  }
+  for (int i = 0; i < 3; ++i) {
+    lo[i] = std::max(lo[i], clip_min[i]);
+    hi[i] = std::min(hi[i], clip_max[i]);
+  }
+}
+
+Shape sphere(const Vec3& centre, double radius) {
+  Shape s;
+  s.kind = Shape::Kind::kSphere;
+  s.a = centre;
+  s.radius = radius;
+  return s;
+}
+
+Shape capsule(const Vec3& a, const Vec3& b, double radius) {
+  Shape s;
+  s.kind = Shape::Kind::kCapsule;
+  s.a = a;
+  s.b = b;
+  s.radius = radius;
+  return s;
+}
+
+Shape cylinder(const Vec3& a, const Vec3& b, double radius) {
+  Shape s = capsule(a, b, radius);
+  s.kind = Shape::Kind::kCylinder;
+  return s;
+}
+
+Shape elliptic_cylinder_z(double cx, double cy, double rx, double ry, double z_min, double z_max) {
+  Shape s;
+  s.kind = Shape::Kind::kEllipticCylinderZ;
+  s.a = {cx, cy, 0.0};
+  s.b = {z_min, z_max, 0.0};
+  s.radii = {rx, ry, 0.0};
+  return s;
+}
+
+Shape ellipsoid(const Vec3& centre, const Vec3& radii) {
+  Shape s;
+  s.kind = Shape::Kind::kEllipsoid;
+  s.a = centre;
+  s.radii = radii;
+  return s;
+}
+
+Shape box(const Vec3& lo, const Vec3& hi) {
+  Shape s;
+  s.kind = Shape::Kind::kBox;
+  s.a = lo;
+  s.b = hi;
+  return s;
+}
+
+ImageGeometry fit_grid(const Vec3& lo, const Vec3& hi, double spacing, const std::array<double, 9>& direction,
+                       double margin) {
+  ImageGeometry g;
+  g.spacing = {spacing, spacing, spacing};
+  g.direction = direction;
+  // Extent of the box along each grid axis (columns of the direction matrix).
+  Vec3 origin{0.0, 0.0, 0.0};
+  for (int axis = 0; axis < 3; ++axis) {
+    const Vec3 column{direction[axis], direction[3 + axis], direction[6 + axis]};
+    double min_proj = kInf;
+    double max_proj = -kInf;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3 p{(corner & 1) ? hi[0] : lo[0], (corner & 2) ? hi[1] : lo[1], (corner & 4) ? hi[2] : lo[2]};
+      const double proj = dot(p, column);
+      min_proj = std::min(min_proj, proj);
+      max_proj = std::max(max_proj, proj);
+    }
+    min_proj -= margin;
+    max_proj += margin;
+    g.size[axis] = static_cast<int64_t>(std::ceil((max_proj - min_proj) / spacing)) + 1;
+    for (int r = 0; r < 3; ++r) origin[r] += column[r] * min_proj;
+  }
+  g.origin = origin;
+  return g;
+}
+
+void paint(LabelVolume& labels, const Shape& shape, Label label) {
+  Vec3 lo{};
+  Vec3 hi{};
+  shape.bounds(lo, hi);
+  Index3 first{};
+  Index3 last{};
+  if (!index_box(labels.geometry(), lo, hi, first, last)) return;
+  Label* out = labels.data();
+  for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
+    if (shape.contains(p)) out[offset] = label;
+  });
+}
+
+void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner_label, Label shell_label,
+                double shell_mm) {
+  Vec3 lo{kInf, kInf, kInf};
+  Vec3 hi{-kInf, -kInf, -kInf};
+  for (const Shape& shape : body) {
+    Vec3 slo{};
+    Vec3 shi{};
+    shape.bounds(slo, shi);
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
+  }
+  Index3 first{};
+  Index3 last{};
+  if (!index_box(labels.geometry(), lo, hi, first, last)) return;
+  Label* out = labels.data();
+  for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
+    double d = kInf;
+    for (const Shape& shape : body) d = std::min(d, shape.sdf(p));
+    if (d <= 0.0) out[offset] = d > -shell_mm ? shell_label : inner_label;
+  });
+}
+
+IntensityVolume synthesize_ct(const LabelVolume& labels, const std::vector<std::pair<Label, float>>& hu_table,
+                              float background_hu, double noise_hu, uint64_t seed) {
+  IntensityVolume ct(labels.geometry(), background_hu);
+  ct.set_source_type(PixelType::kInt16);
+  std::unordered_map<Label, float> hu(hu_table.begin(), hu_table.end());
+  const Label* in = labels.data();
+  float* out = ct.data();
+  const uint64_t salt = mix(seed);
+  parallel_for(0, labels.voxel_count(), 1 << 16, [&](int64_t begin, int64_t end) {
+    for (int64_t v = begin; v < end; ++v) {
+      auto it = hu.find(in[v]);
+      const float base = it == hu.end() ? background_hu : it->second;
+      // Uniform noise in [-noise, noise], rounded to whole HU like a real scanner's integers.
+      const double unit = static_cast<double>(mix(salt ^ static_cast<uint64_t>(v)) >> 11) * 0x1.0p-53;
+      out[v] = static_cast<float>(std::round(base + noise_hu * (2.0 * unit - 1.0)));
+    }
+  });
+  return ct;
+}
+
+}  // namespace posewarp::phantom::detail

@@ -1,0 +1,201 @@
+#include "posewarp/io/volume_io.h"
+
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <filesystem>
+
+#include "test_support.h"
+
+namespace posewarp::io {
+namespace {
+
+using posewarp::testing::patterned_intensities;
+using posewarp::testing::patterned_labels;
+using posewarp::testing::read_bytes;
+using posewarp::testing::ScratchDir;
+using posewarp::testing::small_oblique_grid;
+using posewarp::testing::write_bytes;
+
+// NIfTI-1 header offsets (nifti1.h).
+constexpr size_t kDimOffset = 40;     // int16 dim[8]
+constexpr size_t kPixdimOffset = 76;  // float pixdim[8]
+
+std::string valid_nifti(const ScratchDir& dir, const std::string& name) {
+  LabelVolume labels = patterned_labels(small_oblique_grid(), {0, 1, 2});
+  labels.set_source_type(PixelType::kUInt8);
+  const std::string path = dir.file(name);
+  EXPECT_TRUE(write_volume(labels, path).ok());
+  return path;
+}
+
+template <typename T>
+void patch(std::string& bytes, size_t offset, T value) {
+  std::memcpy(bytes.data() + offset, &value, sizeof(T));
+}
+
+// Every failure must name the file, so a user with many inputs knows which one is wrong.
+void expect_error_naming(const Status& status, const std::string& path, StatusCode code) {
+  EXPECT_EQ(status.code(), code) << status.to_string();
+  EXPECT_NE(status.message().find(std::filesystem::path(path).filename().string()), std::string::npos)
+      << status.to_string();
+}
+
+TEST(BadInput, MissingFileIsNotFound) {
+  ScratchDir dir;
+  expect_error_naming(read_label_volume(dir.file("nope.nii.gz")).status(), "nope.nii.gz", StatusCode::kNotFound);
+  expect_error_naming(read_intensity_volume(dir.file("no_series")).status(), "no_series", StatusCode::kNotFound);
+}
+
+TEST(BadInput, EmptyFileIsRejected) {
+  ScratchDir dir;
+  write_bytes(dir.file("empty.nii"), "");
+  expect_error_naming(read_label_volume(dir.file("empty.nii")).status(), "empty.nii", StatusCode::kInvalidArgument);
+}
+
+TEST(BadInput, GarbageIsNotAnImage) {
+  ScratchDir dir;
+  const std::string garbage(4096, '\x5a');
+  for (const std::string name : {"garbage.nii", "garbage.nii.gz", "garbage.nrrd", "garbage.mha"}) {
+    write_bytes(dir.file(name), garbage);
+    const Status status = read_label_volume(dir.file(name)).status();
+    EXPECT_FALSE(status.ok()) << name;
+    EXPECT_NE(status.message().find(name), std::string::npos) << status.to_string();
+  }
+}
+
+TEST(BadInput, ZeroAndNegativeDimensionsAreRejectedBeforeReading) {
+  ScratchDir dir;
+  const std::string path = valid_nifti(dir, "dims.nii");
+  for (int16_t bad : {int16_t{0}, int16_t{-4}}) {
+    std::string bytes = read_bytes(path);
+    patch<int16_t>(bytes, kDimOffset + 2 * 2, bad);  // dim[2]
+    write_bytes(dir.file("bad_dims.nii"), bytes);
+    const Status status = read_label_volume(dir.file("bad_dims.nii")).status();
+    EXPECT_FALSE(status.ok()) << "dim = " << bad;
+    EXPECT_NE(status.message().find("bad_dims.nii"), std::string::npos) << status.to_string();
+  }
+}
+
+TEST(BadInput, AbsurdDimensionsNeverAllocate) {
+  ScratchDir dir;
+  std::string bytes = read_bytes(valid_nifti(dir, "huge.nii"));
+  for (int d = 1; d <= 3; ++d) patch<int16_t>(bytes, kDimOffset + 2 * static_cast<size_t>(d), int16_t{30000});
+  write_bytes(dir.file("huge.nii"), bytes);
+  // 2.7e13 voxels: refused from the header alone (this test would run out of memory otherwise).
+  const Status status = read_label_volume(dir.file("huge.nii")).status();
+  EXPECT_EQ(status.code(), StatusCode::kResourceExhausted) << status.to_string();
+  EXPECT_NE(status.message().find("huge.nii"), std::string::npos);
+  EXPECT_NE(status.message().find("--max-voxels"), std::string::npos);
+}
+
+TEST(BadInput, ZeroOrNegativeSpacingIsRejected) {
+  ScratchDir dir;
+  const std::string path = valid_nifti(dir, "spacing.nii");
+  for (float bad : {0.0f, -2.0f}) {
+    std::string bytes = read_bytes(path);
+    patch<float>(bytes, kPixdimOffset + 4 * 1, bad);  // pixdim[1]
+    patch<int16_t>(bytes, 252, int16_t{0});           // qform_code 0: spacing from pixdim alone
+    patch<int16_t>(bytes, 254, int16_t{0});           // sform_code 0
+    write_bytes(dir.file("bad_spacing.nii"), bytes);
+    const Status status = read_label_volume(dir.file("bad_spacing.nii")).status();
+    EXPECT_EQ(status.code(), StatusCode::kInvalidArgument) << "spacing " << bad << ": " << status.to_string();
+  }
+}
+
+TEST(BadInput, VoxelLimitIsConfigurable) {
+  ScratchDir dir;
+  const std::string path = valid_nifti(dir, "limit.nii");
+  ReadOptions tight;
+  tight.max_voxels = 100;
+  expect_error_naming(read_label_volume(path, tight).status(), path, StatusCode::kResourceExhausted);
+  ReadOptions roomy;
+  roomy.max_voxels = 1000;
+  EXPECT_TRUE(read_label_volume(path, roomy).ok());
+}
+
+TEST(BadInput, TruncatedUncompressedFileIsDataLoss) {
+  ScratchDir dir;
+  std::string bytes = read_bytes(valid_nifti(dir, "whole.nii"));
+  bytes.resize(bytes.size() - 60);
+  write_bytes(dir.file("cut.nii"), bytes);
+  expect_error_naming(read_label_volume(dir.file("cut.nii")).status(), "cut.nii", StatusCode::kDataLoss);
+}
+
+TEST(BadInput, TruncatedCompressedFilesAreErrors) {
+  ScratchDir dir;
+  ImageGeometry g = small_oblique_grid();
+  g.size = {64, 64, 64};
+  IntensityVolume ct = patterned_intensities(g, -1000.0f, 2000.0f, true);
+  ct.set_source_type(PixelType::kInt16);
+  for (const std::string name : {"ct.nii.gz", "ct.nrrd", "ct.mha"}) {
+    ASSERT_TRUE(write_volume(ct, dir.file(name)).ok());
+    std::string bytes = read_bytes(dir.file(name));
+    bytes.resize(bytes.size() / 2);
+    write_bytes(dir.file("cut_" + name), bytes);
+    const Status status = read_intensity_volume(dir.file("cut_" + name)).status();
+    EXPECT_FALSE(status.ok()) << name;
+    EXPECT_NE(status.message().find("cut_" + name), std::string::npos) << status.to_string();
+  }
+}
+
+TEST(BadInput, FloatLabelsWithFractionsAreNotLabels) {
+  ScratchDir dir;
+  IntensityVolume ct = patterned_intensities(small_oblique_grid(), -10.0f, 10.0f, false);
+  ASSERT_TRUE(write_volume(ct, dir.file("ct.nii.gz")).ok());
+  const Status status = read_label_volume(dir.file("ct.nii.gz")).status();
+  expect_error_naming(status, "ct.nii.gz", StatusCode::kInvalidArgument);
+  EXPECT_NE(status.message().find("not an integer label"), std::string::npos);
+}
+
+TEST(BadInput, FourDimensionalSeriesAndVectorImagesAreRefused) {
+  ScratchDir dir;
+  const std::string frames =
+      "ObjectType = Image\nNDims = 4\nDimSize = 2 2 2 3\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n";
+  write_bytes(dir.file("frames.mha"), frames + std::string(24, '\1'));
+  const Status four_d = read_label_volume(dir.file("frames.mha")).status();
+  expect_error_naming(four_d, "frames.mha", StatusCode::kInvalidArgument);
+  EXPECT_NE(four_d.message().find("3 frames"), std::string::npos) << four_d.to_string();
+
+  const std::string rgb =
+      "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementNumberOfChannels = 3\nElementType = MET_UCHAR\n"
+      "ElementDataFile = LOCAL\n";
+  write_bytes(dir.file("rgb.mha"), rgb + std::string(24, '\1'));
+  const Status vector = read_label_volume(dir.file("rgb.mha")).status();
+  expect_error_naming(vector, "rgb.mha", StatusCode::kInvalidArgument);
+  EXPECT_NE(vector.message().find("components"), std::string::npos) << vector.to_string();
+}
+
+TEST(BadInput, DicomDirectoryWithoutSeries) {
+  ScratchDir dir;
+  std::filesystem::create_directories(dir.file("empty_series"));
+  write_bytes(dir.file("empty_series/readme.txt"), "not dicom");
+  expect_error_naming(read_label_volume(dir.file("empty_series")).status(), "empty_series", StatusCode::kNotFound);
+}
+
+TEST(BadInput, DicomRefusesWhatItCannotStore) {
+  ScratchDir dir;
+  IntensityVolume ct = patterned_intensities(small_oblique_grid(), -10.0f, 10.0f, false);
+  EXPECT_EQ(write_volume(ct, dir.file("float_series")).code(), StatusCode::kInvalidArgument);
+
+  LabelVolume labels = patterned_labels(small_oblique_grid(), {0, 1});
+  labels.set_source_type(PixelType::kUInt8);
+  ImageGeometry mirrored = labels.geometry();
+  for (int r = 0; r < 3; ++r) mirrored.direction[3 * r + 2] *= -1.0;  // left-handed
+  labels.set_placement(mirrored);
+  EXPECT_EQ(write_volume(labels, dir.file("left_handed")).code(), StatusCode::kInvalidArgument);
+
+  LabelVolume fine = patterned_labels(small_oblique_grid(), {0, 1});
+  fine.set_source_type(PixelType::kUInt8);
+  ASSERT_TRUE(write_volume(fine, dir.file("series")).ok());
+  EXPECT_EQ(write_volume(fine, dir.file("series")).code(), StatusCode::kAlreadyExists);
+}
+
+TEST(BadInput, EmptyVolumeIsNotWritten) {
+  ScratchDir dir;
+  EXPECT_EQ(write_volume(LabelVolume(), dir.file("empty.nii.gz")).code(), StatusCode::kInvalidArgument);
+  EXPECT_FALSE(std::filesystem::exists(dir.file("empty.nii.gz")));
+}
+
+}  // namespace
+}  // namespace posewarp::io
