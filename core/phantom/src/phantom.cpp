@@ -201,8 +201,6 @@ Result<Phantom> make_bar(const BarParams& p) {
 
 double mannequin_spacing_for_voxels(const MannequinParams& params, int64_t target_voxels) {
   const MannequinLayout layout{params.height_mm / 1700.0, 0.0};
-  MannequinParams probe = params;
-  probe.spacing_mm = 1.0;
   const ImageGeometry g = grid_for(mannequin_body(layout), 1.0, params.direction, params.margin_mm);
   const double volume_mm3 = static_cast<double>(g.voxel_count());
   return std::cbrt(volume_mm3 / static_cast<double>(std::max<int64_t>(1, target_voxels)));
