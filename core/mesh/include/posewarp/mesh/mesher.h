@@ -1,0 +1,74 @@
+// Mesher: labelled image (0 outside, 1 soft tissue, 2 + k bone segment k) -> tetrahedra, behind an interface.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "posewarp/common/progress.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/tet_mesh.h"
+#include "posewarp/common/volume.h"
+
+namespace posewarp::mesh {
+
+// Knobs of the tetrahedralization (Sujar et al. 2018 section 3.2; CGAL Mesh_3 criteria). Lengths in mm.
+struct MeshParams {
+  double facet_size_mm = 6.0;          // largest boundary triangle (skin and bone surfaces), circumradius bound
+  double facet_distance_mm = 1.5;      // largest distance between a boundary triangle and the label boundary
+  double facet_angle_deg = 25.0;       // smallest angle of boundary triangles (<= 30 guarantees termination)
+  double bone_cell_size_mm = 6.0;      // largest tet circumradius inside and next to bone
+  double soft_cell_size_mm = 14.0;     // largest tet circumradius deep in soft tissue
+  double size_growth = 0.5;            // mm of extra cell size per mm of distance from the nearest bone
+  double cell_radius_edge_ratio = 3.0; // shape bound of tets
+  // Mesher grid voxels at most; a larger class volume is downsampled by an integer factor per axis with a
+  // bone-precedence majority vote (a block is bone when at least a quarter of it is bone) so thin bones survive.
+  int64_t voxel_budget = 24'000'000;
+  bool parallel = true;   // TBB-parallel refinement; false = sequential and reproducible for a given seed
+  uint32_t seed = 1;      // random seed of the sequential mode
+  bool exude = true;      // sliver exudation after refinement
+  double exude_time_limit_s = 10.0;
+};
+
+// INVALID_ARGUMENT naming the field and its valid range.
+Status validate(const MeshParams& params);
+
+// What the checks found about a mesh.
+struct MeshHealth {
+  Index3 downsample_factor{1, 1, 1};
+  std::vector<int64_t> tets_per_class;          // index = class (0 unused, 1 soft tissue, 2 + k bone k)
+  std::vector<double> voxel_volume_ml;          // per class, from the class volume
+  std::vector<double> mesh_volume_ml;           // per class, from the tets
+  double max_bone_volume_error = 0.0;           // max over bones of |mesh - voxels| / voxels
+  double body_volume_error = 0.0;               // |mesh - voxels| / voxels over the whole body
+  int body_components = 0;                      // connected pieces of the mesh (through shared vertices)
+  int64_t degenerate_tets = 0;                  // volume quality below 1e-4 (1 = regular tet)
+  double min_tet_quality = 1.0;
+  std::vector<std::string> lost_segments;       // bone segments without a single tet
+};
+
+class Mesher {
+ public:
+  virtual ~Mesher() = default;
+  virtual std::string name() const = 0;
+  // `classes` holds 0 / 1 / 2 + k; `segment_count` bone segments are expected. The mesh is in physical LPS mm.
+  virtual Result<TetMesh> mesh(const LabelVolume& classes, int segment_count, const MeshParams& params,
+                               const ProgressHooks& hooks, MeshHealth* health) = 0;
+};
+
+// The CGAL Mesh_3 backend (GPL-3.0-or-later).
+std::unique_ptr<Mesher> make_cgal_mesher();
+
+// Downsamples a class volume by `factor` per axis with the bone-precedence vote; the grid keeps its physical
+// extent (block centres become voxel centres).
+LabelVolume downsample_classes(const LabelVolume& classes, const Index3& factor);
+// The smallest isotropic-ish integer factor that brings the voxel count within `budget`.
+Index3 downsample_factor_for(const ImageGeometry& geometry, int64_t budget);
+
+// Checks a finished mesh against its class volume: fills `health` and fails (FAILED_PRECONDITION, naming the
+// segments) when a bone segment got no tets, rather than dropping a bone silently.
+Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const std::vector<std::string>& segment_names,
+                         MeshHealth* health);
+
+}  // namespace posewarp::mesh

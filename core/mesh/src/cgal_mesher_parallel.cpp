@@ -1,0 +1,14 @@
+// CGAL Mesh_3, TBB-parallel refinement (thread count from posewarp::set_thread_count).
+#include "cgal_mesher_impl.h"
+
+namespace posewarp::mesh::detail {
+
+Result<TetMesh> run_cgal_parallel(const MesherInput& input, const MeshParams& params, StageProgress& progress) {
+#ifdef CGAL_LINKED_WITH_TBB
+  return run_cgal_mesh_3<CGAL::Parallel_tag>(input, params, progress);
+#else
+  return run_cgal_mesh_3<CGAL::Sequential_tag>(input, params, progress);
+#endif
+}
+
+}  // namespace posewarp::mesh::detail

@@ -1,0 +1,145 @@
+#include "posewarp/mesh/mesher.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+
+#include "posewarp/labels/body.h"
+#include "posewarp/phantom/phantom.h"
+
+namespace posewarp::mesh {
+namespace {
+
+struct BarClasses {
+  LabelVolume classes;
+  std::vector<std::string> segments;
+};
+
+BarClasses bar_classes() {
+  phantom::BarParams params;
+  params.length_mm = 160.0;
+  params.bone_count = 3;
+  Result<phantom::Phantom> bar = phantom::make_bar(params);
+  EXPECT_TRUE(bar.ok());
+  Result<LabelVolume> body = labels::body_mask(bar->label_map, bar->labels, nullptr);
+  EXPECT_TRUE(body.ok());
+  return {labels::segment_classes(bar->label_map, bar->labels, *body), bar->label_map.bone_segments()};
+}
+
+MeshParams small_sizes() {
+  MeshParams params;
+  params.facet_size_mm = 4.0;
+  params.facet_distance_mm = 1.0;
+  params.bone_cell_size_mm = 4.0;
+  params.soft_cell_size_mm = 8.0;
+  return params;
+}
+
+TEST(CgalMesher, MeshesEveryBoneOfTheBarWithPositiveTets) {
+  const BarClasses bar = bar_classes();
+  MeshHealth health;
+  Result<TetMesh> mesh = make_cgal_mesher()->mesh(bar.classes, 3, small_sizes(), {}, &health);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().to_string();
+  EXPECT_GT(mesh->tet_count(), 1000);
+  ASSERT_TRUE(check_mesh_health(*mesh, bar.classes, bar.segments, &health).ok());
+  for (int k = 0; k < 3; ++k) EXPECT_GT(health.tets_per_class[static_cast<size_t>(kFirstBoneClass + k)], 10) << k;
+  EXPECT_EQ(health.body_components, 1);
+  EXPECT_EQ(health.degenerate_tets, 0);
+  EXPECT_LT(health.body_volume_error, 0.05);
+  EXPECT_LT(health.max_bone_volume_error, 0.25);
+  for (int64_t t = 0; t < mesh->tet_count(); ++t) {
+    const Eigen::Vector3d a = mesh->vertices.row(mesh->tets(t, 0));
+    const Eigen::Vector3d e1 = mesh->vertices.row(mesh->tets(t, 1)).transpose() - a;
+    const Eigen::Vector3d e2 = mesh->vertices.row(mesh->tets(t, 2)).transpose() - a;
+    const Eigen::Vector3d e3 = mesh->vertices.row(mesh->tets(t, 3)).transpose() - a;
+    const double det = e1.dot(e2.cross(e3));
+    ASSERT_GT(det, 0.0) << "tet " << t;
+  }
+}
+
+TEST(CgalMesher, SequentialModeReproducesTheMeshExactly) {
+  const BarClasses bar = bar_classes();
+  MeshParams params = small_sizes();
+  params.parallel = false;
+  params.seed = 7;
+  Result<TetMesh> first = make_cgal_mesher()->mesh(bar.classes, 3, params, {}, nullptr);
+  Result<TetMesh> second = make_cgal_mesher()->mesh(bar.classes, 3, params, {}, nullptr);
+  ASSERT_TRUE(first.ok() && second.ok());
+  ASSERT_EQ(first->vertex_count(), second->vertex_count());
+  ASSERT_EQ(first->tet_count(), second->tet_count());
+  EXPECT_EQ(first->vertices, second->vertices);
+  EXPECT_EQ(first->tets, second->tets);
+  EXPECT_EQ(first->tet_class, second->tet_class);
+}
+
+TEST(CgalMesher, MeshLivesInPhysicalSpaceOfAnObliqueGrid) {
+  phantom::BarParams params;
+  params.length_mm = 120.0;
+  params.bone_count = 2;
+  const double a = 0.4;
+  params.direction = {std::cos(a), 0, std::sin(a), 0, 1, 0, -std::sin(a), 0, std::cos(a)};
+  Result<phantom::Phantom> bar = phantom::make_bar(params);
+  ASSERT_TRUE(bar.ok());
+  Result<LabelVolume> body = labels::body_mask(bar->label_map, bar->labels, nullptr);
+  const LabelVolume classes = labels::segment_classes(bar->label_map, bar->labels, *body);
+  Result<TetMesh> mesh = make_cgal_mesher()->mesh(classes, 2, small_sizes(), {}, nullptr);
+  ASSERT_TRUE(mesh.ok());
+  // The bar's axis is physical z whatever the grid: every vertex lies within the cylinder's radius of it.
+  for (int64_t v = 0; v < mesh->vertex_count(); ++v) {
+    const double r = std::hypot(mesh->vertices(v, 0), mesh->vertices(v, 1));
+    ASSERT_LT(r, params.radius_mm + 2.5) << "vertex " << v;
+    ASSERT_GT(mesh->vertices(v, 2), -2.5);
+    ASSERT_LT(mesh->vertices(v, 2), params.length_mm + 2.5);
+  }
+}
+
+TEST(Downsample, BonesTakePrecedenceSoThinBonesSurvive) {
+  ImageGeometry g;
+  g.size = {4, 4, 4};
+  LabelVolume classes(g, 1);
+  classes.at(0, 0, 0) = 2;  // one bone voxel in a 2x2x2 block: under a quarter, soft tissue wins
+  for (int i = 2; i < 4; ++i) classes.at(i, 0, 0) = 3, classes.at(i, 1, 0) = 3;  // half a block of bone 3
+  LabelVolume down = downsample_classes(classes, {2, 2, 2});
+  EXPECT_EQ(down.size(), (Index3{2, 2, 2}));
+  EXPECT_EQ(down.at(0, 0, 0), 1);
+  EXPECT_EQ(down.at(1, 0, 0), 3);
+  EXPECT_DOUBLE_EQ(down.geometry().spacing[0], 2.0);
+  EXPECT_DOUBLE_EQ(down.geometry().origin[0], 0.5);
+  EXPECT_EQ(downsample_factor_for(g, 8), (Index3{2, 2, 2}));
+  EXPECT_EQ(downsample_factor_for(g, 64), (Index3{1, 1, 1}));
+}
+
+TEST(MeshHealthCheck, ALostBoneIsAnErrorNamingIt) {
+  ImageGeometry g;
+  g.size = {4, 4, 4};
+  LabelVolume classes(g, 1);
+  classes.at(1, 1, 1) = 3;  // segment 1 has voxels
+  TetMesh mesh;
+  mesh.segment_count = 2;
+  mesh.vertices.resize(4, 3);
+  mesh.vertices << 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1;
+  mesh.tets.resize(1, 4);
+  mesh.tets << 0, 1, 2, 3;
+  mesh.tet_class.resize(1);
+  mesh.tet_class << 2;
+  MeshHealth health;
+  const Status status = check_mesh_health(mesh, classes, {"femur", "tibia"}, &health);
+  EXPECT_EQ(status.code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(status.message().find("tibia"), std::string::npos);
+  EXPECT_EQ(health.lost_segments, (std::vector<std::string>{"tibia"}));
+}
+
+TEST(MeshParamsCheck, RejectsSizesThatCannotWork) {
+  MeshParams params;
+  params.facet_angle_deg = 40.0;
+  EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
+  params = MeshParams{};
+  params.bone_cell_size_mm = 0.0;
+  EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
+  params = MeshParams{};
+  params.cell_radius_edge_ratio = 1.0;
+  EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::mesh
