@@ -1,0 +1,84 @@
+// Rig spec JSON: a user's corrections to the automatic skeleton.
+#include <nlohmann/json.hpp>
+
+#include <fstream>
+#include <sstream>
+
+#include "posewarp/rig/skeleton.h"
+
+namespace posewarp::rig {
+
+Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& source) {
+  using json = nlohmann::json;
+  json doc;
+  try {
+    doc = json::parse(text);
+  } catch (const json::parse_error& error) {
+    return invalid_argument_error("rig spec " + source + " is not valid JSON: " + error.what());
+  }
+  RigSpec spec;
+  try {
+    if (!doc.is_object()) return invalid_argument_error("rig spec " + source + " must be a JSON object");
+    for (const auto& [key, value] : doc.items()) {
+      if (key != "segments" && key != "root" && key != "joints" && key != "remove_joints" &&
+          key != "contact_distance_mm" && key != "format" && key != "version") {
+        return invalid_argument_error("rig spec " + source + " has an unknown field \"" + key +
+                                      "\"; known: segments, root, contact_distance_mm, joints, remove_joints");
+      }
+    }
+    if (doc.contains("segments")) {
+      for (const auto& [name, labels] : doc["segments"].items()) {
+        if (!labels.is_array() || labels.empty()) {
+          return invalid_argument_error("rig spec " + source + ": segment \"" + name + "\" needs a list of labels");
+        }
+        spec.segments.emplace_back(name, labels.get<std::vector<Label>>());
+      }
+    }
+    spec.root = doc.value("root", std::string());
+    if (doc.contains("contact_distance_mm")) {
+      const double d = doc["contact_distance_mm"].get<double>();
+      if (!(d > 0.0)) return invalid_argument_error("rig spec " + source + ": contact_distance_mm must be positive");
+      spec.contact_distance_mm = d;
+    }
+    if (doc.contains("joints")) {
+      for (const json& item : doc["joints"]) {
+        JointSpec joint;
+        joint.child = item.value("child", std::string());
+        if (joint.child.empty()) {
+          return invalid_argument_error("rig spec " + source + ": every joint needs a \"child\" segment (" +
+                                        item.dump() + ")");
+        }
+        joint.parent = item.value("parent", std::string());
+        joint.name = item.value("name", std::string());
+        if (item.contains("centre_mm")) {
+          const auto c = item["centre_mm"].get<std::vector<double>>();
+          if (c.size() != 3) return invalid_argument_error("rig spec " + source + ": centre_mm needs 3 numbers");
+          joint.centre_mm = Eigen::Vector3d(c[0], c[1], c[2]);
+        }
+        spec.joints.push_back(joint);
+      }
+    }
+    if (doc.contains("remove_joints")) {
+      for (const json& pair : doc["remove_joints"]) {
+        const auto names = pair.get<std::vector<std::string>>();
+        if (names.size() != 2) {
+          return invalid_argument_error("rig spec " + source + ": remove_joints entries are [segment, segment]");
+        }
+        spec.remove_joints.emplace_back(names[0], names[1]);
+      }
+    }
+  } catch (const json::exception& error) {
+    return invalid_argument_error("rig spec " + source + " has a field of the wrong type: " + error.what());
+  }
+  return spec;
+}
+
+Result<RigSpec> read_rig_spec(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open rig spec '" + path + "'");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return rig_spec_from_json(text.str(), "'" + path + "'");
+}
+
+}  // namespace posewarp::rig

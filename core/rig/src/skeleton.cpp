@@ -1,0 +1,513 @@
+// Automatic skeleton: segments from the label map, contact graph weighted by contact area, maximum spanning tree
+// from a root, joint centres (contact centroid or sphere fit) and frames, names from the presets.
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <numeric>
+#include <queue>
+#include <set>
+#include <limits>
+#include <unordered_map>
+
+#include "posewarp/rig/skeleton.h"
+
+#include "posewarp/common/tet_mesh.h"
+
+namespace posewarp::rig {
+namespace {
+
+// Contact of segment a with segment b: the voxels of a that lie within the contact distance of b.
+struct Contact {
+  int64_t count = 0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> points;
+};
+
+struct SphereFit {
+  bool accepted = false;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  double radius = 0.0;
+  double rms = 0.0;
+};
+
+// Algebraic least-squares sphere |p - c|^2 = r^2, accepted when the points are a good cap of it.
+SphereFit fit_sphere(const std::vector<Eigen::Vector3d>& points, const SkeletonParams& params) {
+  SphereFit fit;
+  if (static_cast<int>(points.size()) < params.sphere_min_points) return fit;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::MatrixXd a(static_cast<Eigen::Index>(points.size()), 4);
+  Eigen::VectorXd b(static_cast<Eigen::Index>(points.size()));
+  double extent = 0.0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d q = points[i] - mean;
+    a.row(static_cast<Eigen::Index>(i)) << 2.0 * q.x(), 2.0 * q.y(), 2.0 * q.z(), 1.0;
+    b(static_cast<Eigen::Index>(i)) = q.squaredNorm();
+    extent = std::max(extent, q.norm());
+  }
+  const Eigen::Vector4d x = a.colPivHouseholderQr().solve(b);
+  const Eigen::Vector3d c = x.head<3>();
+  const double r2 = x(3) + c.squaredNorm();
+  if (!(r2 > 0.0)) return fit;
+  fit.radius = std::sqrt(r2);
+  fit.centre = c + mean;
+  double sum = 0.0;
+  for (const auto& p : points) {
+    const double e = (p - fit.centre).norm() - fit.radius;
+    sum += e * e;
+  }
+  fit.rms = std::sqrt(sum / static_cast<double>(points.size()));
+  fit.accepted = fit.radius < 1.5 * extent && fit.rms < params.sphere_max_relative_rms * fit.radius;
+  return fit;
+}
+
+struct DisjointSets {
+  std::vector<int> parent;
+  explicit DisjointSets(int n) : parent(static_cast<size_t>(n)) { std::iota(parent.begin(), parent.end(), 0); }
+  int find(int v) {
+    while (parent[static_cast<size_t>(v)] != v) v = parent[static_cast<size_t>(v)] = parent[static_cast<size_t>(parent[static_cast<size_t>(v)])];
+    return v;
+  }
+  bool unite(int a, int b) {
+    a = find(a);
+    b = find(b);
+    if (a == b) return false;
+    parent[static_cast<size_t>(b)] = a;
+    return true;
+  }
+};
+
+Eigen::Vector3d physical(const ImageGeometry& g, int64_t i, int64_t j, int64_t k) {
+  const Vec3 p = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+  return {p[0], p[1], p[2]};
+}
+
+// Rest frame of a joint: z along the child's principal axis (pointing into the child), x along the contact
+// normal when it is not parallel to z, else along the patient's left (LPS x) or, failing that, posterior.
+Eigen::Matrix3d joint_frame(const Eigen::Vector3d& centre, const Segment& child, const Eigen::Vector3d& normal) {
+  Eigen::Vector3d z = child.principal_axis.normalized();
+  if (z.dot(child.centroid_mm - centre) < 0.0) z = -z;
+  Eigen::Vector3d x = normal;
+  if (x.norm() < 1e-9 || std::abs(x.normalized().dot(z)) > std::cos(30.0 * M_PI / 180.0)) {
+    x = Eigen::Vector3d::UnitX();
+    if (std::abs(x.dot(z)) > 0.9) x = Eigen::Vector3d::UnitY();
+  }
+  x = (x - x.dot(z) * z).normalized();
+  const Eigen::Vector3d y = z.cross(x);
+  Eigen::Matrix3d frame;
+  frame.col(0) = x;
+  frame.col(1) = y;
+  frame.col(2) = z;
+  return frame;
+}
+
+}  // namespace
+
+int Skeleton::segment_index(const std::string& name) const {
+  for (size_t k = 0; k < segments.size(); ++k) {
+    if (segments[k].name == name) return static_cast<int>(k);
+  }
+  return -1;
+}
+
+int Skeleton::joint_index(const std::string& name) const {
+  for (size_t j = 0; j < joints.size(); ++j) {
+    if (joints[j].name == name) return static_cast<int>(j);
+  }
+  return -1;
+}
+
+Status validate(const SkeletonParams& params) {
+  if (params.contact_distance_mm < 0.0 || !std::isfinite(params.contact_distance_mm)) {
+    return invalid_argument_error("contact_distance_mm must be 0 (automatic) or positive");
+  }
+  if (!(params.sphere_max_relative_rms > 0.0)) return invalid_argument_error("sphere_max_relative_rms must be positive");
+  if (params.sphere_min_points < 4) return invalid_argument_error("sphere_min_points must be at least 4");
+  return ok_status();
+}
+
+Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMap& map, const RigSpec& spec,
+                                const SkeletonParams& params, const ProgressHooks& hooks) {
+  POSEWARP_RETURN_IF_ERROR(validate(params));
+  if (labels.empty()) return invalid_argument_error("the label volume is empty");
+  StageProgress progress(hooks, "skeleton");
+  const ImageGeometry& g = labels.geometry();
+
+  // 1. Segments: the map's bone segments, regrouped by the spec, keeping those present in the volume.
+  std::vector<std::pair<std::string, std::vector<Label>>> candidates;
+  std::set<Label> regrouped;
+  for (const auto& [name, values] : spec.segments) regrouped.insert(values.begin(), values.end());
+  for (const std::string& name : map.bone_segments()) {
+    std::vector<Label> values;
+    for (const Label v : map.labels_of_segment(name)) {
+      if (!regrouped.count(v)) values.push_back(v);
+    }
+    if (!values.empty()) candidates.emplace_back(name, values);
+  }
+  for (const auto& entry : spec.segments) {
+    auto same = std::find_if(candidates.begin(), candidates.end(), [&](const auto& c) { return c.first == entry.first; });
+    if (same != candidates.end()) {
+      same->second.insert(same->second.end(), entry.second.begin(), entry.second.end());
+    } else {
+      candidates.push_back(entry);
+    }
+  }
+  std::unordered_map<Label, int> candidate_of;
+  for (size_t c = 0; c < candidates.size(); ++c) {
+    for (const Label v : candidates[c].second) candidate_of[v] = static_cast<int>(c);
+  }
+  std::vector<int64_t> candidate_voxels(candidates.size(), 0);
+  std::map<Label, int64_t> label_voxels;
+  for (const Label v : labels.voxels()) {
+    auto it = candidate_of.find(v);
+    if (it != candidate_of.end()) {
+      ++candidate_voxels[static_cast<size_t>(it->second)];
+      ++label_voxels[v];
+    }
+  }
+  for (const auto& [name, values] : spec.segments) {
+    for (const Label v : values) {
+      if (!label_voxels.count(v)) {
+        return invalid_argument_error("the rig spec puts label " + std::to_string(v) + " into segment '" + name +
+                                      "', but the label volume holds no voxel of it; remove it from the spec");
+      }
+    }
+  }
+  Skeleton skeleton;
+  std::vector<int> segment_of_candidate(candidates.size(), -1);
+  for (size_t c = 0; c < candidates.size(); ++c) {
+    if (candidate_voxels[c] == 0) {
+      skeleton.missing_segments.push_back(candidates[c].first);
+      continue;
+    }
+    segment_of_candidate[c] = static_cast<int>(skeleton.segments.size());
+    Segment segment;
+    segment.name = candidates[c].first;
+    for (const Label v : candidates[c].second) {
+      if (label_voxels.count(v)) segment.labels.push_back(v);
+    }
+    skeleton.segments.push_back(segment);
+  }
+  const int n = static_cast<int>(skeleton.segments.size());
+  if (n == 0) {
+    int bone_labels = 0;
+    for (const auto& entry : map.entries()) bone_labels += entry.role == labels::LabelRole::kBone;
+    return failed_precondition_error(
+        "no bone labels found: the label map '" + map.name() + "' names " + std::to_string(bone_labels) +
+        " bone labels and the volume holds none of them. Check that the segmentation labels bones and that the "
+        "label map (--preset or --label-map) matches it");
+  }
+  if (n == 1) {
+    return failed_precondition_error("only one bone segment ('" + skeleton.segments[0].name +
+                                     "') is present; a rig needs at least two segments joined by a joint. Label "
+                                     "more bones, or split the bone into segments with a rig spec");
+  }
+
+  // 2. Segment index per voxel, statistics and surface voxels.
+  std::vector<int16_t> segment_at(static_cast<size_t>(labels.voxel_count()), -1);
+  for (int64_t v = 0; v < labels.voxel_count(); ++v) {
+    auto it = candidate_of.find(labels.data()[v]);
+    if (it != candidate_of.end()) segment_at[static_cast<size_t>(v)] = static_cast<int16_t>(segment_of_candidate[static_cast<size_t>(it->second)]);
+  }
+  std::vector<Eigen::Matrix3d> second_moment(static_cast<size_t>(n), Eigen::Matrix3d::Zero());
+  std::vector<std::vector<Index3>> surface(static_cast<size_t>(n));
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (int64_t j = 0; j < g.size[1]; ++j) {
+      for (int64_t i = 0; i < g.size[0]; ++i) {
+        const int s = segment_at[static_cast<size_t>(g.offset(i, j, k))];
+        if (s < 0) continue;
+        Segment& segment = skeleton.segments[static_cast<size_t>(s)];
+        const Eigen::Vector3d p = physical(g, i, j, k);
+        ++segment.voxels;
+        segment.centroid_mm += p;
+        second_moment[static_cast<size_t>(s)] += p * p.transpose();
+        bool on_surface = false;
+        const int64_t neighbours[6][3] = {{i - 1, j, k}, {i + 1, j, k}, {i, j - 1, k},
+                                          {i, j + 1, k}, {i, j, k - 1}, {i, j, k + 1}};
+        for (const auto& q : neighbours) {
+          if (!labels.contains(q[0], q[1], q[2]) || segment_at[static_cast<size_t>(g.offset(q[0], q[1], q[2]))] != s) {
+            on_surface = true;
+            break;
+          }
+        }
+        if (on_surface) surface[static_cast<size_t>(s)].push_back({i, j, k});
+      }
+    }
+  }
+  for (int s = 0; s < n; ++s) {
+    Segment& segment = skeleton.segments[static_cast<size_t>(s)];
+    const double count = static_cast<double>(segment.voxels);
+    segment.centroid_mm /= count;
+    const Eigen::Matrix3d covariance =
+        second_moment[static_cast<size_t>(s)] / count - segment.centroid_mm * segment.centroid_mm.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(covariance);
+    segment.principal_axis = eigen.eigenvectors().col(2).normalized();
+  }
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  progress.update(0.2);
+
+  // 3. Contacts: surface voxels of a within the contact distance of a voxel of b.
+  const double max_spacing = std::max({g.spacing[0], g.spacing[1], g.spacing[2]});
+  const double contact_mm = spec.contact_distance_mm.value_or(
+      params.contact_distance_mm > 0.0 ? params.contact_distance_mm : 3.5 * max_spacing);
+  const int64_t reach[3] = {static_cast<int64_t>(std::floor(contact_mm / g.spacing[0])),
+                            static_cast<int64_t>(std::floor(contact_mm / g.spacing[1])),
+                            static_cast<int64_t>(std::floor(contact_mm / g.spacing[2]))};
+  std::map<std::pair<int, int>, Contact> contacts;
+  std::vector<int> near;
+  for (int s = 0; s < n; ++s) {
+    for (const Index3& v : surface[static_cast<size_t>(s)]) {
+      near.clear();
+      for (int64_t dk = -reach[2]; dk <= reach[2]; ++dk) {
+        for (int64_t dj = -reach[1]; dj <= reach[1]; ++dj) {
+          for (int64_t di = -reach[0]; di <= reach[0]; ++di) {
+            const double d2 = std::pow(di * g.spacing[0], 2) + std::pow(dj * g.spacing[1], 2) + std::pow(dk * g.spacing[2], 2);
+            if (d2 > contact_mm * contact_mm) continue;
+            const int64_t x = v[0] + di, y = v[1] + dj, z = v[2] + dk;
+            if (!labels.contains(x, y, z)) continue;
+            const int other = segment_at[static_cast<size_t>(g.offset(x, y, z))];
+            if (other >= 0 && other != s && std::find(near.begin(), near.end(), other) == near.end()) {
+              near.push_back(other);
+            }
+          }
+        }
+      }
+      const Eigen::Vector3d p = physical(g, v[0], v[1], v[2]);
+      for (const int other : near) {
+        Contact& contact = contacts[{s, other}];
+        ++contact.count;
+        contact.sum += p;
+        contact.points.push_back(p);
+      }
+    }
+    progress.update(0.2 + 0.6 * (s + 1) / n);
+    POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  }
+
+  // 4. Root: the spec's, else the map's, else the most central large segment.
+  int root = -1;
+  const std::string wanted_root = !spec.root.empty() ? spec.root : map.root_segment();
+  if (!wanted_root.empty()) root = skeleton.segment_index(wanted_root);
+  if (!spec.root.empty() && root < 0) {
+    return invalid_argument_error("the rig spec's root '" + spec.root + "' is not a bone segment present in the volume");
+  }
+  if (root < 0) {
+    Eigen::Vector3d body_centre = Eigen::Vector3d::Zero();
+    double total = 0.0;
+    for (const Segment& segment : skeleton.segments) {
+      body_centre += segment.centroid_mm * static_cast<double>(segment.voxels);
+      total += static_cast<double>(segment.voxels);
+    }
+    body_centre /= total;
+    double extent = 1.0;
+    for (const Segment& segment : skeleton.segments) extent = std::max(extent, (segment.centroid_mm - body_centre).norm());
+    double best = -1.0;
+    for (int s = 0; s < n; ++s) {
+      const Segment& segment = skeleton.segments[static_cast<size_t>(s)];
+      const double score = static_cast<double>(segment.voxels) * std::exp(-4.0 * (segment.centroid_mm - body_centre).norm() / extent);
+      if (score > best) best = score, root = s;
+    }
+    skeleton.notes.push_back("root chosen as the most central large segment: " + skeleton.segments[static_cast<size_t>(root)].name);
+  }
+  skeleton.root = root;
+
+  // 5. Maximum spanning tree over contact area; the spec's joints are forced in, its removals kept out.
+  auto segment_named = [&](const std::string& name, const char* what) -> Result<int> {
+    const int s = skeleton.segment_index(name);
+    if (s < 0) {
+      return invalid_argument_error(std::string("the rig spec's ") + what + " '" + name +
+                                    "' is not a bone segment present in the volume");
+    }
+    return s;
+  };
+  std::set<std::pair<int, int>> removed;
+  for (const auto& [a, b] : spec.remove_joints) {
+    POSEWARP_ASSIGN_OR_RETURN(const int sa, segment_named(a, "removed joint segment"));
+    POSEWARP_ASSIGN_OR_RETURN(const int sb, segment_named(b, "removed joint segment"));
+    removed.insert({std::min(sa, sb), std::max(sa, sb)});
+  }
+  const double face_area = (g.spacing[0] * g.spacing[1] + g.spacing[1] * g.spacing[2] + g.spacing[0] * g.spacing[2]) / 3.0;
+  struct Edge {
+    int a, b;
+    double area;
+    bool forced;
+  };
+  std::vector<Edge> edges;
+  for (const auto& [pair, contact] : contacts) {
+    if (pair.first > pair.second) continue;
+    if (removed.count(pair)) continue;
+    const auto other = contacts.find({pair.second, pair.first});
+    const double count = 0.5 * (static_cast<double>(contact.count) + (other == contacts.end() ? 0.0 : static_cast<double>(other->second.count)));
+    edges.push_back({pair.first, pair.second, count * face_area, false});
+  }
+  std::map<int, int> forced_parent;  // child -> parent
+  for (const JointSpec& joint : spec.joints) {
+    POSEWARP_ASSIGN_OR_RETURN(const int child, segment_named(joint.child, "joint child"));
+    if (joint.parent.empty()) continue;
+    POSEWARP_ASSIGN_OR_RETURN(const int parent, segment_named(joint.parent, "joint parent"));
+    if (parent == child) return invalid_argument_error("the rig spec joins segment '" + joint.child + "' to itself");
+    forced_parent[child] = parent;
+    edges.push_back({parent, child, 0.0, true});
+  }
+  std::stable_sort(edges.begin(), edges.end(), [](const Edge& x, const Edge& y) {
+    if (x.forced != y.forced) return x.forced;
+    return x.area > y.area;
+  });
+  DisjointSets sets(n);
+  std::vector<std::vector<std::pair<int, double>>> adjacency(static_cast<size_t>(n));
+  for (const Edge& e : edges) {
+    if (!sets.unite(e.a, e.b)) {
+      if (e.forced) {
+        return invalid_argument_error("the rig spec's joints between '" + skeleton.segments[static_cast<size_t>(e.a)].name +
+                                      "' and '" + skeleton.segments[static_cast<size_t>(e.b)].name +
+                                      "' close a loop; a skeleton is a tree");
+      }
+      continue;
+    }
+    adjacency[static_cast<size_t>(e.a)].emplace_back(e.b, e.area);
+    adjacency[static_cast<size_t>(e.b)].emplace_back(e.a, e.area);
+  }
+  // Segments that touch nothing are attached to the nearest connected segment (by centroids), and reported.
+  for (;;) {
+    std::vector<int> attached;
+    std::vector<int> detached;
+    for (int s = 0; s < n; ++s) (sets.find(s) == sets.find(root) ? attached : detached).push_back(s);
+    if (detached.empty()) break;
+    double best = std::numeric_limits<double>::infinity();
+    int best_a = -1, best_d = -1;
+    for (const int d : detached) {
+      for (const int a : attached) {
+        const double dist = (skeleton.segments[static_cast<size_t>(d)].centroid_mm - skeleton.segments[static_cast<size_t>(a)].centroid_mm).norm();
+        if (dist < best) best = dist, best_a = a, best_d = d;
+      }
+    }
+    sets.unite(best_a, best_d);
+    adjacency[static_cast<size_t>(best_a)].emplace_back(best_d, 0.0);
+    adjacency[static_cast<size_t>(best_d)].emplace_back(best_a, 0.0);
+    skeleton.notes.push_back("segment '" + skeleton.segments[static_cast<size_t>(best_d)].name +
+                             "' touches no other bone; attached to the nearest, '" +
+                             skeleton.segments[static_cast<size_t>(best_a)].name + "' (check it, or add a joint in a rig spec)");
+  }
+
+  // 6. Orient from the root (breadth first, so parents come before children) and place the joints.
+  std::vector<int> parent_of(static_cast<size_t>(n), -2);
+  parent_of[static_cast<size_t>(root)] = -1;
+  std::queue<int> queue;
+  queue.push(root);
+  while (!queue.empty()) {
+    const int s = queue.front();
+    queue.pop();
+    std::vector<std::pair<int, double>> next = adjacency[static_cast<size_t>(s)];
+    std::sort(next.begin(), next.end());
+    for (const auto& [c, area] : next) {
+      if (parent_of[static_cast<size_t>(c)] != -2) continue;
+      parent_of[static_cast<size_t>(c)] = s;
+      queue.push(c);
+
+      Joint joint;
+      joint.parent = s;
+      joint.child = c;
+      joint.contact_area_mm2 = area;
+      const auto to_child = contacts.find({s, c});    // parent's voxels near the child
+      const auto to_parent = contacts.find({c, s});   // child's voxels near the parent
+      Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+      if (to_child != contacts.end() || to_parent != contacts.end()) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        double count = 0.0;
+        for (const auto& it : {to_child, to_parent}) {
+          if (it == contacts.end()) continue;
+          sum += it->second.sum;
+          count += static_cast<double>(it->second.count);
+        }
+        joint.centre_mm = sum / count;
+        joint.method = "contact-centroid";
+        if (to_child != contacts.end() && to_parent != contacts.end()) {
+          normal = to_parent->second.sum / static_cast<double>(to_parent->second.count) -
+                   to_child->second.sum / static_cast<double>(to_child->second.count);
+        }
+        if (to_parent != contacts.end() && to_child != contacts.end()) {
+          // A ball in a socket: the child's contact surface is a sphere cap and the parent's is a concentric cup.
+          // A flat bone end also fits a sphere, but the opposite end's sphere then lies on the other side.
+          const SphereFit fit = fit_sphere(to_parent->second.points, params);
+          SkeletonParams loose = params;
+          loose.sphere_max_relative_rms *= 2.0;
+          const SphereFit cup = fit_sphere(to_child->second.points, loose);
+          if (fit.accepted && cup.accepted && (cup.centre - fit.centre).norm() < 0.3 * fit.radius) {
+            joint.centre_mm = fit.centre;
+            joint.method = "sphere-fit";
+            joint.sphere_radius_mm = fit.radius;
+            joint.sphere_rms_mm = fit.rms;
+          }
+        }
+      } else {
+        // Proximity attachment: the child's surface voxel nearest to the parent's centroid.
+        const Segment& parent_segment = skeleton.segments[static_cast<size_t>(s)];
+        double best = std::numeric_limits<double>::infinity();
+        for (const Index3& v : surface[static_cast<size_t>(c)]) {
+          const Eigen::Vector3d p = physical(g, v[0], v[1], v[2]);
+          const double d = (p - parent_segment.centroid_mm).norm();
+          if (d < best) best = d, joint.centre_mm = p;
+        }
+        joint.method = "proximity";
+      }
+      const std::string& pn = skeleton.segments[static_cast<size_t>(s)].name;
+      const std::string& cn = skeleton.segments[static_cast<size_t>(c)].name;
+      joint.name = map.joint_name(pn, cn).value_or(pn + "__" + cn);
+      for (const JointSpec& js : spec.joints) {
+        if (js.child != cn) continue;
+        if (!js.name.empty()) joint.name = js.name;
+        if (js.centre_mm) {
+          joint.centre_mm = *js.centre_mm;
+          joint.method = "rig-spec";
+        }
+      }
+      joint.frame = joint_frame(joint.centre_mm, skeleton.segments[static_cast<size_t>(c)], normal);
+      skeleton.segments[static_cast<size_t>(c)].parent_joint = static_cast<int>(skeleton.joints.size());
+      skeleton.joints.push_back(joint);
+    }
+  }
+  for (const auto& [child, parent] : forced_parent) {
+    if (parent_of[static_cast<size_t>(child)] != parent) {
+      skeleton.notes.push_back("the rig spec asked for '" + skeleton.segments[static_cast<size_t>(parent)].name +
+                               "' as parent of '" + skeleton.segments[static_cast<size_t>(child)].name +
+                               "', but the root's position made it the child; the joint is kept with roles swapped");
+    }
+  }
+  for (const JointSpec& js : spec.joints) {
+    if (js.child == skeleton.segments[static_cast<size_t>(root)].name && (js.centre_mm || !js.name.empty())) {
+      skeleton.notes.push_back("the rig spec names a joint for the root segment '" + js.child + "', which has none");
+    }
+  }
+  std::set<std::string> names;
+  for (Joint& joint : skeleton.joints) {
+    if (!names.insert(joint.name).second) {
+      joint.name += "__" + skeleton.segments[static_cast<size_t>(joint.child)].name;
+      names.insert(joint.name);
+    }
+  }
+  progress.finish();
+  return skeleton;
+}
+
+LabelVolume skeleton_classes(const Skeleton& skeleton, const LabelVolume& labels, const LabelVolume& body) {
+  std::unordered_map<Label, Label> class_of;
+  for (size_t k = 0; k < skeleton.segments.size(); ++k) {
+    for (const Label v : skeleton.segments[k].labels) class_of[v] = static_cast<Label>(kFirstBoneClass + k);
+  }
+  LabelVolume classes(labels.geometry(), 0);
+  classes.set_source_type(PixelType::kUInt8);
+  for (int64_t v = 0; v < labels.voxel_count(); ++v) {
+    auto it = class_of.find(labels.data()[v]);
+    if (it != class_of.end()) {
+      classes.data()[v] = it->second;
+    } else if (body.data()[v] != 0) {
+      classes.data()[v] = kSoftTissueClass;
+    }
+  }
+  return classes;
+}
+
+}  // namespace posewarp::rig

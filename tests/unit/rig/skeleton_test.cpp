@@ -1,0 +1,168 @@
+#include "posewarp/rig/skeleton.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+
+#include "posewarp/io/volume_io.h"
+#include "posewarp/labels/presets.h"
+#include "posewarp/phantom/phantom.h"
+
+namespace posewarp::rig {
+namespace {
+
+const Joint* joint_between(const Skeleton& s, const std::string& a, const std::string& b) {
+  for (const Joint& joint : s.joints) {
+    const std::string& p = s.segments[static_cast<size_t>(joint.parent)].name;
+    const std::string& c = s.segments[static_cast<size_t>(joint.child)].name;
+    if ((p == a && c == b) || (p == b && c == a)) return &joint;
+  }
+  return nullptr;
+}
+
+void expect_every_true_joint_found(const phantom::Phantom& p, double spacing) {
+  Result<Skeleton> skeleton = build_skeleton(p.labels, p.label_map, {}, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  EXPECT_EQ(skeleton->joints.size(), p.joints.size());
+  EXPECT_EQ(skeleton->segments[static_cast<size_t>(skeleton->root)].name, p.root_segment);
+  for (const phantom::JointTruth& truth : p.joints) {
+    SCOPED_TRACE(truth.name);
+    const Joint* joint = joint_between(*skeleton, truth.parent_segment, truth.child_segment);
+    ASSERT_NE(joint, nullptr);
+    EXPECT_EQ(joint->name, truth.name);
+    EXPECT_EQ(skeleton->segments[static_cast<size_t>(joint->parent)].name, truth.parent_segment);
+    const double error = (joint->centre_mm - Eigen::Vector3d(truth.centre_mm[0], truth.centre_mm[1], truth.centre_mm[2])).norm();
+    EXPECT_LT(error, spacing) << "found by " << joint->method;
+    if (truth.kind == "ball") {
+      EXPECT_EQ(joint->method, "sphere-fit");
+    }
+    // Frames are rotations.
+    EXPECT_NEAR((joint->frame.transpose() * joint->frame - Eigen::Matrix3d::Identity()).norm(), 0.0, 1e-9);
+    EXPECT_NEAR(joint->frame.determinant(), 1.0, 1e-9);
+  }
+}
+
+TEST(Skeleton, FindsEveryJointOfTheBarWithinOneVoxel) {
+  Result<phantom::Phantom> bar = phantom::make_bar({});
+  ASSERT_TRUE(bar.ok());
+  expect_every_true_joint_found(*bar, 2.0);
+}
+
+TEST(Skeleton, FindsEveryJointOfTheMannequinWithinOneVoxel) {
+  phantom::MannequinParams params;
+  params.spacing_mm = 4.0;
+  Result<phantom::Phantom> m = phantom::make_mannequin(params);
+  ASSERT_TRUE(m.ok());
+  expect_every_true_joint_found(*m, 4.0);
+}
+
+TEST(Skeleton, FindsEveryJointOfAnObliqueFineMannequinWithinOneVoxel) {
+  phantom::MannequinParams params;
+  params.spacing_mm = 3.0;
+  const double a = 0.35;
+  params.direction = {std::cos(a), -std::sin(a), 0, std::sin(a), std::cos(a), 0, 0, 0, 1};
+  Result<phantom::Phantom> m = phantom::make_mannequin(params);
+  ASSERT_TRUE(m.ok());
+  expect_every_true_joint_found(*m, 3.0);
+}
+
+TEST(Skeleton, RealSampleHasHipsSacroiliacJointsAndTheLumbarChain) {
+  Result<LabelVolume> seg = io::read_label_volume(std::string(POSEWARP_SAMPLE_DIR) + "/seg_total.nii.gz");
+  ASSERT_TRUE(seg.ok());
+  Result<Skeleton> skeleton = build_skeleton(*seg, labels::totalsegmentator_v2_preset(), {}, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  EXPECT_EQ(skeleton->segments[static_cast<size_t>(skeleton->root)].name, "sacrum");
+  const std::vector<std::pair<std::string, std::pair<std::string, std::string>>> expected{
+      {"hip_left", {"hip_left", "femur_left"}},     {"hip_right", {"hip_right", "femur_right"}},
+      {"sacroiliac_left", {"sacrum", "hip_left"}},  {"sacroiliac_right", {"sacrum", "hip_right"}},
+      {"lumbosacral", {"sacrum", "vertebrae_L5"}},  {"L4_L5", {"vertebrae_L5", "vertebrae_L4"}},
+      {"L3_L4", {"vertebrae_L4", "vertebrae_L3"}},  {"L2_L3", {"vertebrae_L3", "vertebrae_L2"}},
+      {"L1_L2", {"vertebrae_L2", "vertebrae_L1"}},  {"thoracolumbar", {"vertebrae_L1", "thorax"}}};
+  for (const auto& [name, pair] : expected) {
+    SCOPED_TRACE(name);
+    const int j = skeleton->joint_index(name);
+    ASSERT_GE(j, 0);
+    const Joint& joint = skeleton->joints[static_cast<size_t>(j)];
+    EXPECT_EQ(skeleton->segments[static_cast<size_t>(joint.parent)].name, pair.first);
+    EXPECT_EQ(skeleton->segments[static_cast<size_t>(joint.child)].name, pair.second);
+  }
+  // Femoral heads are balls: the hip centres come from sphere fits, about 25 mm in radius.
+  for (const char* hip : {"hip_left", "hip_right"}) {
+    const Joint& joint = skeleton->joints[static_cast<size_t>(skeleton->joint_index(hip))];
+    EXPECT_EQ(joint.method, "sphere-fit") << hip;
+    EXPECT_GT(joint.sphere_radius_mm, 15.0) << hip;
+    EXPECT_LT(joint.sphere_radius_mm, 35.0) << hip;
+  }
+  EXPECT_FALSE(skeleton->missing_segments.empty());  // the preset's skull, humeri, ... are out of view
+}
+
+TEST(Skeleton, RigSpecMovesRenamesAndRegroups) {
+  Result<phantom::Phantom> bar = phantom::make_bar({});
+  ASSERT_TRUE(bar.ok());
+  Result<RigSpec> spec = rig_spec_from_json(
+      R"({"segments": {"proximal": [10, 11]}, "root": "proximal",
+          "joints": [{"child": "bar_bone_3", "name": "elbow", "centre_mm": [1, 2, 3]}]})", "inline");
+  ASSERT_TRUE(spec.ok()) << spec.status().to_string();
+  Result<Skeleton> skeleton = build_skeleton(bar->labels, bar->label_map, *spec, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  EXPECT_EQ(skeleton->segments.size(), 3u);
+  EXPECT_EQ(skeleton->segments[static_cast<size_t>(skeleton->root)].name, "proximal");
+  const int elbow = skeleton->joint_index("elbow");
+  ASSERT_GE(elbow, 0);
+  EXPECT_EQ(skeleton->joints[static_cast<size_t>(elbow)].centre_mm, Eigen::Vector3d(1, 2, 3));
+  EXPECT_EQ(skeleton->joints[static_cast<size_t>(elbow)].method, "rig-spec");
+}
+
+TEST(Skeleton, RigSpecCanAddAJointBetweenSegmentsThatDoNotTouch) {
+  Result<phantom::Phantom> bar = phantom::make_bar({});
+  ASSERT_TRUE(bar.ok());
+  Result<RigSpec> spec = rig_spec_from_json(
+      R"({"joints": [{"parent": "bar_bone_1", "child": "bar_bone_3", "centre_mm": [0, 0, 100]}],
+          "remove_joints": [["bar_bone_2", "bar_bone_3"]]})", "inline");
+  ASSERT_TRUE(spec.ok());
+  Result<Skeleton> skeleton = build_skeleton(bar->labels, bar->label_map, *spec, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  const Joint* joint = joint_between(*skeleton, "bar_bone_1", "bar_bone_3");
+  ASSERT_NE(joint, nullptr);
+  EXPECT_EQ(joint->method, "rig-spec");
+  EXPECT_EQ(joint_between(*skeleton, "bar_bone_2", "bar_bone_3"), nullptr);
+}
+
+TEST(Skeleton, NoBoneLabelsIsAClearError) {
+  ImageGeometry g;
+  g.size = {8, 8, 8};
+  LabelVolume empty(g, 0);
+  Result<Skeleton> skeleton = build_skeleton(empty, labels::totalsegmentator_v2_preset(), {}, {}, {});
+  EXPECT_EQ(skeleton.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(skeleton.status().message().find("no bone labels"), std::string::npos);
+}
+
+TEST(Skeleton, OneBoneOnlyIsAClearError) {
+  ImageGeometry g;
+  g.size = {8, 8, 8};
+  LabelVolume labels(g, 0);
+  labels.at(3, 3, 3) = 75;  // femur_left
+  labels.at(4, 3, 3) = 5;   // liver
+  Result<Skeleton> skeleton = build_skeleton(labels, labels::totalsegmentator_v2_preset(), {}, {}, {});
+  EXPECT_EQ(skeleton.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(skeleton.status().message().find("femur_left"), std::string::npos);
+}
+
+TEST(Skeleton, SpecNamingAbsentLabelsOrSegmentsIsAnError) {
+  Result<phantom::Phantom> bar = phantom::make_bar({});
+  ASSERT_TRUE(bar.ok());
+  Result<RigSpec> absent_label = rig_spec_from_json(R"({"segments": {"x": [99]}})", "inline");
+  ASSERT_TRUE(absent_label.ok());
+  Result<Skeleton> s1 = build_skeleton(bar->labels, bar->label_map, *absent_label, {}, {});
+  EXPECT_EQ(s1.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s1.status().message().find("label 99"), std::string::npos);
+  Result<RigSpec> absent_segment = rig_spec_from_json(R"({"joints": [{"child": "tibia", "parent": "bar_bone_1"}]})", "inline");
+  ASSERT_TRUE(absent_segment.ok());
+  Result<Skeleton> s2 = build_skeleton(bar->labels, bar->label_map, *absent_segment, {}, {});
+  EXPECT_EQ(s2.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s2.status().message().find("tibia"), std::string::npos);
+  EXPECT_EQ(rig_spec_from_json(R"({"jionts": []})", "typo.json").status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::rig
