@@ -1,0 +1,186 @@
+// ITK reference resamplers and displacement-field output.
+#include "posewarp/io/itk_reference.h"
+
+#include <itkDisplacementFieldTransform.h>
+#include <itkEuler3DTransform.h>
+#include <itkImage.h>
+#include <itkImageFileWriter.h>
+#include <itkLinearInterpolateImageFunction.h>
+#include <itkMetaImageIO.h>
+#include <itkNiftiImageIO.h>
+#include <itkNrrdImageIO.h>
+#include <itkMultiThreaderBase.h>
+#include <itkNearestNeighborInterpolateImageFunction.h>
+#include <itkResampleImageFilter.h>
+#include <itkVector.h>
+#include <itkVersorRigid3DTransform.h>
+
+#include <algorithm>
+#include <filesystem>
+
+#include <unistd.h>
+
+#include "posewarp/common/parallel.h"
+
+namespace posewarp::io {
+namespace {
+
+template <typename Pixel>
+using Image3 = itk::Image<Pixel, 3>;
+using FieldImage = itk::Image<itk::Vector<double, 3>, 3>;
+
+template <typename Image>
+void set_geometry(Image* image, const ImageGeometry& g) {
+  typename Image::RegionType region;
+  typename Image::SpacingType spacing;
+  typename Image::PointType origin;
+  typename Image::DirectionType direction;
+  for (unsigned a = 0; a < 3; ++a) {
+    region.SetSize(a, static_cast<itk::SizeValueType>(g.size[a]));
+    spacing[a] = g.spacing[a];
+    origin[a] = g.origin[a];
+    for (unsigned c = 0; c < 3; ++c) direction(a, c) = g.direction[3 * a + c];
+  }
+  image->SetRegions(region);
+  image->SetSpacing(spacing);
+  image->SetOrigin(origin);
+  image->SetDirection(direction);
+}
+
+template <typename Pixel>
+typename Image3<Pixel>::Pointer to_image(const Volume<Pixel>& volume) {
+  auto image = Image3<Pixel>::New();
+  set_geometry(image.GetPointer(), volume.geometry());
+  image->Allocate();
+  std::copy_n(volume.data(), volume.voxel_count(), image->GetBufferPointer());
+  return image;
+}
+
+FieldImage::Pointer field_image(const std::vector<float>& field, const ImageGeometry& g) {
+  auto image = FieldImage::New();
+  set_geometry(image.GetPointer(), g);
+  image->Allocate();
+  auto* out = image->GetBufferPointer();
+  for (int64_t v = 0; v < g.voxel_count(); ++v) {
+    for (unsigned a = 0; a < 3; ++a) out[v][a] = field[static_cast<size_t>(3 * v + a)];
+  }
+  return image;
+}
+
+template <typename Pixel, typename Interpolator>
+Result<Volume<Pixel>> resample(const Volume<Pixel>& source, const itk::Transform<double, 3, 3>* transform,
+                               const ImageGeometry& output, Pixel background) {
+  try {
+    itk::MultiThreaderBase::SetGlobalDefaultNumberOfThreads(static_cast<itk::ThreadIdType>(thread_count()));
+    auto filter = itk::ResampleImageFilter<Image3<Pixel>, Image3<Pixel>, double>::New();
+    filter->SetInput(to_image(source));
+    filter->SetTransform(transform);
+    filter->SetInterpolator(Interpolator::New());
+    filter->SetDefaultPixelValue(background);
+    auto reference = Image3<Pixel>::New();
+    set_geometry(reference.GetPointer(), output);
+    filter->SetUseReferenceImage(true);
+    filter->SetReferenceImage(reference);
+    filter->SetNumberOfWorkUnits(static_cast<itk::ThreadIdType>(thread_count()));
+    filter->Update();
+    Volume<Pixel> out(output);
+    std::copy_n(filter->GetOutput()->GetBufferPointer(), out.voxel_count(), out.data());
+    out.set_source_type(source.source_type());
+    return out;
+  } catch (const itk::ExceptionObject& error) {
+    return internal_error(std::string("ITK resampling failed: ") + error.GetDescription());
+  }
+}
+
+}  // namespace
+
+Result<LabelVolume> itk_resample_rigid_labels(const LabelVolume& source, const std::array<double, 9>& rotation,
+                                              const std::array<double, 3>& translation, const ImageGeometry& output) {
+  // ITK maps output points to input points: p_in = R^T (p_out - t) = R^T p_out - R^T t.
+  auto transform = itk::VersorRigid3DTransform<double>::New();
+  itk::Matrix<double, 3, 3> m;
+  itk::Vector<double, 3> offset;
+  for (unsigned r = 0; r < 3; ++r) {
+    offset[r] = 0.0;
+    for (unsigned c = 0; c < 3; ++c) m(r, c) = rotation[3 * c + r];
+  }
+  for (unsigned r = 0; r < 3; ++r) {
+    for (unsigned c = 0; c < 3; ++c) offset[r] -= m(r, c) * translation[c];
+  }
+  try {
+    transform->SetMatrix(m, 1e-6);
+  } catch (const itk::ExceptionObject& error) {
+    return invalid_argument_error(std::string("not a rotation: ") + error.GetDescription());
+  }
+  transform->SetOffset(offset);
+  return resample<Label, itk::NearestNeighborInterpolateImageFunction<Image3<Label>, double>>(source, transform.GetPointer(),
+                                                                                              output, 0);
+}
+
+Result<IntensityVolume> itk_resample_with_field(const IntensityVolume& source, const std::vector<float>& field,
+                                                const ImageGeometry& output, float background) {
+  if (static_cast<int64_t>(field.size()) != 3 * output.voxel_count()) {
+    return invalid_argument_error("the displacement field does not match the output grid");
+  }
+  auto transform = itk::DisplacementFieldTransform<double, 3>::New();
+  transform->SetDisplacementField(field_image(field, output));
+  return resample<float, itk::LinearInterpolateImageFunction<Image3<float>, double>>(source, transform.GetPointer(), output,
+                                                                                     background);
+}
+
+Result<LabelVolume> itk_resample_labels_with_field(const LabelVolume& source, const std::vector<float>& field,
+                                                   const ImageGeometry& output) {
+  if (static_cast<int64_t>(field.size()) != 3 * output.voxel_count()) {
+    return invalid_argument_error("the displacement field does not match the output grid");
+  }
+  auto transform = itk::DisplacementFieldTransform<double, 3>::New();
+  transform->SetDisplacementField(field_image(field, output));
+  return resample<Label, itk::NearestNeighborInterpolateImageFunction<Image3<Label>, double>>(source, transform.GetPointer(),
+                                                                                              output, 0);
+}
+
+Status write_displacement_field(const std::vector<float>& field, const ImageGeometry& geometry, const std::string& path) {
+  if (static_cast<int64_t>(field.size()) != 3 * geometry.voxel_count()) {
+    return invalid_argument_error("the displacement field does not match its grid");
+  }
+  using FloatField = itk::Image<itk::Vector<float, 3>, 3>;
+  auto image = FloatField::New();
+  set_geometry(image.GetPointer(), geometry);
+  image->Allocate();
+  std::copy_n(field.data(), field.size(), reinterpret_cast<float*>(image->GetBufferPointer()));
+  const std::filesystem::path target(path);
+  const std::filesystem::path temporary =
+      target.parent_path() / (".posewarp-partial-" + std::to_string(::getpid()) + "-" + target.filename().string());
+  try {
+    auto writer = itk::ImageFileWriter<FloatField>::New();
+    const std::string name = target.filename().string();
+    auto ends = [&name](const std::string& suffix) {
+      return name.size() >= suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0;
+    };
+    if (ends(".nii") || ends(".nii.gz")) {
+      writer->SetImageIO(itk::NiftiImageIO::New());
+    } else if (ends(".nrrd") || ends(".nhdr")) {
+      writer->SetImageIO(itk::NrrdImageIO::New());
+    } else if (ends(".mha") || ends(".mhd")) {
+      writer->SetImageIO(itk::MetaImageIO::New());
+    } else {
+      return invalid_argument_error("cannot tell the format of displacement field '" + path +
+                                    "': use .nii.gz, .nrrd or .mha");
+    }
+    writer->SetInput(image);
+    writer->SetFileName(temporary.string());
+    writer->SetUseCompression(true);
+    writer->Update();
+  } catch (const itk::ExceptionObject& error) {
+    std::error_code ignored;
+    std::filesystem::remove(temporary, ignored);
+    return invalid_argument_error("writing displacement field '" + path + "' failed: " + error.GetDescription() +
+                                  " (use .nii.gz, .nrrd or .mha)");
+  }
+  std::error_code ec;
+  std::filesystem::rename(temporary, target, ec);
+  if (ec) return internal_error("could not move '" + path + "' into place: " + ec.message());
+  return ok_status();
+}
+
+}  // namespace posewarp::io
