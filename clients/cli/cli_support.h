@@ -36,5 +36,7 @@ void say(const std::string& line);
 void add_volume_commands(CLI::App& app);
 void add_phantom_commands(CLI::App& app);
 void add_label_commands(CLI::App& app);
+void add_rig_commands(CLI::App& app);
+void add_pose_commands(CLI::App& app);
 
 }  // namespace posewarp::cli

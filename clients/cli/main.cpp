@@ -25,6 +25,8 @@ int main(int argc, char** argv) {
   cli::add_volume_commands(app);
   cli::add_phantom_commands(app);
   cli::add_label_commands(app);
+  cli::add_rig_commands(app);
+  cli::add_pose_commands(app);
 
   try {
     app.parse(argc, argv);

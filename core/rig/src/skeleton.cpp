@@ -507,6 +507,30 @@ LabelVolume skeleton_classes(const Skeleton& skeleton, const LabelVolume& labels
       classes.data()[v] = kSoftTissueClass;
     }
   }
+  // Bones that touch (joint spaces thinner than a voxel) would share mesh vertices, and a shared vertex cannot
+  // follow both bones: open a soft layer where two segments meet, one voxel on each side.
+  const ImageGeometry& g = labels.geometry();
+  std::vector<int64_t> contact;
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (int64_t j = 0; j < g.size[1]; ++j) {
+      for (int64_t i = 0; i < g.size[0]; ++i) {
+        const Label c = classes.at(i, j, k);
+        if (c < kFirstBoneClass) continue;
+        bool touches = false;
+        for (int64_t dk = -1; dk <= 1 && !touches; ++dk) {
+          for (int64_t dj = -1; dj <= 1 && !touches; ++dj) {
+            for (int64_t di = -1; di <= 1 && !touches; ++di) {
+              if (!classes.contains(i + di, j + dj, k + dk)) continue;
+              const Label other = classes.at(i + di, j + dj, k + dk);
+              touches = other >= kFirstBoneClass && other != c;
+            }
+          }
+        }
+        if (touches) contact.push_back(g.offset(i, j, k));
+      }
+    }
+  }
+  for (const int64_t v : contact) classes.data()[v] = kSoftTissueClass;
   return classes;
 }
 

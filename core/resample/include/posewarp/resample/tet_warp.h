@@ -74,6 +74,8 @@ class TetWarp {
   Result<LabelVolume> warp_labels(const LabelVolume& source) const;
   // Intensities, trilinear or nearest; the result keeps the source's type on disk.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
+  // Per output voxel: the covering tet (>= 0), -2 - tet for a skin-shell voxel, -1 for the background.
+  const std::vector<int32_t>& owner() const { return owner_; }
   // 1 where the output voxel lies in the mesh or its skin shell.
   std::vector<uint8_t> coverage() const;
   // x_source - x_output in mm for every output voxel (3 floats each, x fastest): the field ITK's

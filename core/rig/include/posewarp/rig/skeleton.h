@@ -84,7 +84,9 @@ Status validate(const SkeletonParams& params);
 Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMap& map, const RigSpec& spec,
                                 const SkeletonParams& params, const ProgressHooks& hooks);
 
-// Mesher classes for a skeleton: 0 outside `body`, 1 soft tissue, 2 + k for voxels of segment k.
+// Mesher classes for a skeleton: 0 outside `body`, 1 soft tissue, 2 + k for voxels of segment k. Where two
+// segments touch (26-neighbourhood), the touching voxels of both become soft tissue, so no mesh vertex is shared by two
+// bones (a shared vertex could not follow both).
 LabelVolume skeleton_classes(const Skeleton& skeleton, const LabelVolume& labels, const LabelVolume& body);
 
 }  // namespace posewarp::rig

@@ -1,0 +1,257 @@
+// Pose commands: pose (one pose of a rig, written as volumes, surfaces, fields and a report) and animate (a BVH
+// range, frame by frame).
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+#include "cli_support.h"
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/io/itk_reference.h"
+#include "posewarp/pose/animation.h"
+#include "posewarp/pose/bvh.h"
+#include "posewarp/pose/bvh_map.h"
+
+namespace posewarp::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct OutputOptions {
+  std::string method = "cor";
+  std::string grid = "input";
+  std::string grid_like;
+  bool nearest_ct = false;
+};
+
+struct PoseOptions {
+  std::string rig_path;
+  std::string pose_path;
+  std::string labels_out;
+  std::string ct_out;
+  std::string surfaces_out;
+  std::string field_out;
+  std::string report_out;
+  OutputOptions output;
+};
+
+std::string fixed(double value, int digits) {
+  std::ostringstream out;
+  out << std::fixed << std::setprecision(digits) << value;
+  return out.str();
+}
+
+// "<stem>_forward<ext>" beside a field path (keeps .nii.gz together).
+std::string forward_field_path(const std::string& path) {
+  for (const std::string ext : {".nii.gz", ".nii", ".nrrd", ".mha"}) {
+    if (path.size() > ext.size() && path.compare(path.size() - ext.size(), ext.size(), ext) == 0) {
+      return path.substr(0, path.size() - ext.size()) + "_forward" + ext;
+    }
+  }
+  return path + "_forward";
+}
+
+Result<api::PoseRequest> make_request(const OutputOptions& o) {
+  api::PoseRequest request;
+  POSEWARP_ASSIGN_OR_RETURN(request.method, skinning::method_from_name(o.method));
+  request.ct_interpolation = o.nearest_ct ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
+  if (!o.grid_like.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(const io::VolumeHeader header, io::read_header(o.grid_like, read_options()));
+    request.grid = resample::GridPolicy::kGiven;
+    request.given_grid = header.geometry;
+  } else if (o.grid == "grow") {
+    request.grid = resample::GridPolicy::kGrow;
+  } else if (o.grid != "input") {
+    return invalid_argument_error("unknown --grid '" + o.grid + "'; use input or grow (or --grid-like IMAGE)");
+  }
+  request.resample.max_output_voxels = global_options().max_voxels;
+  return request;
+}
+
+Status write_outputs(const api::PoseResult& result, const std::string& labels_out, const std::string& ct_out,
+                     const std::string& field_out, const std::string& report_out, const ImageGeometry& source) {
+  if (!labels_out.empty() && result.labels) {
+    POSEWARP_RETURN_IF_ERROR(io::write_volume(*result.labels, labels_out));
+    say("wrote " + labels_out);
+  }
+  if (!ct_out.empty() && result.ct) {
+    POSEWARP_RETURN_IF_ERROR(io::write_volume(*result.ct, ct_out));
+    say("wrote " + ct_out);
+  }
+  if (!field_out.empty()) {
+    POSEWARP_RETURN_IF_ERROR(io::write_displacement_field(result.inverse_field, result.output_grid, field_out));
+    const std::string forward = forward_field_path(field_out);
+    POSEWARP_RETURN_IF_ERROR(io::write_displacement_field(result.forward_field, source, forward));
+    say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
+  }
+  if (!report_out.empty()) {
+    std::ofstream out(report_out);
+    out << report::to_json(result.report);
+    if (!out) return internal_error("cannot write report '" + report_out + "'");
+    say("wrote " + report_out);
+  }
+  return ok_status();
+}
+
+void summarize(const api::PoseResult& result) {
+  const report::QualityReport& r = result.report;
+  std::string line = "pose '" + r.pose_name + "' (" + r.method + "): " + std::to_string(r.mesh.inverted_tets) +
+                     " inverted tets, det " + fixed(r.mesh.det_min, 3) + ".." + fixed(r.mesh.det_max, 3) +
+                     ", soft-tissue volume " + fixed(100.0 * r.mesh.soft_tissue_volume_change, 2) +
+                     "%, bone rigidity error " + fixed(r.bone_rigidity_error_mm, 4) + " mm, " +
+                     std::to_string(r.conflicted_voxels) + " conflicted and " + std::to_string(r.extrapolated_voxels) +
+                     " extrapolated voxels";
+  say(line);
+  if (!r.labels.vanished.empty()) {
+    std::string vanished;
+    for (const Label l : r.labels.vanished) vanished += " " + std::to_string(l);
+    say("warning: labels vanished in this pose:" + vanished);
+  }
+  std::string timings = "timings:";
+  double total = 0.0;
+  for (const auto& [stage, seconds] : r.stage_seconds) timings += " " + stage + " " + fixed(1000.0 * seconds, 1) + " ms,", total += seconds;
+  say(timings + " total " + fixed(1000.0 * total, 1) + " ms");
+}
+
+Result<api::PoseEngine> load_engine(const std::string& path) {
+  POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::load_rig(path));
+  return api::PoseEngine::create(std::move(rig), progress_bar());
+}
+
+int run_pose(const PoseOptions& o) {
+  Result<pose::Pose> pose = pose::read_pose(o.pose_path);
+  if (!pose.ok()) return report(pose.status());
+  Result<api::PoseRequest> request = make_request(o.output);
+  if (!request.ok()) return report(request.status());
+  request->pose = *pose;
+  request->want_labels = !o.labels_out.empty() || !o.report_out.empty();
+  request->want_ct = !o.ct_out.empty();
+  request->want_fields = !o.field_out.empty();
+  request->want_surfaces = !o.surfaces_out.empty();
+  Result<api::PoseEngine> engine = load_engine(o.rig_path);
+  if (!engine.ok()) return report(engine.status());
+  Result<api::PoseResult> result = engine->pose(*request, progress_bar());
+  if (!result.ok()) return report(result.status());
+  summarize(*result);
+  Status written = write_outputs(*result, o.labels_out, o.ct_out, o.field_out, o.report_out, engine->rig().labels.geometry());
+  if (!written.ok()) return report(written);
+  return 0;
+}
+
+struct AnimateOptions {
+  std::string rig_path;
+  std::string bvh_path;
+  std::string map_path;
+  std::string animation_path;
+  std::string frames = "0:-1";
+  std::string out_dir;
+  bool labels = true;
+  bool ct = true;
+  OutputOptions output;
+};
+
+int run_animate(const AnimateOptions& o) {
+  int first = 0, last = -1;
+  {
+    const size_t colon = o.frames.find(':');
+    try {
+      if (colon == std::string::npos) {
+        first = last = std::stoi(o.frames);
+      } else {
+        first = std::stoi(o.frames.substr(0, colon));
+        last = std::stoi(o.frames.substr(colon + 1));
+      }
+    } catch (const std::exception&) {
+      return report(invalid_argument_error("--frames takes A:B (0-based, inclusive; B = -1 for the last frame)"));
+    }
+  }
+  Result<api::PoseEngine> engine = load_engine(o.rig_path);
+  if (!engine.ok()) return report(engine.status());
+  Result<pose::Animation> animation = [&]() -> Result<pose::Animation> {
+    if (!o.animation_path.empty()) return pose::read_animation(o.animation_path);
+    if (o.bvh_path.empty() || o.map_path.empty()) {
+      return invalid_argument_error("give --bvh FILE with --map MAP (or --animation FILE.json)");
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const pose::BvhMap map, pose::read_bvh_map(o.map_path));
+    return pose::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
+  }();
+  if (!animation.ok()) return report(animation.status());
+  std::error_code ec;
+  fs::create_directories(o.out_dir, ec);
+  if (ec) return report(invalid_argument_error("cannot create " + o.out_dir + ": " + ec.message()));
+  Result<api::PoseRequest> request = make_request(o.output);
+  if (!request.ok()) return report(request.status());
+  request->want_labels = true;
+  request->want_ct = o.ct;
+  request->want_surfaces = false;
+  const size_t count = animation->frames.size();
+  for (size_t f = 0; f < count; ++f) {
+    request->pose = animation->frames[f];
+    Result<api::PoseResult> result = engine->pose(*request, {});
+    if (!result.ok()) return report(result.status().with_context("frame " + std::to_string(f)));
+    char stem[32];
+    std::snprintf(stem, sizeof(stem), "frame_%04zu", f);
+    const fs::path dir(o.out_dir);
+    Status written = write_outputs(*result, o.labels ? (dir / (std::string(stem) + "_labels.nii.gz")).string() : "",
+                                   o.ct ? (dir / (std::string(stem) + "_ct.nii.gz")).string() : "", "",
+                                   (dir / (std::string(stem) + "_report.json")).string(), engine->rig().labels.geometry());
+    if (!written.ok()) return report(written);
+    std::fprintf(stderr, "frame %zu/%zu done\n", f + 1, count);
+  }
+  return 0;
+}
+
+void add_output_options(CLI::App* cmd, OutputOptions& o) {
+  cmd->add_option("--method", o.method, "Skinning: cor (centres of rotation), dqs (dual quaternions) or lbs")
+      ->check(CLI::IsMember({"cor", "dqs", "lbs"}))
+      ->capture_default_str();
+  cmd->add_option("--grid", o.grid, "Output grid: input (the study's grid) or grow (grown to hold the posed body)")
+      ->check(CLI::IsMember({"input", "grow"}))
+      ->capture_default_str();
+  cmd->add_option("--grid-like", o.grid_like, "Output on the grid of this image instead");
+  cmd->add_flag("--nearest-ct", o.nearest_ct, "Nearest-neighbour CT instead of trilinear");
+}
+
+}  // namespace
+
+void add_pose_commands(CLI::App& app) {
+  {
+    auto o = std::make_shared<PoseOptions>();
+    CLI::App* cmd = app.add_subcommand(
+        "pose",
+        "Apply a pose to a rig: posed labels (never a new value) and CT, displacement fields and a quality report");
+    cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build)")->required();
+    cmd->add_option("--pose", o->pose_path, "Pose JSON (see data/poses/)")->required();
+    cmd->add_option("--labels-out", o->labels_out, "Posed label volume");
+    cmd->add_option("--ct-out", o->ct_out, "Posed CT");
+    cmd->add_option("--surfaces-out", o->surfaces_out, "Directory for deformed surfaces");
+    cmd->add_option("--field-out", o->field_out,
+                    "Inverse displacement field (output grid, for ITK/ANTs/elastix); the forward field goes beside it "
+                    "as *_forward");
+    cmd->add_option("--report", o->report_out, "Quality report JSON");
+    add_output_options(cmd, o->output);
+    cmd->callback([o] {
+      if (int code = run_pose(*o); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto o = std::make_shared<AnimateOptions>();
+    CLI::App* cmd = app.add_subcommand("animate", "Pose a rig frame by frame from a BVH motion (or an animation JSON)");
+    cmd->add_option("rig", o->rig_path, "Rig file")->required();
+    cmd->add_option("--bvh", o->bvh_path, "BVH motion file");
+    cmd->add_option("--map", o->map_path, "BVH joint -> rig joint map JSON");
+    cmd->add_option("--animation", o->animation_path, "Animation JSON instead of a BVH");
+    cmd->add_option("--frames", o->frames, "Frames A:B, 0-based inclusive (B = -1: to the end)")->capture_default_str();
+    cmd->add_option("--out-dir", o->out_dir, "Directory for frame_NNNN_{labels,ct,report} files")->required();
+    cmd->add_flag("!--no-ct", o->ct, "Skip the CT");
+    add_output_options(cmd, o->output);
+    cmd->callback([o] {
+      if (int code = run_animate(*o); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+}
+
+}  // namespace posewarp::cli

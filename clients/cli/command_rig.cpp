@@ -1,0 +1,246 @@
+// Rig commands: build (the expensive half of the pipeline, once per study), info, export.
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <sstream>
+
+#include "cli_support.h"
+#include "posewarp/api/rig.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/api/vtk_export.h"
+#include "posewarp/labels/presets.h"
+
+namespace posewarp::cli {
+namespace {
+
+using json = nlohmann::json;
+
+struct BuildOptions {
+  std::string labels_path;
+  std::string ct_path;
+  std::string body_path;
+  std::string label_map_path;
+  std::string preset;
+  std::string spec_path;
+  std::string out;
+  bool sequential = false;
+  bool islands_fail = false;
+  api::BuildParams params;
+};
+
+std::string fixed(double value, int digits) {
+  std::ostringstream out;
+  out << std::fixed << std::setprecision(digits) << value;
+  return out.str();
+}
+
+int run_build(BuildOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  if (!options.label_map_path.empty() && !options.preset.empty()) {
+    return report(invalid_argument_error("give either --label-map or --preset, not both"));
+  }
+  api::BuildInputs inputs;
+  Result<labels::LabelMap> map = options.label_map_path.empty()
+                                     ? labels::preset_by_name(options.preset.empty() ? "totalsegmentator" : options.preset)
+                                     : labels::read_label_map(options.label_map_path);
+  if (!map.ok()) return report(map.status());
+  inputs.label_map = std::move(map).value();
+  Result<LabelVolume> labels = io::read_label_volume(options.labels_path, read_options());
+  if (!labels.ok()) return report(labels.status());
+  inputs.labels = std::move(labels).value();
+  inputs.labels_source = options.labels_path;
+  if (!options.ct_path.empty()) {
+    Result<IntensityVolume> ct = io::read_intensity_volume(options.ct_path, read_options());
+    if (!ct.ok()) return report(ct.status());
+    inputs.ct = std::move(ct).value();
+    inputs.ct_source = options.ct_path;
+  }
+  if (!options.body_path.empty()) {
+    Result<LabelVolume> body = io::read_label_volume(options.body_path, read_options());
+    if (!body.ok()) return report(body.status());
+    inputs.body = std::move(body).value();
+  }
+  if (!options.spec_path.empty()) {
+    Result<rig::RigSpec> spec = rig::read_rig_spec(options.spec_path);
+    if (!spec.ok()) return report(spec.status());
+    inputs.spec = std::move(spec).value();
+  }
+  options.params.mesh.parallel = !options.sequential;
+  options.params.weights.islands = options.islands_fail ? weights::IslandPolicy::kFail : weights::IslandPolicy::kAttachNearest;
+  const double read_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  Result<api::Rig> rig = api::build_rig(inputs, options.params, progress_bar());
+  if (!rig.ok()) return report(rig.status());
+  if (Status saved = api::save_rig(*rig, options.out); !saved.ok()) return report(saved);
+  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  say("rig " + rig->id() + " written to " + options.out);
+  say("  " + std::to_string(rig->skeleton.segments.size()) + " segments, " + std::to_string(rig->skeleton.joints.size()) +
+      " joints, " + std::to_string(rig->mesh.vertex_count()) + " vertices, " + std::to_string(rig->mesh.tet_count()) +
+      " tets");
+  for (const std::string& note : rig->skeleton.notes) say("  note: " + note);
+  if (!rig->skeleton.missing_segments.empty()) {
+    std::string missing;
+    for (const std::string& name : rig->skeleton.missing_segments) missing += (missing.empty() ? "" : ", ") + name;
+    say("  not in this study: " + missing);
+  }
+  std::string timings = "  timings: read " + fixed(read_seconds, 2) + " s";
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) timings += ", " + stage + " " + fixed(seconds, 2) + " s";
+  say(timings + "; total " + fixed(total, 2) + " s");
+  return 0;
+}
+
+int run_info(const std::string& path, bool as_json) {
+  const auto start = std::chrono::steady_clock::now();
+  Result<api::Rig> rig = api::load_rig(path);
+  if (!rig.ok()) return report(rig.status());
+  const double load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const rig::Skeleton& s = rig->skeleton;
+  json doc;
+  doc["path"] = path;
+  doc["id"] = rig->id();
+  doc["content_hash"] = api::content_hash(*rig);
+  doc["load_seconds"] = load_seconds;
+  doc["source_grid"] = {{"size", rig->source_geometry.size}, {"spacing_mm", rig->source_geometry.spacing},
+                        {"origin_mm", rig->source_geometry.origin}, {"direction", rig->source_geometry.direction}};
+  json segments = json::array();
+  for (const rig::Segment& segment : s.segments) {
+    segments.push_back({{"name", segment.name}, {"labels", segment.labels}, {"voxels", segment.voxels},
+                        {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
+  }
+  json joints = json::array();
+  for (const rig::Joint& joint : s.joints) {
+    joints.push_back({{"name", joint.name},
+                      {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
+                      {"child", s.segments[static_cast<size_t>(joint.child)].name},
+                      {"centre_mm", {joint.centre_mm.x(), joint.centre_mm.y(), joint.centre_mm.z()}},
+                      {"method", joint.method},
+                      {"contact_area_mm2", joint.contact_area_mm2}});
+  }
+  doc["root"] = s.segments[static_cast<size_t>(s.root)].name;
+  doc["segments"] = segments;
+  doc["joints"] = joints;
+  doc["missing_segments"] = s.missing_segments;
+  doc["notes"] = s.notes;
+  doc["mesh"] = {{"vertices", rig->mesh.vertex_count()}, {"tets", rig->mesh.tet_count()}};
+  json stages = json::object();
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) stages[stage] = seconds;
+  doc["stage_seconds"] = stages;
+  doc["stats"] = json::parse(rig->provenance.stats_json.empty() ? "{}" : rig->provenance.stats_json);
+  doc["params"] = json::parse(rig->params_json.empty() ? "{}" : rig->params_json);
+  doc["provenance"] = {{"software_version", rig->provenance.software_version},
+                       {"labels", rig->provenance.labels_source},
+                       {"ct", rig->provenance.ct_source},
+                       {"labels_hash", rig->labels_hash},
+                       {"ct_hash", rig->ct_hash}};
+  if (as_json) {
+    std::cout << doc.dump(2) << '\n';
+    return 0;
+  }
+  std::cout << "rig " << doc["id"].get<std::string>() << " (" << path << ", loaded in " << fixed(load_seconds, 3) << " s)\n"
+            << "  built by posewarp " << rig->provenance.software_version << " from " << rig->provenance.labels_source
+            << (rig->provenance.ct_source.empty() ? "" : " + " + rig->provenance.ct_source) << "\n"
+            << "  mesh: " << rig->mesh.vertex_count() << " vertices, " << rig->mesh.tet_count() << " tets\n"
+            << "  root: " << doc["root"].get<std::string>() << "\n  joints:\n";
+  for (const json& joint : joints) {
+    const auto& c = joint["centre_mm"];
+    std::cout << "    " << std::left << std::setw(20) << joint["name"].get<std::string>() << std::setw(16)
+              << joint["parent"].get<std::string>() << "-> " << std::setw(16) << joint["child"].get<std::string>()
+              << std::right << " (" << fixed(c[0], 1) << ", " << fixed(c[1], 1) << ", " << fixed(c[2], 1) << ") mm  "
+              << joint["method"].get<std::string>() << "\n";
+  }
+  if (doc["stats"].contains("weights")) {
+    const json& w = doc["stats"]["weights"];
+    std::cout << "  weights: raw range [" << w.value("min_raw_weight", 0.0) << ", " << w.value("max_raw_weight", 0.0)
+              << "], partition of unity error " << w.value("max_partition_error", 0.0) << ", solver "
+              << w.value("solver", std::string("?")) << "\n";
+  }
+  std::cout << "  timings:";
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) std::cout << " " << stage << " " << fixed(seconds, 2) << " s";
+  std::cout << "\n";
+  for (const std::string& note : s.notes) std::cout << "  note: " << note << "\n";
+  return 0;
+}
+
+int run_export(const std::string& path, const std::string& mesh_out, const std::string& skeleton_out) {
+  if (mesh_out.empty() && skeleton_out.empty()) {
+    return report(invalid_argument_error("nothing to export: give --mesh OUT.vtu and/or --skeleton OUT.vtp"));
+  }
+  Result<api::Rig> rig = api::load_rig(path);
+  if (!rig.ok()) return report(rig.status());
+  if (!mesh_out.empty()) {
+    if (Status s = api::export_mesh_vtu(*rig, mesh_out); !s.ok()) return report(s);
+    say("wrote " + mesh_out);
+  }
+  if (!skeleton_out.empty()) {
+    if (Status s = api::export_skeleton_vtp(*rig, skeleton_out); !s.ok()) return report(s);
+    say("wrote " + skeleton_out);
+  }
+  return 0;
+}
+
+}  // namespace
+
+void add_rig_commands(CLI::App& app) {
+  CLI::App* group = app.add_subcommand("rig", "Build a rig once per study (skeleton, tet mesh, weights, centres), inspect and export it");
+  group->require_subcommand(1);
+  {
+    auto o = std::make_shared<BuildOptions>();
+    CLI::App* cmd = group->add_subcommand(
+        "build",
+        "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the body, Laplace skinning weights and\n"
+        "centres of rotation, written as one checksummed file");
+    cmd->add_option("--labels", o->labels_path, "Label volume (segmentation)")->required();
+    cmd->add_option("--ct", o->ct_path, "CT on the same grid (joins the body mask; kept for posing)");
+    cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
+    cmd->add_option("--label-map", o->label_map_path, "Label map JSON");
+    cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
+        ->check(CLI::IsMember(labels::preset_names()));
+    cmd->add_option("--rig-spec", o->spec_path, "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
+    cmd->add_option("-o,--out", o->out, "Rig file to write")->required();
+    auto& p = o->params;
+    cmd->add_option("--contact-distance", p.skeleton.contact_distance_mm, "Bone contact distance, mm (0 = 3.5 voxels)")
+        ->capture_default_str();
+    cmd->add_option("--facet-size", p.mesh.facet_size_mm, "Largest boundary triangle, mm")->capture_default_str();
+    cmd->add_option("--facet-distance", p.mesh.facet_distance_mm, "Largest boundary approximation error, mm")
+        ->capture_default_str();
+    cmd->add_option("--bone-size", p.mesh.bone_cell_size_mm, "Largest tet size in and near bone, mm")->capture_default_str();
+    cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")->capture_default_str();
+    cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")->capture_default_str();
+    cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");
+    cmd->add_option("--seed", p.mesh.seed, "Seed of the sequential mesher")->capture_default_str();
+    cmd->add_option("--influences", p.weights.max_influences, "Bones kept per vertex")->capture_default_str();
+    cmd->add_flag("--fail-on-islands", o->islands_fail, "Fail on soft tissue without bone instead of attaching it");
+    cmd->add_option("--sigma", p.cor.sigma, "CoR similarity width (paper: < 0.1)")->capture_default_str();
+    cmd->callback([o] {
+      if (int code = run_build(*o); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto path = std::make_shared<std::string>();
+    auto as_json = std::make_shared<bool>(false);
+    CLI::App* cmd = group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
+    cmd->add_option("rig", *path, "Rig file")->required();
+    cmd->add_flag("--json", *as_json, "Machine-readable output");
+    cmd->callback([path, as_json] {
+      if (int code = run_info(*path, *as_json); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto path = std::make_shared<std::string>();
+    auto mesh_out = std::make_shared<std::string>();
+    auto skeleton_out = std::make_shared<std::string>();
+    CLI::App* cmd = group->add_subcommand("export", "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for ParaView");
+    cmd->add_option("rig", *path, "Rig file")->required();
+    cmd->add_option("--mesh", *mesh_out, "Tet mesh with labels and per-bone weights (.vtu)");
+    cmd->add_option("--skeleton", *skeleton_out, "Skeleton as lines (.vtp)");
+    cmd->callback([path, mesh_out, skeleton_out] {
+      if (int code = run_export(*path, *mesh_out, *skeleton_out); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+}
+
+}  // namespace posewarp::cli

@@ -1,0 +1,61 @@
+// PoseEngine: answers pose requests on a loaded rig (skin the tet mesh, warp labels and CT, deform surfaces,
+// report), with everything that does not depend on the pose computed once.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "posewarp/api/rig.h"
+#include "posewarp/pose/pose.h"
+#include "posewarp/report/quality_report.h"
+#include "posewarp/resample/tet_warp.h"
+#include "posewarp/skinning/skinning.h"
+#include "posewarp/skinning/tet_maps.h"
+
+namespace posewarp::api {
+
+struct PoseRequest {
+  pose::Pose pose;
+  skinning::Method method = skinning::Method::kCor;
+  resample::GridPolicy grid = resample::GridPolicy::kInput;
+  std::optional<ImageGeometry> given_grid;  // for GridPolicy::kGiven
+  bool want_labels = true;
+  bool want_ct = true;
+  bool want_surfaces = true;
+  bool want_fields = false;                 // inverse (output grid) and forward (source grid) displacement fields
+  resample::Interpolation ct_interpolation = resample::Interpolation::kLinear;
+  resample::ResampleParams resample;
+};
+
+struct PoseResult {
+  ImageGeometry output_grid;
+  std::optional<LabelVolume> labels;
+  std::optional<IntensityVolume> ct;
+  // Posed surfaces come with the surface stage.
+  std::vector<float> inverse_field;         // output grid, x_source - x_output (mm)
+  std::vector<float> forward_field;         // source grid, x_posed - x_source (mm)
+  Eigen::MatrixXd posed_vertices;           // #V x 3
+  std::vector<Eigen::Matrix3d> segment_rotation;
+  std::vector<Eigen::Vector3d> segment_translation;
+  report::QualityReport report;
+};
+
+class PoseEngine {
+ public:
+  // Precomputes the rest tet frames, the mesh boundary and the rest coverage of the source grid.
+  static Result<PoseEngine> create(Rig rig, const ProgressHooks& hooks = {});
+
+  const Rig& rig() const { return rig_; }
+  Result<PoseResult> pose(const PoseRequest& request, const ProgressHooks& hooks = {}) const;
+
+ private:
+  PoseEngine() = default;
+  Rig rig_;
+  skinning::RestTetFrames frames_;
+  resample::RestTopology topology_;
+  std::vector<uint8_t> rest_coverage_;
+  std::vector<int32_t> rest_owner_;  // per source voxel: the rest tet covering it (-1 none), for forward fields
+};
+
+}  // namespace posewarp::api

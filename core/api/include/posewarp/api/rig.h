@@ -1,0 +1,81 @@
+// Rig: everything the expensive half of the pipeline produces, and the engine facade that builds it.
+#pragma once
+
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "posewarp/common/progress.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/tet_mesh.h"
+#include "posewarp/common/volume.h"
+#include "posewarp/cor/rotation_centres.h"
+#include "posewarp/labels/body.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/mesh/mesher.h"
+#include "posewarp/rig/skeleton.h"
+#include "posewarp/weights/laplace_weights.h"
+
+namespace posewarp::api {
+
+// Every knob of a rig build, validated together before any work starts.
+struct BuildParams {
+  rig::SkeletonParams skeleton;
+  labels::BodyParams body;
+  mesh::MeshParams mesh;
+  weights::WeightsParams weights;
+  cor::CorParams cor;
+};
+
+Status validate(const BuildParams& params);
+// Canonical JSON of the parameters (stored in the rig; part of its id).
+std::string params_to_json(const BuildParams& params);
+
+struct BuildInputs {
+  LabelVolume labels;
+  std::optional<IntensityVolume> ct;       // on the labels' grid; joins the body mask and is kept for posing
+  std::optional<LabelVolume> body;         // a user's body mask (non-zero = body), replacing the computed one
+  labels::LabelMap label_map;
+  rig::RigSpec spec;
+  std::string labels_source;               // file names, for provenance only
+  std::string ct_source;
+};
+
+// Where the time went and what each stage reported; not part of the rig's content hash.
+struct Provenance {
+  std::string software_version;
+  std::vector<std::pair<std::string, double>> stage_seconds;  // in pipeline order
+  std::string stats_json;                                      // per-stage statistics (mesh health, weights, cor)
+  std::string labels_source;
+  std::string ct_source;
+};
+
+struct Rig {
+  ImageGeometry source_geometry;           // the grid the rig was built from (labels and CT)
+  std::string labels_hash;                 // hashes of the input voxels (hex)
+  std::string ct_hash;                     // empty without a CT
+  labels::LabelMap label_map;
+  rig::Skeleton skeleton;
+  TetMesh mesh;
+  SkinWeights weights;
+  RotationCentres centres;
+  std::string params_json;
+  Provenance provenance;
+  // The source volumes posing warps (kept in the rig so a pose needs nothing else).
+  LabelVolume labels;
+  std::optional<IntensityVolume> ct;
+  // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
+  std::vector<std::pair<uint32_t, std::string>> unknown_sections;
+
+  // Deterministic id of the inputs and parameters: the same study built with the same parameters gets the same id.
+  std::string id() const;
+};
+
+// Builds a rig: body mask, skeleton, classes, mesh (with health checks), weights and centres of rotation.
+Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks);
+
+// A 64-bit hash of a buffer as 16 hex digits (FNV-1a over 8-byte words; stable across platforms of one endianness).
+std::string hash_bytes(const void* data, size_t size, uint64_t seed = 0);
+
+}  // namespace posewarp::api

@@ -1,0 +1,31 @@
+// The rig artifact: one versioned, sectioned, checksummed binary file that loads without parsing text arrays.
+//
+// Layout (little endian):
+//   magic "POSEWARP" | u32 format_version | u32 reserved
+//   sections: u32 tag (four ASCII chars) | u32 flags | u64 payload_bytes | u64 payload_checksum | payload
+//   final section "END!" with an empty payload whose checksum field holds the content hash.
+// Unknown sections are skipped (and kept), so old readers survive new writers; a file whose format_version is
+// newer than this reader's major version is refused with a message to upgrade.
+#pragma once
+
+#include <string>
+
+#include "posewarp/api/rig.h"
+
+namespace posewarp::api {
+
+constexpr uint32_t kRigFormatVersion = 1;
+
+// Writes to a temporary file beside `path`, flushes it to disk (fsync) and renames it into place.
+Status save_rig(const Rig& rig, const std::string& path);
+
+// Reads and verifies every section's checksum. DATA_LOSS for a truncated or corrupt file, FAILED_PRECONDITION for
+// a file from a newer format, INVALID_ARGUMENT for a file that is not a rig.
+Result<Rig> load_rig(const std::string& path);
+
+// Hash of the rig's content sections (geometry, label map, skeleton, mesh, weights, centres, parameters); excludes
+// provenance (timings), so two builds of the same inputs with the same parameters in the mesher's sequential mode
+// have the same content hash.
+std::string content_hash(const Rig& rig);
+
+}  // namespace posewarp::api

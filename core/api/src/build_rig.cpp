@@ -1,0 +1,169 @@
+// build_rig: body, skeleton, classes, mesh, weights and centres of rotation, timed stage by stage.
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cstring>
+#include <new>
+
+#include "posewarp/api/rig.h"
+
+#ifndef POSEWARP_VERSION
+#define POSEWARP_VERSION "unknown"
+#endif
+
+namespace posewarp::api {
+namespace {
+
+class StageClock {
+ public:
+  explicit StageClock(Provenance& provenance) : provenance_(provenance) {}
+  void lap(const std::string& stage) {
+    const auto now = std::chrono::steady_clock::now();
+    provenance_.stage_seconds.emplace_back(stage, std::chrono::duration<double>(now - last_).count());
+    last_ = now;
+  }
+
+ private:
+  Provenance& provenance_;
+  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
+};
+
+}  // namespace
+
+std::string hash_bytes(const void* data, size_t size, uint64_t seed) {
+  // FNV-1a over 8-byte words, then the tail bytes; a final avalanche.
+  uint64_t h = 0xcbf29ce484222325ULL ^ seed;
+  const auto* bytes = static_cast<const unsigned char*>(data);
+  size_t i = 0;
+  for (; i + 8 <= size; i += 8) {
+    uint64_t word;
+    std::memcpy(&word, bytes + i, 8);
+    h = (h ^ word) * 0x100000001b3ULL;
+    h ^= h >> 29;
+  }
+  for (; i < size; ++i) h = (h ^ bytes[i]) * 0x100000001b3ULL;
+  h ^= size;
+  h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  h = (h ^ (h >> 27)) * 0x94d049bb133111ebULL;
+  h ^= h >> 31;
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(h));
+  return hex;
+}
+
+std::string Rig::id() const {
+  const std::string key = labels_hash + "|" + ct_hash + "|" + labels::label_map_to_json(label_map) + "|" +
+                          params_json + "|" + std::to_string(source_geometry.voxel_count()) + "|" + POSEWARP_VERSION;
+  return hash_bytes(key.data(), key.size());
+}
+
+Status validate(const BuildParams& params) {
+  POSEWARP_RETURN_IF_ERROR(rig::validate(params.skeleton));
+  POSEWARP_RETURN_IF_ERROR(labels::validate(params.body));
+  POSEWARP_RETURN_IF_ERROR(mesh::validate(params.mesh));
+  POSEWARP_RETURN_IF_ERROR(weights::validate(params.weights));
+  POSEWARP_RETURN_IF_ERROR(cor::validate(params.cor));
+  return ok_status();
+}
+
+Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks) {
+  POSEWARP_RETURN_IF_ERROR(validate(params));
+  if (inputs.labels.empty()) return invalid_argument_error("the label volume is empty");
+  const ImageGeometry& grid = inputs.labels.geometry();
+  if (inputs.ct && !inputs.ct->geometry().same_grid(grid, 1e-3)) {
+    return invalid_argument_error("the CT (" + inputs.ct->geometry().describe() + ") is not on the labels' grid (" +
+                                  grid.describe() + "); resample it onto the segmentation first");
+  }
+  if (inputs.body && !inputs.body->geometry().same_grid(grid, 1e-3)) {
+    return invalid_argument_error("the body mask is not on the labels' grid; resample it onto the segmentation first");
+  }
+  Rig rig;
+  rig.source_geometry = grid;
+  rig.label_map = inputs.label_map;
+  rig.params_json = params_to_json(params);
+  rig.provenance.software_version = POSEWARP_VERSION;
+  rig.provenance.labels_source = inputs.labels_source;
+  rig.provenance.ct_source = inputs.ct_source;
+  rig.labels_hash = hash_bytes(inputs.labels.data(), static_cast<size_t>(inputs.labels.voxel_count()) * sizeof(Label));
+  if (inputs.ct) rig.ct_hash = hash_bytes(inputs.ct->data(), static_cast<size_t>(inputs.ct->voxel_count()) * sizeof(float));
+  nlohmann::json stats;
+  StageClock clock(rig.provenance);
+
+  try {
+    POSEWARP_ASSIGN_OR_RETURN(rig.skeleton,
+                              rig::build_skeleton(inputs.labels, inputs.label_map, inputs.spec, params.skeleton, hooks));
+    clock.lap("skeleton");
+
+    LabelVolume body;
+    if (inputs.body) {
+      body = *inputs.body;
+      for (const rig::Segment& segment : rig.skeleton.segments) {
+        int64_t outside = 0;
+        for (int64_t v = 0; v < inputs.labels.voxel_count(); ++v) {
+          if (body.data()[v] == 0 &&
+              std::find(segment.labels.begin(), segment.labels.end(), inputs.labels.data()[v]) != segment.labels.end()) {
+            ++outside;
+          }
+        }
+        if (outside > 0) {
+          return invalid_argument_error("the body mask leaves " + std::to_string(outside) + " voxels of bone segment '" +
+                                        segment.name + "' outside the body; a body mask must contain the bones " +
+                                        "(fix the mask, or leave it out to have posewarp compute one)");
+        }
+      }
+    } else {
+      POSEWARP_ASSIGN_OR_RETURN(body, labels::body_mask(inputs.label_map, inputs.labels,
+                                                        inputs.ct ? &*inputs.ct : nullptr, params.body));
+    }
+    clock.lap("body");
+
+    const LabelVolume classes = rig::skeleton_classes(rig.skeleton, inputs.labels, body);
+    std::vector<std::string> names;
+    for (const rig::Segment& segment : rig.skeleton.segments) names.push_back(segment.name);
+    mesh::MeshHealth health;
+    POSEWARP_ASSIGN_OR_RETURN(rig.mesh, mesh::make_cgal_mesher()->mesh(classes, static_cast<int>(names.size()),
+                                                                       params.mesh, hooks, &health));
+    POSEWARP_RETURN_IF_ERROR(mesh::check_mesh_health(rig.mesh, classes, names, &health));
+    stats["mesh"] = {{"vertices", rig.mesh.vertex_count()},
+                     {"tets", rig.mesh.tet_count()},
+                     {"downsample_factor", health.downsample_factor},
+                     {"tets_per_class", health.tets_per_class},
+                     {"max_bone_volume_error", health.max_bone_volume_error},
+                     {"body_volume_error", health.body_volume_error},
+                     {"body_components", health.body_components},
+                     {"degenerate_tets", health.degenerate_tets},
+                     {"min_tet_quality", health.min_tet_quality}};
+    clock.lap("mesh");
+
+    weights::WeightStats weight_stats;
+    POSEWARP_ASSIGN_OR_RETURN(rig.weights, weights::laplace_weights(rig.mesh, params.weights, hooks, &weight_stats));
+    stats["weights"] = {{"free_vertices", weight_stats.free_vertices},
+                        {"fixed_vertices", weight_stats.fixed_vertices},
+                        {"min_raw_weight", weight_stats.min_raw_weight},
+                        {"max_raw_weight", weight_stats.max_raw_weight},
+                        {"max_partition_error_raw", weight_stats.max_partition_error_raw},
+                        {"max_partition_error", weight_stats.max_partition_error},
+                        {"max_laplace_residual", weight_stats.max_laplace_residual},
+                        {"islands_attached", weight_stats.islands_attached},
+                        {"island_vertices", weight_stats.island_vertices},
+                        {"solver", weight_stats.solver}};
+    clock.lap("weights");
+
+    cor::CorStats cor_stats;
+    POSEWARP_ASSIGN_OR_RETURN(rig.centres, cor::rotation_centres(rig.mesh, rig.weights, params.cor, hooks, &cor_stats));
+    stats["cor"] = {{"rigid_vertices", cor_stats.rigid_vertices},
+                    {"centred_vertices", cor_stats.centred_vertices},
+                    {"unsupported_vertices", cor_stats.unsupported_vertices},
+                    {"clusters", cor_stats.clusters}};
+    clock.lap("cor");
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory while building the rig of " + grid.describe() +
+                                    "; lower the mesher's voxel budget or use coarser mesh sizes");
+  }
+  rig.provenance.stats_json = stats.dump();
+  rig.labels = inputs.labels;
+  rig.ct = inputs.ct;
+  return rig;
+}
+
+}  // namespace posewarp::api

@@ -1,0 +1,166 @@
+// PoseEngine: forward kinematics, skinning, tet maps, the volume warp and the quality report, timed per stage.
+#include "posewarp/api/pose_engine.h"
+
+#include <Eigen/Dense>
+
+#include <chrono>
+#include <new>
+
+#include "posewarp/common/parallel.h"
+#include "posewarp/pose/forward_kinematics.h"
+
+namespace posewarp::api {
+namespace {
+
+class Clock {
+ public:
+  explicit Clock(std::vector<std::pair<std::string, double>>& laps) : laps_(laps) {}
+  void lap(const std::string& stage) {
+    const auto now = std::chrono::steady_clock::now();
+    laps_.emplace_back(stage, std::chrono::duration<double>(now - last_).count());
+    last_ = now;
+  }
+
+ private:
+  std::vector<std::pair<std::string, double>>& laps_;
+  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
+};
+
+}  // namespace
+
+Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
+  if (rig.labels.empty()) {
+    return failed_precondition_error("the rig holds no source volume to warp; rebuild it with this posewarp version");
+  }
+  PoseEngine engine;
+  try {
+    engine.frames_ = skinning::rest_tet_frames(rig.mesh);
+    engine.topology_ = resample::rest_topology(rig.mesh);
+    const ImageGeometry& g = rig.labels.geometry();
+    POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp identity,
+                              resample::TetWarp::build(rig.mesh, engine.topology_, rig.mesh.vertices, g, g,
+                                                       Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
+                                                       {}, hooks));
+    engine.rest_coverage_ = identity.coverage();
+    engine.rest_owner_ = identity.owner();
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory preparing the rig for posing");
+  }
+  engine.rig_ = std::move(rig);
+  return engine;
+}
+
+Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
+  PoseResult result;
+  report::QualityReport& qr = result.report;
+  Clock clock(qr.stage_seconds);
+  qr.pose_name = request.pose.name;
+  qr.method = std::string(skinning::method_name(request.method));
+  const TetMesh& mesh = rig_.mesh;
+  const rig::Skeleton& skeleton = rig_.skeleton;
+
+  // 1. Forward kinematics: one rigid transform per segment.
+  POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
+                            pose::forward_kinematics(skeleton, request.pose));
+  skinning::SegmentTransforms segments;
+  for (const pose::RigidTransform& t : transforms) {
+    segments.rotation.push_back(t.rotation);
+    segments.translation.push_back(t.translation);
+  }
+  result.segment_rotation = segments.rotation;
+  result.segment_translation = segments.translation;
+  clock.lap("kinematics");
+
+  // 2. Skinning of the tet vertices.
+  POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices,
+                            skinning::skin(request.method, mesh.vertices, rig_.weights, rig_.centres, segments));
+  clock.lap("skinning");
+
+  // 3. Mesh quality: inversions, volume change, bone rigidity.
+  const Eigen::VectorXd det = skinning::tet_determinants(mesh, frames_, result.posed_vertices);
+  qr.mesh = report::mesh_change(mesh, det, frames_.rest_volume);
+  std::vector<std::string> names;
+  for (const rig::Segment& s : skeleton.segments) names.push_back(s.name);
+  qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
+  const ImageGeometry& source = rig_.labels.geometry();
+  const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
+  for (const report::SegmentRigidity& s : qr.rigidity) qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
+  qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
+  clock.lap("report-mesh");
+  POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
+
+  // 4. The volume warp.
+  if (request.want_labels || request.want_ct || request.want_fields) {
+    const pose::RigidTransform& root = transforms[static_cast<size_t>(skeleton.root)];
+    POSEWARP_ASSIGN_OR_RETURN(result.output_grid,
+                              resample::output_geometry(request.grid, source, result.posed_vertices,
+                                                        request.given_grid ? &*request.given_grid : nullptr,
+                                                        request.resample));
+    resample::ResampleParams params = request.resample;
+    if (rig_.ct) {
+      float lowest = 0.0f;
+      for (const float v : rig_.ct->voxels()) lowest = std::min(lowest, v);
+      params.intensity_background = std::max(lowest, params.intensity_background);
+    }
+    POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
+                              resample::TetWarp::build(mesh, topology_, result.posed_vertices, source, result.output_grid,
+                                                       root.rotation, root.translation, &rest_coverage_, params, hooks));
+    const resample::WarpStats& stats = warp.stats();
+    qr.covered_voxels = stats.covered_voxels;
+    qr.conflicted_voxels = stats.conflicted_voxels;
+    qr.extrapolated_voxels = stats.extrapolated_voxels;
+    qr.background_voxels = stats.background_voxels;
+    qr.degenerate_tets = stats.degenerate_tets;
+    clock.lap("warp-prepare");
+    if (request.want_labels) {
+      POSEWARP_ASSIGN_OR_RETURN(result.labels, warp.warp_labels(rig_.labels));
+      clock.lap("warp-labels");
+      qr.labels = report::label_change(rig_.labels, *result.labels);
+      for (const auto& [value, counts] : qr.labels.voxels) {
+        if (const labels::LabelEntry* entry = rig_.label_map.find(value)) qr.label_names[value] = entry->name;
+      }
+    }
+    if (request.want_ct && rig_.ct) {
+      POSEWARP_ASSIGN_OR_RETURN(result.ct, warp.warp_intensities(*rig_.ct, request.ct_interpolation));
+      clock.lap("warp-ct");
+    }
+    if (request.want_fields) {
+      result.inverse_field = warp.inverse_displacement();
+      // Forward field on the source grid: each source voxel moves with the rest tet that covers it.
+      result.forward_field.assign(static_cast<size_t>(source.voxel_count()) * 3, 0.0f);
+      const Eigen::MatrixXd& posed = result.posed_vertices;
+      parallel_for(0, source.size[2], 1, [&](int64_t k0, int64_t k1) {
+        for (int64_t k = k0; k < k1; ++k) {
+          for (int64_t j = 0; j < source.size[1]; ++j) {
+            for (int64_t i = 0; i < source.size[0]; ++i) {
+              const int64_t v = source.offset(i, j, k);
+              const Vec3 p = source.index_to_physical({double(i), double(j), double(k)});
+              const Eigen::Vector3d x(p[0], p[1], p[2]);
+              int32_t t = rest_owner_[static_cast<size_t>(v)];
+              if (t <= -2) t = -2 - t;
+              Eigen::Vector3d moved;
+              if (t >= 0) {
+                Eigen::Matrix3d inv;
+                for (int r = 0; r < 3; ++r)
+                  for (int c = 0; c < 3; ++c) inv(r, c) = frames_.rest_inverse(t, 3 * r + c);
+                const Eigen::Vector3d lambda = inv * (x - mesh.vertices.row(mesh.tets(t, 0)).transpose());
+                moved = posed.row(mesh.tets(t, 0)).transpose();
+                for (int c = 0; c < 3; ++c) {
+                  moved += lambda(c) * (posed.row(mesh.tets(t, c + 1)) - posed.row(mesh.tets(t, 0))).transpose();
+                }
+              } else {
+                moved = root.apply(x);
+              }
+              for (int a = 0; a < 3; ++a) result.forward_field[static_cast<size_t>(3 * v + a)] = static_cast<float>(moved(a) - x(a));
+            }
+          }
+        }
+      });
+      clock.lap("fields");
+    }
+  }
+  return result;
+}
+
+}  // namespace posewarp::api

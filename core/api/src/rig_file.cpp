@@ -1,0 +1,471 @@
+// Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
+#include "posewarp/api/rig_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <nlohmann/json.hpp>
+#include <zlib.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+#include "rig_json.h"
+
+namespace posewarp::api {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr char kMagic[8] = {'P', 'O', 'S', 'E', 'W', 'A', 'R', 'P'};
+
+constexpr uint32_t tag(const char (&name)[5]) {
+  return static_cast<uint32_t>(static_cast<unsigned char>(name[0])) |
+         static_cast<uint32_t>(static_cast<unsigned char>(name[1])) << 8 |
+         static_cast<uint32_t>(static_cast<unsigned char>(name[2])) << 16 |
+         static_cast<uint32_t>(static_cast<unsigned char>(name[3])) << 24;
+}
+
+constexpr uint32_t kGeometry = tag("GEOM");
+constexpr uint32_t kLabelMap = tag("LMAP");
+constexpr uint32_t kSkeleton = tag("SKEL");
+constexpr uint32_t kParams = tag("PARM");
+constexpr uint32_t kVertices = tag("VERT");
+constexpr uint32_t kTets = tag("TETS");
+constexpr uint32_t kTetClass = tag("TCLS");
+constexpr uint32_t kWeights = tag("WGHT");
+constexpr uint32_t kCentres = tag("CORS");
+constexpr uint32_t kProvenance = tag("PROV");
+constexpr uint32_t kLabelVolume = tag("LVOL");
+constexpr uint32_t kCtVolume = tag("CTVO");
+constexpr uint32_t kEnd = tag("END!");
+
+uint64_t checksum(const std::string& payload) {
+  return std::stoull(hash_bytes(payload.data(), payload.size()), nullptr, 16);
+}
+
+std::string tag_name(uint32_t t) {
+  std::string name(4, ' ');
+  for (int i = 0; i < 4; ++i) name[static_cast<size_t>(i)] = static_cast<char>((t >> (8 * i)) & 0xff);
+  return name;
+}
+
+// Appends plain-old-data to a payload.
+class Writer {
+ public:
+  template <typename T>
+  void put(const T& value) {
+    const auto* p = reinterpret_cast<const char*>(&value);
+    bytes_.append(p, sizeof(T));
+  }
+  void put_bytes(const void* data, size_t size) { bytes_.append(static_cast<const char*>(data), size); }
+  void put_string(const std::string& s) {
+    put<uint64_t>(s.size());
+    bytes_.append(s);
+  }
+  std::string take() { return std::move(bytes_); }
+
+ private:
+  std::string bytes_;
+};
+
+class Reader {
+ public:
+  Reader(const std::string& bytes, std::string section) : bytes_(bytes), section_(std::move(section)) {}
+  template <typename T>
+  Status get(T& value) {
+    return get_bytes(&value, sizeof(T));
+  }
+  Status get_bytes(void* out, size_t size) {
+    if (offset_ + size > bytes_.size()) {
+      return data_loss_error("rig section " + section_ + " ends early; the file is damaged");
+    }
+    std::memcpy(out, bytes_.data() + offset_, size);
+    offset_ += size;
+    return ok_status();
+  }
+  Status get_string(std::string& s) {
+    uint64_t size = 0;
+    POSEWARP_RETURN_IF_ERROR(get(size));
+    if (size > bytes_.size() - offset_) return data_loss_error("rig section " + section_ + " has a bad string length");
+    s.assign(bytes_.data() + offset_, size);
+    offset_ += size;
+    return ok_status();
+  }
+  // Reads rows x cols elements into an Eigen matrix of the given scalar type.
+  template <typename Matrix>
+  Status get_matrix(Matrix& m) {
+    uint64_t rows = 0, cols = 0;
+    POSEWARP_RETURN_IF_ERROR(get(rows));
+    POSEWARP_RETURN_IF_ERROR(get(cols));
+    const uint64_t bytes = rows * cols * sizeof(typename Matrix::Scalar);
+    if (cols > 64 || bytes > bytes_.size() - offset_) {
+      return data_loss_error("rig section " + section_ + " declares a " + std::to_string(rows) + " x " +
+                             std::to_string(cols) + " array larger than the section");
+    }
+    m.resize(static_cast<Eigen::Index>(rows), static_cast<Eigen::Index>(cols));
+    return get_bytes(m.data(), bytes);
+  }
+
+ private:
+  const std::string& bytes_;
+  std::string section_;
+  size_t offset_ = 0;
+};
+
+template <typename Matrix>
+void put_matrix(Writer& w, const Matrix& m) {
+  w.put<uint64_t>(static_cast<uint64_t>(m.rows()));
+  w.put<uint64_t>(static_cast<uint64_t>(m.cols()));
+  w.put_bytes(m.data(), static_cast<size_t>(m.size()) * sizeof(typename Matrix::Scalar));
+}
+
+// A volume section: geometry, source type, then the voxels zlib-compressed (labels compress ~50x).
+template <typename T>
+std::string volume_section(const Volume<T>& volume) {
+  Writer w;
+  const ImageGeometry& g = volume.geometry();
+  for (int a = 0; a < 3; ++a) w.put<int64_t>(g.size[static_cast<size_t>(a)]);
+  for (int a = 0; a < 3; ++a) w.put<double>(g.spacing[static_cast<size_t>(a)]);
+  for (int a = 0; a < 3; ++a) w.put<double>(g.origin[static_cast<size_t>(a)]);
+  for (int e = 0; e < 9; ++e) w.put<double>(g.direction[static_cast<size_t>(e)]);
+  w.put<int32_t>(static_cast<int32_t>(volume.source_type()));
+  const uLong raw = static_cast<uLong>(volume.voxel_count() * static_cast<int64_t>(sizeof(T)));
+  std::string packed(compressBound(raw), '\0');
+  uLongf packed_size = static_cast<uLongf>(packed.size());
+  compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_size, reinterpret_cast<const Bytef*>(volume.data()), raw, 1);
+  packed.resize(packed_size);
+  w.put<uint64_t>(raw);
+  w.put_string(packed);
+  return w.take();
+}
+
+template <typename T>
+Status read_volume_section(const std::string& payload, const std::string& name, Volume<T>& volume) {
+  Reader r(payload, name);
+  ImageGeometry g;
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.spacing[static_cast<size_t>(a)]));
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.origin[static_cast<size_t>(a)]));
+  for (int e = 0; e < 9; ++e) POSEWARP_RETURN_IF_ERROR(r.get(g.direction[static_cast<size_t>(e)]));
+  int32_t type = 0;
+  POSEWARP_RETURN_IF_ERROR(r.get(type));
+  uint64_t raw = 0;
+  POSEWARP_RETURN_IF_ERROR(r.get(raw));
+  std::string packed;
+  POSEWARP_RETURN_IF_ERROR(r.get_string(packed));
+  if (g.validate().ok() == false || raw != static_cast<uint64_t>(g.voxel_count()) * sizeof(T)) {
+    return data_loss_error("rig section " + name + " describes an inconsistent volume");
+  }
+  volume = Volume<T>(g);
+  volume.set_source_type(static_cast<PixelType>(type));
+  uLongf size = static_cast<uLongf>(raw);
+  if (uncompress(reinterpret_cast<Bytef*>(volume.data()), &size, reinterpret_cast<const Bytef*>(packed.data()),
+                 static_cast<uLong>(packed.size())) != Z_OK ||
+      size != raw) {
+    return data_loss_error("rig section " + name + " does not decompress; the file is damaged");
+  }
+  return ok_status();
+}
+
+// The sections of a rig in file order; provenance last (it is not part of the content hash).
+std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
+  std::vector<std::pair<uint32_t, std::string>> sections;
+  {
+    Writer w;
+    const ImageGeometry& g = rig.source_geometry;
+    for (int a = 0; a < 3; ++a) w.put<int64_t>(g.size[static_cast<size_t>(a)]);
+    for (int a = 0; a < 3; ++a) w.put<double>(g.spacing[static_cast<size_t>(a)]);
+    for (int a = 0; a < 3; ++a) w.put<double>(g.origin[static_cast<size_t>(a)]);
+    for (int e = 0; e < 9; ++e) w.put<double>(g.direction[static_cast<size_t>(e)]);
+    w.put_string(rig.labels_hash);
+    w.put_string(rig.ct_hash);
+    sections.emplace_back(kGeometry, w.take());
+  }
+  sections.emplace_back(kLabelMap, labels::label_map_to_json(rig.label_map));
+  sections.emplace_back(kSkeleton, detail::skeleton_to_json(rig.skeleton));
+  sections.emplace_back(kParams, rig.params_json);
+  {
+    // Row-major copies so the file layout does not depend on Eigen's storage order.
+    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices = rig.mesh.vertices;
+    Writer w;
+    w.put<int32_t>(rig.mesh.segment_count);
+    put_matrix(w, vertices);
+    sections.emplace_back(kVertices, w.take());
+  }
+  {
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 4, Eigen::RowMajor> tets = rig.mesh.tets;
+    Writer w;
+    put_matrix(w, tets);
+    sections.emplace_back(kTets, w.take());
+  }
+  {
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 1> classes = rig.mesh.tet_class;
+    Writer w;
+    put_matrix(w, classes);
+    sections.emplace_back(kTetClass, w.take());
+  }
+  {
+    Writer w;
+    w.put<int32_t>(rig.weights.influences);
+    w.put<int32_t>(rig.weights.segment_count);
+    put_matrix(w, rig.weights.segment);
+    put_matrix(w, rig.weights.weight);
+    sections.emplace_back(kWeights, w.take());
+  }
+  {
+    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> centres = rig.centres.centre;
+    Writer w;
+    put_matrix(w, centres);
+    w.put<uint64_t>(rig.centres.rigid.size());
+    w.put_bytes(rig.centres.rigid.data(), rig.centres.rigid.size());
+    sections.emplace_back(kCentres, w.take());
+  }
+  if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, volume_section(rig.labels));
+  if (rig.ct) sections.emplace_back(kCtVolume, volume_section(*rig.ct));
+  for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
+  {
+    nlohmann::json prov;
+    prov["software_version"] = rig.provenance.software_version;
+    prov["labels_source"] = rig.provenance.labels_source;
+    prov["ct_source"] = rig.provenance.ct_source;
+    nlohmann::json stages = nlohmann::json::array();
+    for (const auto& [stage, seconds] : rig.provenance.stage_seconds) stages.push_back({stage, seconds});
+    prov["stage_seconds"] = stages;
+    prov["stats"] = rig.provenance.stats_json.empty() ? nlohmann::json::object()
+                                                      : nlohmann::json::parse(rig.provenance.stats_json);
+    sections.emplace_back(kProvenance, prov.dump());
+  }
+  return sections;
+}
+
+std::string hash_of_sections(const std::vector<std::pair<uint32_t, std::string>>& sections) {
+  std::string digest;
+  for (const auto& [t, payload] : sections) {
+    if (t == kProvenance) continue;
+    digest += tag_name(t) + hash_bytes(payload.data(), payload.size());
+  }
+  return hash_bytes(digest.data(), digest.size());
+}
+
+Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
+  const std::string name = tag_name(t);
+  if (t == kGeometry) {
+    Reader r(payload, name);
+    ImageGeometry& g = rig.source_geometry;
+    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
+    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.spacing[static_cast<size_t>(a)]));
+    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.origin[static_cast<size_t>(a)]));
+    for (int e = 0; e < 9; ++e) POSEWARP_RETURN_IF_ERROR(r.get(g.direction[static_cast<size_t>(e)]));
+    POSEWARP_RETURN_IF_ERROR(r.get_string(rig.labels_hash));
+    return r.get_string(rig.ct_hash);
+  }
+  if (t == kLabelMap) {
+    Result<labels::LabelMap> map = labels::label_map_from_json(payload, "in the rig file");
+    if (!map.ok()) return data_loss_error(map.status().message());
+    rig.label_map = std::move(map).value();
+    return ok_status();
+  }
+  if (t == kSkeleton) {
+    POSEWARP_ASSIGN_OR_RETURN(rig.skeleton, detail::skeleton_from_json(payload));
+    return ok_status();
+  }
+  if (t == kParams) {
+    rig.params_json = payload;
+    return ok_status();
+  }
+  if (t == kVertices) {
+    Reader r(payload, name);
+    POSEWARP_RETURN_IF_ERROR(r.get(rig.mesh.segment_count));
+    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(vertices));
+    rig.mesh.vertices = vertices;
+    return ok_status();
+  }
+  if (t == kTets) {
+    Reader r(payload, name);
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 4, Eigen::RowMajor> tets;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(tets));
+    rig.mesh.tets = tets;
+    return ok_status();
+  }
+  if (t == kTetClass) {
+    Reader r(payload, name);
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 1> classes;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(classes));
+    rig.mesh.tet_class = classes;
+    return ok_status();
+  }
+  if (t == kWeights) {
+    Reader r(payload, name);
+    POSEWARP_RETURN_IF_ERROR(r.get(rig.weights.influences));
+    POSEWARP_RETURN_IF_ERROR(r.get(rig.weights.segment_count));
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(rig.weights.segment));
+    return r.get_matrix(rig.weights.weight);
+  }
+  if (t == kCentres) {
+    Reader r(payload, name);
+    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> centres;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(centres));
+    rig.centres.centre = centres;
+    uint64_t count = 0;
+    POSEWARP_RETURN_IF_ERROR(r.get(count));
+    if (count != static_cast<uint64_t>(centres.rows())) return data_loss_error("rig centres section is inconsistent");
+    rig.centres.rigid.resize(count);
+    return r.get_bytes(rig.centres.rigid.data(), count);
+  }
+  if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
+  if (t == kCtVolume) {
+    rig.ct.emplace();
+    return read_volume_section(payload, name, *rig.ct);
+  }
+  if (t == kProvenance) {
+    try {
+      const nlohmann::json prov = nlohmann::json::parse(payload);
+      rig.provenance.software_version = prov.value("software_version", "");
+      rig.provenance.labels_source = prov.value("labels_source", "");
+      rig.provenance.ct_source = prov.value("ct_source", "");
+      for (const auto& stage : prov.value("stage_seconds", nlohmann::json::array())) {
+        rig.provenance.stage_seconds.emplace_back(stage.at(0).get<std::string>(), stage.at(1).get<double>());
+      }
+      rig.provenance.stats_json = prov.value("stats", nlohmann::json::object()).dump();
+    } catch (const nlohmann::json::exception& error) {
+      return data_loss_error(std::string("rig provenance section is malformed: ") + error.what());
+    }
+    return ok_status();
+  }
+  rig.unknown_sections.emplace_back(t, payload);
+  return ok_status();
+}
+
+// Structural checks after loading: arrays agree with each other.
+Status check_consistency(const Rig& rig) {
+  const int64_t v = rig.mesh.vertex_count();
+  if (rig.mesh.tets.rows() != rig.mesh.tet_class.rows()) return data_loss_error("rig mesh: tets and classes disagree");
+  if (rig.weights.segment.rows() != v || rig.weights.weight.rows() != v ||
+      rig.weights.segment.cols() != rig.weights.influences || rig.weights.weight.cols() != rig.weights.influences) {
+    return data_loss_error("rig weights do not match the mesh's " + std::to_string(v) + " vertices");
+  }
+  if (rig.centres.centre.rows() != v) return data_loss_error("rig centres do not match the mesh's vertices");
+  if (rig.mesh.tets.size() > 0 && (rig.mesh.tets.minCoeff() < 0 || rig.mesh.tets.maxCoeff() >= v)) {
+    return data_loss_error("rig mesh refers to vertices that do not exist");
+  }
+  if (!rig.labels.empty() && !rig.labels.geometry().same_grid(rig.source_geometry, 1e-6)) {
+    return data_loss_error("rig label volume is not on the rig's source grid");
+  }
+  if (static_cast<int>(rig.skeleton.segments.size()) != rig.mesh.segment_count) {
+    return data_loss_error("rig skeleton and mesh disagree on the number of segments");
+  }
+  return ok_status();
+}
+
+}  // namespace
+
+std::string content_hash(const Rig& rig) { return hash_of_sections(sections_of(rig)); }
+
+Status save_rig(const Rig& rig, const std::string& path) {
+  const std::vector<std::pair<uint32_t, std::string>> sections = sections_of(rig);
+  std::string file(kMagic, sizeof(kMagic));
+  auto put32 = [&file](uint32_t value) { file.append(reinterpret_cast<const char*>(&value), 4); };
+  auto put64 = [&file](uint64_t value) { file.append(reinterpret_cast<const char*>(&value), 8); };
+  put32(kRigFormatVersion);
+  put32(0);
+  for (const auto& [t, payload] : sections) {
+    put32(t);
+    put32(0);
+    put64(payload.size());
+    put64(checksum(payload));
+    file += payload;
+  }
+  put32(kEnd);
+  put32(0);
+  put64(0);
+  put64(std::stoull(hash_of_sections(sections), nullptr, 16));
+
+  const fs::path target(path);
+  const fs::path temporary = target.parent_path() / (".posewarp-partial-" + std::to_string(::getpid()) + "-" +
+                                                     target.filename().string());
+  const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  if (fd < 0) return invalid_argument_error("cannot write rig file '" + path + "': " + std::strerror(errno));
+  size_t written = 0;
+  while (written < file.size()) {
+    const ssize_t n = ::write(fd, file.data() + written, file.size() - written);
+    if (n <= 0) {
+      ::close(fd);
+      std::error_code ignored;
+      fs::remove(temporary, ignored);
+      return internal_error("writing rig file '" + path + "' failed (disk full?)");
+    }
+    written += static_cast<size_t>(n);
+  }
+  const bool synced = ::fsync(fd) == 0;
+  ::close(fd);
+  std::error_code ec;
+  if (!synced) {
+    fs::remove(temporary, ec);
+    return internal_error("could not flush rig file '" + path + "' to disk");
+  }
+  fs::rename(temporary, target, ec);
+  if (ec) {
+    fs::remove(temporary, ec);
+    return internal_error("could not move the rig file into place at '" + path + "': " + ec.message());
+  }
+  return ok_status();
+}
+
+Result<Rig> load_rig(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open rig file '" + path + "'");
+  const std::string file((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string where = "'" + path + "'";
+  if (file.size() < 16 || std::memcmp(file.data(), kMagic, sizeof(kMagic)) != 0) {
+    return invalid_argument_error(where + " is not a posewarp rig file (build one with `posewarp rig build`)");
+  }
+  uint32_t version = 0;
+  std::memcpy(&version, file.data() + 8, 4);
+  if (version > kRigFormatVersion) {
+    return failed_precondition_error(where + " was written by a newer posewarp (rig format " + std::to_string(version) +
+                                     "; this one reads up to " + std::to_string(kRigFormatVersion) +
+                                     "). Upgrade posewarp, or rebuild the rig with this version");
+  }
+  Rig rig;
+  size_t offset = 16;
+  bool ended = false;
+  std::vector<std::pair<uint32_t, std::string>> sections;
+  while (offset < file.size()) {
+    if (offset + 24 > file.size()) break;
+    uint32_t t = 0;
+    uint64_t size = 0, sum = 0;
+    std::memcpy(&t, file.data() + offset, 4);
+    std::memcpy(&size, file.data() + offset + 8, 8);
+    std::memcpy(&sum, file.data() + offset + 16, 8);
+    offset += 24;
+    if (t == kEnd) {
+      ended = true;
+      if (std::stoull(hash_of_sections(sections), nullptr, 16) != sum) {
+        return data_loss_error(where + " fails its content check; the file is damaged. Rebuild the rig");
+      }
+      break;
+    }
+    if (size > file.size() - offset) break;
+    std::string payload = file.substr(offset, size);
+    offset += size;
+    if (checksum(payload) != sum) {
+      return data_loss_error(where + ": section " + tag_name(t) + " fails its checksum; the file is damaged. Rebuild the rig");
+    }
+    Status parsed = parse_section(rig, t, payload);
+    if (!parsed.ok()) return parsed.with_context(where);
+    sections.emplace_back(t, std::move(payload));
+  }
+  if (!ended) {
+    return data_loss_error(where + " is truncated (" + std::to_string(file.size()) +
+                           " bytes, no end marker); the write did not finish. Rebuild the rig");
+  }
+  Status consistent = check_consistency(rig);
+  if (!consistent.ok()) return consistent.with_context(where);
+  return rig;
+}
+
+}  // namespace posewarp::api

@@ -1,0 +1,122 @@
+// JSON forms of the skeleton and the build parameters.
+#include "rig_json.h"
+
+#include <nlohmann/json.hpp>
+
+namespace posewarp::api {
+namespace detail {
+namespace {
+
+using json = nlohmann::json;
+
+json to_json3(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
+Eigen::Vector3d vec(const json& j) { return {j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>()}; }
+
+}  // namespace
+
+std::string skeleton_to_json(const rig::Skeleton& skeleton) {
+  json doc;
+  doc["root"] = skeleton.root;
+  json segments = json::array();
+  for (const rig::Segment& s : skeleton.segments) {
+    segments.push_back({{"name", s.name},
+                        {"labels", s.labels},
+                        {"voxels", s.voxels},
+                        {"centroid_mm", to_json3(s.centroid_mm)},
+                        {"principal_axis", to_json3(s.principal_axis)},
+                        {"parent_joint", s.parent_joint}});
+  }
+  doc["segments"] = segments;
+  json joints = json::array();
+  for (const rig::Joint& j : skeleton.joints) {
+    joints.push_back({{"name", j.name},
+                      {"parent", j.parent},
+                      {"child", j.child},
+                      {"centre_mm", to_json3(j.centre_mm)},
+                      {"frame", json::array({to_json3(j.frame.col(0)), to_json3(j.frame.col(1)), to_json3(j.frame.col(2))})},
+                      {"method", j.method},
+                      {"contact_area_mm2", j.contact_area_mm2},
+                      {"sphere_radius_mm", j.sphere_radius_mm},
+                      {"sphere_rms_mm", j.sphere_rms_mm}});
+  }
+  doc["joints"] = joints;
+  doc["missing_segments"] = skeleton.missing_segments;
+  doc["notes"] = skeleton.notes;
+  return doc.dump();
+}
+
+Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
+  try {
+    const json doc = json::parse(text);
+    rig::Skeleton skeleton;
+    skeleton.root = doc.at("root").get<int>();
+    for (const json& s : doc.at("segments")) {
+      rig::Segment segment;
+      segment.name = s.at("name").get<std::string>();
+      segment.labels = s.at("labels").get<std::vector<Label>>();
+      segment.voxels = s.at("voxels").get<int64_t>();
+      segment.centroid_mm = vec(s.at("centroid_mm"));
+      segment.principal_axis = vec(s.at("principal_axis"));
+      segment.parent_joint = s.at("parent_joint").get<int>();
+      skeleton.segments.push_back(segment);
+    }
+    for (const json& j : doc.at("joints")) {
+      rig::Joint joint;
+      joint.name = j.at("name").get<std::string>();
+      joint.parent = j.at("parent").get<int>();
+      joint.child = j.at("child").get<int>();
+      joint.centre_mm = vec(j.at("centre_mm"));
+      for (int c = 0; c < 3; ++c) joint.frame.col(c) = vec(j.at("frame").at(static_cast<size_t>(c)));
+      joint.method = j.at("method").get<std::string>();
+      joint.contact_area_mm2 = j.at("contact_area_mm2").get<double>();
+      joint.sphere_radius_mm = j.at("sphere_radius_mm").get<double>();
+      joint.sphere_rms_mm = j.at("sphere_rms_mm").get<double>();
+      skeleton.joints.push_back(joint);
+    }
+    skeleton.missing_segments = doc.at("missing_segments").get<std::vector<std::string>>();
+    skeleton.notes = doc.at("notes").get<std::vector<std::string>>();
+    const int n = static_cast<int>(skeleton.segments.size());
+    if (skeleton.root < 0 || skeleton.root >= n) return data_loss_error("rig skeleton has an invalid root");
+    for (const rig::Joint& joint : skeleton.joints) {
+      if (joint.parent < 0 || joint.parent >= n || joint.child < 0 || joint.child >= n) {
+        return data_loss_error("rig skeleton joint '" + joint.name + "' refers to a missing segment");
+      }
+    }
+    return skeleton;
+  } catch (const json::exception& error) {
+    return data_loss_error(std::string("rig skeleton section is malformed: ") + error.what());
+  }
+}
+
+}  // namespace detail
+
+std::string params_to_json(const BuildParams& p) {
+  using json = nlohmann::json;
+  json doc;
+  doc["skeleton"] = {{"contact_distance_mm", p.skeleton.contact_distance_mm},
+                     {"sphere_max_relative_rms", p.skeleton.sphere_max_relative_rms},
+                     {"sphere_min_points", p.skeleton.sphere_min_points}};
+  doc["body"] = {{"use_ct", p.body.use_ct},
+                 {"ct_threshold_hu", p.body.ct_threshold_hu},
+                 {"keep_largest_component", p.body.keep_largest_component},
+                 {"fill_holes", p.body.fill_holes}};
+  doc["mesh"] = {{"facet_size_mm", p.mesh.facet_size_mm},
+                 {"facet_distance_mm", p.mesh.facet_distance_mm},
+                 {"facet_angle_deg", p.mesh.facet_angle_deg},
+                 {"bone_cell_size_mm", p.mesh.bone_cell_size_mm},
+                 {"soft_cell_size_mm", p.mesh.soft_cell_size_mm},
+                 {"size_growth", p.mesh.size_growth},
+                 {"cell_radius_edge_ratio", p.mesh.cell_radius_edge_ratio},
+                 {"voxel_budget", p.mesh.voxel_budget},
+                 {"parallel", p.mesh.parallel},
+                 {"seed", p.mesh.seed},
+                 {"exude", p.mesh.exude},
+                 {"exude_time_limit_s", p.mesh.exude_time_limit_s}};
+  doc["weights"] = {{"max_influences", p.weights.max_influences},
+                    {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},
+                    {"prefer_cholmod", p.weights.prefer_cholmod}};
+  doc["cor"] = {{"sigma", p.cor.sigma}, {"rigid_threshold", p.cor.rigid_threshold}, {"quantization", p.cor.quantization}};
+  return doc.dump();
+}
+
+}  // namespace posewarp::api

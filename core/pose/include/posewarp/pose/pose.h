@@ -1,0 +1,64 @@
+// Pose: one rotation per joint, each in the joint's own frame, plus a root transform; its JSON form and validation
+// against a skeleton (Sujar et al. 2018 section 3.5: the skeleton is posed, the tet mesh follows by skinning).
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <string>
+#include <vector>
+
+#include "posewarp/common/result.h"
+#include "posewarp/pose/rigid_transform.h"
+#include "posewarp/rig/skeleton.h"
+
+namespace posewarp::pose {
+
+// The rotation of a joint's child segment relative to its parent, expressed in the joint's rest frame F
+// (rig::Joint::frame, columns x, y, z in LPS; z points along the child's long axis). In LPS the child turns by
+// F * R * F^T about the joint centre. Must be a unit quaternion (within 1e-3).
+struct JointRotation {
+  std::string joint;
+  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();
+};
+
+struct Pose {
+  std::string name;
+  std::vector<JointRotation> joints;  // joints not listed stay at rest
+  // Not the root segment's transform itself: `root.rotation` R turns the body about the root segment's centroid c
+  // (rig::Segment::centroid_mm), then `root.translation` t (LPS mm) moves it: T_root(p) = R (p - c) + c + t.
+  // A pose is written without knowing the rig, so c is only applied by forward_kinematics.
+  RigidTransform root;
+};
+
+// Pose JSON, version 1 (every field but "joints" optional; unknown fields are errors, so are duplicate keys):
+//   {"format": "posewarp.pose", "version": 1, "name": "knee bent",
+//    "root": {"translation_mm": [0, 0, 0], "rotation": {"axis_angle": {"axis": [0, 0, 1], "degrees": 30}}},
+//    "joints": {
+//      "knee_left":  {"angles_deg": {"flexion": 90, "abduction": 0, "rotation": 0}},
+//      "hip_right":  {"axis_angle": {"axis": [1, 0, 0], "degrees": -20}},
+//      "elbow_left": {"quaternion": [1, 0, 0, 0]}}}
+// A rotation is given exactly one of three ways:
+//   "quaternion": [w, x, y, z]   unit within 1e-3 (an error otherwise, never normalized silently);
+//   "axis_angle": {"axis": [x, y, z], "degrees": d}   axis non-zero, any length; right-hand rule;
+//   "angles_deg": {"flexion": a, "abduction": b, "rotation": c}   each optional (default 0): intrinsic rotations
+//       about the frame's x (flexion), then y (abduction), then z (axial rotation about the child's long axis),
+//       R = Rx(a) * Ry(b) * Rz(c).
+// Joint rotations are in the joint's frame (see JointRotation). The root rotation uses the same forms in LPS axes
+// (x patient left, y posterior, z superior) and turns about the root segment's centroid; "translation_mm" is in
+// LPS mm. Numbers must be finite; JSON has no NaN or Infinity.
+Result<Pose> pose_from_json(const std::string& text, const std::string& source);
+// NOT_FOUND when the file cannot be opened; otherwise as pose_from_json.
+Result<Pose> read_pose(const std::string& path);
+// Writes every rotation as a quaternion [w, x, y, z]; pose_from_json reads it back.
+std::string pose_to_json(const Pose& pose);
+
+// INVALID_ARGUMENT for a joint the skeleton lacks (the message lists the rig's joints), a joint given twice, a
+// quaternion that is not unit within 1e-3 or not finite, a root rotation that is not a rotation, a non-finite
+// root translation.
+Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton);
+
+// R = Rx(flexion) * Ry(abduction) * Rz(rotation), angles in degrees: the "angles_deg" form.
+Eigen::Quaterniond rotation_from_angles_deg(double flexion, double abduction, double rotation);
+
+}  // namespace posewarp::pose

@@ -1,0 +1,63 @@
+// The quality report of a pose (DESIGN.md section 9): make damage visible instead of silent.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "posewarp/common/tet_mesh.h"
+#include "posewarp/common/volume.h"
+
+namespace posewarp::report {
+
+struct MeshChange {
+  int64_t inverted_tets = 0;            // det(A_t) <= 0
+  double det_min = 1.0, det_max = 1.0;  // range of det(A_t) over all tets
+  double soft_tissue_volume_change = 0.0;  // posed / rest soft-tissue mesh volume - 1
+  double body_volume_change = 0.0;
+};
+
+// det: per-tet determinants of the rest -> posed maps; rest_volume: per-tet rest volumes (mm^3).
+MeshChange mesh_change(const TetMesh& rest, const Eigen::VectorXd& det, const Eigen::VectorXd& rest_volume);
+
+struct SegmentRigidity {
+  std::string segment;
+  double max_error_mm = 0.0;  // largest distance of a bone vertex from its segment's rigid transform
+};
+
+// For every bone segment: how far the posed vertices of its tets lie from the segment's rigid transform of their
+// rest positions. rotation/translation: rest -> posed per segment.
+std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::MatrixXd& posed,
+                                           const std::vector<Eigen::Matrix3d>& rotation,
+                                           const std::vector<Eigen::Vector3d>& translation,
+                                           const std::vector<std::string>& segment_names);
+
+struct LabelChange {
+  std::map<Label, std::pair<int64_t, int64_t>> voxels;  // label -> (before, after)
+  std::vector<Label> vanished;                          // present before, absent after
+  std::vector<Label> appeared;                          // absent before, present after (must stay empty)
+};
+
+LabelChange label_change(const LabelVolume& before, const LabelVolume& after);
+
+struct QualityReport {
+  std::string pose_name;
+  std::string method;
+  MeshChange mesh;
+  std::vector<SegmentRigidity> rigidity;
+  double bone_rigidity_error_mm = 0.0;      // max over segments
+  double bone_rigidity_error_voxels = 0.0;  // the same in voxels of the source grid
+  LabelChange labels;
+  std::map<Label, std::string> label_names;
+  int64_t covered_voxels = 0, conflicted_voxels = 0, extrapolated_voxels = 0, background_voxels = 0;
+  int64_t degenerate_tets = 0;
+  std::vector<std::pair<std::string, double>> stage_seconds;
+};
+
+std::string to_json(const QualityReport& report);
+
+}  // namespace posewarp::report

@@ -1,0 +1,105 @@
+// Quality report pieces: mesh volume change and inversions, bone rigidity, label counts, JSON.
+#include "posewarp/report/quality_report.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace posewarp::report {
+
+MeshChange mesh_change(const TetMesh& rest, const Eigen::VectorXd& det, const Eigen::VectorXd& rest_volume) {
+  MeshChange change;
+  double soft_rest = 0.0, soft_posed = 0.0, body_rest = 0.0, body_posed = 0.0;
+  change.det_min = std::numeric_limits<double>::infinity();
+  change.det_max = -std::numeric_limits<double>::infinity();
+  for (int64_t t = 0; t < rest.tet_count(); ++t) {
+    const double d = det(t);
+    change.det_min = std::min(change.det_min, d);
+    change.det_max = std::max(change.det_max, d);
+    if (d <= 0.0) ++change.inverted_tets;
+    const double v0 = rest_volume(t), v1 = rest_volume(t) * d;
+    body_rest += v0;
+    body_posed += v1;
+    if (rest.tet_class(t) == kSoftTissueClass) soft_rest += v0, soft_posed += v1;
+  }
+  if (rest.tet_count() == 0) change.det_min = change.det_max = 1.0;
+  change.soft_tissue_volume_change = soft_rest > 0.0 ? soft_posed / soft_rest - 1.0 : 0.0;
+  change.body_volume_change = body_rest > 0.0 ? body_posed / body_rest - 1.0 : 0.0;
+  return change;
+}
+
+std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::MatrixXd& posed,
+                                           const std::vector<Eigen::Matrix3d>& rotation,
+                                           const std::vector<Eigen::Vector3d>& translation,
+                                           const std::vector<std::string>& segment_names) {
+  std::vector<SegmentRigidity> result(static_cast<size_t>(rest.segment_count));
+  for (int k = 0; k < rest.segment_count; ++k) {
+    result[static_cast<size_t>(k)].segment =
+        k < static_cast<int>(segment_names.size()) ? segment_names[static_cast<size_t>(k)] : std::to_string(k);
+  }
+  for (int64_t t = 0; t < rest.tet_count(); ++t) {
+    const int k = rest.tet_class(t) - kFirstBoneClass;
+    if (k < 0 || k >= rest.segment_count || static_cast<size_t>(k) >= rotation.size()) continue;
+    for (int c = 0; c < 4; ++c) {
+      const int32_t v = rest.tets(t, c);
+      const Eigen::Vector3d expected =
+          rotation[static_cast<size_t>(k)] * rest.vertices.row(v).transpose() + translation[static_cast<size_t>(k)];
+      const double error = (posed.row(v).transpose() - expected).norm();
+      double& worst = result[static_cast<size_t>(k)].max_error_mm;
+      worst = std::max(worst, error);
+    }
+  }
+  return result;
+}
+
+LabelChange label_change(const LabelVolume& before, const LabelVolume& after) {
+  LabelChange change;
+  for (const Label l : before.voxels()) ++change.voxels[l].first;
+  for (const Label l : after.voxels()) ++change.voxels[l].second;
+  for (const auto& [label, counts] : change.voxels) {
+    if (counts.first > 0 && counts.second == 0) change.vanished.push_back(label);
+    if (counts.first == 0 && counts.second > 0) change.appeared.push_back(label);
+  }
+  return change;
+}
+
+std::string to_json(const QualityReport& r) {
+  using json = nlohmann::json;
+  json doc;
+  doc["format"] = "posewarp.quality_report";
+  doc["version"] = 1;
+  doc["pose"] = r.pose_name;
+  doc["method"] = r.method;
+  doc["tets"] = {{"inverted", r.mesh.inverted_tets},
+                 {"degenerate_after_posing", r.degenerate_tets},
+                 {"det_min", r.mesh.det_min},
+                 {"det_max", r.mesh.det_max}};
+  doc["volume_change"] = {{"soft_tissue", r.mesh.soft_tissue_volume_change}, {"body", r.mesh.body_volume_change}};
+  json rigidity = json::array();
+  for (const SegmentRigidity& s : r.rigidity) rigidity.push_back({{"segment", s.segment}, {"max_error_mm", s.max_error_mm}});
+  doc["bone_rigidity"] = {{"max_error_mm", r.bone_rigidity_error_mm},
+                          {"max_error_voxels", r.bone_rigidity_error_voxels},
+                          {"segments", rigidity}};
+  doc["voxels"] = {{"covered", r.covered_voxels},
+                   {"conflicted", r.conflicted_voxels},
+                   {"extrapolated", r.extrapolated_voxels},
+                   {"background", r.background_voxels}};
+  json labels = json::array();
+  for (const auto& [label, counts] : r.labels.voxels) {
+    json entry{{"value", label}, {"before", counts.first}, {"after", counts.second}};
+    auto name = r.label_names.find(label);
+    if (name != r.label_names.end()) entry["name"] = name->second;
+    if (counts.first > 0) entry["change"] = static_cast<double>(counts.second) / static_cast<double>(counts.first) - 1.0;
+    labels.push_back(entry);
+  }
+  doc["labels"] = labels;
+  doc["vanished_labels"] = r.labels.vanished;
+  doc["new_labels"] = r.labels.appeared;
+  json stages = json::object();
+  for (const auto& [stage, seconds] : r.stage_seconds) stages[stage] = seconds;
+  doc["stage_seconds"] = stages;
+  return doc.dump(2) + "\n";
+}
+
+}  // namespace posewarp::report

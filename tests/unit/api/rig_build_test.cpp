@@ -1,0 +1,87 @@
+#include "posewarp/api/rig.h"
+
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include "posewarp/api/rig_file.h"
+#include "rig_test_support.h"
+
+namespace posewarp::api {
+namespace {
+
+using posewarp::testing::bar_inputs;
+using posewarp::testing::shared_bar_rig;
+using posewarp::testing::small_bar_params;
+
+TEST(BuildRig, BarBuildsWithNoManualInput) {
+  const Rig& rig = shared_bar_rig();
+  EXPECT_EQ(rig.skeleton.segments.size(), 3u);
+  EXPECT_EQ(rig.skeleton.joints.size(), 2u);
+  EXPECT_GT(rig.mesh.tet_count(), 1000);
+  EXPECT_EQ(rig.weights.vertex_count(), rig.mesh.vertex_count());
+  EXPECT_EQ(rig.centres.centre.rows(), rig.mesh.vertex_count());
+  std::vector<std::string> stages;
+  for (const auto& [stage, seconds] : rig.provenance.stage_seconds) stages.push_back(stage);
+  EXPECT_EQ(stages, (std::vector<std::string>{"skeleton", "body", "mesh", "weights", "cor"}));
+}
+
+TEST(BuildRig, WeightsArePartitionsOfUnityAndBonesAreExact) {
+  const Rig& rig = shared_bar_rig();
+  const auto stats = nlohmann::json::parse(rig.provenance.stats_json);
+  EXPECT_LT(stats["weights"]["max_partition_error"].get<double>(), 1e-9);
+  for (int64_t v = 0; v < rig.weights.vertex_count(); ++v) {
+    double sum = 0.0;
+    for (int i = 0; i < rig.weights.influences; ++i) sum += rig.weights.weight(v, i);
+    ASSERT_NEAR(sum, 1.0, 1e-6) << "vertex " << v;
+  }
+  // Every vertex of a bone tet is fully owned by a bone (its own, or a neighbour's on a shared face).
+  for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+    if (rig.mesh.tet_class(t) < kFirstBoneClass) continue;
+    for (int c = 0; c < 4; ++c) ASSERT_FLOAT_EQ(rig.weights.weight(rig.mesh.tets(t, c), 0), 1.0f);
+  }
+}
+
+TEST(BuildRig, SameInputsAndParametersGiveTheSameRig) {
+  Result<Rig> again = build_rig(bar_inputs(), small_bar_params(), {});
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->id(), shared_bar_rig().id());
+  EXPECT_EQ(content_hash(*again), content_hash(shared_bar_rig()));
+  BuildParams other = small_bar_params();
+  other.mesh.seed = 99;
+  Result<Rig> reseeded = build_rig(bar_inputs(), other, {});
+  ASSERT_TRUE(reseeded.ok());
+  EXPECT_NE(reseeded->id(), shared_bar_rig().id());
+}
+
+TEST(BuildRig, ABodyMaskThatLeavesBonesOutIsRefused) {
+  BuildInputs inputs = bar_inputs();
+  LabelVolume body(inputs.labels.geometry(), 0);
+  for (int64_t v = 0; v < body.voxel_count(); ++v) body.data()[v] = inputs.labels.data()[v] == 1 ? 1 : 0;
+  inputs.body = body;
+  Result<Rig> rig = build_rig(inputs, small_bar_params(), {});
+  EXPECT_EQ(rig.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(rig.status().message().find("must contain the bones"), std::string::npos);
+}
+
+TEST(BuildRig, AnEmptyVolumeIsAClearError) {
+  BuildInputs inputs = bar_inputs();
+  std::fill(inputs.labels.voxels().begin(), inputs.labels.voxels().end(), 0);
+  Result<Rig> rig = build_rig(inputs, small_bar_params(), {});
+  EXPECT_EQ(rig.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(rig.status().message().find("no bone labels"), std::string::npos);
+}
+
+TEST(BuildRig, CancellationStopsTheBuild) {
+  ProgressHooks hooks;
+  CancelFlag flag;
+  hooks.cancel_requested = flag.as_hook();
+  hooks.on_progress = [&flag](std::string_view stage, double) {
+    if (stage == "mesh") flag.cancel();
+  };
+  Result<Rig> rig = build_rig(bar_inputs(), small_bar_params(), hooks);
+  EXPECT_EQ(rig.status().code(), StatusCode::kCancelled);
+}
+
+}  // namespace
+}  // namespace posewarp::api

@@ -1,0 +1,105 @@
+#include "posewarp/api/rig_file.h"
+
+#include <gtest/gtest.h>
+
+#include <cstring>
+
+#include "posewarp/api/vtk_export.h"
+#include "rig_test_support.h"
+#include "test_support.h"
+
+namespace posewarp::api {
+namespace {
+
+using posewarp::testing::read_bytes;
+using posewarp::testing::ScratchDir;
+using posewarp::testing::shared_bar_rig;
+using posewarp::testing::write_bytes;
+
+TEST(RigFile, RoundTripKeepsEverySection) {
+  ScratchDir dir;
+  const Rig& rig = shared_bar_rig();
+  ASSERT_TRUE(save_rig(rig, dir.file("bar.rig")).ok());
+  Result<Rig> back = load_rig(dir.file("bar.rig"));
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  EXPECT_EQ(back->mesh.vertices, rig.mesh.vertices);
+  EXPECT_EQ(back->mesh.tets, rig.mesh.tets);
+  EXPECT_EQ(back->mesh.tet_class, rig.mesh.tet_class);
+  EXPECT_EQ(back->weights.segment, rig.weights.segment);
+  EXPECT_EQ(back->weights.weight, rig.weights.weight);
+  EXPECT_EQ(back->centres.centre, rig.centres.centre);
+  EXPECT_EQ(back->centres.rigid, rig.centres.rigid);
+  EXPECT_EQ(back->skeleton.joints.size(), rig.skeleton.joints.size());
+  EXPECT_EQ(back->skeleton.joints[0].centre_mm, rig.skeleton.joints[0].centre_mm);
+  EXPECT_EQ(back->skeleton.joints[0].frame, rig.skeleton.joints[0].frame);
+  EXPECT_EQ(back->label_map.entries().size(), rig.label_map.entries().size());
+  EXPECT_TRUE(back->source_geometry.same_grid(rig.source_geometry, 0.0));
+  EXPECT_EQ(back->id(), rig.id());
+  EXPECT_EQ(content_hash(*back), content_hash(rig));
+  EXPECT_EQ(back->provenance.stage_seconds.size(), rig.provenance.stage_seconds.size());
+}
+
+TEST(RigFile, TruncatedFileIsDataLoss) {
+  ScratchDir dir;
+  ASSERT_TRUE(save_rig(shared_bar_rig(), dir.file("bar.rig")).ok());
+  const std::string bytes = read_bytes(dir.file("bar.rig"));
+  for (const size_t keep : {bytes.size() - 1, bytes.size() / 2, size_t{30}}) {
+    write_bytes(dir.file("cut.rig"), bytes.substr(0, keep));
+    Result<Rig> rig = load_rig(dir.file("cut.rig"));
+    EXPECT_EQ(rig.status().code(), StatusCode::kDataLoss) << keep << ": " << rig.status().to_string();
+  }
+}
+
+TEST(RigFile, FlippedByteFailsItsChecksum) {
+  ScratchDir dir;
+  ASSERT_TRUE(save_rig(shared_bar_rig(), dir.file("bar.rig")).ok());
+  std::string bytes = read_bytes(dir.file("bar.rig"));
+  bytes[bytes.size() / 2] ^= 0x40;
+  write_bytes(dir.file("flipped.rig"), bytes);
+  Result<Rig> rig = load_rig(dir.file("flipped.rig"));
+  EXPECT_EQ(rig.status().code(), StatusCode::kDataLoss);
+  EXPECT_NE(rig.status().message().find("checksum"), std::string::npos);
+}
+
+TEST(RigFile, FutureVersionAsksForAnUpgrade) {
+  ScratchDir dir;
+  ASSERT_TRUE(save_rig(shared_bar_rig(), dir.file("bar.rig")).ok());
+  std::string bytes = read_bytes(dir.file("bar.rig"));
+  const uint32_t future = kRigFormatVersion + 1;
+  std::memcpy(bytes.data() + 8, &future, 4);
+  write_bytes(dir.file("future.rig"), bytes);
+  Result<Rig> rig = load_rig(dir.file("future.rig"));
+  EXPECT_EQ(rig.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(rig.status().message().find("Upgrade posewarp"), std::string::npos);
+}
+
+TEST(RigFile, UnknownSectionsAreSkippedAndKept) {
+  ScratchDir dir;
+  Rig rig = shared_bar_rig();
+  rig.unknown_sections.emplace_back(0x5a5a5a5a, "from a newer writer");
+  ASSERT_TRUE(save_rig(rig, dir.file("newer.rig")).ok());
+  Result<Rig> back = load_rig(dir.file("newer.rig"));
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  ASSERT_EQ(back->unknown_sections.size(), 1u);
+  EXPECT_EQ(back->unknown_sections[0].second, "from a newer writer");
+}
+
+TEST(RigFile, NotARigAndMissingFilesAreClear) {
+  ScratchDir dir;
+  write_bytes(dir.file("text.rig"), "hello, this is not a rig at all");
+  EXPECT_EQ(load_rig(dir.file("text.rig")).status().code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(load_rig(dir.file("none.rig")).status().code(), StatusCode::kNotFound);
+}
+
+TEST(VtkExport, WritesMeshAndSkeletonFiles) {
+  ScratchDir dir;
+  ASSERT_TRUE(export_mesh_vtu(shared_bar_rig(), dir.file("mesh.vtu")).ok());
+  ASSERT_TRUE(export_skeleton_vtp(shared_bar_rig(), dir.file("skeleton.vtp")).ok());
+  const std::string vtu = read_bytes(dir.file("mesh.vtu"));
+  EXPECT_NE(vtu.find("NumberOfCells=\"" + std::to_string(shared_bar_rig().mesh.tet_count()) + "\""), std::string::npos);
+  EXPECT_NE(vtu.find("Name=\"w_bar_bone_1\""), std::string::npos);
+  EXPECT_NE(read_bytes(dir.file("skeleton.vtp")).find("NumberOfLines=\"4\""), std::string::npos);
+}
+
+}  // namespace
+}  // namespace posewarp::api
