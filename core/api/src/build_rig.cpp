@@ -123,9 +123,11 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     mesh::MeshHealth health;
     POSEWARP_ASSIGN_OR_RETURN(rig.mesh, mesh::make_cgal_mesher()->mesh(classes, static_cast<int>(names.size()),
                                                                        params.mesh, hooks, &health));
+    const int64_t bridging = mesh::separate_bone_segments(rig.mesh);
     POSEWARP_RETURN_IF_ERROR(mesh::check_mesh_health(rig.mesh, classes, names, &health));
     stats["mesh"] = {{"vertices", rig.mesh.vertex_count()},
                      {"tets", rig.mesh.tet_count()},
+                     {"bone_tets_relabelled_soft", bridging},
                      {"downsample_factor", health.downsample_factor},
                      {"tets_per_class", health.tets_per_class},
                      {"max_bone_volume_error", health.max_bone_volume_error},

@@ -8,7 +8,9 @@
 #include <CGAL/Mesh_complex_3_in_triangulation_3.h>
 #include <CGAL/Mesh_criteria_3.h>
 #include <CGAL/Mesh_triangulation_3.h>
+#include <CGAL/Mesh_3/initialize_triangulation_from_labeled_image.h>
 #include <CGAL/make_mesh_3.h>
+#include <CGAL/refine_mesh_3.h>
 #include <CGAL/Random.h>
 
 #include <algorithm>
@@ -71,12 +73,15 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
                     p::cell_radius_edge_ratio = params.cell_radius_edge_ratio, p::cell_size = cell_size);
 
   CGAL::get_default_random() = CGAL::Random(params.seed);
+  // Seed every connected component of every label (CGAL's default initialization shoots random rays and can miss
+  // small bones entirely), then refine.
   C3t3 c3t3;
+  initialize_triangulation_from_labeled_image(c3t3, domain, image, criteria, static_cast<unsigned char>(0));
   if (params.exude) {
-    c3t3 = CGAL::make_mesh_3<C3t3>(domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(),
-                                   p::exude(p::time_limit = params.exude_time_limit_s, p::sliver_bound = 10));
+    CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(),
+                        p::exude(p::time_limit = params.exude_time_limit_s, p::sliver_bound = 10));
   } else {
-    c3t3 = CGAL::make_mesh_3<C3t3>(domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(), p::no_exude());
+    CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(), p::no_exude());
   }
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   progress.update(0.9);

@@ -101,6 +101,41 @@ LabelVolume downsample_classes(const LabelVolume& classes, const Index3& factor)
   return result;
 }
 
+int64_t separate_bone_segments(TetMesh& mesh) {
+  const int segments = mesh.segment_count;
+  if (segments < 2) return 0;
+  // Incident bone tets per (vertex, segment).
+  std::vector<int32_t> counts(static_cast<size_t>(mesh.vertex_count()) * static_cast<size_t>(segments), 0);
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    const int k = mesh.tet_class(t) - kFirstBoneClass;
+    if (k < 0 || k >= segments) continue;
+    for (int c = 0; c < 4; ++c) ++counts[static_cast<size_t>(mesh.tets(t, c)) * static_cast<size_t>(segments) + static_cast<size_t>(k)];
+  }
+  std::vector<int32_t> owner(static_cast<size_t>(mesh.vertex_count()), -1);
+  for (int64_t v = 0; v < mesh.vertex_count(); ++v) {
+    const int32_t* row = counts.data() + v * segments;
+    int best = -1;
+    for (int k = 0; k < segments; ++k) {
+      if (row[k] > 0 && (best < 0 || row[k] > row[best])) best = k;
+    }
+    owner[static_cast<size_t>(v)] = best;
+  }
+  int64_t relabelled = 0;
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    const int k = mesh.tet_class(t) - kFirstBoneClass;
+    if (k < 0 || k >= segments) continue;
+    for (int c = 0; c < 4; ++c) {
+      const int32_t o = owner[static_cast<size_t>(mesh.tets(t, c))];
+      if (o >= 0 && o != k) {
+        mesh.tet_class(t) = kSoftTissueClass;
+        ++relabelled;
+        break;
+      }
+    }
+  }
+  return relabelled;
+}
+
 Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const std::vector<std::string>& segment_names,
                          MeshHealth* health) {
   MeshHealth local;

@@ -10,7 +10,7 @@ namespace posewarp::report {
 
 MeshChange mesh_change(const TetMesh& rest, const Eigen::VectorXd& det, const Eigen::VectorXd& rest_volume) {
   MeshChange change;
-  double soft_rest = 0.0, soft_posed = 0.0, body_rest = 0.0, body_posed = 0.0;
+  double soft_rest = 0.0, soft_posed = 0.0, body_rest = 0.0, body_posed = 0.0, soft_local = 0.0;
   change.det_min = std::numeric_limits<double>::infinity();
   change.det_max = -std::numeric_limits<double>::infinity();
   for (int64_t t = 0; t < rest.tet_count(); ++t) {
@@ -21,11 +21,12 @@ MeshChange mesh_change(const TetMesh& rest, const Eigen::VectorXd& det, const Ei
     const double v0 = rest_volume(t), v1 = rest_volume(t) * d;
     body_rest += v0;
     body_posed += v1;
-    if (rest.tet_class(t) == kSoftTissueClass) soft_rest += v0, soft_posed += v1;
+    if (rest.tet_class(t) == kSoftTissueClass) soft_rest += v0, soft_posed += v1, soft_local += v0 * std::abs(d - 1.0);
   }
   if (rest.tet_count() == 0) change.det_min = change.det_max = 1.0;
   change.soft_tissue_volume_change = soft_rest > 0.0 ? soft_posed / soft_rest - 1.0 : 0.0;
   change.body_volume_change = body_rest > 0.0 ? body_posed / body_rest - 1.0 : 0.0;
+  change.soft_tissue_local_volume_error = soft_rest > 0.0 ? soft_local / soft_rest : 0.0;
   return change;
 }
 
@@ -75,7 +76,9 @@ std::string to_json(const QualityReport& r) {
                  {"degenerate_after_posing", r.degenerate_tets},
                  {"det_min", r.mesh.det_min},
                  {"det_max", r.mesh.det_max}};
-  doc["volume_change"] = {{"soft_tissue", r.mesh.soft_tissue_volume_change}, {"body", r.mesh.body_volume_change}};
+  doc["volume_change"] = {{"soft_tissue", r.mesh.soft_tissue_volume_change},
+                          {"body", r.mesh.body_volume_change},
+                          {"soft_tissue_local_error", r.mesh.soft_tissue_local_volume_error}};
   json rigidity = json::array();
   for (const SegmentRigidity& s : r.rigidity) rigidity.push_back({{"segment", s.segment}, {"max_error_mm", s.max_error_mm}});
   doc["bone_rigidity"] = {{"max_error_mm", r.bone_rigidity_error_mm},

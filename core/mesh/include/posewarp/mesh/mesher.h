@@ -66,6 +66,12 @@ LabelVolume downsample_classes(const LabelVolume& classes, const Index3& factor)
 // The smallest isotropic-ish integer factor that brings the voxel count within `budget`.
 Index3 downsample_factor_for(const ImageGeometry& geometry, int64_t budget);
 
+// Relabels as soft tissue every bone tet that touches a vertex owned by another bone segment (a vertex's owner is
+// the segment with most incident tets, ties to the lower index: the rule the weights use). A vertex shared by two
+// bones cannot follow both, so without this the tets bridging a thin joint space would tear. Returns the number of
+// tets relabelled.
+int64_t separate_bone_segments(TetMesh& mesh);
+
 // Checks a finished mesh against its class volume: fills `health` and fails (FAILED_PRECONDITION, naming the
 // segments) when a bone segment got no tets, rather than dropping a bone silently.
 Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const std::vector<std::string>& segment_names,

@@ -19,6 +19,9 @@ struct MeshChange {
   double det_min = 1.0, det_max = 1.0;  // range of det(A_t) over all tets
   double soft_tissue_volume_change = 0.0;  // posed / rest soft-tissue mesh volume - 1
   double body_volume_change = 0.0;
+  // Volume-weighted mean of |det(A_t) - 1| over soft-tissue tets: local squashing and bulging, which cancel in
+  // the total (DQS bulges on one side of a bend and pinches on the other).
+  double soft_tissue_local_volume_error = 0.0;
 };
 
 // det: per-tet determinants of the rest -> posed maps; rest_volume: per-tet rest volumes (mm^3).
