@@ -16,6 +16,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <iostream>
+#include <sstream>
 #include <unordered_map>
 #include <vector>
 
@@ -76,7 +78,13 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
   // Seed every connected component of every label (CGAL's default initialization shoots random rays and can miss
   // small bones entirely), then refine.
   C3t3 c3t3;
-  initialize_triangulation_from_labeled_image(c3t3, domain, image, criteria, static_cast<unsigned char>(0));
+  {
+    // CGAL 5.5's initializer narrates to std::cout; posewarp's stdout belongs to its own reports.
+    std::ostringstream narration;
+    std::streambuf* saved = std::cout.rdbuf(narration.rdbuf());
+    initialize_triangulation_from_labeled_image(c3t3, domain, image, criteria, static_cast<unsigned char>(0));
+    std::cout.rdbuf(saved);
+  }
   if (params.exude) {
     CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(),
                         p::exude(p::time_limit = params.exude_time_limit_s, p::sliver_bound = 10));

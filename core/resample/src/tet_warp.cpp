@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <map>
 #include <new>
 
 #include "posewarp/common/parallel.h"
@@ -46,33 +45,49 @@ std::array<double, 4> heights(const Eigen::Vector3d v[4]) {
 }
 
 // Per-tet data for rasterizing in output index space: barycentric map and the inside interval of a row.
+// Barycentrics of voxel (i, j, k) are lambda_m = origin[m] + i * di[m] + j * dj[m] + k * dk[m] for m = 0..3
+// (lambda_0 = 1 - lambda_1 - lambda_2 - lambda_3), all affine in the output index.
 struct RasterTet {
-  Eigen::Matrix3d inverse;  // output index -> barycentrics (lambda_1..3) relative to u0
-  Eigen::Vector3d u0;
-  double lo[3], hi[3];      // index bounding box
+  double origin[4], di[4], dj[4], dk[4];
+  double inv_di[4];  // 1 / di, 0 where di is 0
+  double lo[3], hi[3];  // index bounding box
 };
 
+// floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
+inline double fast_floor(double x) {
+  const double t = static_cast<double>(static_cast<int64_t>(x));
+  return t - (x < t);
+}
+inline double fast_ceil(double x) {
+  const double t = static_cast<double>(static_cast<int64_t>(x));
+  return t + (x > t);
+}
+
 // The i-interval of row (j, k) inside the tet, intersected with [first, last]; false when empty.
-bool row_interval(const RasterTet& r, int64_t j, int64_t k, int64_t& first, int64_t& last, double tolerance) {
-  const Eigen::Vector3d base = r.inverse * (Eigen::Vector3d(0.0, static_cast<double>(j), static_cast<double>(k)) - r.u0);
-  const Eigen::Vector3d step = r.inverse.col(0);
+inline bool row_interval(const RasterTet& r, int64_t j, int64_t k, int64_t& first, int64_t& last, double tolerance) {
   double lo = static_cast<double>(first), hi = static_cast<double>(last);
-  auto constrain = [&](double alpha, double beta) {  // alpha + beta * i >= -tolerance
-    alpha += tolerance;
-    if (beta > 0.0) {
-      lo = std::max(lo, std::ceil(-alpha / beta));
-    } else if (beta < 0.0) {
-      hi = std::min(hi, std::floor(-alpha / beta));
+  const double jd = static_cast<double>(j), kd = static_cast<double>(k);
+  for (int m = 0; m < 4; ++m) {
+    const double alpha = r.origin[m] + jd * r.dj[m] + kd * r.dk[m] + tolerance;  // alpha + di * i >= 0
+    if (r.di[m] > 0.0) {
+      lo = std::max(lo, fast_ceil(-alpha * r.inv_di[m]));
+    } else if (r.di[m] < 0.0) {
+      hi = std::min(hi, fast_floor(-alpha * r.inv_di[m]));
     } else if (alpha < 0.0) {
-      hi = lo - 1.0;
+      return false;
     }
-  };
-  for (int m = 0; m < 3; ++m) constrain(base(m), step(m));
-  constrain(1.0 - base.sum(), -step.sum());
+  }
   if (lo > hi) return false;
   first = static_cast<int64_t>(lo);
   last = static_cast<int64_t>(hi);
   return true;
+}
+
+// Round to nearest without a libm call (ties away from zero do not matter at voxel centres).
+inline int64_t round_index(double x) {
+  const double y = x + 0.5;
+  int64_t r = static_cast<int64_t>(y);
+  return r - (y < static_cast<double>(r));
 }
 
 inline void apply_map(const double* m, double i, double j, double k, double s[3]) {
@@ -91,20 +106,28 @@ Status validate(const ResampleParams& params) {
 }
 
 RestTopology rest_topology(const TetMesh& rest) {
-  // A face is on the boundary when exactly one tet has it.
-  std::map<std::array<int32_t, 3>, int32_t> faces;
+  // A face is on the boundary when exactly one tet has it: sort all faces and look for unpaired ones.
   constexpr int kFaces[4][3] = {{1, 2, 3}, {0, 2, 3}, {0, 1, 3}, {0, 1, 2}};
-  std::vector<uint8_t> boundary(static_cast<size_t>(rest.tet_count()), 0);
+  struct Face {
+    std::array<int32_t, 3> key;
+    int32_t tet;
+  };
+  std::vector<Face> faces;
+  faces.reserve(static_cast<size_t>(rest.tet_count()) * 4);
   for (int64_t t = 0; t < rest.tet_count(); ++t) {
     for (const auto& f : kFaces) {
       std::array<int32_t, 3> key{rest.tets(t, f[0]), rest.tets(t, f[1]), rest.tets(t, f[2])};
       std::sort(key.begin(), key.end());
-      auto [it, inserted] = faces.emplace(key, static_cast<int32_t>(t));
-      if (!inserted) it->second = -1;  // shared
+      faces.push_back({key, static_cast<int32_t>(t)});
     }
   }
-  for (const auto& [key, t] : faces) {
-    if (t >= 0) boundary[static_cast<size_t>(t)] = 1;
+  std::sort(faces.begin(), faces.end(), [](const Face& a, const Face& b) { return a.key < b.key; });
+  std::vector<uint8_t> boundary(static_cast<size_t>(rest.tet_count()), 0);
+  for (size_t i = 0; i < faces.size();) {
+    size_t j = i + 1;
+    while (j < faces.size() && faces[j].key == faces[i].key) ++j;
+    if (j - i == 1) boundary[static_cast<size_t>(faces[i].tet)] = 1;
+    i = j;
   }
   RestTopology topology;
   for (int64_t t = 0; t < rest.tet_count(); ++t) {
@@ -140,7 +163,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
   warp.label_background_ = params.label_background;
   warp.intensity_background_ = params.intensity_background;
   const double shell_mm =
-      params.shell_mm > 0.0 ? params.shell_mm : 2.0 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
+      params.shell_mm > 0.0 ? params.shell_mm : 1.5 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
 
   try {
     const IndexSpace out_space = index_space(output);
@@ -158,6 +181,19 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
       }
     }
 
+    // Vertices into output (posed) and source (rest) index space once, row-major.
+    const int64_t nv = rest.vertex_count();
+    std::vector<double> posed_index(static_cast<size_t>(nv) * 3), rest_index(static_cast<size_t>(nv) * 3);
+    parallel_for(0, nv, 8192, [&](int64_t begin, int64_t end) {
+      for (int64_t v = begin; v < end; ++v) {
+        const Eigen::Vector3d u = out_space.to_index * (posed.row(v).transpose() - out_space.origin);
+        const Eigen::Vector3d s = src_space.to_index * (rest.vertices.row(v).transpose() - src_space.origin);
+        for (int a = 0; a < 3; ++a) {
+          posed_index[static_cast<size_t>(3 * v + a)] = u(a);
+          rest_index[static_cast<size_t>(3 * v + a)] = s(a);
+        }
+      }
+    });
     // Per tet: the output-index -> source-index map and the raster data.
     warp.maps_.assign(static_cast<size_t>(nt) * 12, 0.0);
     std::vector<RasterTet> raster(static_cast<size_t>(nt));
@@ -166,22 +202,33 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
       for (int64_t t = begin; t < end; ++t) {
         Eigen::Vector3d u[4], s[4];
         for (int c = 0; c < 4; ++c) {
-          const int32_t v = rest.tets(t, c);
-          u[c] = out_space.to_index * (posed.row(v).transpose() - out_space.origin);
-          s[c] = src_space.to_index * (rest.vertices.row(v).transpose() - src_space.origin);
+          const size_t v = static_cast<size_t>(rest.tets(t, c)) * 3;
+          u[c] = Eigen::Vector3d(posed_index[v], posed_index[v + 1], posed_index[v + 2]);
+          s[c] = Eigen::Vector3d(rest_index[v], rest_index[v + 1], rest_index[v + 2]);
         }
         Eigen::Matrix3d ue, se;
         for (int c = 0; c < 3; ++c) ue.col(c) = u[c + 1] - u[0], se.col(c) = s[c + 1] - s[0];
         const double det = ue.determinant();
         if (!(std::abs(det) > 1e-12) || !std::isfinite(det)) continue;
+        const Eigen::Matrix3d inverse = ue.inverse();
         RasterTet& r = raster[static_cast<size_t>(t)];
-        r.inverse = ue.inverse();
-        r.u0 = u[0];
+        const Eigen::Vector3d origin = -(inverse * u[0]);
+        r.origin[0] = 1.0 - origin.sum();
+        r.di[0] = -inverse.col(0).sum();
+        r.dj[0] = -inverse.col(1).sum();
+        r.dk[0] = -inverse.col(2).sum();
+        for (int m = 1; m < 4; ++m) {
+          r.origin[m] = origin(m - 1);
+          r.di[m] = inverse(m - 1, 0);
+          r.dj[m] = inverse(m - 1, 1);
+          r.dk[m] = inverse(m - 1, 2);
+        }
+        for (int m = 0; m < 4; ++m) r.inv_di[m] = r.di[m] != 0.0 ? 1.0 / r.di[m] : 0.0;
         for (int a = 0; a < 3; ++a) {
           r.lo[a] = std::min({u[0](a), u[1](a), u[2](a), u[3](a)});
           r.hi[a] = std::max({u[0](a), u[1](a), u[2](a), u[3](a)});
         }
-        const Eigen::Matrix3d a = se * r.inverse;
+        const Eigen::Matrix3d a = se * inverse;
         const Eigen::Vector3d b = s[0] - a * u[0];
         double* m = warp.maps_.data() + 12 * t;
         for (int row = 0; row < 3; ++row) {
@@ -203,8 +250,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     const double margin[3] = {shell_mm / output.spacing[0], shell_mm / output.spacing[1], shell_mm / output.spacing[2]};
     auto add_to_slabs = [&](std::vector<std::vector<int32_t>>& lists, int32_t t, double pad) {
       const RasterTet& r = raster[static_cast<size_t>(t)];
-      const int64_t k0 = std::max<int64_t>(0, static_cast<int64_t>(std::ceil(r.lo[2] - pad)));
-      const int64_t k1 = std::min<int64_t>(n[2] - 1, static_cast<int64_t>(std::floor(r.hi[2] + pad)));
+      const int64_t k0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[2] - pad)));
+      const int64_t k1 = std::min<int64_t>(n[2] - 1, static_cast<int64_t>(fast_floor(r.hi[2] + pad)));
       if (k0 > k1) return;
       for (int64_t s = k0 / slab_depth; s <= k1 / slab_depth; ++s) lists[static_cast<size_t>(s)].push_back(t);
     };
@@ -227,12 +274,12 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
         if (kb >= ke) continue;
         for (const int32_t t : interior[static_cast<size_t>(s)]) {
           const RasterTet& r = raster[static_cast<size_t>(t)];
-          const int64_t k0 = std::max(kb, static_cast<int64_t>(std::ceil(r.lo[2])));
-          const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(std::floor(r.hi[2])));
-          const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(std::ceil(r.lo[1])));
-          const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(std::floor(r.hi[1])));
-          const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(std::ceil(r.lo[0])));
-          const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(std::floor(r.hi[0])));
+          const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2])));
+          const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2])));
+          const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[1])));
+          const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1])));
+          const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0])));
+          const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0])));
           for (int64_t k = k0; k <= k1; ++k) {
             for (int64_t j = j0; j <= j1; ++j) {
               int64_t first = i0, last = i1;
@@ -266,23 +313,24 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           Eigen::Vector3d corners[4];
           for (int c = 0; c < 4; ++c) corners[c] = posed.row(rest.tets(t, c)).transpose();
           const std::array<double, 4> h = heights(corners);
-          const int64_t k0 = std::max(kb, static_cast<int64_t>(std::ceil(r.lo[2] - margin[2])));
-          const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(std::floor(r.hi[2] + margin[2])));
-          const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(std::ceil(r.lo[1] - margin[1])));
-          const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(std::floor(r.hi[1] + margin[1])));
-          const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(std::ceil(r.lo[0] - margin[0])));
-          const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(std::floor(r.hi[0] + margin[0])));
+          const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2] - margin[2])));
+          const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2] + margin[2])));
+          const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[1] - margin[1])));
+          const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1] + margin[1])));
+          const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0] - margin[0])));
+          const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0] + margin[0])));
           for (int64_t k = k0; k <= k1; ++k) {
             for (int64_t j = j0; j <= j1; ++j) {
-              const Eigen::Vector3d base = r.inverse * (Eigen::Vector3d(double(i0), double(j), double(k)) - r.u0);
-              const Eigen::Vector3d step = r.inverse.col(0);
+              double base[4];
+              for (int m = 0; m < 4; ++m) base[m] = r.origin[m] + double(j) * r.dj[m] + double(k) * r.dk[m];
               for (int64_t i = i0; i <= i1; ++i) {
                 const int64_t v = output.offset(i, j, k);
                 if (warp.owner_[static_cast<size_t>(v)] >= 0) continue;
-                const Eigen::Vector3d l = base + static_cast<double>(i - i0) * step;
-                const double lambda[4] = {1.0 - l.sum(), l(0), l(1), l(2)};
                 double d = 0.0;
-                for (int m = 0; m < 4; ++m) d = std::max(d, std::max(0.0, -lambda[m]) * h[static_cast<size_t>(m)]);
+                for (int m = 0; m < 4; ++m) {
+                  const double lambda = base[m] + double(i) * r.di[m];
+                  d = std::max(d, std::max(0.0, -lambda) * h[static_cast<size_t>(m)]);
+                }
                 if (d > shell_mm) continue;
                 const size_t local = static_cast<size_t>(v - kb * n[0] * n[1]);
                 if (d < best[local] || (d == best[local] && t < best_tet[local])) {
@@ -332,7 +380,7 @@ bool TetWarp::source_index(int64_t v, int64_t i, int64_t j, int64_t k, double s[
   }
   apply_map(background_map_, double(i), double(j), double(k), s);
   if (rest_coverage_ != nullptr) {
-    const int64_t x = std::llround(s[0]), y = std::llround(s[1]), z = std::llround(s[2]);
+    const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
     if (x >= 0 && y >= 0 && z >= 0 && x < source_.size[0] && y < source_.size[1] && z < source_.size[2] &&
         (*rest_coverage_)[static_cast<size_t>(source_.offset(x, y, z))]) {
       return false;  // that source voxel belongs to the body, which the mesh moved elsewhere
@@ -361,7 +409,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
         for (int64_t i = 0; i < n[0]; ++i, ++v) {
           double s[3];
           if (!source_index(v, i, j, k, s)) continue;
-          const int64_t x = std::llround(s[0]), y = std::llround(s[1]), z = std::llround(s[2]);
+          const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
           if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
           out.data()[v] = labels.data()[source_.offset(x, y, z)];
         }
@@ -397,14 +445,14 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
             continue;
           }
           if (interpolation == Interpolation::kNearest) {
-            out.data()[v] = in[source_.offset(std::llround(s[0]), std::llround(s[1]), std::llround(s[2]))];
+            out.data()[v] = in[source_.offset(round_index(s[0]), round_index(s[1]), round_index(s[2]))];
             continue;
           }
           int64_t base[3];
           double f[3];
           for (int a = 0; a < 3; ++a) {
             const double c = std::clamp(s[a], 0.0, static_cast<double>(m[a] - 1));
-            base[a] = std::min<int64_t>(static_cast<int64_t>(std::floor(c)), std::max<int64_t>(0, m[a] - 2));
+            base[a] = std::min<int64_t>(static_cast<int64_t>(c), std::max<int64_t>(0, m[a] - 2));  // c >= 0
             f[a] = m[a] > 1 ? c - static_cast<double>(base[a]) : 0.0;
           }
           const int64_t dx = m[0] > 1 ? sx : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;

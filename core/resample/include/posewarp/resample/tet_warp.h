@@ -25,7 +25,8 @@ enum class GridPolicy {
 
 struct ResampleParams {
   // Body voxels just outside the mesh surface (the mesh approximates the skin) take the map of the nearest
-  // boundary tet up to this distance, mm; 0 = two voxels of the source grid.
+  // boundary tet up to this distance, mm; 0 = one and a half voxels of the source grid (the mesher keeps the
+  // surface within facet_distance of the label boundary, 1.5 mm by default).
   double shell_mm = 0.0;
   Label label_background = 0;           // label where nothing maps back into the body
   float intensity_background = -1024.f; // intensity where nothing maps back (air in HU)

@@ -1,0 +1,192 @@
+// Posing throughput: skinning of 1M tet vertices per method, the volume warp against ITK's ResampleImageFilter
+// through a DisplacementFieldTransform (same output grid, volume and threads, same run), and whole poses of the
+// real sample and of a mannequin.
+// Usage: posewarp_bench_pose [--threads N] [--mannequin-mvoxels M (0 = skip)] [--repeats R]
+#include <nlohmann/json.hpp>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+#include <iostream>
+#include <random>
+
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/common/parallel.h"
+#include "posewarp/io/itk_reference.h"
+#include "posewarp/io/volume_io.h"
+#include "posewarp/labels/presets.h"
+#include "posewarp/phantom/phantom.h"
+
+namespace {
+
+using namespace posewarp;
+
+// Best wall time of `repeats` runs, seconds.
+double best_of(int repeats, const std::function<void()>& work) {
+  double best = 1e300;
+  for (int r = 0; r < repeats; ++r) {
+    const auto start = std::chrono::steady_clock::now();
+    work();
+    best = std::min(best, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  }
+  return best;
+}
+
+nlohmann::json bench_skinning(int repeats) {
+  // 1M vertices with four influences over 20 segments, blended weights and centres: the cost of skinning does not
+  // depend on the mesh's connectivity.
+  const int64_t n = 1'000'000;
+  const int segments = 20;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  Eigen::MatrixXd rest(n, 3);
+  SkinWeights weights;
+  weights.influences = 4;
+  weights.segment_count = segments;
+  weights.segment.resize(n, 4);
+  weights.weight.resize(n, 4);
+  RotationCentres centres;
+  centres.centre.resize(n, 3);
+  centres.rigid.assign(static_cast<size_t>(n), 0);
+  for (int64_t v = 0; v < n; ++v) {
+    for (int a = 0; a < 3; ++a) rest(v, a) = 1000.0 * unit(rng);
+    const int first = static_cast<int>(unit(rng) * (segments - 4));
+    double w[4], total = 0.0;
+    for (double& x : w) total += (x = unit(rng));
+    std::sort(w, w + 4, std::greater<>());
+    for (int i = 0; i < 4; ++i) {
+      weights.segment(v, i) = first + i;
+      weights.weight(v, i) = static_cast<float>(w[i] / total);
+    }
+    centres.centre.row(v) = rest.row(v) + Eigen::RowVector3d(5, 5, 5);
+    centres.rigid[static_cast<size_t>(v)] = v % 4 == 0;  // a quarter of the vertices sit inside one bone
+  }
+  skinning::SegmentTransforms transforms;
+  for (int s = 0; s < segments; ++s) {
+    transforms.rotation.push_back(Eigen::AngleAxisd(0.1 * s, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix());
+    transforms.translation.push_back(Eigen::Vector3d(s, -s, 2 * s));
+  }
+  nlohmann::json row;
+  for (const skinning::Method m : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+    const double seconds = best_of(repeats, [&] { (void)skinning::skin(m, rest, weights, centres, transforms); });
+    row[std::string(skinning::method_name(m))] = {{"vertices", n}, {"ms", 1000.0 * seconds}};
+    std::printf("skinning %-4s %lld vertices: %7.2f ms\n", std::string(skinning::method_name(m)).c_str(),
+                static_cast<long long>(n), 1000.0 * seconds);
+  }
+  return row;
+}
+
+nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pose& pose, int repeats) {
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig));
+  if (!engine.ok()) {
+    std::fprintf(stderr, "%s: %s\n", name.c_str(), engine.status().to_string().c_str());
+    return {};
+  }
+  const ImageGeometry& grid = engine->rig().labels.geometry();
+  const double voxels = static_cast<double>(grid.voxel_count());
+  nlohmann::json row{{"case", name}, {"voxels", grid.voxel_count()}, {"tet_vertices", engine->rig().mesh.vertex_count()},
+                     {"tets", engine->rig().mesh.tet_count()}, {"threads", thread_count()}};
+
+  api::PoseRequest whole;
+  whole.pose = pose;
+  api::PoseResult last;
+  const double whole_s = best_of(repeats, [&] { last = std::move(engine->pose(whole)).value(); });
+  row["whole_pose_ms"] = 1000.0 * whole_s;
+  for (const auto& [stage, seconds] : last.report.stage_seconds) row["stages_ms"][stage] = 1000.0 * seconds;
+
+  // The warp alone (prepare + labels + CT) against ITK on the same grid with our inverse field.
+  api::PoseRequest fields = whole;
+  fields.want_fields = true;
+  api::PoseResult with_fields = std::move(engine->pose(fields)).value();
+  double warp_ms = 0.0;
+  for (const auto& [stage, seconds] : last.report.stage_seconds) {
+    if (stage.rfind("warp", 0) == 0) warp_ms += 1000.0 * seconds;
+  }
+  const IntensityVolume& ct = *engine->rig().ct;
+  const double itk_ct_s = best_of(repeats, [&] {
+    (void)io::itk_resample_with_field(ct, with_fields.inverse_field, with_fields.output_grid, -1024.0f);
+  });
+  const double itk_labels_s = best_of(repeats, [&] {
+    (void)io::itk_resample_labels_with_field(engine->rig().labels, with_fields.inverse_field, with_fields.output_grid);
+  });
+  const double itk_ms = 1000.0 * (itk_ct_s + itk_labels_s);
+  row["warp_ms"] = warp_ms;
+  row["itk_warp_ms"] = itk_ms;
+  row["warp_mvoxels_per_s"] = 2.0 * voxels / (warp_ms / 1000.0) / 1e6;
+  row["itk_mvoxels_per_s"] = 2.0 * voxels / (itk_ms / 1000.0) / 1e6;
+  row["speedup_vs_itk"] = itk_ms / warp_ms;
+  std::printf("%-14s %9.0f voxels %8lld tet vertices: whole pose %7.1f ms | warp labels+CT %7.1f ms (%6.1f Mvox/s) vs ITK %8.1f ms (%5.1f Mvox/s): %4.1fx\n",
+              name.c_str(), voxels, static_cast<long long>(engine->rig().mesh.vertex_count()), 1000.0 * whole_s, warp_ms,
+              row["warp_mvoxels_per_s"].get<double>(), itk_ms, row["itk_mvoxels_per_s"].get<double>(), itk_ms / warp_ms);
+  std::printf("               stages:");
+  for (const auto& [stage, seconds] : last.report.stage_seconds) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
+  std::printf("\n");
+  std::fflush(stdout);
+  return row;
+}
+
+pose::Pose flexion(const std::string& joint, double degrees) {
+  pose::Pose p;
+  p.name = joint + " flexion";
+  p.joints.push_back({joint, pose::rotation_from_angles_deg(degrees, 0.0, 0.0)});
+  return p;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int threads = 0, repeats = 3;
+  double mannequin_mvoxels = 20.0;
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
+      threads = std::atoi(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
+      mannequin_mvoxels = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
+      repeats = std::max(1, std::atoi(argv[++i]));
+    } else {
+      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--repeats R]\n", argv[0]);
+      return 2;
+    }
+  }
+  set_thread_count(threads);
+  std::printf("threads: %d\n", thread_count());
+  nlohmann::json out;
+  out["skinning_1M"] = bench_skinning(repeats);
+
+  const std::string dir = POSEWARP_SAMPLE_DIR;
+  api::BuildInputs sample;
+  sample.labels = *io::read_label_volume(dir + "/seg_total.nii.gz");
+  sample.ct = *io::read_intensity_volume(dir + "/ct.nii.gz");
+  sample.label_map = labels::totalsegmentator_v2_preset();
+  Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
+  if (!sample_rig.ok()) {
+    std::fprintf(stderr, "%s\n", sample_rig.status().to_string().c_str());
+    return 1;
+  }
+  out["poses"].push_back(bench_pose("real-sample", std::move(sample_rig).value(), flexion("hip_left", 30.0), repeats));
+
+  if (mannequin_mvoxels > 0.0) {
+    phantom::MannequinParams params;
+    params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
+    Result<phantom::Phantom> m = phantom::make_mannequin(params);
+    api::BuildInputs inputs;
+    inputs.labels = m->labels;
+    inputs.ct = m->ct;
+    inputs.label_map = m->label_map;
+    Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+    if (!rig.ok()) {
+      std::fprintf(stderr, "%s\n", rig.status().to_string().c_str());
+      return 1;
+    }
+    pose::Pose p = flexion("knee_left", 90.0);
+    p.joints.push_back({"shoulder_right", pose::rotation_from_angles_deg(0.0, -90.0, 0.0)});
+    out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), p, repeats));
+  }
+  std::cout << out.dump(2) << "\n";
+  return 0;
+}
