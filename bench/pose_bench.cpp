@@ -18,6 +18,7 @@
 #include "posewarp/common/parallel.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
+#include "posewarp/mapping/tet_locator.h"
 #include "posewarp/labels/presets.h"
 #include "posewarp/phantom/phantom.h"
 
@@ -90,6 +91,32 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   const double voxels = static_cast<double>(grid.voxel_count());
   nlohmann::json row{{"case", name}, {"voxels", grid.voxel_count()}, {"tet_vertices", engine->rig().mesh.vertex_count()},
                      {"tets", engine->rig().mesh.tet_count()}, {"threads", thread_count()}};
+
+  // Surfaces: 1M points inside the rest mesh, embedded (spatial hash) and deformed.
+  {
+    const TetMesh& mesh = engine->rig().mesh;
+    const int64_t n = 1'000'000;
+    std::mt19937 rng(11);
+    std::uniform_int_distribution<int64_t> pick(0, mesh.tet_count() - 1);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    Eigen::MatrixXd points(n, 3);
+    for (int64_t i = 0; i < n; ++i) {
+      double b[4], total = 0.0;
+      for (double& x : b) total += (x = -std::log(std::max(1e-12, unit(rng))));
+      const int64_t t = pick(rng);
+      Eigen::Vector3d p = Eigen::Vector3d::Zero();
+      for (int c = 0; c < 4; ++c) p += (b[c] / total) * mesh.vertices.row(mesh.tets(t, c)).transpose();
+      points.row(i) = p.transpose();
+    }
+    mapping::Embedding embedding;
+    const double embed_s = best_of(repeats, [&] { embedding = std::move(mapping::embed_points(mesh, points, {})).value(); });
+    const double deform_s = best_of(repeats, [&] { (void)mapping::deform_points(embedding, mesh, mesh.vertices); });
+    row["embed_1M_ms"] = 1000.0 * embed_s;
+    row["deform_1M_ms"] = 1000.0 * deform_s;
+    std::printf("%-14s map 1M surface vertices into %lld tets: %7.1f ms (%.2f M/s); deform 1M vertices: %6.2f ms\n",
+                name.c_str(), static_cast<long long>(mesh.tet_count()), 1000.0 * embed_s, 1.0 / embed_s,
+                1000.0 * deform_s);
+  }
 
   api::PoseRequest whole;
   whole.pose = pose;

@@ -14,6 +14,7 @@
 #include "posewarp/pose/animation.h"
 #include "posewarp/pose/bvh.h"
 #include "posewarp/pose/bvh_map.h"
+#include "posewarp/surface/surface_mesh.h"
 
 namespace posewarp::cli {
 namespace {
@@ -21,6 +22,8 @@ namespace {
 namespace fs = std::filesystem;
 
 struct OutputOptions {
+  std::string surface_format = "vtp";
+  std::vector<std::string> extra_surfaces;
   std::string method = "cor";
   std::string grid = "input";
   std::string grid_like;
@@ -68,7 +71,23 @@ Result<api::PoseRequest> make_request(const OutputOptions& o) {
     return invalid_argument_error("unknown --grid '" + o.grid + "'; use input or grow (or --grid-like IMAGE)");
   }
   request.resample.max_output_voxels = global_options().max_voxels;
+  for (const std::string& path : o.extra_surfaces) {
+    POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh mesh, surface::read_surface(path));
+    request.extra_surfaces.push_back(std::move(mesh));
+  }
   return request;
+}
+
+Status write_surfaces(const api::PoseResult& result, const std::string& dir, const std::string& format) {
+  if (dir.empty()) return ok_status();
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return invalid_argument_error("cannot create " + dir + ": " + ec.message());
+  for (const surface::SurfaceMesh& s : result.surfaces) {
+    POSEWARP_RETURN_IF_ERROR(surface::write_surface(s, (fs::path(dir) / (s.name + "." + format)).string()));
+  }
+  say("wrote " + std::to_string(result.surfaces.size()) + " surfaces to " + dir);
+  return ok_status();
 }
 
 Status write_outputs(const api::PoseResult& result, const std::string& labels_out, const std::string& ct_out,
@@ -138,6 +157,8 @@ int run_pose(const PoseOptions& o) {
   summarize(*result);
   Status written = write_outputs(*result, o.labels_out, o.ct_out, o.field_out, o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
+  Status surfaces = write_surfaces(*result, o.surfaces_out, o.output.surface_format);
+  if (!surfaces.ok()) return report(surfaces);
   return 0;
 }
 
@@ -148,6 +169,7 @@ struct AnimateOptions {
   std::string animation_path;
   std::string frames = "0:-1";
   std::string out_dir;
+  std::string surfaces_dir;
   bool labels = true;
   bool ct = true;
   OutputOptions output;
@@ -186,7 +208,7 @@ int run_animate(const AnimateOptions& o) {
   if (!request.ok()) return report(request.status());
   request->want_labels = true;
   request->want_ct = o.ct;
-  request->want_surfaces = false;
+  request->want_surfaces = !o.surfaces_dir.empty();
   const size_t count = animation->frames.size();
   for (size_t f = 0; f < count; ++f) {
     request->pose = animation->frames[f];
@@ -195,6 +217,11 @@ int run_animate(const AnimateOptions& o) {
     char stem[32];
     std::snprintf(stem, sizeof(stem), "frame_%04zu", f);
     const fs::path dir(o.out_dir);
+    if (Status s = write_surfaces(*result, o.surfaces_dir.empty() ? "" : (fs::path(o.surfaces_dir) / stem).string(),
+                                  o.output.surface_format);
+        !s.ok()) {
+      return report(s);
+    }
     Status written = write_outputs(*result, o.labels ? (dir / (std::string(stem) + "_labels.nii.gz")).string() : "",
                                    o.ct ? (dir / (std::string(stem) + "_ct.nii.gz")).string() : "", "",
                                    (dir / (std::string(stem) + "_report.json")).string(), engine->rig().labels.geometry());
@@ -213,6 +240,11 @@ void add_output_options(CLI::App* cmd, OutputOptions& o) {
       ->capture_default_str();
   cmd->add_option("--grid-like", o.grid_like, "Output on the grid of this image instead");
   cmd->add_flag("--nearest-ct", o.nearest_ct, "Nearest-neighbour CT instead of trilinear");
+  cmd->add_option("--surface-format", o.surface_format, "Format of written surfaces")
+      ->check(CLI::IsMember({"vtp", "stl", "obj", "ply"}))
+      ->capture_default_str();
+  cmd->add_option("--surface", o.extra_surfaces, "A mesh of your own in rest space (.stl, .obj, .ply, .vtp) to deform too")
+      ->check(CLI::ExistingFile);
 }
 
 }  // namespace
@@ -227,7 +259,8 @@ void add_pose_commands(CLI::App& app) {
     cmd->add_option("--pose", o->pose_path, "Pose JSON (see data/poses/)")->required();
     cmd->add_option("--labels-out", o->labels_out, "Posed label volume");
     cmd->add_option("--ct-out", o->ct_out, "Posed CT");
-    cmd->add_option("--surfaces-out", o->surfaces_out, "Directory for deformed surfaces");
+    cmd->add_option("--surfaces-out", o->surfaces_out,
+                    "Directory for the deformed surfaces (bones, skin, --surface meshes), one file each");
     cmd->add_option("--field-out", o->field_out,
                     "Inverse displacement field (output grid, for ITK/ANTs/elastix); the forward field goes beside it "
                     "as *_forward");
@@ -247,6 +280,7 @@ void add_pose_commands(CLI::App& app) {
     cmd->add_option("--frames", o->frames, "Frames A:B, 0-based inclusive (B = -1: to the end)")->capture_default_str();
     cmd->add_option("--out-dir", o->out_dir, "Directory for frame_NNNN_{labels,ct,report} files")->required();
     cmd->add_flag("!--no-ct", o->ct, "Skip the CT");
+    cmd->add_option("--surfaces-out", o->surfaces_dir, "Also write each frame's deformed surfaces under DIR/frame_NNNN/");
     add_output_options(cmd, o->output);
     cmd->callback([o] {
       if (int code = run_animate(*o); code != 0) throw CLI::RuntimeError(code);

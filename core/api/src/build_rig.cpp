@@ -63,6 +63,7 @@ Status validate(const BuildParams& params) {
   POSEWARP_RETURN_IF_ERROR(mesh::validate(params.mesh));
   POSEWARP_RETURN_IF_ERROR(weights::validate(params.weights));
   POSEWARP_RETURN_IF_ERROR(cor::validate(params.cor));
+  POSEWARP_RETURN_IF_ERROR(surface::validate(params.surfaces));
   return ok_status();
 }
 
@@ -158,6 +159,33 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
                     {"unsupported_vertices", cor_stats.unsupported_vertices},
                     {"clusters", cor_stats.clusters}};
     clock.lap("cor");
+
+    // Surfaces at rest: every bone label, the skin (the body mask's boundary) and optionally every tissue label.
+    std::vector<std::pair<Label, std::string>> wanted;
+    for (const rig::Segment& segment : rig.skeleton.segments) {
+      for (const Label value : segment.labels) {
+        const labels::LabelEntry* entry = inputs.label_map.find(value);
+        wanted.emplace_back(value, entry ? entry->name : std::to_string(value));
+      }
+    }
+    if (params.tissue_surfaces) {
+      for (const labels::LabelEntry& entry : inputs.label_map.entries()) {
+        if (entry.role == labels::LabelRole::kTissue) wanted.emplace_back(entry.value, entry.name);
+      }
+    }
+    POSEWARP_ASSIGN_OR_RETURN(rig.surfaces,
+                              surface::extract_label_surfaces(inputs.labels, wanted, params.surfaces, hooks));
+    POSEWARP_ASSIGN_OR_RETURN(std::vector<surface::SurfaceMesh> skin,
+                              surface::extract_label_surfaces(body, {{1, "skin"}}, params.surfaces, hooks));
+    for (surface::SurfaceMesh& s : skin) s.label = 0, rig.surfaces.push_back(std::move(s));
+    int64_t surface_vertices = 0;
+    for (const surface::SurfaceMesh& s : rig.surfaces) {
+      POSEWARP_ASSIGN_OR_RETURN(mapping::Embedding e, mapping::embed_points(rig.mesh, s.vertices, hooks));
+      surface_vertices += s.vertices.rows();
+      rig.embeddings.push_back(std::move(e));
+    }
+    stats["surfaces"] = {{"count", rig.surfaces.size()}, {"vertices", surface_vertices}};
+    clock.lap("surfaces");
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory while building the rig of " + grid.describe() +
                                     "; lower the mesher's voxel budget or use coarser mesh sizes");

@@ -90,7 +90,23 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
   clock.lap("report-mesh");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
 
-  // 4. The volume warp.
+  // 4. Surfaces: each vertex follows its rest tet's barycentric combination of posed tet vertices.
+  if (request.want_surfaces) {
+    for (size_t i = 0; i < rig_.surfaces.size(); ++i) {
+      surface::SurfaceMesh posed = rig_.surfaces[i];
+      posed.vertices = mapping::deform_points(rig_.embeddings[i], mesh, result.posed_vertices);
+      result.surfaces.push_back(std::move(posed));
+    }
+    for (const surface::SurfaceMesh& extra : request.extra_surfaces) {
+      POSEWARP_ASSIGN_OR_RETURN(const mapping::Embedding e, mapping::embed_points(mesh, extra.vertices, {}));
+      surface::SurfaceMesh posed = extra;
+      posed.vertices = mapping::deform_points(e, mesh, result.posed_vertices);
+      result.surfaces.push_back(std::move(posed));
+    }
+    clock.lap("surfaces");
+  }
+
+  // 5. The volume warp.
   if (request.want_labels || request.want_ct || request.want_fields) {
     const pose::RigidTransform& root = transforms[static_cast<size_t>(skeleton.root)];
     POSEWARP_ASSIGN_OR_RETURN(result.output_grid,

@@ -39,6 +39,7 @@ constexpr uint32_t kWeights = tag("WGHT");
 constexpr uint32_t kCentres = tag("CORS");
 constexpr uint32_t kProvenance = tag("PROV");
 constexpr uint32_t kLabelVolume = tag("LVOL");
+constexpr uint32_t kSurfaces = tag("SURF");
 constexpr uint32_t kCtVolume = tag("CTVO");
 constexpr uint32_t kEnd = tag("END!");
 
@@ -223,6 +224,25 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
     w.put_bytes(rig.centres.rigid.data(), rig.centres.rigid.size());
     sections.emplace_back(kCentres, w.take());
   }
+  if (!rig.surfaces.empty()) {
+    Writer w;
+    w.put<uint64_t>(rig.surfaces.size());
+    for (size_t i = 0; i < rig.surfaces.size(); ++i) {
+      const surface::SurfaceMesh& m = rig.surfaces[i];
+      w.put_string(m.name);
+      w.put<int32_t>(m.label);
+      Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices = m.vertices;
+      Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> triangles = m.triangles;
+      put_matrix(w, vertices);
+      put_matrix(w, triangles);
+      const mapping::Embedding& e = rig.embeddings[i];
+      Eigen::Matrix<int32_t, Eigen::Dynamic, 1> tet = e.tet;
+      Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor> bary = e.barycentric;
+      put_matrix(w, tet);
+      put_matrix(w, bary);
+    }
+    sections.emplace_back(kSurfaces, w.take());
+  }
   if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, volume_section(rig.labels));
   if (rig.ct) sections.emplace_back(kCtVolume, volume_section(*rig.ct));
   for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
@@ -316,6 +336,37 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
     rig.centres.rigid.resize(count);
     return r.get_bytes(rig.centres.rigid.data(), count);
   }
+  if (t == kSurfaces) {
+    Reader r(payload, name);
+    uint64_t count = 0;
+    POSEWARP_RETURN_IF_ERROR(r.get(count));
+    if (count > 100000) return data_loss_error("rig surfaces section is damaged");
+    for (uint64_t i = 0; i < count; ++i) {
+      surface::SurfaceMesh m;
+      POSEWARP_RETURN_IF_ERROR(r.get_string(m.name));
+      POSEWARP_RETURN_IF_ERROR(r.get(m.label));
+      Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices;
+      Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> triangles;
+      POSEWARP_RETURN_IF_ERROR(r.get_matrix(vertices));
+      POSEWARP_RETURN_IF_ERROR(r.get_matrix(triangles));
+      m.vertices = vertices;
+      m.triangles = triangles;
+      mapping::Embedding e;
+      Eigen::Matrix<int32_t, Eigen::Dynamic, 1> tet;
+      Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor> bary;
+      POSEWARP_RETURN_IF_ERROR(r.get_matrix(tet));
+      POSEWARP_RETURN_IF_ERROR(r.get_matrix(bary));
+      if (tet.rows() != vertices.rows() || bary.rows() != vertices.rows()) {
+        return data_loss_error("rig surface '" + m.name + "' and its embedding disagree");
+      }
+      e.tet = tet;
+      e.barycentric = bary;
+      e.inside.assign(static_cast<size_t>(tet.rows()), 1);
+      rig.surfaces.push_back(std::move(m));
+      rig.embeddings.push_back(std::move(e));
+    }
+    return ok_status();
+  }
   if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
   if (t == kCtVolume) {
     rig.ct.emplace();
@@ -351,6 +402,11 @@ Status check_consistency(const Rig& rig) {
   if (rig.centres.centre.rows() != v) return data_loss_error("rig centres do not match the mesh's vertices");
   if (rig.mesh.tets.size() > 0 && (rig.mesh.tets.minCoeff() < 0 || rig.mesh.tets.maxCoeff() >= v)) {
     return data_loss_error("rig mesh refers to vertices that do not exist");
+  }
+  for (const mapping::Embedding& e : rig.embeddings) {
+    if (e.tet.size() > 0 && (e.tet.minCoeff() < 0 || e.tet.maxCoeff() >= rig.mesh.tet_count())) {
+      return data_loss_error("rig surface embedding refers to tets that do not exist");
+    }
   }
   if (!rig.labels.empty() && !rig.labels.geometry().same_grid(rig.source_geometry, 1e-6)) {
     return data_loss_error("rig label volume is not on the rig's source grid");

@@ -116,6 +116,10 @@ std::string params_to_json(const BuildParams& p) {
                     {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},
                     {"prefer_cholmod", p.weights.prefer_cholmod}};
   doc["cor"] = {{"sigma", p.cor.sigma}, {"rigid_threshold", p.cor.rigid_threshold}, {"quantization", p.cor.quantization}};
+  doc["surfaces"] = {{"smoothing_iterations", p.surfaces.smoothing_iterations},
+                     {"pass_band", p.surfaces.pass_band},
+                     {"decimation", p.surfaces.decimation},
+                     {"tissues", p.tissue_surfaces}};
   return doc.dump();
 }
 

@@ -184,6 +184,63 @@ TEST(Posing, FieldsMapOutputToSourceLikeTheWarp) {
   EXPECT_EQ(static_cast<int64_t>(result->forward_field.size()), 3 * engine.rig().labels.voxel_count());
 }
 
+TEST(Posing, SurfacesFollowTheirTetsAndBonesMoveRigidly) {
+  const PoseEngine& engine = bar_engine();
+  ASSERT_FALSE(engine.rig().surfaces.empty());
+  EXPECT_EQ(engine.rig().surfaces.back().name, "skin");
+  // Identity: every mapped vertex reproduces its rest position from its barycentric coordinates.
+  PoseRequest identity;
+  identity.want_labels = identity.want_ct = false;
+  Result<PoseResult> rest = engine.pose(identity);
+  ASSERT_TRUE(rest.ok());
+  ASSERT_EQ(rest->surfaces.size(), engine.rig().surfaces.size());
+  for (size_t i = 0; i < rest->surfaces.size(); ++i) {
+    EXPECT_LT((rest->surfaces[i].vertices - engine.rig().surfaces[i].vertices).cwiseAbs().maxCoeff(), 1e-9)
+        << engine.rig().surfaces[i].name;
+  }
+  // Bent: a bone's surface follows its segment's rigid transform (to within a voxel at the joint's soft layer).
+  PoseRequest bent;
+  bent.pose = joint_pose("joint_2_3", 60.0, 0.0);
+  bent.want_labels = bent.want_ct = false;
+  Result<PoseResult> posed = engine.pose(bent);
+  ASSERT_TRUE(posed.ok());
+  const double voxel = engine.rig().labels.geometry().spacing[0];
+  for (size_t i = 0; i < posed->surfaces.size(); ++i) {
+    const surface::SurfaceMesh& before = engine.rig().surfaces[i];
+    if (before.label < 10) continue;  // bones are labels 10..12
+    const int k = engine.rig().skeleton.segment_index(before.name);
+    ASSERT_GE(k, 0);
+    // Vertices inside the bone's own tets move exactly rigidly; the rest lie in the soft joint space next to it
+    // (the surface sits half a voxel outside the bone's voxel centres) and stay within a voxel and a half.
+    double worst = 0.0;
+    int64_t in_bone = 0;
+    const mapping::Embedding& e = engine.rig().embeddings[i];
+    for (Eigen::Index v = 0; v < before.vertices.rows(); ++v) {
+      const Eigen::Vector3d expected = posed->segment_rotation[static_cast<size_t>(k)] * before.vertices.row(v).transpose() +
+                                       posed->segment_translation[static_cast<size_t>(k)];
+      const double error = (posed->surfaces[i].vertices.row(v).transpose() - expected).norm();
+      worst = std::max(worst, error);
+      if (engine.rig().mesh.tet_class(e.tet(v)) == kFirstBoneClass + k) {
+        ++in_bone;
+        EXPECT_LT(error, 1e-9) << before.name << " vertex " << v;
+      }
+    }
+    EXPECT_GT(in_bone, 0) << before.name;
+    EXPECT_LT(worst, 1.5 * voxel) << before.name;
+  }
+  // A user's mesh in rest space is embedded and deformed too.
+  PoseRequest extra = bent;
+  surface::SurfaceMesh marker;
+  marker.name = "marker";
+  marker.vertices = engine.rig().surfaces.front().vertices.topRows(3);
+  marker.triangles.resize(1, 3);
+  marker.triangles << 0, 1, 2;
+  extra.extra_surfaces.push_back(marker);
+  Result<PoseResult> with_extra = engine.pose(extra);
+  ASSERT_TRUE(with_extra.ok());
+  EXPECT_LT((with_extra->surfaces.back().vertices - posed->surfaces.front().vertices.topRows(3)).cwiseAbs().maxCoeff(), 1e-9);
+}
+
 // The paper's Fig. 7: a four-bone bar, 90 degrees of twist and of bend at its middle joint.
 TEST(Posing, CorKeepsTheBarsSoftTissueVolumeWhereLbsLosesIt) {
   // Soft joints as wide as the paper's: 20 mm of soft tissue between bones.

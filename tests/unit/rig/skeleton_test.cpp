@@ -166,3 +166,25 @@ TEST(Skeleton, SpecNamingAbsentLabelsOrSegmentsIsAnError) {
 
 }  // namespace
 }  // namespace posewarp::rig
+
+namespace posewarp::rig {
+namespace {
+
+TEST(Skeleton, ALabelMapNamingOnlyAbsentBonesIsAClearError) {
+  ImageGeometry g;
+  g.size = {8, 8, 8};
+  LabelVolume labels(g, 0);
+  labels.at(2, 2, 2) = 1;
+  labels.at(5, 5, 5) = 2;
+  Result<labels::LabelMap> map = labels::label_map_from_json(
+      R"({"name": "wrong map", "labels": [{"value": 50, "name": "femur", "role": "bone"},
+                                          {"value": 51, "name": "tibia", "role": "bone"}]})", "inline");
+  ASSERT_TRUE(map.ok());
+  Result<Skeleton> skeleton = build_skeleton(labels, *map, {}, {}, {});
+  EXPECT_EQ(skeleton.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(skeleton.status().message().find("wrong map"), std::string::npos);
+  EXPECT_NE(skeleton.status().message().find("names 2 bone labels"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace posewarp::rig

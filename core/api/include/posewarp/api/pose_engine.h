@@ -23,6 +23,7 @@ struct PoseRequest {
   bool want_labels = true;
   bool want_ct = true;
   bool want_surfaces = true;
+  std::vector<surface::SurfaceMesh> extra_surfaces;  // a user's meshes in rest space, embedded for this request
   bool want_fields = false;                 // inverse (output grid) and forward (source grid) displacement fields
   resample::Interpolation ct_interpolation = resample::Interpolation::kLinear;
   resample::ResampleParams resample;
@@ -32,7 +33,7 @@ struct PoseResult {
   ImageGeometry output_grid;
   std::optional<LabelVolume> labels;
   std::optional<IntensityVolume> ct;
-  // Posed surfaces come with the surface stage.
+  std::vector<surface::SurfaceMesh> surfaces;  // posed rig surfaces, then posed extra surfaces, in order
   std::vector<float> inverse_field;         // output grid, x_source - x_output (mm)
   std::vector<float> forward_field;         // source grid, x_posed - x_source (mm)
   Eigen::MatrixXd posed_vertices;           // #V x 3

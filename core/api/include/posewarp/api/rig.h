@@ -13,8 +13,10 @@
 #include "posewarp/cor/rotation_centres.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/labels/label_map.h"
+#include "posewarp/mapping/tet_locator.h"
 #include "posewarp/mesh/mesher.h"
 #include "posewarp/rig/skeleton.h"
+#include "posewarp/surface/surface_mesh.h"
 #include "posewarp/weights/laplace_weights.h"
 
 namespace posewarp::api {
@@ -26,6 +28,8 @@ struct BuildParams {
   mesh::MeshParams mesh;
   weights::WeightsParams weights;
   cor::CorParams cor;
+  surface::SurfaceParams surfaces;
+  bool tissue_surfaces = false;  // also extract a surface per soft-tissue label (bones and skin always)
 };
 
 Status validate(const BuildParams& params);
@@ -34,7 +38,10 @@ std::string params_to_json(const BuildParams& params);
 
 struct BuildInputs {
   LabelVolume labels;
-  std::optional<IntensityVolume> ct;       // on the labels' grid; joins the body mask and is kept for posing
+  std::optional<IntensityVolume> ct;
+  // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
+  std::vector<surface::SurfaceMesh> surfaces;
+  std::vector<mapping::Embedding> embeddings;       // on the labels' grid; joins the body mask and is kept for posing
   std::optional<LabelVolume> body;         // a user's body mask (non-zero = body), replacing the computed one
   labels::LabelMap label_map;
   rig::RigSpec spec;
@@ -65,6 +72,9 @@ struct Rig {
   // The source volumes posing warps (kept in the rig so a pose needs nothing else).
   LabelVolume labels;
   std::optional<IntensityVolume> ct;
+  // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
+  std::vector<surface::SurfaceMesh> surfaces;
+  std::vector<mapping::Embedding> embeddings;
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 
