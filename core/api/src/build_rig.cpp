@@ -175,8 +175,11 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     }
     POSEWARP_ASSIGN_OR_RETURN(rig.surfaces,
                               surface::extract_label_surfaces(inputs.labels, wanted, params.surfaces, hooks));
+    // The skin bounds the whole body: on a large grid, extract it from the body mask downsampled to about 4M
+    // voxels (a majority vote per block); smoothing hides the coarser steps and it stays the main cost otherwise.
+    const LabelVolume skin_grid = mesh::downsample_classes(body, mesh::downsample_factor_for(body.geometry(), 4'000'000));
     POSEWARP_ASSIGN_OR_RETURN(std::vector<surface::SurfaceMesh> skin,
-                              surface::extract_label_surfaces(body, {{1, "skin"}}, params.surfaces, hooks));
+                              surface::extract_label_surfaces(skin_grid, {{1, "skin"}}, params.surfaces, hooks));
     for (surface::SurfaceMesh& s : skin) s.label = 0, rig.surfaces.push_back(std::move(s));
     int64_t surface_vertices = 0;
     for (const surface::SurfaceMesh& s : rig.surfaces) {

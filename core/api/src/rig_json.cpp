@@ -113,6 +113,7 @@ std::string params_to_json(const BuildParams& p) {
                  {"exude", p.mesh.exude},
                  {"exude_time_limit_s", p.mesh.exude_time_limit_s}};
   doc["weights"] = {{"max_influences", p.weights.max_influences},
+                    {"prune_below", p.weights.prune_below},
                     {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},
                     {"prefer_cholmod", p.weights.prefer_cholmod}};
   doc["cor"] = {{"sigma", p.cor.sigma}, {"rigid_threshold", p.cor.rigid_threshold}, {"quantization", p.cor.quantization}};

@@ -320,6 +320,34 @@ TEST(Weights, KeepTheLargestKSortedDescending) {
   EXPECT_GT(blended, 50);
 }
 
+TEST(Weights, DropWeightsBelowThePruneThreshold) {
+  // A 2 x 2 mm channel walled by bone 0 leads away from bone 1 (z < 2 mm): bone 1's weight decays by about a
+  // factor 10 per mm along it, far below prune_below at its closed end.
+  const TetMesh mesh = grid_mesh(
+      4, 4, 16, 1.0,
+      [](const Eigen::Vector3d& c) {
+        if (c.z() < 2) return kFirstBoneClass + 1;
+        const bool wall = c.x() < 1 || c.x() > 3 || c.y() < 1 || c.y() > 3 || c.z() > 15;
+        return c.z() > 4 && wall ? kFirstBoneClass : kSoftTissueClass;
+      },
+      2);
+  WeightsParams keep_all;
+  keep_all.prune_below = 0.0;
+  const Result<SkinWeights> unpruned = run(mesh, keep_all);
+  const Result<SkinWeights> pruned = run(mesh);
+  ASSERT_TRUE(unpruned.ok() && pruned.ok());
+  int64_t tiny = 0;
+  for (Eigen::Index v = 0; v < mesh.vertex_count(); ++v) {
+    if (unpruned->segment(v, 1) < 0 || unpruned->weight(v, 1) >= 1e-6f) continue;
+    ++tiny;  // a positive weight below the default threshold
+    EXPECT_GT(unpruned->weight(v, 1), 0.0f);
+    EXPECT_EQ(pruned->segment(v, 0), unpruned->segment(v, 0));
+    EXPECT_EQ(pruned->weight(v, 0), 1.0f);
+    EXPECT_EQ(pruned->segment(v, 1), -1);
+  }
+  EXPECT_GT(tiny, 0);
+}
+
 TEST(Weights, AreTheSameWithCholmodAndSimplicialLdlt) {
   const TetMesh mesh = three_bone_bar(0.2, 5);
   WeightsParams cholmod_params, ldlt_params;

@@ -1,5 +1,5 @@
-// Triangle surfaces: per-label surfaces at rest (VTK discrete flying edges, smoothing, decimation) and mesh files
-// (STL, OBJ, PLY, VTP).
+// Triangle surfaces: per-label surfaces at rest (discrete flying edges, windowed-sinc smoothing, quadric
+// decimation; Sujar et al. 2018 section 3.4) and mesh files (STL, OBJ, PLY, VTP). VTK stays inside src/.
 #pragma once
 
 #include <Eigen/Core>
@@ -15,29 +15,42 @@
 namespace posewarp::surface {
 
 struct SurfaceMesh {
-  std::string name;
-  Label label = 0;             // the label it bounds (0 for a user's mesh)
-  Eigen::MatrixXd vertices;    // #V x 3, LPS mm
-  Eigen::MatrixXi triangles;   // #F x 3
+  std::string name;           // the label's name, or a file's stem
+  Label label = 0;            // the label it bounds (0 for a user's mesh or the skin)
+  Eigen::MatrixXd vertices;   // #V x 3, LPS mm
+  Eigen::MatrixXi triangles;  // #F x 3 vertex indices, counter-clockwise seen from outside (outward normals)
 };
 
 struct SurfaceParams {
-  int smoothing_iterations = 20;  // windowed-sinc smoothing passes, 0 = none
-  double pass_band = 0.1;         // windowed-sinc pass band (smaller smooths more)
-  double decimation = 0.5;        // fraction of triangles removed by quadric decimation, 0 = none
+  int smoothing_iterations = 20;  // windowed-sinc smoothing passes (vtkWindowedSincPolyDataFilter), 0 = none
+  double pass_band = 0.1;         // windowed-sinc pass band in (0, 2]; smaller smooths more
+  double decimation = 0.5;        // fraction of triangles removed by quadric decimation, in [0, 1); 0 = none
 };
 
+// INVALID_ARGUMENT naming the field and its valid range.
 Status validate(const SurfaceParams& params);
 
-// One surface per wanted label present in the volume, in physical LPS mm (spacing, origin and direction applied).
-// `mask` labels: a non-zero entry of `wanted` matches that label value only.
+// One surface per wanted label value present in `labels` (absent values are skipped, repeated values extracted
+// once), in the order of `wanted`, named by its string: discrete flying edges on the label's mask (the surface
+// passes half-way between label and non-label voxel centres), then smoothing and decimation in mm. Vertices are in
+// physical LPS mm (spacing, origin and direction applied), triangles face out of the label, so the inner wall of
+// a hollow label faces its cavity. INVALID_ARGUMENT for bad params or geometry, CANCELLED when the hooks ask,
+// INTERNAL when VTK reports a failure.
 Result<std::vector<SurfaceMesh>> extract_label_surfaces(const LabelVolume& labels,
                                                         const std::vector<std::pair<Label, std::string>>& wanted,
                                                         const SurfaceParams& params, const ProgressHooks& hooks);
 
-// By extension: .stl, .obj, .ply, .vtp. Missing, empty or unreadable files are errors naming the file.
+// Reads a triangle mesh by extension (case-insensitive): .stl (ASCII or binary; coincident vertices merged), .obj,
+// .ply, .vtp. Polygons and strips are triangulated; lines and points are dropped. name = the file's stem,
+// label = 0. NOT_FOUND for a missing file, INVALID_ARGUMENT naming the file for an unknown extension or an empty,
+// corrupt or triangle-free file. VTK's messages never reach stderr; its errors end up in the Status message.
 Result<SurfaceMesh> read_surface(const std::string& path);
-// Written to a temporary file and renamed into place.
+
+// Writes by extension: .stl (binary, float32, vertices repeated per triangle as STL requires), .obj (ASCII),
+// .ply (binary, float32), .vtp (XML, binary, float64). The file is written under a temporary name in the same
+// directory and renamed into place, so readers never see half a file. INVALID_ARGUMENT for an unknown extension
+// or a mesh with no triangles, non-finite vertices or indices out of range; NOT_FOUND when the directory does not
+// exist; INVALID_ARGUMENT naming the file when writing fails.
 Status write_surface(const SurfaceMesh& mesh, const std::string& path);
 
 }  // namespace posewarp::surface

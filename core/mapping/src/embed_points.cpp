@@ -1,0 +1,89 @@
+// embed_points and deform_points: surface vertices carried from the rest tets to the posed tets by barycentrics.
+#include "posewarp/mapping/tet_locator.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <new>
+#include <string>
+
+#include "posewarp/common/parallel.h"
+
+namespace posewarp::mapping {
+
+Result<Embedding> embed_points(const TetMesh& rest, const Eigen::MatrixXd& points, const ProgressHooks& hooks) {
+  const int64_t n = points.rows();
+  if (n > 0 && points.cols() != 3) {
+    return invalid_argument_error("points to embed must be #P x 3 (LPS mm), got " + std::to_string(points.cols()) +
+                                  " columns");
+  }
+  if (n > 0 && !points.allFinite()) {
+    for (int64_t i = 0; i < n; ++i) {
+      if (!points.row(i).allFinite()) {
+        return invalid_argument_error("point " + std::to_string(i) + " to embed is not finite");
+      }
+    }
+  }
+  POSEWARP_ASSIGN_OR_RETURN(const TetLocator locator, TetLocator::build(rest));
+  StageProgress progress(hooks, "embed");
+  Embedding embedding;
+  std::vector<double> distance;
+  try {
+    embedding.tet.resize(n);
+    embedding.barycentric.resize(n, 4);
+    embedding.inside.assign(static_cast<size_t>(n), 0);
+    distance.assign(static_cast<size_t>(n), 0.0);
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory embedding " + std::to_string(n) + " points");
+  }
+  std::atomic<bool> cancelled{false};
+  parallel_for(0, n, 2048, [&](int64_t begin, int64_t end) {
+    if (cancelled.load(std::memory_order_relaxed)) return;
+    if (progress.cancel_requested()) {
+      cancelled.store(true);
+      return;
+    }
+    for (int64_t i = begin; i < end; ++i) {
+      const TetLocator::Location location = locator.locate(Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
+      embedding.tet(i) = location.tet;
+      embedding.barycentric.row(i) = location.barycentric.transpose();
+      embedding.inside[static_cast<size_t>(i)] = location.inside ? 1 : 0;
+      distance[static_cast<size_t>(i)] = location.distance_mm;
+    }
+    progress.advance(end - begin, n);
+  });
+  if (cancelled.load()) return cancelled_error("cancelled during stage 'embed' at the caller's request");
+  for (int64_t i = 0; i < n; ++i) {
+    if (embedding.inside[static_cast<size_t>(i)]) continue;
+    ++embedding.outside_count;
+    embedding.max_outside_distance_mm = std::max(embedding.max_outside_distance_mm, distance[static_cast<size_t>(i)]);
+  }
+  progress.finish();
+  return embedding;
+}
+
+Eigen::MatrixXd deform_points(const Embedding& embedding, const TetMesh& rest, const Eigen::MatrixXd& posed_vertices) {
+  const int64_t n = embedding.tet.size();
+  Eigen::MatrixXd posed(n, 3);
+  const bool shapes_ok = embedding.barycentric.rows() == n && embedding.barycentric.cols() == 4 &&
+                         rest.tets.cols() == 4 && posed_vertices.cols() == 3;
+  const int64_t tet_count = rest.tet_count();
+  const int64_t vertex_count = posed_vertices.rows();
+  parallel_for(0, n, 8192, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const int32_t t = embedding.tet(i);
+      bool valid = shapes_ok && t >= 0 && t < tet_count;
+      Eigen::RowVector3d p = Eigen::RowVector3d::Zero();
+      for (int c = 0; valid && c < 4; ++c) {
+        const int v = rest.tets(t, c);
+        valid = v >= 0 && v < vertex_count;
+        if (valid) p += embedding.barycentric(i, c) * posed_vertices.row(v);
+      }
+      posed.row(i) = valid ? p : Eigen::RowVector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+    }
+  });
+  return posed;
+}
+
+}  // namespace posewarp::mapping
