@@ -13,8 +13,8 @@ GlobalOptions& global_options() {
   return options;
 }
 
-io::ReadOptions read_options() {
-  io::ReadOptions options;
+api::ReadOptions read_options() {
+  api::ReadOptions options;
   options.max_voxels = global_options().max_voxels;
   return options;
 }

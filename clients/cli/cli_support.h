@@ -8,7 +8,7 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/status.h"
-#include "posewarp/io/volume_io.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::cli {
 
@@ -20,7 +20,7 @@ struct GlobalOptions {
 };
 
 GlobalOptions& global_options();
-io::ReadOptions read_options();
+api::ReadOptions read_options();
 
 // Prints "error: <message>" (and the code) to stderr and returns the process exit code for the status.
 int report(const Status& status);

@@ -2,8 +2,7 @@
 #include <iostream>
 
 #include "cli_support.h"
-#include "posewarp/labels/label_map.h"
-#include "posewarp/labels/presets.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::cli {
 
@@ -14,16 +13,16 @@ void add_label_commands(CLI::App& app) {
     auto name = std::make_shared<std::string>();
     auto out = std::make_shared<std::string>();
     CLI::App* cmd = group->add_subcommand("preset", "Write a built-in label map as JSON (a starting point to edit)");
-    cmd->add_option("name", *name, "Preset name")->required()->check(CLI::IsMember(labels::preset_names()));
+    cmd->add_option("name", *name, "Preset name")->required()->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("-o,--out", *out, "Output JSON file (default: stdout)");
     cmd->callback([name, out] {
-      Result<labels::LabelMap> map = labels::preset_by_name(*name);
+      Result<labels::LabelMap> map = api::load_label_map("", *name);
       if (!map.ok()) throw CLI::RuntimeError(report(map.status()));
       if (out->empty()) {
-        std::cout << labels::label_map_to_json(*map);
+        std::cout << api::label_map_to_json(*map);
         return;
       }
-      if (Status s = labels::write_label_map(*map, *out); !s.ok()) throw CLI::RuntimeError(report(s));
+      if (Status s = api::write_label_map(*map, *out); !s.ok()) throw CLI::RuntimeError(report(s));
       say("wrote " + *out);
     });
   }
@@ -32,7 +31,7 @@ void add_label_commands(CLI::App& app) {
     CLI::App* cmd = group->add_subcommand("check", "Validate a label map JSON file and summarize it");
     cmd->add_option("map", *path, "Label map JSON")->required();
     cmd->callback([path] {
-      Result<labels::LabelMap> map = labels::read_label_map(*path);
+      Result<labels::LabelMap> map = api::read_label_map(*path);
       if (!map.ok()) throw CLI::RuntimeError(report(map.status()));
       std::cout << map->name() << ": " << map->entries().size() << " labels, " << map->bone_segments().size()
                 << " bone segments, " << map->joint_names().size() << " joint names"

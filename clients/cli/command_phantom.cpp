@@ -1,44 +1,30 @@
 // Phantom commands: write the bar or the mannequin as label + CT volumes with their label map and joint truth.
-#include <filesystem>
-#include <fstream>
+#include <string>
+#include <vector>
 
 #include "cli_support.h"
-#include "posewarp/labels/label_map.h"
-#include "posewarp/phantom/phantom.h"
+#include "posewarp/api/study.h"
 
 namespace posewarp::cli {
 namespace {
-
-namespace fs = std::filesystem;
 
 struct PhantomOptions {
   std::string out_dir;
   std::string extension = ".nii.gz";
   int64_t target_voxels = 0;
-  phantom::BarParams bar;
-  phantom::MannequinParams mannequin;
+  api::BarParams bar;
+  api::MannequinParams mannequin;
 };
 
-int write_phantom(const phantom::Phantom& p, const PhantomOptions& options) {
-  std::error_code ec;
-  fs::create_directories(options.out_dir, ec);
-  if (ec) return report(invalid_argument_error("cannot create " + options.out_dir + ": " + ec.message()));
-  const fs::path dir(options.out_dir);
-  const std::string labels_path = (dir / ("labels" + options.extension)).string();
-  const std::string ct_path = (dir / ("ct" + options.extension)).string();
-  if (Status s = io::write_volume(p.labels, labels_path); !s.ok()) return report(s);
-  if (Status s = io::write_volume(p.ct, ct_path); !s.ok()) return report(s);
-  if (Status s = labels::write_label_map(p.label_map, (dir / "label_map.json").string()); !s.ok()) return report(s);
-  {
-    std::ofstream out(dir / "joints.json");
-    out << phantom::joints_to_json(p);
-    if (!out) return report(internal_error("cannot write " + (dir / "joints.json").string()));
-  }
+int write_phantom(const api::Phantom& p, const PhantomOptions& options) {
+  Result<std::vector<std::string>> written = api::write_phantom(p, options.out_dir, options.extension);
+  if (!written.ok()) return report(written.status());
   say(p.name + ": " + p.labels.geometry().describe() + " (" + std::to_string(p.labels.voxel_count()) + " voxels), " +
       std::to_string(p.label_map.bone_segments().size()) + " bone segments, " + std::to_string(p.joints.size()) +
       " joints");
-  say("wrote " + labels_path + ", " + ct_path + ", " + (dir / "label_map.json").string() + ", " +
-      (dir / "joints.json").string());
+  std::string list;
+  for (const std::string& path : *written) list += (list.empty() ? "" : ", ") + path;
+  say("wrote " + list);
   return 0;
 }
 
@@ -63,7 +49,7 @@ void add_phantom_commands(CLI::App& app) {
     cmd->add_option("--seed", options->bar.seed, "CT noise seed")->capture_default_str();
     cmd->add_option("--format", options->extension, "Volume file extension")->check(CLI::IsMember(extensions));
     cmd->callback([options] {
-      Result<phantom::Phantom> p = phantom::make_bar(options->bar);
+      Result<api::Phantom> p = api::make_bar(options->bar);
       int code = p.ok() ? write_phantom(*p, *options) : report(p.status());
       if (code != 0) throw CLI::RuntimeError(code);
     });
@@ -85,9 +71,9 @@ void add_phantom_commands(CLI::App& app) {
     cmd->add_option("--format", options->extension, "Volume file extension")->check(CLI::IsMember(extensions));
     cmd->callback([options] {
       if (options->target_voxels > 0) {
-        options->mannequin.spacing_mm = phantom::mannequin_spacing_for_voxels(options->mannequin, options->target_voxels);
+        options->mannequin.spacing_mm = api::mannequin_spacing_for_voxels(options->mannequin, options->target_voxels);
       }
-      Result<phantom::Phantom> p = phantom::make_mannequin(options->mannequin);
+      Result<api::Phantom> p = api::make_mannequin(options->mannequin);
       int code = p.ok() ? write_phantom(*p, *options) : report(p.status());
       if (code != 0) throw CLI::RuntimeError(code);
     });

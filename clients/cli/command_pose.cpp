@@ -10,11 +10,7 @@
 #include "cli_support.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
-#include "posewarp/io/itk_reference.h"
-#include "posewarp/pose/animation.h"
-#include "posewarp/pose/bvh.h"
-#include "posewarp/pose/bvh_map.h"
-#include "posewarp/surface/surface_mesh.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::cli {
 namespace {
@@ -62,7 +58,7 @@ Result<api::PoseRequest> make_request(const OutputOptions& o) {
   POSEWARP_ASSIGN_OR_RETURN(request.method, skinning::method_from_name(o.method));
   request.ct_interpolation = o.nearest_ct ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
   if (!o.grid_like.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(const io::VolumeHeader header, io::read_header(o.grid_like, read_options()));
+    POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader header, api::read_header(o.grid_like, read_options()));
     request.grid = resample::GridPolicy::kGiven;
     request.given_grid = header.geometry;
   } else if (o.grid == "grow") {
@@ -72,7 +68,7 @@ Result<api::PoseRequest> make_request(const OutputOptions& o) {
   }
   request.resample.max_output_voxels = global_options().max_voxels;
   for (const std::string& path : o.extra_surfaces) {
-    POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh mesh, surface::read_surface(path));
+    POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh mesh, api::read_surface(path));
     request.extra_surfaces.push_back(std::move(mesh));
   }
   return request;
@@ -84,7 +80,7 @@ Status write_surfaces(const api::PoseResult& result, const std::string& dir, con
   fs::create_directories(dir, ec);
   if (ec) return invalid_argument_error("cannot create " + dir + ": " + ec.message());
   for (const surface::SurfaceMesh& s : result.surfaces) {
-    POSEWARP_RETURN_IF_ERROR(surface::write_surface(s, (fs::path(dir) / (s.name + "." + format)).string()));
+    POSEWARP_RETURN_IF_ERROR(api::write_surface(s, (fs::path(dir) / (s.name + "." + format)).string()));
   }
   say("wrote " + std::to_string(result.surfaces.size()) + " surfaces to " + dir);
   return ok_status();
@@ -93,17 +89,17 @@ Status write_surfaces(const api::PoseResult& result, const std::string& dir, con
 Status write_outputs(const api::PoseResult& result, const std::string& labels_out, const std::string& ct_out,
                      const std::string& field_out, const std::string& report_out, const ImageGeometry& source) {
   if (!labels_out.empty() && result.labels) {
-    POSEWARP_RETURN_IF_ERROR(io::write_volume(*result.labels, labels_out));
+    POSEWARP_RETURN_IF_ERROR(api::write_volume(*result.labels, labels_out));
     say("wrote " + labels_out);
   }
   if (!ct_out.empty() && result.ct) {
-    POSEWARP_RETURN_IF_ERROR(io::write_volume(*result.ct, ct_out));
+    POSEWARP_RETURN_IF_ERROR(api::write_volume(*result.ct, ct_out));
     say("wrote " + ct_out);
   }
   if (!field_out.empty()) {
-    POSEWARP_RETURN_IF_ERROR(io::write_displacement_field(result.inverse_field, result.output_grid, field_out));
+    POSEWARP_RETURN_IF_ERROR(api::write_displacement_field(result.inverse_field, result.output_grid, field_out));
     const std::string forward = forward_field_path(field_out);
-    POSEWARP_RETURN_IF_ERROR(io::write_displacement_field(result.forward_field, source, forward));
+    POSEWARP_RETURN_IF_ERROR(api::write_displacement_field(result.forward_field, source, forward));
     say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
   }
   if (!report_out.empty()) {
@@ -141,7 +137,7 @@ Result<api::PoseEngine> load_engine(const std::string& path) {
 }
 
 int run_pose(const PoseOptions& o) {
-  Result<pose::Pose> pose = pose::read_pose(o.pose_path);
+  Result<pose::Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
   Result<api::PoseRequest> request = make_request(o.output);
   if (!request.ok()) return report(request.status());
@@ -193,12 +189,12 @@ int run_animate(const AnimateOptions& o) {
   Result<api::PoseEngine> engine = load_engine(o.rig_path);
   if (!engine.ok()) return report(engine.status());
   Result<pose::Animation> animation = [&]() -> Result<pose::Animation> {
-    if (!o.animation_path.empty()) return pose::read_animation(o.animation_path);
+    if (!o.animation_path.empty()) return api::read_animation(o.animation_path);
     if (o.bvh_path.empty() || o.map_path.empty()) {
       return invalid_argument_error("give --bvh FILE with --map MAP (or --animation FILE.json)");
     }
-    POSEWARP_ASSIGN_OR_RETURN(const pose::BvhMap map, pose::read_bvh_map(o.map_path));
-    return pose::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
+    POSEWARP_ASSIGN_OR_RETURN(const pose::BvhMap map, api::read_bvh_map(o.map_path));
+    return api::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
   }();
   if (!animation.ok()) return report(animation.status());
   std::error_code ec;

@@ -11,7 +11,7 @@
 #include "posewarp/api/rig.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
-#include "posewarp/labels/presets.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::cli {
 namespace {
@@ -39,27 +39,22 @@ std::string fixed(double value, int digits) {
 
 int run_build(BuildOptions& options) {
   const auto start = std::chrono::steady_clock::now();
-  if (!options.label_map_path.empty() && !options.preset.empty()) {
-    return report(invalid_argument_error("give either --label-map or --preset, not both"));
-  }
   api::BuildInputs inputs;
-  Result<labels::LabelMap> map = options.label_map_path.empty()
-                                     ? labels::preset_by_name(options.preset.empty() ? "totalsegmentator" : options.preset)
-                                     : labels::read_label_map(options.label_map_path);
+  Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
   inputs.label_map = std::move(map).value();
-  Result<LabelVolume> labels = io::read_label_volume(options.labels_path, read_options());
+  Result<LabelVolume> labels = api::read_label_volume(options.labels_path, read_options());
   if (!labels.ok()) return report(labels.status());
   inputs.labels = std::move(labels).value();
   inputs.labels_source = options.labels_path;
   if (!options.ct_path.empty()) {
-    Result<IntensityVolume> ct = io::read_intensity_volume(options.ct_path, read_options());
+    Result<IntensityVolume> ct = api::read_intensity_volume(options.ct_path, read_options());
     if (!ct.ok()) return report(ct.status());
     inputs.ct = std::move(ct).value();
     inputs.ct_source = options.ct_path;
   }
   if (!options.body_path.empty()) {
-    Result<LabelVolume> body = io::read_label_volume(options.body_path, read_options());
+    Result<LabelVolume> body = api::read_label_volume(options.body_path, read_options());
     if (!body.ok()) return report(body.status());
     inputs.body = std::move(body).value();
   }
@@ -198,7 +193,7 @@ void add_rig_commands(CLI::App& app) {
     cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
     cmd->add_option("--label-map", o->label_map_path, "Label map JSON");
     cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
-        ->check(CLI::IsMember(labels::preset_names()));
+        ->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("--rig-spec", o->spec_path, "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
     cmd->add_option("-o,--out", o->out, "Rig file to write")->required();
     auto& p = o->params;

@@ -11,9 +11,7 @@
 #include <sstream>
 
 #include "cli_support.h"
-#include "posewarp/labels/body.h"
-#include "posewarp/labels/label_map.h"
-#include "posewarp/labels/presets.h"
+#include "posewarp/api/study.h"
 
 namespace posewarp::cli {
 namespace {
@@ -68,9 +66,9 @@ struct InfoOptions {
 };
 
 int run_info(const InfoOptions& options) {
-  Result<io::VolumeHeader> header = io::read_header(options.path, read_options());
+  Result<api::VolumeHeader> header = api::read_header(options.path, read_options());
   if (!header.ok()) return report(header.status());
-  Result<IntensityVolume> volume = io::read_intensity_volume(options.path, read_options());
+  Result<IntensityVolume> volume = api::read_intensity_volume(options.path, read_options());
   if (!volume.ok()) return report(volume.status());
   double lo = std::numeric_limits<double>::infinity(), hi = -lo, sum = 0.0;
   for (const float v : volume->voxels()) lo = std::min<double>(lo, v), hi = std::max<double>(hi, v), sum += v;
@@ -78,7 +76,7 @@ int run_info(const InfoOptions& options) {
   const ImageGeometry& g = header->geometry;
   if (options.as_json) {
     json doc{{"path", options.path},
-             {"format", io::format_name(header->format)},
+             {"format", api::format_name(header->format)},
              {"pixel_type", pixel_type_name(header->pixel_type)},
              {"geometry", geometry_json(g)},
              {"voxels", g.voxel_count()},
@@ -89,7 +87,7 @@ int run_info(const InfoOptions& options) {
     return 0;
   }
   std::cout << options.path << "\n"
-            << "  format      " << io::format_name(header->format) << ", " << pixel_type_name(header->pixel_type)
+            << "  format      " << api::format_name(header->format) << ", " << pixel_type_name(header->pixel_type)
             << "\n"
             << "  grid        " << g.describe() << " (" << g.voxel_count() << " voxels)\n"
             << "  origin      " << fixed(g.origin[0], 3) << ", " << fixed(g.origin[1], 3) << ", "
@@ -109,17 +107,17 @@ struct ConvertOptions {
 };
 
 int run_convert(const ConvertOptions& options) {
-  io::WriteOptions write;
+  api::WriteOptions write;
   if (!options.pixel_type.empty()) write.pixel_type = parse_pixel_type(options.pixel_type);
   Status status;
   if (options.labels) {
-    Result<LabelVolume> volume = io::read_label_volume(options.input, read_options());
+    Result<LabelVolume> volume = api::read_label_volume(options.input, read_options());
     if (!volume.ok()) return report(volume.status());
-    status = io::write_volume(*volume, options.output, write);
+    status = api::write_volume(*volume, options.output, write);
   } else {
-    Result<IntensityVolume> volume = io::read_intensity_volume(options.input, read_options());
+    Result<IntensityVolume> volume = api::read_intensity_volume(options.input, read_options());
     if (!volume.ok()) return report(volume.status());
-    status = io::write_volume(*volume, options.output, write);
+    status = api::write_volume(*volume, options.output, write);
   }
   if (!status.ok()) return report(status);
   say("wrote " + options.output);
@@ -138,55 +136,23 @@ struct InspectOptions {
   labels::BodyParams body;
 };
 
-Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset) {
-  if (!path.empty() && !preset.empty()) {
-    return invalid_argument_error("give either --label-map or --preset, not both");
-  }
-  if (!path.empty()) return labels::read_label_map(path);
-  return labels::preset_by_name(preset.empty() ? "totalsegmentator" : preset);
-}
-
-struct SegmentStats {
-  int64_t voxels = 0;
-  double sum[3] = {0, 0, 0};
-};
-
 int run_inspect(const InspectOptions& options) {
   const auto start = std::chrono::steady_clock::now();
-  Result<labels::LabelMap> map = load_label_map(options.label_map_path, options.preset);
+  Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
-  Result<LabelVolume> seg = io::read_label_volume(options.labels_path, read_options());
+  Result<LabelVolume> seg = api::read_label_volume(options.labels_path, read_options());
   if (!seg.ok()) return report(seg.status());
   std::optional<IntensityVolume> ct;
   if (!options.ct_path.empty()) {
-    Result<IntensityVolume> loaded = io::read_intensity_volume(options.ct_path, read_options());
+    Result<IntensityVolume> loaded = api::read_intensity_volume(options.ct_path, read_options());
     if (!loaded.ok()) return report(loaded.status());
     ct = std::move(loaded).value();
   }
-  Result<LabelVolume> body = labels::body_mask(*map, *seg, ct ? &*ct : nullptr, options.body);
-  if (!body.ok()) return report(body.status());
-  const labels::LabelCensus census = labels::census(*map, *seg);
-  const LabelVolume classes = labels::segment_classes(*map, *seg, *body);
-
-  // Per bone segment: voxels and centroid.
-  const std::vector<std::string> segments = map->bone_segments();
-  std::vector<SegmentStats> stats(segments.size());
+  Result<api::StudyInspection> study = api::inspect_study(*seg, ct ? &*ct : nullptr, *map, options.body);
+  if (!study.ok()) return report(study.status());
+  const labels::LabelCensus& census = study->census;
   const ImageGeometry& g = seg->geometry();
-  for (int64_t k = 0; k < g.size[2]; ++k) {
-    for (int64_t j = 0; j < g.size[1]; ++j) {
-      for (int64_t i = 0; i < g.size[0]; ++i) {
-        const Label c = classes.at(i, j, k);
-        if (c < 2) continue;
-        SegmentStats& s = stats[static_cast<size_t>(c - 2)];
-        const Vec3 p = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
-        ++s.voxels;
-        for (int a = 0; a < 3; ++a) s.sum[a] += p[a];
-      }
-    }
-  }
-  int64_t body_voxels = 0;
-  for (const Label v : body->voxels()) body_voxels += v != 0;
-  const double voxel_ml = g.spacing[0] * g.spacing[1] * g.spacing[2] / 1000.0;
+  const int64_t body_voxels = study->body_voxels;
 
   json doc;
   doc["labels"] = options.labels_path;
@@ -194,16 +160,14 @@ int run_inspect(const InspectOptions& options) {
   doc["label_map"] = map->name();
   doc["geometry"] = geometry_json(g);
   doc["body_voxels"] = body_voxels;
-  doc["body_volume_ml"] = static_cast<double>(body_voxels) * voxel_ml;
+  doc["body_volume_ml"] = study->body_volume_ml;
   json bones = json::array();
-  for (size_t s = 0; s < segments.size(); ++s) {
-    if (stats[s].voxels == 0) continue;
-    const double n = static_cast<double>(stats[s].voxels);
-    bones.push_back({{"segment", segments[s]},
-                     {"class", 2 + s},
-                     {"voxels", stats[s].voxels},
-                     {"volume_ml", n * voxel_ml},
-                     {"centroid_mm", {stats[s].sum[0] / n, stats[s].sum[1] / n, stats[s].sum[2] / n}}});
+  for (const api::BoneSegmentSummary& bone : study->bones) {
+    bones.push_back({{"segment", bone.segment},
+                     {"class", bone.mesher_class},
+                     {"voxels", bone.voxels},
+                     {"volume_ml", bone.volume_ml},
+                     {"centroid_mm", {bone.centroid_mm.x(), bone.centroid_mm.y(), bone.centroid_mm.z()}}});
   }
   doc["bone_segments"] = bones;
   doc["absent_bone_segments"] = census.absent_bone_segments;
@@ -222,8 +186,8 @@ int run_inspect(const InspectOptions& options) {
     if (ec) return report(invalid_argument_error("cannot create " + options.out_dir + ": " + ec.message()));
     const std::string body_path = (fs::path(options.out_dir) / "body_mask.nii.gz").string();
     const std::string classes_path = (fs::path(options.out_dir) / "segment_classes.nii.gz").string();
-    if (Status s = io::write_volume(*body, body_path); !s.ok()) return report(s);
-    if (Status s = io::write_volume(classes, classes_path); !s.ok()) return report(s);
+    if (Status s = api::write_volume(study->body, body_path); !s.ok()) return report(s);
+    if (Status s = api::write_volume(study->classes, classes_path); !s.ok()) return report(s);
     std::ofstream((fs::path(options.out_dir) / "inspect.json").string()) << doc.dump(2) << '\n';
     doc["written"] = {body_path, classes_path, (fs::path(options.out_dir) / "inspect.json").string()};
   }
@@ -237,7 +201,7 @@ int run_inspect(const InspectOptions& options) {
   std::cout << "study        " << options.labels_path << (ct ? " + " + options.ct_path : std::string()) << "\n"
             << "grid         " << g.describe() << ", axes point " << orientation_code(g) << "\n"
             << "label map    " << map->name() << " (" << map->entries().size() << " labels)\n"
-            << "body         " << body_voxels << " voxels, " << fixed(static_cast<double>(body_voxels) * voxel_ml, 1)
+            << "body         " << body_voxels << " voxels, " << fixed(study->body_volume_ml, 1)
             << " ml" << (ct ? " (labels joined with CT > " + fixed(options.body.ct_threshold_hu, 0) + " HU)" : "")
             << "\n"
             << "bone segments found: " << bones.size() << "\n";
@@ -300,7 +264,7 @@ void add_volume_commands(CLI::App& app) {
     cmd->add_option("--ct", options->ct_path, "CT on the same grid (joins a threshold mask to the body)");
     cmd->add_option("--label-map", options->label_map_path, "Label map JSON (see `posewarp labels preset`)");
     cmd->add_option("--preset", options->preset, "Built-in label map (default: totalsegmentator)")
-        ->check(CLI::IsMember(labels::preset_names()));
+        ->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("--body-threshold", options->body.ct_threshold_hu, "CT threshold for the body mask, HU")
         ->capture_default_str();
     cmd->add_option("-o,--out-dir", options->out_dir, "Write body_mask.nii.gz, segment_classes.nii.gz, inspect.json");

@@ -181,11 +181,26 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     POSEWARP_ASSIGN_OR_RETURN(std::vector<surface::SurfaceMesh> skin,
                               surface::extract_label_surfaces(skin_grid, {{1, "skin"}}, params.surfaces, hooks));
     for (surface::SurfaceMesh& s : skin) s.label = 0, rig.surfaces.push_back(std::move(s));
+    // One embedding of all surface vertices (one spatial hash), split back per surface.
     int64_t surface_vertices = 0;
+    for (const surface::SurfaceMesh& s : rig.surfaces) surface_vertices += s.vertices.rows();
+    Eigen::MatrixXd all_vertices(surface_vertices, 3);
+    int64_t row = 0;
     for (const surface::SurfaceMesh& s : rig.surfaces) {
-      POSEWARP_ASSIGN_OR_RETURN(mapping::Embedding e, mapping::embed_points(rig.mesh, s.vertices, hooks));
-      surface_vertices += s.vertices.rows();
+      all_vertices.middleRows(row, s.vertices.rows()) = s.vertices;
+      row += s.vertices.rows();
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const mapping::Embedding all, mapping::embed_points(rig.mesh, all_vertices, hooks));
+    row = 0;
+    for (const surface::SurfaceMesh& s : rig.surfaces) {
+      const int64_t n = s.vertices.rows();
+      mapping::Embedding e;
+      e.tet = all.tet.segment(row, n);
+      e.barycentric = all.barycentric.middleRows(row, n);
+      e.inside.assign(all.inside.begin() + row, all.inside.begin() + row + n);
+      e.outside_count = std::count(e.inside.begin(), e.inside.end(), uint8_t{0});
       rig.embeddings.push_back(std::move(e));
+      row += n;
     }
     stats["surfaces"] = {{"count", rig.surfaces.size()}, {"vertices", surface_vertices}};
     clock.lap("surfaces");

@@ -43,6 +43,10 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
                                                        {}, hooks));
     engine.rest_coverage_ = identity.coverage();
     engine.rest_owner_ = identity.owner();
+    if (rig.ct) {
+      engine.ct_minimum_ = 0.0f;
+      for (const float v : rig.ct->voxels()) engine.ct_minimum_ = std::min(engine.ct_minimum_, v);
+    }
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory preparing the rig for posing");
   }
@@ -114,11 +118,7 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
                                                         request.given_grid ? &*request.given_grid : nullptr,
                                                         request.resample));
     resample::ResampleParams params = request.resample;
-    if (rig_.ct) {
-      float lowest = 0.0f;
-      for (const float v : rig_.ct->voxels()) lowest = std::min(lowest, v);
-      params.intensity_background = std::max(lowest, params.intensity_background);
-    }
+    if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
                               resample::TetWarp::build(mesh, topology_, result.posed_vertices, source, result.output_grid,
                                                        root.rotation, root.translation, &rest_coverage_, params, hooks));

@@ -20,6 +20,7 @@
 
 #include <unistd.h>
 
+#include "itk_geometry.h"
 #include "posewarp/common/parallel.h"
 
 namespace posewarp::io {
@@ -29,28 +30,10 @@ template <typename Pixel>
 using Image3 = itk::Image<Pixel, 3>;
 using FieldImage = itk::Image<itk::Vector<double, 3>, 3>;
 
-template <typename Image>
-void set_geometry(Image* image, const ImageGeometry& g) {
-  typename Image::RegionType region;
-  typename Image::SpacingType spacing;
-  typename Image::PointType origin;
-  typename Image::DirectionType direction;
-  for (unsigned a = 0; a < 3; ++a) {
-    region.SetSize(a, static_cast<itk::SizeValueType>(g.size[a]));
-    spacing[a] = g.spacing[a];
-    origin[a] = g.origin[a];
-    for (unsigned c = 0; c < 3; ++c) direction(a, c) = g.direction[3 * a + c];
-  }
-  image->SetRegions(region);
-  image->SetSpacing(spacing);
-  image->SetOrigin(origin);
-  image->SetDirection(direction);
-}
-
 template <typename Pixel>
 typename Image3<Pixel>::Pointer to_image(const Volume<Pixel>& volume) {
   auto image = Image3<Pixel>::New();
-  set_geometry(image.GetPointer(), volume.geometry());
+  detail::set_itk_geometry(image.GetPointer(), volume.geometry());
   image->Allocate();
   std::copy_n(volume.data(), volume.voxel_count(), image->GetBufferPointer());
   return image;
@@ -58,7 +41,7 @@ typename Image3<Pixel>::Pointer to_image(const Volume<Pixel>& volume) {
 
 FieldImage::Pointer field_image(const std::vector<float>& field, const ImageGeometry& g) {
   auto image = FieldImage::New();
-  set_geometry(image.GetPointer(), g);
+  detail::set_itk_geometry(image.GetPointer(), g);
   image->Allocate();
   auto* out = image->GetBufferPointer();
   for (int64_t v = 0; v < g.voxel_count(); ++v) {
@@ -78,7 +61,7 @@ Result<Volume<Pixel>> resample(const Volume<Pixel>& source, const itk::Transform
     filter->SetInterpolator(Interpolator::New());
     filter->SetDefaultPixelValue(background);
     auto reference = Image3<Pixel>::New();
-    set_geometry(reference.GetPointer(), output);
+    detail::set_itk_geometry(reference.GetPointer(), output);
     filter->SetUseReferenceImage(true);
     filter->SetReferenceImage(reference);
     filter->SetNumberOfWorkUnits(static_cast<itk::ThreadIdType>(thread_count()));
@@ -145,7 +128,7 @@ Status write_displacement_field(const std::vector<float>& field, const ImageGeom
   }
   using FloatField = itk::Image<itk::Vector<float, 3>, 3>;
   auto image = FloatField::New();
-  set_geometry(image.GetPointer(), geometry);
+  detail::set_itk_geometry(image.GetPointer(), geometry);
   image->Allocate();
   std::copy_n(field.data(), field.size(), reinterpret_cast<float*>(image->GetBufferPointer()));
   const std::filesystem::path target(path);

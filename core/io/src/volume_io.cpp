@@ -31,6 +31,7 @@
 #include <unistd.h>
 
 #include "file_checks.h"
+#include "itk_geometry.h"
 
 namespace posewarp::io {
 namespace fs = std::filesystem;
@@ -316,21 +317,7 @@ std::pair<double, double> value_range(const Volume<In>& volume) {
 template <typename Out, typename In>
 typename Image3<Out>::Pointer to_itk_image(const Volume<In>& volume) {
   auto image = Image3<Out>::New();
-  typename Image3<Out>::RegionType region;
-  typename Image3<Out>::SpacingType spacing;
-  typename Image3<Out>::PointType origin;
-  typename Image3<Out>::DirectionType direction;
-  const ImageGeometry& g = volume.geometry();
-  for (unsigned a = 0; a < 3; ++a) {
-    region.SetSize(a, static_cast<itk::SizeValueType>(g.size[a]));
-    spacing[a] = g.spacing[a];
-    origin[a] = g.origin[a];
-    for (unsigned c = 0; c < 3; ++c) direction(a, c) = g.direction[3 * a + c];
-  }
-  image->SetRegions(region);
-  image->SetSpacing(spacing);
-  image->SetOrigin(origin);
-  image->SetDirection(direction);
+  detail::set_itk_geometry(image.GetPointer(), volume.geometry());
   image->Allocate();
   Out* out = image->GetBufferPointer();
   const In* in = volume.data();

@@ -389,6 +389,22 @@ bool TetWarp::source_index(int64_t v, int64_t i, int64_t j, int64_t k, double s[
   return true;
 }
 
+template <typename Sample>
+void TetWarp::for_each_mapped_voxel(const Sample& sample) const {
+  const Index3& n = output_.size;
+  parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
+    for (int64_t k = k0; k < k1; ++k) {
+      for (int64_t j = 0; j < n[1]; ++j) {
+        int64_t v = output_.offset(0, j, k);
+        for (int64_t i = 0; i < n[0]; ++i, ++v) {
+          double s[3];
+          if (source_index(v, i, j, k, s)) sample(v, s);
+        }
+      }
+    }
+  });
+}
+
 Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   if (!labels.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the label volume is not on the grid the rig was built from");
@@ -400,21 +416,11 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
     return resource_exhausted_error("out of memory for the output labels (" + output_.describe() + ")");
   }
   out.set_source_type(labels.source_type());
-  const Index3& n = output_.size;
   const Index3& m = source_.size;
-  parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      for (int64_t j = 0; j < n[1]; ++j) {
-        int64_t v = output_.offset(0, j, k);
-        for (int64_t i = 0; i < n[0]; ++i, ++v) {
-          double s[3];
-          if (!source_index(v, i, j, k, s)) continue;
-          const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-          if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
-          out.data()[v] = labels.data()[source_.offset(x, y, z)];
-        }
-      }
-    }
+  for_each_mapped_voxel([&](int64_t v, const double s[3]) {
+    const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
+    if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return;
+    out.data()[v] = labels.data()[source_.offset(x, y, z)];
   });
   return out;
 }
@@ -430,43 +436,33 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
     return resource_exhausted_error("out of memory for the output intensities (" + output_.describe() + ")");
   }
   out.set_source_type(source.source_type());
-  const Index3& n = output_.size;
   const Index3& m = source_.size;
   const float* in = source.data();
   const int64_t sx = 1, sy = m[0], sz = m[0] * m[1];
-  parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      for (int64_t j = 0; j < n[1]; ++j) {
-        int64_t v = output_.offset(0, j, k);
-        for (int64_t i = 0; i < n[0]; ++i, ++v) {
-          double s[3];
-          if (!source_index(v, i, j, k, s)) continue;
-          if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > m[0] - 0.5 || s[1] > m[1] - 0.5 || s[2] > m[2] - 0.5) {
-            continue;
-          }
-          if (interpolation == Interpolation::kNearest) {
-            out.data()[v] = in[source_.offset(round_index(s[0]), round_index(s[1]), round_index(s[2]))];
-            continue;
-          }
-          int64_t base[3];
-          double f[3];
-          for (int a = 0; a < 3; ++a) {
-            const double c = std::clamp(s[a], 0.0, static_cast<double>(m[a] - 1));
-            base[a] = std::min<int64_t>(static_cast<int64_t>(c), std::max<int64_t>(0, m[a] - 2));  // c >= 0
-            f[a] = m[a] > 1 ? c - static_cast<double>(base[a]) : 0.0;
-          }
-          const int64_t dx = m[0] > 1 ? sx : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;
-          const float* p = in + base[0] * sx + base[1] * sy + base[2] * sz;
-          const double c00 = p[0] + f[0] * (p[dx] - p[0]);
-          const double c10 = p[dy] + f[0] * (p[dy + dx] - p[dy]);
-          const double c01 = p[dz] + f[0] * (p[dz + dx] - p[dz]);
-          const double c11 = p[dz + dy] + f[0] * (p[dz + dy + dx] - p[dz + dy]);
-          const double c0 = c00 + f[1] * (c10 - c00);
-          const double c1 = c01 + f[1] * (c11 - c01);
-          out.data()[v] = static_cast<float>(c0 + f[2] * (c1 - c0));
-        }
-      }
+  for_each_mapped_voxel([&](int64_t v, const double s[3]) {
+    if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > m[0] - 0.5 || s[1] > m[1] - 0.5 || s[2] > m[2] - 0.5) {
+      return;
     }
+    if (interpolation == Interpolation::kNearest) {
+      out.data()[v] = in[source_.offset(round_index(s[0]), round_index(s[1]), round_index(s[2]))];
+      return;
+    }
+    int64_t base[3];
+    double f[3];
+    for (int a = 0; a < 3; ++a) {
+      const double c = std::clamp(s[a], 0.0, static_cast<double>(m[a] - 1));
+      base[a] = std::min<int64_t>(static_cast<int64_t>(c), std::max<int64_t>(0, m[a] - 2));  // c >= 0
+      f[a] = m[a] > 1 ? c - static_cast<double>(base[a]) : 0.0;
+    }
+    const int64_t dx = m[0] > 1 ? sx : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;
+    const float* p = in + base[0] * sx + base[1] * sy + base[2] * sz;
+    const double c00 = p[0] + f[0] * (p[dx] - p[0]);
+    const double c10 = p[dy] + f[0] * (p[dy + dx] - p[dy]);
+    const double c01 = p[dz] + f[0] * (p[dz + dx] - p[dz]);
+    const double c11 = p[dz + dy] + f[0] * (p[dz + dy + dx] - p[dz + dy]);
+    const double c0 = c00 + f[1] * (c10 - c00);
+    const double c1 = c01 + f[1] * (c11 - c01);
+    out.data()[v] = static_cast<float>(c0 + f[2] * (c1 - c0));
   });
   return out;
 }

@@ -57,6 +57,7 @@ class PoseEngine {
   resample::RestTopology topology_;
   std::vector<uint8_t> rest_coverage_;
   std::vector<int32_t> rest_owner_;  // per source voxel: the rest tet covering it (-1 none), for forward fields
+  float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
 };
 
 }  // namespace posewarp::api

@@ -87,6 +87,9 @@ class TetWarp {
   TetWarp() = default;
   // Source continuous index of output voxel v, or false when it lies outside mesh and shell and must not be copied.
   bool source_index(int64_t v, int64_t i, int64_t j, int64_t k, double s[3]) const;
+  // Calls sample(v, s) for every output voxel v that maps to source index s, output slices in parallel.
+  template <typename Sample>
+  void for_each_mapped_voxel(const Sample& sample) const;
 
   ImageGeometry source_;
   ImageGeometry output_;

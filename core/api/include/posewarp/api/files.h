@@ -1,0 +1,49 @@
+// The files clients read and write, named through the engine facade: a client includes posewarp/api only.
+#pragma once
+
+#include <string>
+
+#include "posewarp/io/itk_reference.h"
+#include "posewarp/io/volume_io.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/labels/presets.h"
+#include "posewarp/pose/animation.h"
+#include "posewarp/pose/bvh.h"
+#include "posewarp/pose/bvh_map.h"
+#include "posewarp/pose/pose.h"
+#include "posewarp/surface/surface_mesh.h"
+
+namespace posewarp::api {
+
+// Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
+using io::format_name;
+using io::read_header;
+using io::read_intensity_volume;
+using io::read_label_volume;
+using io::ReadOptions;
+using io::VolumeHeader;
+using io::write_displacement_field;
+using io::write_volume;
+using io::WriteOptions;
+
+// Label maps and presets.
+using labels::label_map_to_json;
+using labels::preset_names;
+using labels::read_label_map;
+using labels::write_label_map;
+
+// Poses, animations and BVH motion.
+using pose::read_animation;
+using pose::read_bvh;
+using pose::read_bvh_map;
+using pose::read_pose;
+
+// Surface meshes (STL, OBJ, PLY, VTP).
+using surface::read_surface;
+using surface::write_surface;
+
+// A study's label map: the JSON file at `path`, else the preset named `preset` (default "totalsegmentator").
+// Giving both is INVALID_ARGUMENT.
+Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset);
+
+}  // namespace posewarp::api
