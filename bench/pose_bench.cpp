@@ -120,17 +120,24 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 
   api::PoseRequest whole;
   whole.pose = pose;
-  api::PoseResult last;
-  const double whole_s = best_of(repeats, [&] { last = std::move(engine->pose(whole)).value(); });
+  // Each stage's best time over the repeats (the whole pose's best is its own figure).
+  std::vector<std::pair<std::string, double>> stages;
+  const double whole_s = best_of(repeats, [&] {
+    const api::PoseResult result = std::move(engine->pose(whole)).value();
+    if (stages.empty()) stages = result.report.stage_seconds;
+    for (size_t i = 0; i < stages.size() && i < result.report.stage_seconds.size(); ++i) {
+      stages[i].second = std::min(stages[i].second, result.report.stage_seconds[i].second);
+    }
+  });
   row["whole_pose_ms"] = 1000.0 * whole_s;
-  for (const auto& [stage, seconds] : last.report.stage_seconds) row["stages_ms"][stage] = 1000.0 * seconds;
+  for (const auto& [stage, seconds] : stages) row["stages_ms"][stage] = 1000.0 * seconds;
 
   // The warp alone (prepare + labels + CT) against ITK on the same grid with our inverse field.
   api::PoseRequest fields = whole;
   fields.want_fields = true;
   api::PoseResult with_fields = std::move(engine->pose(fields)).value();
   double warp_ms = 0.0;
-  for (const auto& [stage, seconds] : last.report.stage_seconds) {
+  for (const auto& [stage, seconds] : stages) {
     if (stage.rfind("warp", 0) == 0) warp_ms += 1000.0 * seconds;
   }
   const IntensityVolume& ct = *engine->rig().ct;
@@ -149,8 +156,9 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   std::printf("%-14s %9.0f voxels %8lld tet vertices: whole pose %7.1f ms | warp labels+CT %7.1f ms (%6.1f Mvox/s) vs ITK %8.1f ms (%5.1f Mvox/s): %4.1fx\n",
               name.c_str(), voxels, static_cast<long long>(engine->rig().mesh.vertex_count()), 1000.0 * whole_s, warp_ms,
               row["warp_mvoxels_per_s"].get<double>(), itk_ms, row["itk_mvoxels_per_s"].get<double>(), itk_ms / warp_ms);
-  std::printf("               stages:");
-  for (const auto& [stage, seconds] : last.report.stage_seconds) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
+  std::printf("               rasterized tets %lld of %lld; stages:", static_cast<long long>(with_fields.report.rasterized_tets),
+              static_cast<long long>(engine->rig().mesh.tet_count()));
+  for (const auto& [stage, seconds] : stages) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
   std::printf("\n");
   std::fflush(stdout);
   return row;

@@ -41,8 +41,8 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
                               resample::TetWarp::build(rig.mesh, engine.topology_, rig.mesh.vertices, g, g,
                                                        Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
                                                        {}, hooks));
-    engine.rest_coverage_ = identity.coverage();
     engine.rest_owner_ = identity.owner();
+    engine.rest_label_counts_ = report::label_counts(rig.labels);
     if (rig.ct) {
       engine.ct_minimum_ = 0.0f;
       for (const float v : rig.ct->voxels()) engine.ct_minimum_ = std::min(engine.ct_minimum_, v);
@@ -121,21 +121,23 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
     if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
                               resample::TetWarp::build(mesh, topology_, result.posed_vertices, source, result.output_grid,
-                                                       root.rotation, root.translation, &rest_coverage_, params, hooks));
+                                                       root.rotation, root.translation, &rest_owner_, params, hooks));
     const resample::WarpStats& stats = warp.stats();
     qr.covered_voxels = stats.covered_voxels;
     qr.conflicted_voxels = stats.conflicted_voxels;
     qr.extrapolated_voxels = stats.extrapolated_voxels;
     qr.background_voxels = stats.background_voxels;
     qr.degenerate_tets = stats.degenerate_tets;
+    qr.rasterized_tets = warp.rasterized_tets();
     clock.lap("warp-prepare");
     if (request.want_labels) {
       POSEWARP_ASSIGN_OR_RETURN(result.labels, warp.warp_labels(rig_.labels));
       clock.lap("warp-labels");
-      qr.labels = report::label_change(rig_.labels, *result.labels);
+      qr.labels = report::label_change(rest_label_counts_, report::label_counts(*result.labels));
       for (const auto& [value, counts] : qr.labels.voxels) {
         if (const labels::LabelEntry* entry = rig_.label_map.find(value)) qr.label_names[value] = entry->name;
       }
+      clock.lap("report-labels");
     }
     if (request.want_ct && rig_.ct) {
       POSEWARP_ASSIGN_OR_RETURN(result.ct, warp.warp_intensities(*rig_.ct, request.ct_interpolation));

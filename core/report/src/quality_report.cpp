@@ -5,6 +5,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
+
+#include "posewarp/common/parallel.h"
 
 namespace posewarp::report {
 
@@ -54,15 +57,45 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
   return result;
 }
 
-LabelChange label_change(const LabelVolume& before, const LabelVolume& after) {
+std::map<Label, int64_t> label_counts(const LabelVolume& labels) {
+  std::map<Label, int64_t> counts;
+  const int64_t n = labels.voxel_count();
+  if (n == 0) return counts;
+  const Label* v = labels.data();
+  const auto [lo, hi] = std::minmax_element(v, v + n);
+  const int64_t range = static_cast<int64_t>(*hi) - static_cast<int64_t>(*lo) + 1;
+  if (range > (int64_t{1} << 16)) {  // sparse values: a map
+    for (int64_t i = 0; i < n; ++i) ++counts[v[i]];
+    return counts;
+  }
+  const Label first = *lo;
+  std::vector<int64_t> total(static_cast<size_t>(range), 0);
+  std::mutex merge;
+  parallel_for(0, n, int64_t{1} << 18, [&](int64_t begin, int64_t end) {
+    std::vector<int64_t> local(static_cast<size_t>(range), 0);
+    for (int64_t i = begin; i < end; ++i) ++local[static_cast<size_t>(v[i] - first)];
+    const std::lock_guard<std::mutex> lock(merge);
+    for (size_t b = 0; b < local.size(); ++b) total[b] += local[b];
+  });
+  for (size_t b = 0; b < total.size(); ++b) {
+    if (total[b] > 0) counts[static_cast<Label>(first + static_cast<int64_t>(b))] = total[b];
+  }
+  return counts;
+}
+
+LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<Label, int64_t>& after) {
   LabelChange change;
-  for (const Label l : before.voxels()) ++change.voxels[l].first;
-  for (const Label l : after.voxels()) ++change.voxels[l].second;
+  for (const auto& [label, count] : before) change.voxels[label].first = count;
+  for (const auto& [label, count] : after) change.voxels[label].second = count;
   for (const auto& [label, counts] : change.voxels) {
     if (counts.first > 0 && counts.second == 0) change.vanished.push_back(label);
     if (counts.first == 0 && counts.second > 0) change.appeared.push_back(label);
   }
   return change;
+}
+
+LabelChange label_change(const LabelVolume& before, const LabelVolume& after) {
+  return label_change(label_counts(before), label_counts(after));
 }
 
 std::string to_json(const QualityReport& r) {
@@ -74,6 +107,7 @@ std::string to_json(const QualityReport& r) {
   doc["method"] = r.method;
   doc["tets"] = {{"inverted", r.mesh.inverted_tets},
                  {"degenerate_after_posing", r.degenerate_tets},
+                 {"rasterized", r.rasterized_tets},
                  {"det_min", r.mesh.det_min},
                  {"det_max", r.mesh.det_max}};
   doc["volume_change"] = {{"soft_tissue", r.mesh.soft_tissue_volume_change},

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <new>
+#include <utility>
 
 #include "posewarp/common/parallel.h"
 
@@ -15,6 +16,7 @@ namespace posewarp::resample {
 namespace {
 
 constexpr double kInsideTolerance = 1e-9;
+constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
 
 // Affine physical -> continuous index of a grid: u = M (x - o).
 struct IndexSpace {
@@ -39,7 +41,7 @@ std::array<double, 4> heights(const Eigen::Vector3d v[4]) {
     const Eigen::Vector3d& b = v[(m + 2) % 4];
     const Eigen::Vector3d& c = v[(m + 3) % 4];
     const double twice_area = (b - a).cross(c - a).norm();
-    h[static_cast<size_t>(m)] = twice_area > 0.0 ? six_volume / twice_area : 0.0;
+    h[m] = twice_area > 0.0 ? six_volume / twice_area : 0.0;
   }
   return h;
 }
@@ -51,6 +53,7 @@ struct RasterTet {
   double origin[4], di[4], dj[4], dk[4];
   double inv_di[4];  // 1 / di, 0 where di is 0
   double lo[3], hi[3];  // index bounding box
+  double h[4];          // boundary tets: height of each vertex over its opposite face, mm
 };
 
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
@@ -63,24 +66,38 @@ inline double fast_ceil(double x) {
   return t + (x > t);
 }
 
-// The i-interval of row (j, k) inside the tet, intersected with [first, last]; false when empty.
-inline bool row_interval(const RasterTet& r, int64_t j, int64_t k, int64_t& first, int64_t& last, double tolerance) {
+// Barycentrics of the tet at i = 0 on row (j, k).
+inline void row_start(const RasterTet& r, double j, double k, double alpha[4]) {
+  for (int m = 0; m < 4; ++m) alpha[m] = r.origin[m] + j * r.dj[m] + k * r.dk[m];
+}
+
+// The i-interval of a row where every barycentric lambda_m >= -grow[m] (the tet itself for a tiny grow, the tet
+// with its faces pushed out for the skin shell), intersected with [first, last]; false when empty. Branch-free
+// over the planes but for the rare one parallel to the row.
+inline bool row_interval(const RasterTet& r, const double alpha[4], const double grow[4], int64_t& first, int64_t& last) {
   double lo = static_cast<double>(first), hi = static_cast<double>(last);
-  const double jd = static_cast<double>(j), kd = static_cast<double>(k);
   for (int m = 0; m < 4; ++m) {
-    const double alpha = r.origin[m] + jd * r.dj[m] + kd * r.dk[m] + tolerance;  // alpha + di * i >= 0
-    if (r.di[m] > 0.0) {
-      lo = std::max(lo, fast_ceil(-alpha * r.inv_di[m]));
-    } else if (r.di[m] < 0.0) {
-      hi = std::min(hi, fast_floor(-alpha * r.inv_di[m]));
-    } else if (alpha < 0.0) {
-      return false;
-    }
+    const double a = alpha[m] + grow[m];  // a + di * i >= 0
+    const double x = -a * r.inv_di[m];
+    lo = r.di[m] > 0.0 ? std::max(lo, x) : lo;
+    hi = r.di[m] < 0.0 ? std::min(hi, x) : hi;
+    if (r.di[m] == 0.0 && a < 0.0) return false;
   }
+  lo = fast_ceil(lo);
+  hi = fast_floor(hi);
   if (lo > hi) return false;
   first = static_cast<int64_t>(lo);
   last = static_cast<int64_t>(hi);
   return true;
+}
+
+// Nearest integer of x when x is one to within 1e-9, else false.
+inline bool integral(double x, int64_t& n) {
+  const double y = x + 0.5;
+  int64_t r = static_cast<int64_t>(y);
+  r -= (y < static_cast<double>(r));
+  n = r;
+  return std::abs(x - static_cast<double>(r)) < 1e-9;
 }
 
 // Round to nearest without a libm call (ties away from zero do not matter at voxel centres).
@@ -130,16 +147,14 @@ RestTopology rest_topology(const TetMesh& rest) {
     i = j;
   }
   RestTopology topology;
-  for (int64_t t = 0; t < rest.tet_count(); ++t) {
-    if (boundary[static_cast<size_t>(t)]) topology.boundary_tets.push_back(static_cast<int32_t>(t));
-  }
+  topology.boundary = std::move(boundary);
   return topology;
 }
 
 Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
-                               const std::vector<uint8_t>* rest_coverage, const ResampleParams& params,
+                               const std::vector<int32_t>* rest_owner, const ResampleParams& params,
                                const ProgressHooks& hooks) {
   POSEWARP_RETURN_IF_ERROR(validate(params));
   if (posed.rows() != rest.vertex_count() || posed.cols() != 3) {
@@ -152,14 +167,16 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     return resource_exhausted_error("the output grid has " + std::to_string(output.voxel_count()) +
                                     " voxels, over the limit of " + std::to_string(params.max_output_voxels));
   }
-  if (rest_coverage && static_cast<int64_t>(rest_coverage->size()) != source.voxel_count()) {
-    return invalid_argument_error("the rest coverage mask does not match the source grid");
+  if (static_cast<int64_t>(topology.boundary.size()) != rest.tet_count()) {
+    return invalid_argument_error("the rest topology was computed for another mesh");
+  }
+  if (rest_owner && static_cast<int64_t>(rest_owner->size()) != source.voxel_count()) {
+    return invalid_argument_error("the rest ownership does not match the source grid");
   }
   StageProgress progress(hooks, "warp-prepare");
   TetWarp warp;
   warp.source_ = source;
   warp.output_ = output;
-  warp.rest_coverage_ = rest_coverage;
   warp.label_background_ = params.label_background;
   warp.intensity_background_ = params.intensity_background;
   const double shell_mm =
@@ -169,6 +186,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     const IndexSpace out_space = index_space(output);
     const IndexSpace src_space = index_space(source);
     const int64_t nt = rest.tet_count();
+    const int64_t nv = rest.vertex_count();
 
     // Background: output index -> output physical -> rest physical (inverse rigid) -> source index.
     {
@@ -181,37 +199,64 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
       }
     }
 
-    // Vertices into output (posed) and source (rest) index space once, row-major.
-    const int64_t nv = rest.vertex_count();
+    // Vertices into output (posed) and source (rest) index space once, row-major; with a rest owner, which of them
+    // follow the background transform (to a millionth of a voxel).
     std::vector<double> posed_index(static_cast<size_t>(nv) * 3), rest_index(static_cast<size_t>(nv) * 3);
+    std::vector<uint8_t> follows(static_cast<size_t>(nv), 0);
+    const double follow_tolerance = 1e-6 * std::min({output.spacing[0], output.spacing[1], output.spacing[2]});
     parallel_for(0, nv, 8192, [&](int64_t begin, int64_t end) {
       for (int64_t v = begin; v < end; ++v) {
-        const Eigen::Vector3d u = out_space.to_index * (posed.row(v).transpose() - out_space.origin);
-        const Eigen::Vector3d s = src_space.to_index * (rest.vertices.row(v).transpose() - src_space.origin);
+        const Eigen::Vector3d x = posed.row(v).transpose();
+        const Eigen::Vector3d p = rest.vertices.row(v).transpose();
+        const Eigen::Vector3d u = out_space.to_index * (x - out_space.origin);
+        const Eigen::Vector3d s = src_space.to_index * (p - src_space.origin);
         for (int a = 0; a < 3; ++a) {
           posed_index[static_cast<size_t>(3 * v + a)] = u(a);
           rest_index[static_cast<size_t>(3 * v + a)] = s(a);
         }
+        if (rest_owner) {
+          follows[static_cast<size_t>(v)] =
+              (background_rotation * p + background_translation - x).cwiseAbs().maxCoeff() <= follow_tolerance;
+        }
       }
     });
-    // Per tet: the output-index -> source-index map and the raster data.
-    warp.maps_.assign(static_cast<size_t>(nt) * 12, 0.0);
-    std::vector<RasterTet> raster(static_cast<size_t>(nt));
-    std::vector<uint8_t> usable(static_cast<size_t>(nt), 0);
-    parallel_for(0, nt, 4096, [&](int64_t begin, int64_t end) {
-      for (int64_t t = begin; t < end; ++t) {
+    // The tets to rasterize: all of them without a rest owner, else those with a vertex off the background.
+    std::vector<uint8_t> moving(static_cast<size_t>(nt), 1);
+    if (rest_owner) {
+      parallel_for(0, nt, 8192, [&](int64_t begin, int64_t end) {
+        for (int64_t t = begin; t < end; ++t) {
+          bool all_follow = true;
+          for (int c = 0; c < 4; ++c) all_follow = all_follow && follows[static_cast<size_t>(rest.tets(t, c))];
+          moving[static_cast<size_t>(t)] = all_follow ? 0 : 1;
+        }
+      });
+    }
+    std::vector<int32_t>& tets = warp.tets_;  // rasterized index -> tet, increasing
+    for (int64_t t = 0; t < nt; ++t) {
+      if (moving[static_cast<size_t>(t)]) tets.push_back(static_cast<int32_t>(t));
+    }
+    const int64_t nm = static_cast<int64_t>(tets.size());
+    warp.rasterized_tets_ = nm;
+    // Per rasterized tet, densely (a pose that moves a few tets touches only theirs): the output-index ->
+    // source-index map, the raster data and, for boundary tets, the heights that measure the skin shell.
+    warp.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
+    std::vector<RasterTet> raster(static_cast<size_t>(nm));
+    std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
+    parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
+      for (int64_t c = begin; c < end; ++c) {
+        const int64_t t = tets[static_cast<size_t>(c)];
         Eigen::Vector3d u[4], s[4];
-        for (int c = 0; c < 4; ++c) {
-          const size_t v = static_cast<size_t>(rest.tets(t, c)) * 3;
-          u[c] = Eigen::Vector3d(posed_index[v], posed_index[v + 1], posed_index[v + 2]);
-          s[c] = Eigen::Vector3d(rest_index[v], rest_index[v + 1], rest_index[v + 2]);
+        for (int q = 0; q < 4; ++q) {
+          const size_t v = static_cast<size_t>(rest.tets(t, q)) * 3;
+          u[q] = Eigen::Vector3d(posed_index[v], posed_index[v + 1], posed_index[v + 2]);
+          s[q] = Eigen::Vector3d(rest_index[v], rest_index[v + 1], rest_index[v + 2]);
         }
         Eigen::Matrix3d ue, se;
-        for (int c = 0; c < 3; ++c) ue.col(c) = u[c + 1] - u[0], se.col(c) = s[c + 1] - s[0];
+        for (int q = 0; q < 3; ++q) ue.col(q) = u[q + 1] - u[0], se.col(q) = s[q + 1] - s[0];
         const double det = ue.determinant();
         if (!(std::abs(det) > 1e-12) || !std::isfinite(det)) continue;
         const Eigen::Matrix3d inverse = ue.inverse();
-        RasterTet& r = raster[static_cast<size_t>(t)];
+        RasterTet& r = raster[static_cast<size_t>(c)];
         const Eigen::Vector3d origin = -(inverse * u[0]);
         r.origin[0] = 1.0 - origin.sum();
         r.di[0] = -inverse.col(0).sum();
@@ -228,14 +273,20 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           r.lo[a] = std::min({u[0](a), u[1](a), u[2](a), u[3](a)});
           r.hi[a] = std::max({u[0](a), u[1](a), u[2](a), u[3](a)});
         }
+        if (topology.boundary[static_cast<size_t>(t)]) {
+          Eigen::Vector3d corners[4];
+          for (int q = 0; q < 4; ++q) corners[q] = posed.row(rest.tets(t, q)).transpose();
+          const std::array<double, 4> h = heights(corners);
+          for (int m = 0; m < 4; ++m) r.h[m] = h[m];
+        }
         const Eigen::Matrix3d a = se * inverse;
         const Eigen::Vector3d b = s[0] - a * u[0];
-        double* m = warp.maps_.data() + 12 * t;
+        double* m = warp.maps_.get() + 12 * c;
         for (int row = 0; row < 3; ++row) {
-          for (int c = 0; c < 3; ++c) m[3 * row + c] = a(row, c);
+          for (int q = 0; q < 3; ++q) m[3 * row + q] = a(row, q);
           m[9 + row] = b(row);
         }
-        usable[static_cast<size_t>(t)] = 1;
+        usable[static_cast<size_t>(c)] = 1;
       }
     });
     for (const uint8_t ok : usable) warp.stats_.degenerate_tets += ok ? 0 : 1;
@@ -248,30 +299,53 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     const int64_t slab_depth = (n[2] + slab_count - 1) / slab_count;
     std::vector<std::vector<int32_t>> interior(static_cast<size_t>(slab_count)), shell(static_cast<size_t>(slab_count));
     const double margin[3] = {shell_mm / output.spacing[0], shell_mm / output.spacing[1], shell_mm / output.spacing[2]};
-    auto add_to_slabs = [&](std::vector<std::vector<int32_t>>& lists, int32_t t, double pad) {
-      const RasterTet& r = raster[static_cast<size_t>(t)];
+    auto add_to_slabs = [&](std::vector<std::vector<int32_t>>& lists, int32_t c, double pad) {
+      const RasterTet& r = raster[static_cast<size_t>(c)];
       const int64_t k0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[2] - pad)));
       const int64_t k1 = std::min<int64_t>(n[2] - 1, static_cast<int64_t>(fast_floor(r.hi[2] + pad)));
       if (k0 > k1) return;
-      for (int64_t s = k0 / slab_depth; s <= k1 / slab_depth; ++s) lists[static_cast<size_t>(s)].push_back(t);
+      for (int64_t s = k0 / slab_depth; s <= k1 / slab_depth; ++s) lists[static_cast<size_t>(s)].push_back(c);
     };
-    for (int64_t t = 0; t < nt; ++t) {
-      if (usable[static_cast<size_t>(t)]) add_to_slabs(interior, static_cast<int32_t>(t), 0.0);
-    }
-    for (const int32_t t : topology.boundary_tets) {
-      if (t < nt && usable[static_cast<size_t>(t)]) add_to_slabs(shell, t, margin[2]);
+    for (int64_t c = 0; c < nm; ++c) {
+      if (!usable[static_cast<size_t>(c)]) continue;
+      add_to_slabs(interior, static_cast<int32_t>(c), 0.0);
+      if (topology.boundary[static_cast<size_t>(tets[static_cast<size_t>(c)])]) add_to_slabs(shell, static_cast<int32_t>(c), margin[2]);
     }
 
-    warp.owner_.assign(static_cast<size_t>(output.voxel_count()), -1);
-    std::vector<uint8_t> conflict(static_cast<size_t>(output.voxel_count()), 0);
+    warp.owner_ = std::shared_ptr<int32_t[]>(new int32_t[static_cast<size_t>(output.voxel_count())]);
+    int32_t* owner = warp.owner_.get();
     const Eigen::VectorXi& tet_class = rest.tet_class;
     auto priority = [&tet_class](int32_t t) { return tet_class(t) >= kFirstBoneClass ? 1 : 0; };
+    // Owner codes hold rasterized indices; the fold rule and rest owners speak of tets.
+    // Does tet a win voxel (i, j, k) from tet b (bones win, then the lower index)? Counts a fold where they disagree.
+    auto wins = [&](const double* map_a, int32_t a, const double* map_b, int32_t b, double i, double j, double k,
+                    uint8_t& conflicted) {
+      double sa[3], sb[3];
+      apply_map(map_a, i, j, k, sa);
+      apply_map(map_b, i, j, k, sb);
+      if (std::abs(sa[0] - sb[0]) + std::abs(sa[1] - sb[1]) + std::abs(sa[2] - sb[2]) > 0.5) conflicted = 1;
+      const int pa = priority(a), pb = priority(b);
+      return pa > pb || (pa == pb && a < b);
+    };
+    // The tet (rest owner code) that holds source index s in the rest pose; -1 when none or outside the grid.
+    auto rest_owner_at = [&](const double s[3]) -> int32_t {
+      const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
+      if (x < 0 || y < 0 || z < 0 || x >= source.size[0] || y >= source.size[1] || z >= source.size[2]) return -1;
+      return (*rest_owner)[static_cast<size_t>(source.offset(x, y, z))];
+    };
 
+    std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       std::vector<float> best;
+      std::vector<int32_t> best_tet;
+      std::vector<uint8_t> conflict;
       for (int64_t s = s0; s < s1; ++s) {
         const int64_t kb = s * slab_depth, ke = std::min(n[2], kb + slab_depth);
         if (kb >= ke) continue;
+        const int64_t slab_begin = kb * n[0] * n[1], slab_voxels = (ke - kb) * n[0] * n[1];
+        std::fill(owner + slab_begin, owner + slab_begin + slab_voxels, -1);
+        conflict.assign(static_cast<size_t>(slab_voxels), 0);
+        // 1. Rasterize the moving tets; where two cover a voxel, resolve the fold.
         for (const int32_t t : interior[static_cast<size_t>(s)]) {
           const RasterTet& r = raster[static_cast<size_t>(t)];
           const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2])));
@@ -282,57 +356,56 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0])));
           for (int64_t k = k0; k <= k1; ++k) {
             for (int64_t j = j0; j <= j1; ++j) {
+              double alpha[4];
+              row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
-              if (!row_interval(r, j, k, first, last, kInsideTolerance)) continue;
+              if (!row_interval(r, alpha, kInside, first, last)) continue;
               int64_t v = output.offset(first, j, k);
               for (int64_t i = first; i <= last; ++i, ++v) {
-                int32_t& owner = warp.owner_[static_cast<size_t>(v)];
-                if (owner < 0) {
-                  owner = t;
-                  continue;
+                int32_t& o = owner[v];
+                if (o < 0) {
+                  o = t;
+                } else if (wins(warp.maps_.get() + 12 * t, tets[static_cast<size_t>(t)], warp.maps_.get() + 12 * o,
+                                tets[static_cast<size_t>(o)], double(i), double(j),
+                                double(k), conflict[static_cast<size_t>(v - slab_begin)])) {
+                  o = t;
                 }
-                // Two posed tets cover this voxel: a fold when they map it to different rest places.
-                double a[3], b[3];
-                apply_map(warp.maps_.data() + 12 * owner, double(i), double(j), double(k), a);
-                apply_map(warp.maps_.data() + 12 * t, double(i), double(j), double(k), b);
-                if (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2]) > 0.5) {
-                  conflict[static_cast<size_t>(v)] = 1;
-                }
-                const int pt = priority(t), po = priority(owner);
-                if (pt > po || (pt == po && t < owner)) owner = t;
               }
             }
           }
         }
-        // Skin shell: uncovered voxels near a boundary tet take the nearest one's map.
-        const int64_t slab_voxels = (ke - kb) * n[0] * n[1];
+        // 2. Skin shell: uncovered voxels near a moving boundary tet, the nearest one.
         best.assign(static_cast<size_t>(slab_voxels), std::numeric_limits<float>::infinity());
-        std::vector<int32_t> best_tet(static_cast<size_t>(slab_voxels), -1);
+        best_tet.assign(static_cast<size_t>(slab_voxels), -1);
         for (const int32_t t : shell[static_cast<size_t>(s)]) {
           const RasterTet& r = raster[static_cast<size_t>(t)];
-          Eigen::Vector3d corners[4];
-          for (int c = 0; c < 4; ++c) corners[c] = posed.row(rest.tets(t, c)).transpose();
-          const std::array<double, 4> h = heights(corners);
+          const double* h = r.h;
+          if (!(std::min({h[0], h[1], h[2], h[3]}) > 0.0)) continue;
           const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2] - margin[2])));
           const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2] + margin[2])));
           const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[1] - margin[1])));
           const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1] + margin[1])));
           const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0] - margin[0])));
           const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0] + margin[0])));
+          // The shell of a tet is the tet with each face pushed out by shell_mm: lambda_m >= -shell_mm / h_m.
+          double grow[4];
+          for (int m = 0; m < 4; ++m) grow[m] = shell_mm / h[m] + kInsideTolerance;
           for (int64_t k = k0; k <= k1; ++k) {
             for (int64_t j = j0; j <= j1; ++j) {
-              double base[4];
-              for (int m = 0; m < 4; ++m) base[m] = r.origin[m] + double(j) * r.dj[m] + double(k) * r.dk[m];
-              for (int64_t i = i0; i <= i1; ++i) {
-                const int64_t v = output.offset(i, j, k);
-                if (warp.owner_[static_cast<size_t>(v)] >= 0) continue;
+              double alpha[4];
+              row_start(r, double(j), double(k), alpha);
+              int64_t first = i0, last = i1;
+              if (!row_interval(r, alpha, grow, first, last)) continue;
+              int64_t v = output.offset(first, j, k);
+              for (int64_t i = first; i <= last; ++i, ++v) {
+                if (owner[v] >= 0) continue;
                 double d = 0.0;
                 for (int m = 0; m < 4; ++m) {
-                  const double lambda = base[m] + double(i) * r.di[m];
-                  d = std::max(d, std::max(0.0, -lambda) * h[static_cast<size_t>(m)]);
+                  const double lambda = alpha[m] + double(i) * r.di[m];
+                  d = std::max(d, std::max(0.0, -lambda) * h[m]);
                 }
                 if (d > shell_mm) continue;
-                const size_t local = static_cast<size_t>(v - kb * n[0] * n[1]);
+                const size_t local = static_cast<size_t>(v - slab_begin);
                 if (d < best[local] || (d == best[local] && t < best_tet[local])) {
                   best[local] = static_cast<float>(d);
                   best_tet[local] = t;
@@ -341,25 +414,92 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
             }
           }
         }
-        for (int64_t local = 0; local < slab_voxels; ++local) {
-          if (best_tet[static_cast<size_t>(local)] >= 0) {
-            warp.owner_[static_cast<size_t>(kb * n[0] * n[1] + local)] = -2 - best_tet[static_cast<size_t>(local)];
+        // 3. Classify every voxel of the slab. Without a rest owner: covered, shell or background. With one, a voxel
+        // the moving tets left alone maps through the background transform to a source voxel whose rest owner
+        // says what it is: a tet that follows the background (covered, or its shell), nothing (background), or a
+        // moving tet (the body moved away from there: the shell of a moving tet, or nothing to sample).
+        int64_t covered = 0, extrapolated = 0, background = 0, conflicted = 0;
+        const double* bg = warp.background_map_;
+        // Where the background map steps one source voxel along x per output voxel from a whole source index (the
+        // root does not move and the grid is the input's), a row's rest owners are one row of rest_owner.
+        const bool bg_steps_x = bg[0] == 1.0 && bg[3] == 0.0 && bg[6] == 0.0;
+        for (int64_t k = kb; k < ke; ++k) {
+          for (int64_t j = 0; j < n[1]; ++j) {
+            const int64_t row_begin = output.offset(0, j, k);
+            const int64_t local_begin = row_begin - slab_begin;
+            if (!rest_owner) {
+              for (int64_t i = 0; i < n[0]; ++i) {
+                const size_t local = static_cast<size_t>(local_begin + i);
+                int32_t& o = owner[row_begin + i];
+                if (o >= 0) {
+                  ++covered;
+                } else if (best_tet[local] >= 0) {
+                  o = -2 - best_tet[local];
+                  ++extrapolated;
+                } else {
+                  ++background;
+                }
+                conflicted += conflict[local];
+              }
+              continue;
+            }
+            double row[3];
+            apply_map(bg, 0.0, double(j), double(k), row);
+            const int32_t* rest_row = nullptr;  // rest_owner at source x = i + x0 for this output row
+            int64_t x0 = 0, y = 0, z = 0;
+            const bool fast = bg_steps_x && integral(row[0], x0) && integral(row[1], y) && integral(row[2], z);
+            if (fast && y >= 0 && z >= 0 && y < source.size[1] && z < source.size[2]) {
+              rest_row = rest_owner->data() + source.offset(0, y, z);
+            }
+            for (int64_t i = 0; i < n[0]; ++i) {
+              const size_t local = static_cast<size_t>(local_begin + i);
+              int32_t& o = owner[row_begin + i];
+              const double di = double(i);
+              int32_t ro = -1;
+              if (fast) {
+                const int64_t x = x0 + i;
+                if (rest_row && x >= 0 && x < source.size[0]) ro = rest_row[x];
+              } else {
+                const double sb[3] = {row[0] + di * bg[0], row[1] + di * bg[3], row[2] + di * bg[6]};
+                ro = rest_owner_at(sb);
+              }
+              const int32_t rt = ro >= 0 ? ro : ro <= -2 ? -2 - ro : -1;  // the rest tet behind that code
+              const bool still = rt >= 0 && !moving[static_cast<size_t>(rt)];
+              if (o >= 0) {
+                // A moving tet covers it; a tet that follows the background may cover it too (a fold).
+                if (ro >= 0 && still && wins(bg, ro, warp.maps_.get() + 12 * o, tets[static_cast<size_t>(o)], di, double(j), double(k),
+                                             conflict[local])) {
+                  o = -1;
+                }
+                ++covered;
+              } else if (still) {
+                o = -1;
+                ++(ro >= 0 ? covered : extrapolated);
+              } else if (best_tet[local] >= 0) {
+                o = -2 - best_tet[local];
+                ++extrapolated;
+              } else {
+                o = rt < 0 ? -1 : kNoSample;
+                ++background;
+              }
+              conflicted += conflict[local];
+            }
           }
         }
+        WarpStats& st = slab_stats[static_cast<size_t>(s)];
+        st.covered_voxels = covered;
+        st.extrapolated_voxels = extrapolated;
+        st.background_voxels = background;
+        st.conflicted_voxels = conflicted;
         progress.advance(1, slab_count);
       }
     });
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-    for (size_t v = 0; v < warp.owner_.size(); ++v) {
-      const int32_t o = warp.owner_[v];
-      if (o >= 0) {
-        ++warp.stats_.covered_voxels;
-      } else if (o <= -2) {
-        ++warp.stats_.extrapolated_voxels;
-      } else {
-        ++warp.stats_.background_voxels;
-      }
-      warp.stats_.conflicted_voxels += conflict[v];
+    for (const WarpStats& st : slab_stats) {
+      warp.stats_.covered_voxels += st.covered_voxels;
+      warp.stats_.extrapolated_voxels += st.extrapolated_voxels;
+      warp.stats_.background_voxels += st.background_voxels;
+      warp.stats_.conflicted_voxels += st.conflicted_voxels;
     }
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory preparing the warp onto " + output.describe());
@@ -368,37 +508,32 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
   return warp;
 }
 
-bool TetWarp::source_index(int64_t v, int64_t i, int64_t j, int64_t k, double s[3]) const {
-  const int32_t o = owner_[static_cast<size_t>(v)];
-  if (o >= 0) {
-    apply_map(maps_.data() + 12 * o, double(i), double(j), double(k), s);
-    return true;
-  }
-  if (o <= -2) {
-    apply_map(maps_.data() + 12 * (-2 - o), double(i), double(j), double(k), s);
-    return true;
-  }
-  apply_map(background_map_, double(i), double(j), double(k), s);
-  if (rest_coverage_ != nullptr) {
-    const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-    if (x >= 0 && y >= 0 && z >= 0 && x < source_.size[0] && y < source_.size[1] && z < source_.size[2] &&
-        (*rest_coverage_)[static_cast<size_t>(source_.offset(x, y, z))]) {
-      return false;  // that source voxel belongs to the body, which the mesh moved elsewhere
-    }
-  }
-  return true;
+const double* TetWarp::map_of(int32_t o) const {
+  if (o >= 0) return maps_.get() + 12 * o;
+  if (o <= -2 && o != kNoSample) return maps_.get() + 12 * (-2 - o);
+  return background_map_;
 }
 
 template <typename Sample>
-void TetWarp::for_each_mapped_voxel(const Sample& sample) const {
+void TetWarp::for_each_mapped_run(const Sample& sample) const {
   const Index3& n = output_.size;
+  const int32_t* owner = owner_.get();
   parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {
       for (int64_t j = 0; j < n[1]; ++j) {
-        int64_t v = output_.offset(0, j, k);
-        for (int64_t i = 0; i < n[0]; ++i, ++v) {
-          double s[3];
-          if (source_index(v, i, j, k, s)) sample(v, s);
+        const int64_t row = output_.offset(0, j, k);
+        for (int64_t i = 0; i < n[0];) {
+          const int32_t o = owner[row + i];
+          int64_t end = i + 1;
+          while (end < n[0] && owner[row + end] == o) ++end;
+          if (o != kNoSample) {
+            const double* m = map_of(o);
+            double s[3];
+            apply_map(m, double(i), double(j), double(k), s);
+            const double ds[3] = {m[0], m[3], m[6]};
+            sample(row + i, end - i, s, ds);
+          }
+          i = end;
         }
       }
     }
@@ -417,10 +552,23 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   }
   out.set_source_type(labels.source_type());
   const Index3& m = source_.size;
-  for_each_mapped_voxel([&](int64_t v, const double s[3]) {
-    const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-    if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return;
-    out.data()[v] = labels.data()[source_.offset(x, y, z)];
+  const Label* in = labels.data();
+  Label* dst = out.data();
+  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
+    if (ds[0] == 1.0 && ds[1] == 0.0 && ds[2] == 0.0) {  // a run along a source row: copy it
+      const int64_t x0 = round_index(s0[0]), y = round_index(s0[1]), z = round_index(s0[2]);
+      if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
+      const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
+      if (c0 < c1) std::copy(in + x0 + c0 + m[0] * (y + m[1] * z), in + x0 + c1 + m[0] * (y + m[1] * z), dst + v + c0);
+      return;
+    }
+    for (int64_t c = 0; c < count; ++c) {
+      const double dc = double(c);
+      const int64_t x = round_index(s0[0] + dc * ds[0]), y = round_index(s0[1] + dc * ds[1]),
+                    z = round_index(s0[2] + dc * ds[2]);
+      if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
+      dst[v + c] = in[x + m[0] * (y + m[1] * z)];
+    }
   });
   return out;
 }
@@ -438,38 +586,64 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   out.set_source_type(source.source_type());
   const Index3& m = source_.size;
   const float* in = source.data();
-  const int64_t sx = 1, sy = m[0], sz = m[0] * m[1];
-  for_each_mapped_voxel([&](int64_t v, const double s[3]) {
-    if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > m[0] - 0.5 || s[1] > m[1] - 0.5 || s[2] > m[2] - 0.5) {
+  float* dst = out.data();
+  const int64_t sy = m[0], sz = m[0] * m[1];
+  const int64_t dx = m[0] > 1 ? 1 : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;
+  const double hi[3] = {static_cast<double>(m[0]) - 0.5, static_cast<double>(m[1]) - 0.5, static_cast<double>(m[2]) - 0.5};
+  const double top[3] = {static_cast<double>(m[0] - 1), static_cast<double>(m[1] - 1), static_cast<double>(m[2] - 1)};
+  const int64_t base_max[3] = {std::max<int64_t>(0, m[0] - 2), std::max<int64_t>(0, m[1] - 2), std::max<int64_t>(0, m[2] - 2)};
+  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
+    int64_t x0 = 0, y = 0, z = 0;
+    if (ds[0] == 1.0 && ds[1] == 0.0 && ds[2] == 0.0 && integral(s0[0], x0) && integral(s0[1], y) && integral(s0[2], z)) {
+      // A run along a source row through voxel centres: either interpolation gives the voxels themselves.
+      if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
+      const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
+      if (c0 < c1) std::copy(in + x0 + c0 + sy * y + sz * z, in + x0 + c1 + sy * y + sz * z, dst + v + c0);
       return;
     }
-    if (interpolation == Interpolation::kNearest) {
-      out.data()[v] = in[source_.offset(round_index(s[0]), round_index(s[1]), round_index(s[2]))];
-      return;
+    for (int64_t c = 0; c < count; ++c) {
+      const double dc = double(c);
+      const double s[3] = {s0[0] + dc * ds[0], s0[1] + dc * ds[1], s0[2] + dc * ds[2]};
+      if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > hi[0] || s[1] > hi[1] || s[2] > hi[2]) continue;
+      if (interpolation == Interpolation::kNearest) {
+        dst[v + c] = in[round_index(s[0]) + sy * round_index(s[1]) + sz * round_index(s[2])];
+        continue;
+      }
+      int64_t base[3];
+      double f[3];
+      for (int a = 0; a < 3; ++a) {
+        const double x = std::clamp(s[a], 0.0, top[a]);
+        base[a] = std::min<int64_t>(static_cast<int64_t>(x), base_max[a]);  // x >= 0
+        f[a] = m[a] > 1 ? x - static_cast<double>(base[a]) : 0.0;
+      }
+      const float* p = in + base[0] + base[1] * sy + base[2] * sz;
+      const double c00 = p[0] + f[0] * (p[dx] - p[0]);
+      const double c10 = p[dy] + f[0] * (p[dy + dx] - p[dy]);
+      const double c01 = p[dz] + f[0] * (p[dz + dx] - p[dz]);
+      const double c11 = p[dz + dy] + f[0] * (p[dz + dy + dx] - p[dz + dy]);
+      const double e0 = c00 + f[1] * (c10 - c00);
+      const double e1 = c01 + f[1] * (c11 - c01);
+      dst[v + c] = static_cast<float>(e0 + f[2] * (e1 - e0));
     }
-    int64_t base[3];
-    double f[3];
-    for (int a = 0; a < 3; ++a) {
-      const double c = std::clamp(s[a], 0.0, static_cast<double>(m[a] - 1));
-      base[a] = std::min<int64_t>(static_cast<int64_t>(c), std::max<int64_t>(0, m[a] - 2));  // c >= 0
-      f[a] = m[a] > 1 ? c - static_cast<double>(base[a]) : 0.0;
-    }
-    const int64_t dx = m[0] > 1 ? sx : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;
-    const float* p = in + base[0] * sx + base[1] * sy + base[2] * sz;
-    const double c00 = p[0] + f[0] * (p[dx] - p[0]);
-    const double c10 = p[dy] + f[0] * (p[dy + dx] - p[dy]);
-    const double c01 = p[dz] + f[0] * (p[dz + dx] - p[dz]);
-    const double c11 = p[dz + dy] + f[0] * (p[dz + dy + dx] - p[dz + dy]);
-    const double c0 = c00 + f[1] * (c10 - c00);
-    const double c1 = c01 + f[1] * (c11 - c01);
-    out.data()[v] = static_cast<float>(c0 + f[2] * (c1 - c0));
   });
   return out;
 }
 
+std::vector<int32_t> TetWarp::owner() const {
+  std::vector<int32_t> tet_owner(owner_.get(), owner_.get() + output_.voxel_count());
+  for (int32_t& o : tet_owner) {
+    if (o >= 0) {
+      o = tets_[static_cast<size_t>(o)];
+    } else if (o <= -2 && o != kNoSample) {
+      o = -2 - tets_[static_cast<size_t>(-2 - o)];
+    }
+  }
+  return tet_owner;
+}
+
 std::vector<uint8_t> TetWarp::coverage() const {
-  std::vector<uint8_t> covered(owner_.size());
-  for (size_t v = 0; v < owner_.size(); ++v) covered[v] = owner_[v] != -1 ? 1 : 0;
+  std::vector<uint8_t> covered(static_cast<size_t>(output_.voxel_count()));
+  for (size_t v = 0; v < covered.size(); ++v) covered[v] = owner_[v] != -1 && owner_[v] != kNoSample ? 1 : 0;
   return covered;
 }
 
@@ -482,9 +656,7 @@ std::vector<float> TetWarp::inverse_displacement() const {
         for (int64_t i = 0; i < n[0]; ++i) {
           const int64_t v = output_.offset(i, j, k);
           double s[3];
-          const int32_t o = owner_[static_cast<size_t>(v)];
-          apply_map(o >= 0 ? maps_.data() + 12 * o : o <= -2 ? maps_.data() + 12 * (-2 - o) : background_map_, double(i),
-                    double(j), double(k), s);
+          apply_map(map_of(owner_[v]), double(i), double(j), double(k), s);
           const Vec3 from = output_.index_to_physical({double(i), double(j), double(k)});
           const Vec3 to = source_.index_to_physical({s[0], s[1], s[2]});
           for (int a = 0; a < 3; ++a) field[static_cast<size_t>(3 * v + a)] = static_cast<float>(to[a] - from[a]);

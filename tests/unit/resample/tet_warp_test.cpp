@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 
+#include <iostream>
 #include <map>
 #include <set>
 
@@ -19,10 +20,10 @@ struct Scene {
   phantom::Phantom phantom;
   TetMesh mesh;
   RestTopology topology;
-  std::vector<uint8_t> rest_coverage;
+  std::vector<int32_t> rest_owner;  // as a rig's engine keeps it
 };
 
-// The bar phantom, meshed, with its rest coverage computed once (as a rig does).
+// The bar phantom, meshed, with its rest ownership computed once (as a rig does).
 const Scene& bar_scene() {
   static const Scene scene = [] {
     Scene s;
@@ -43,7 +44,7 @@ const Scene& bar_scene() {
     const ImageGeometry& g = s.phantom.labels.geometry();
     Result<TetWarp> identity = TetWarp::build(s.mesh, s.topology, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
                                               Eigen::Vector3d::Zero(), nullptr, {}, {});
-    s.rest_coverage = identity->coverage();
+    s.rest_owner = identity->owner();
     return s;
   }();
   return scene;
@@ -52,18 +53,25 @@ const Scene& bar_scene() {
 TEST(TetWarp, IdentityPoseGivesBackTheInputVoxelForVoxel) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
-  Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), &s.rest_coverage, {}, {});
-  ASSERT_TRUE(warp.ok()) << warp.status().to_string();
-  Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
-  ASSERT_TRUE(labels.ok());
-  EXPECT_EQ(labels->voxels(), s.phantom.labels.voxels());
-  Result<IntensityVolume> ct = warp->warp_intensities(s.phantom.ct, Interpolation::kLinear);
-  ASSERT_TRUE(ct.ok());
-  for (int64_t v = 0; v < ct->voxel_count(); ++v) ASSERT_NEAR(ct->data()[v], s.phantom.ct.data()[v], 1e-3) << v;
-  EXPECT_EQ(warp->stats().conflicted_voxels, 0);
-  EXPECT_GT(warp->stats().covered_voxels, 0);
-  for (const float d : warp->inverse_displacement()) ASSERT_NEAR(d, 0.0f, 1e-6f);
+  // With the rest owner no tet moves and nothing is rasterized; without it every tet is.
+  for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
+    SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
+    Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+                                          Eigen::Vector3d::Zero(), rest_owner, {}, {});
+    ASSERT_TRUE(warp.ok()) << warp.status().to_string();
+    EXPECT_EQ(warp->rasterized_tets(), rest_owner ? 0 : s.mesh.tet_count());
+    Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
+    ASSERT_TRUE(labels.ok());
+    EXPECT_EQ(labels->voxels(), s.phantom.labels.voxels());
+    Result<IntensityVolume> ct = warp->warp_intensities(s.phantom.ct, Interpolation::kLinear);
+    ASSERT_TRUE(ct.ok());
+    for (int64_t v = 0; v < ct->voxel_count(); ++v) ASSERT_NEAR(ct->data()[v], s.phantom.ct.data()[v], 1e-3) << v;
+    EXPECT_EQ(warp->stats().conflicted_voxels, 0);
+    EXPECT_GT(warp->stats().covered_voxels, 0);
+    EXPECT_EQ(warp->stats().background_voxels + warp->stats().covered_voxels + warp->stats().extrapolated_voxels,
+              g.voxel_count());
+    for (const float d : warp->inverse_displacement()) ASSERT_NEAR(d, 0.0f, 1e-6f);
+  }
 }
 
 TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
@@ -74,13 +82,16 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   const Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
   Result<ImageGeometry> out = output_geometry(GridPolicy::kGrow, g, posed, nullptr, {});
   ASSERT_TRUE(out.ok());
-  Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, posed, g, *out, r, t, &s.rest_coverage, {}, {});
-  ASSERT_TRUE(warp.ok());
-  Result<LabelVolume> ours = warp->warp_labels(s.phantom.labels);
   std::array<double, 9> rotation{};
   for (int i = 0; i < 9; ++i) rotation[static_cast<size_t>(i)] = r(i / 3, i % 3);
   Result<LabelVolume> itk = io::itk_resample_rigid_labels(s.phantom.labels, rotation, {t(0), t(1), t(2)}, *out);
-  ASSERT_TRUE(ours.ok() && itk.ok()) << itk.status().to_string();
+  ASSERT_TRUE(itk.ok()) << itk.status().to_string();
+  for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
+  SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
+  Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, posed, g, *out, r, t, rest_owner, {}, {});
+  ASSERT_TRUE(warp.ok());
+  Result<LabelVolume> ours = warp->warp_labels(s.phantom.labels);
+  ASSERT_TRUE(ours.ok());
   std::map<Label, int64_t> a, b, both;
   for (int64_t v = 0; v < ours->voxel_count(); ++v) {
     ++a[ours->data()[v]];
@@ -92,6 +103,7 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
     const double dice = 2.0 * static_cast<double>(both[label]) / static_cast<double>(a[label] + count);
     EXPECT_GE(dice, 0.99) << "label " << label;
   }
+  }
 }
 
 TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
@@ -101,7 +113,7 @@ TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
   Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), &s.rest_coverage, {}, {});
+                                        Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
   ASSERT_TRUE(warp.ok());
   Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
   const std::set<Label> before(s.phantom.labels.voxels().begin(), s.phantom.labels.voxels().end());
@@ -135,6 +147,71 @@ TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
   EXPECT_GT(warp->stats().conflicted_voxels, 0);
   Result<LabelVolume> out = warp->warp_labels(labels);
   EXPECT_EQ(out->at(1, 1, 1), 7);
+}
+
+TEST(TetWarp, AMovingSoftTetFoldedOntoAStillBoneLosesAndLeavesNoGhost) {
+  // The soft tet (index 0) moves onto the bone tet (index 1), which follows the background and is not rasterized.
+  TetMesh mesh;
+  mesh.vertices.resize(8, 3);
+  mesh.vertices << 0, 0, 0, 6, 0, 0, 0, 6, 0, 0, 0, 6,  //
+      10, 10, 10, 16, 10, 10, 10, 16, 10, 10, 10, 16;
+  mesh.tets.resize(2, 4);
+  mesh.tets << 0, 1, 2, 3, 4, 5, 6, 7;
+  mesh.tet_class.resize(2);
+  mesh.tet_class << 1, 2;
+  mesh.segment_count = 1;
+  ImageGeometry g;
+  g.size = {20, 20, 20};
+  LabelVolume labels(g, 0);
+  labels.at(1, 1, 1) = 5;    // soft tissue
+  labels.at(11, 11, 11) = 7; // bone
+  const RestTopology topology = rest_topology(mesh);
+  Result<TetWarp> identity = TetWarp::build(mesh, topology, mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+                                            Eigen::Vector3d::Zero(), nullptr, {}, {});
+  ASSERT_TRUE(identity.ok());
+  const std::vector<int32_t> rest_owner = identity->owner();
+  Eigen::MatrixXd posed = mesh.vertices;
+  posed.topRows(4).rowwise() += Eigen::RowVector3d(10, 10, 10);
+  Result<TetWarp> warp = TetWarp::build(mesh, topology, posed, g, g, Eigen::Matrix3d::Identity(),
+                                        Eigen::Vector3d::Zero(), &rest_owner, {}, {});
+  ASSERT_TRUE(warp.ok());
+  EXPECT_EQ(warp->rasterized_tets(), 1);
+  EXPECT_GT(warp->stats().conflicted_voxels, 0);
+  Result<LabelVolume> out = warp->warp_labels(labels);
+  EXPECT_EQ(out->at(11, 11, 11), 7);  // the bone wins its own place
+  EXPECT_EQ(out->at(1, 1, 1), 0);     // where the soft tet was, nothing is copied
+}
+
+TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  // Shear the upper half only: the lower half follows the (identity) background.
+  Eigen::MatrixXd posed = s.mesh.vertices;
+  for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
+  Result<TetWarp> full = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
+                                        Eigen::Vector3d::Zero(), nullptr, {}, {});
+  Result<TetWarp> lean = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
+                                        Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
+  ASSERT_TRUE(full.ok() && lean.ok());
+  EXPECT_GT(lean->rasterized_tets(), 0);
+  EXPECT_LT(lean->rasterized_tets(), s.mesh.tet_count());
+  Result<LabelVolume> a = full->warp_labels(s.phantom.labels);
+  Result<LabelVolume> b = lean->warp_labels(s.phantom.labels);
+  ASSERT_TRUE(a.ok() && b.ok());
+  // Without a rest owner, a voxel outside every posed tet is copied through the background (identity) map even
+  // where the body moved away; the rest owner is what removes that ghost.
+  const std::vector<int32_t> full_owner = full->owner();
+  int64_t body = 0, differ = 0;
+  for (int64_t v = 0; v < g.voxel_count(); ++v) {
+    const Label expected = full_owner[static_cast<size_t>(v)] == -1 && s.rest_owner[static_cast<size_t>(v)] != -1 ? 0 : a->data()[v];
+    body += expected != 0;
+    differ += expected != b->data()[v];
+  }
+  std::cout << "labels differ in " << differ << " of " << body << " body voxels\n";
+  EXPECT_LE(differ, body / 1000);
+  // The body's extent agrees to a few shell voxels (a still tet's rest shell now wins over a moving tet's shell).
+  EXPECT_NEAR(static_cast<double>(full->stats().covered_voxels + full->stats().extrapolated_voxels),
+              static_cast<double>(lean->stats().covered_voxels + lean->stats().extrapolated_voxels), 1e-3 * body);
 }
 
 TEST(OutputGrid, GrowsToHoldTheBodyAndRefusesAbsurdGrids) {

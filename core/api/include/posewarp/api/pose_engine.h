@@ -2,6 +2,7 @@
 // report), with everything that does not depend on the pose computed once.
 #pragma once
 
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -55,7 +56,7 @@ class PoseEngine {
   Rig rig_;
   skinning::RestTetFrames frames_;
   resample::RestTopology topology_;
-  std::vector<uint8_t> rest_coverage_;
+  std::map<Label, int64_t> rest_label_counts_;  // the report's "before" counts, once
   std::vector<int32_t> rest_owner_;  // per source voxel: the rest tet covering it (-1 none), for forward fields
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
 };

@@ -45,6 +45,9 @@ struct LabelChange {
   std::vector<Label> appeared;                          // absent before, present after (must stay empty)
 };
 
+// Voxels per label value (parallel; dense counting where the values span a small range).
+std::map<Label, int64_t> label_counts(const LabelVolume& labels);
+LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<Label, int64_t>& after);
 LabelChange label_change(const LabelVolume& before, const LabelVolume& after);
 
 struct QualityReport {
@@ -58,6 +61,7 @@ struct QualityReport {
   std::map<Label, std::string> label_names;
   int64_t covered_voxels = 0, conflicted_voxels = 0, extrapolated_voxels = 0, background_voxels = 0;
   int64_t degenerate_tets = 0;
+  int64_t rasterized_tets = 0;  // tets the warp rasterized: those not moving with the background (root)
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
 

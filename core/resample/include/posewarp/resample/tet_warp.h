@@ -6,6 +6,7 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "posewarp/common/progress.h"
@@ -43,7 +44,7 @@ Result<ImageGeometry> output_geometry(GridPolicy policy, const ImageGeometry& so
 
 // What a rig needs once for every warp: which tets touch the mesh boundary (for the skin shell).
 struct RestTopology {
-  std::vector<int32_t> boundary_tets;
+  std::vector<uint8_t> boundary;  // per tet: 1 when it has a face on the mesh boundary
 };
 RestTopology rest_topology(const TetMesh& rest);
 
@@ -56,28 +57,40 @@ struct WarpStats {
 };
 
 // The map from an output grid back to the source grid for one posed mesh.
+//
+// Only tets that move differently from the background are rasterized: a tet whose four vertices follow the
+// background (root) transform maps its voxels exactly as the background map does, so those voxels are found
+// through the rest ownership of the source voxel they map to (a lookup instead of a raster). A pose that bends one
+// knee rasterizes the lower leg only.
 class TetWarp {
  public:
+  // Owner code of an output voxel that nothing maps back to (the place a moved limb left): background value.
+  static constexpr int32_t kNoSample = -2147483647 - 1;
+
   // rest/posed: the rig's tet mesh and its posed vertices (#V x 3). background_*: the rigid transform (rest ->
-  // posed) of everything outside the mesh, normally the root segment's. rest_coverage: from coverage() of the
-  // identity warp on the source grid; source voxels it marks belong to the meshed body and are never copied by the
-  // background transform (so a moved limb leaves no ghost). May be null.
+  // posed) of everything outside the mesh, normally the root segment's. rest_owner: owner() of the identity warp
+  // on the source grid (built with rest_owner = null, which rasterizes every tet); with it, tets that follow the
+  // background are not rasterized, and source voxels owned by moving tets are never copied by the background
+  // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized.
   static Result<TetWarp> build(const TetMesh& rest, const RestTopology& topology, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
-                               const std::vector<uint8_t>* rest_coverage, const ResampleParams& params,
+                               const std::vector<int32_t>* rest_owner, const ResampleParams& params,
                                const ProgressHooks& hooks);
 
   const ImageGeometry& output() const { return output_; }
   const WarpStats& stats() const { return stats_; }
+  // Tets rasterized (those that move differently from the background; all of them without a rest owner).
+  int64_t rasterized_tets() const { return rasterized_tets_; }
 
   // Labels by nearest neighbour: every output value is a value of the source.
   Result<LabelVolume> warp_labels(const LabelVolume& source) const;
   // Intensities, trilinear or nearest; the result keeps the source's type on disk.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
-  // Per output voxel: the covering tet (>= 0), -2 - tet for a skin-shell voxel, -1 for the background.
-  const std::vector<int32_t>& owner() const { return owner_; }
-  // 1 where the output voxel lies in the mesh or its skin shell.
+  // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
+  // the background transform (inside a tet that follows it, or outside the body), kNoSample where nothing maps.
+  std::vector<int32_t> owner() const;
+  // 1 where the output voxel lies in a rasterized tet or its skin shell.
   std::vector<uint8_t> coverage() const;
   // x_source - x_output in mm for every output voxel (3 floats each, x fastest): the field ITK's
   // DisplacementFieldTransform takes to resample the source onto the output grid.
@@ -85,20 +98,21 @@ class TetWarp {
 
  private:
   TetWarp() = default;
-  // Source continuous index of output voxel v, or false when it lies outside mesh and shell and must not be copied.
-  bool source_index(int64_t v, int64_t i, int64_t j, int64_t k, double s[3]) const;
-  // Calls sample(v, s) for every output voxel v that maps to source index s, output slices in parallel.
+  // Calls sample(v, n, s, ds) for every run of n output voxels from v along a row that map to source index s,
+  // s + ds, ..., output slices in parallel.
   template <typename Sample>
-  void for_each_mapped_voxel(const Sample& sample) const;
+  void for_each_mapped_run(const Sample& sample) const;
+  const double* map_of(int32_t owner) const;
 
   ImageGeometry source_;
   ImageGeometry output_;
-  std::vector<int32_t> owner_;             // per output voxel: tet >= 0, -2 - tet for the shell, -1 background
-  std::vector<double> maps_;               // 12 per tet: output index -> source index, s = A u + b
+  std::shared_ptr<int32_t[]> owner_;       // per output voxel, as owner() but holding rasterized indices
+  std::vector<int32_t> tets_;              // rasterized index -> tet
+  std::shared_ptr<double[]> maps_;         // 12 per rasterized tet: output index -> source index, s = A u + b
   double background_map_[12] = {};         // the same for the background transform
-  const std::vector<uint8_t>* rest_coverage_ = nullptr;
   Label label_background_ = 0;
   float intensity_background_ = 0.0f;
+  int64_t rasterized_tets_ = 0;
   WarpStats stats_;
 };
 
