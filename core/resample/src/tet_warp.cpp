@@ -53,7 +53,13 @@ struct RasterTet {
   double origin[4], di[4], dj[4], dk[4];
   double inv_di[4];  // 1 / di, 0 where di is 0
   double lo[3], hi[3];  // index bounding box
-  double h[4];          // boundary tets: height of each vertex over its opposite face, mm
+  double y[4], z[4];    // vertices' j and k
+};
+
+// For the skin shell of a boundary tet: height of each vertex over its opposite face (mm), the barycentric growth
+// that pushes each face out by the shell distance, and the grown tet's vertices' j and k.
+struct ShellTet {
+  double h[4], grow[4], grown_y[4], grown_z[4];
 };
 
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
@@ -64,6 +70,29 @@ inline double fast_floor(double x) {
 inline double fast_ceil(double x) {
   const double t = static_cast<double>(static_cast<int64_t>(x));
   return t + (x > t);
+}
+
+// Narrows [j0, j1] to the rows that the plane k cuts out of a tet with vertices' j and k y[], z[] (the j-extent
+// of the cross-section, a triangle or a quadrilateral); false when the plane misses the tet.
+inline bool slice_rows(const double y[4], const double z[4], double k, int64_t& j0, int64_t& j1) {
+  constexpr double kSlack = 1e-6;  // index units: generous next to the raster's barycentric tolerance
+  constexpr int kEdges[6][2] = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (int q = 0; q < 4; ++q) {
+    if (std::abs(z[q] - k) <= kSlack) lo = std::min(lo, y[q]), hi = std::max(hi, y[q]);
+  }
+  for (const auto& e : kEdges) {
+    const double za = z[e[0]] - k, zb = z[e[1]] - k;
+    if ((za < 0.0 && zb > 0.0) || (za > 0.0 && zb < 0.0)) {
+      const double y_cut = y[e[0]] + za / (za - zb) * (y[e[1]] - y[e[0]]);
+      lo = std::min(lo, y_cut);
+      hi = std::max(hi, y_cut);
+    }
+  }
+  if (!(lo <= hi)) return false;
+  j0 = std::max(j0, static_cast<int64_t>(fast_ceil(lo - kSlack)));
+  j1 = std::min(j1, static_cast<int64_t>(fast_floor(hi + kSlack)));
+  return j0 <= j1;
 }
 
 // Barycentrics of the tet at i = 0 on row (j, k).
@@ -89,6 +118,11 @@ inline bool row_interval(const RasterTet& r, const double alpha[4], const double
   first = static_cast<int64_t>(lo);
   last = static_cast<int64_t>(hi);
   return true;
+}
+
+// A map whose step along output x is one source voxel along x (to 1e-12: a direction matrix need not invert exactly).
+inline bool steps_one_x(double dx, double dy, double dz) {
+  return std::abs(dx - 1.0) < 1e-12 && std::abs(dy) < 1e-12 && std::abs(dz) < 1e-12;
 }
 
 // Nearest integer of x when x is one to within 1e-9, else false.
@@ -231,9 +265,26 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
         }
       });
     }
-    std::vector<int32_t>& tets = warp.tets_;  // rasterized index -> tet, increasing
+    std::vector<int32_t>& tets = warp.tets_;  // rasterized index -> tet
     for (int64_t t = 0; t < nt; ++t) {
       if (moving[static_cast<size_t>(t)]) tets.push_back(static_cast<int32_t>(t));
+    }
+    // In the order of their lowest posed k (a counting sort on whole k, tet order within one), so that each slab
+    // reads its tets' raster data nearly in sequence.
+    {
+      const int64_t nz = output.size[2];
+      std::vector<int32_t> bucket(tets.size());
+      std::vector<int64_t> start(static_cast<size_t>(nz) + 1, 0);
+      for (size_t c = 0; c < tets.size(); ++c) {
+        double z = std::numeric_limits<double>::infinity();
+        for (int q = 0; q < 4; ++q) z = std::min(z, posed_index[static_cast<size_t>(rest.tets(tets[c], q)) * 3 + 2]);
+        bucket[c] = static_cast<int32_t>(std::clamp<double>(fast_floor(std::clamp(z, -1.0, 1e9)), 0.0, static_cast<double>(nz - 1)));
+        ++start[static_cast<size_t>(bucket[c]) + 1];
+      }
+      for (size_t b = 1; b < start.size(); ++b) start[b] += start[b - 1];
+      std::vector<int32_t> sorted(tets.size());
+      for (size_t c = 0; c < tets.size(); ++c) sorted[static_cast<size_t>(start[static_cast<size_t>(bucket[c])]++)] = tets[c];
+      tets.swap(sorted);
     }
     const int64_t nm = static_cast<int64_t>(tets.size());
     warp.rasterized_tets_ = nm;
@@ -241,6 +292,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     // source-index map, the raster data and, for boundary tets, the heights that measure the skin shell.
     warp.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
     std::vector<RasterTet> raster(static_cast<size_t>(nm));
+    std::vector<ShellTet> shell_data(static_cast<size_t>(nm));
     std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
     parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
       for (int64_t c = begin; c < end; ++c) {
@@ -273,11 +325,29 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           r.lo[a] = std::min({u[0](a), u[1](a), u[2](a), u[3](a)});
           r.hi[a] = std::max({u[0](a), u[1](a), u[2](a), u[3](a)});
         }
+        for (int q = 0; q < 4; ++q) r.y[q] = u[q](1), r.z[q] = u[q](2);
         if (topology.boundary[static_cast<size_t>(t)]) {
           Eigen::Vector3d corners[4];
           for (int q = 0; q < 4; ++q) corners[q] = posed.row(rest.tets(t, q)).transpose();
           const std::array<double, 4> h = heights(corners);
-          for (int m = 0; m < 4; ++m) r.h[m] = h[m];
+          ShellTet& sh = shell_data[static_cast<size_t>(c)];
+          for (int m = 0; m < 4; ++m) {
+            sh.h[m] = h[static_cast<size_t>(m)];
+            sh.grow[m] = h[static_cast<size_t>(m)] > 0.0 ? shell_mm / h[static_cast<size_t>(m)] + kInsideTolerance : 0.0;
+          }
+          // Vertex q of the grown tet has lambda_m = -grow_m for m != q, lambda_q = 1 + their sum.
+          for (int q = 0; q < 4; ++q) {
+            Eigen::Vector3d g = Eigen::Vector3d::Zero();
+            double rest_weight = 1.0;
+            for (int m = 0; m < 4; ++m) {
+              if (m == q) continue;
+              g -= sh.grow[m] * u[m];
+              rest_weight += sh.grow[m];
+            }
+            g += rest_weight * u[q];
+            sh.grown_y[q] = g(1);
+            sh.grown_z[q] = g(2);
+          }
         }
         const Eigen::Matrix3d a = se * inverse;
         const Eigen::Vector3d b = s[0] - a * u[0];
@@ -355,7 +425,9 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0])));
           const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0])));
           for (int64_t k = k0; k <= k1; ++k) {
-            for (int64_t j = j0; j <= j1; ++j) {
+            int64_t jb = j0, je = j1;
+            if (!slice_rows(r.y, r.z, double(k), jb, je)) continue;
+            for (int64_t j = jb; j <= je; ++j) {
               double alpha[4];
               row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
@@ -379,7 +451,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
         best_tet.assign(static_cast<size_t>(slab_voxels), -1);
         for (const int32_t t : shell[static_cast<size_t>(s)]) {
           const RasterTet& r = raster[static_cast<size_t>(t)];
-          const double* h = r.h;
+          const ShellTet& sh = shell_data[static_cast<size_t>(t)];
+          const double* h = sh.h;
           if (!(std::min({h[0], h[1], h[2], h[3]}) > 0.0)) continue;
           const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2] - margin[2])));
           const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2] + margin[2])));
@@ -387,15 +460,16 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1] + margin[1])));
           const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0] - margin[0])));
           const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0] + margin[0])));
-          // The shell of a tet is the tet with each face pushed out by shell_mm: lambda_m >= -shell_mm / h_m.
-          double grow[4];
-          for (int m = 0; m < 4; ++m) grow[m] = shell_mm / h[m] + kInsideTolerance;
+          // The shell of a tet is the tet with each face pushed out by shell_mm (lambda_m >= -shell_mm / h_m),
+          // within its bounding box grown by shell_mm.
           for (int64_t k = k0; k <= k1; ++k) {
-            for (int64_t j = j0; j <= j1; ++j) {
+            int64_t jb = j0, je = j1;
+            if (!slice_rows(sh.grown_y, sh.grown_z, double(k), jb, je)) continue;
+            for (int64_t j = jb; j <= je; ++j) {
               double alpha[4];
               row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
-              if (!row_interval(r, alpha, grow, first, last)) continue;
+              if (!row_interval(r, alpha, sh.grow, first, last)) continue;
               int64_t v = output.offset(first, j, k);
               for (int64_t i = first; i <= last; ++i, ++v) {
                 if (owner[v] >= 0) continue;
@@ -406,7 +480,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
                 }
                 if (d > shell_mm) continue;
                 const size_t local = static_cast<size_t>(v - slab_begin);
-                if (d < best[local] || (d == best[local] && t < best_tet[local])) {
+                if (d < best[local] || (d == best[local] && tets[static_cast<size_t>(t)] <
+                                                                  tets[static_cast<size_t>(best_tet[local])])) {
                   best[local] = static_cast<float>(d);
                   best_tet[local] = t;
                 }
@@ -422,7 +497,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
         const double* bg = warp.background_map_;
         // Where the background map steps one source voxel along x per output voxel from a whole source index (the
         // root does not move and the grid is the input's), a row's rest owners are one row of rest_owner.
-        const bool bg_steps_x = bg[0] == 1.0 && bg[3] == 0.0 && bg[6] == 0.0;
+        const bool bg_steps_x = steps_one_x(bg[0], bg[3], bg[6]);
         for (int64_t k = kb; k < ke; ++k) {
           for (int64_t j = 0; j < n[1]; ++j) {
             const int64_t row_begin = output.offset(0, j, k);
@@ -555,7 +630,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   const Label* in = labels.data();
   Label* dst = out.data();
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
-    if (ds[0] == 1.0 && ds[1] == 0.0 && ds[2] == 0.0) {  // a run along a source row: copy it
+    if (steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
       const int64_t x0 = round_index(s0[0]), y = round_index(s0[1]), z = round_index(s0[2]);
       if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
       const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
@@ -594,7 +669,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   const int64_t base_max[3] = {std::max<int64_t>(0, m[0] - 2), std::max<int64_t>(0, m[1] - 2), std::max<int64_t>(0, m[2] - 2)};
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
     int64_t x0 = 0, y = 0, z = 0;
-    if (ds[0] == 1.0 && ds[1] == 0.0 && ds[2] == 0.0 && integral(s0[0], x0) && integral(s0[1], y) && integral(s0[2], z)) {
+    if (steps_one_x(ds[0], ds[1], ds[2]) && integral(s0[0], x0) && integral(s0[1], y) && integral(s0[2], z)) {
       // A run along a source row through voxel centres: either interpolation gives the voxels themselves.
       if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
       const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
