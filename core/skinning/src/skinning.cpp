@@ -46,41 +46,54 @@ std::vector<DualQuaternion> dual_quaternions(const SegmentTransforms& transforms
   return dq;
 }
 
-// Rotation matrix (row-major) of a unit quaternion.
-inline void rotation_of(const double q[4], double r[9]) {
-  const double w = q[0], x = q[1], y = q[2], z = q[3];
-  r[0] = 1 - 2 * (y * y + z * z);
-  r[1] = 2 * (x * y - w * z);
-  r[2] = 2 * (x * z + w * y);
-  r[3] = 2 * (x * y + w * z);
-  r[4] = 1 - 2 * (x * x + z * z);
-  r[5] = 2 * (y * z - w * x);
-  r[6] = 2 * (x * z - w * y);
-  r[7] = 2 * (y * z + w * x);
-  r[8] = 1 - 2 * (x * x + y * y);
+// Hemisphere signs: sign[a * S + b] = +1 or -1 as segment b's rotation quaternion lies on the hemisphere of a's.
+// A vertex blends every influence on the hemisphere of its first (strongest) one; the table saves a dot product
+// per influence per vertex.
+std::vector<double> hemisphere_signs(const std::vector<DualQuaternion>& dq) {
+  const size_t n = dq.size();
+  std::vector<double> sign(n * n);
+  for (size_t a = 0; a < n; ++a) {
+    for (size_t b = 0; b < n; ++b) {
+      double dot = 0.0;
+      for (size_t c = 0; c < 4; ++c) dot += dq[a].real[c] * dq[b].real[c];
+      sign[a * n + b] = dot < 0.0 ? -1.0 : 1.0;
+    }
+  }
+  return sign;
 }
 
 // Blends the real (and optionally dual) parts of the influences of vertex v, aligned to the first influence's
-// hemisphere. Returns the norm of the blended real part.
-inline double blend(const SkinWeights& weights, const std::vector<DualQuaternion>& dq, int64_t v, double real[4],
-                    double* dual) {
+// hemisphere. Returns the squared norm of the blended real part.
+inline double blend(const SkinWeights& weights, const std::vector<DualQuaternion>& dq, const std::vector<double>& sign,
+                    int64_t v, double real[4], double* dual) {
   const int32_t* segment = weights.segment.data() + v * weights.influences;
   const float* weight = weights.weight.data() + v * weights.influences;
   real[0] = real[1] = real[2] = real[3] = 0.0;
   if (dual) dual[0] = dual[1] = dual[2] = dual[3] = 0.0;
-  const double* pivot = dq[static_cast<size_t>(segment[0] < 0 ? 0 : segment[0])].real.data();
+  const double* pivot_sign = sign.data() + static_cast<size_t>(segment[0] < 0 ? 0 : segment[0]) * dq.size();
   for (int i = 0; i < weights.influences; ++i) {
     const int32_t s = segment[i];
     if (s < 0) break;
     const DualQuaternion& q = dq[static_cast<size_t>(s)];
-    const double dot = q.real[0] * pivot[0] + q.real[1] * pivot[1] + q.real[2] * pivot[2] + q.real[3] * pivot[3];
-    const double w = dot < 0.0 ? -static_cast<double>(weight[i]) : static_cast<double>(weight[i]);
+    const double w = pivot_sign[s] * static_cast<double>(weight[i]);
     for (int c = 0; c < 4; ++c) real[c] += w * q.real[static_cast<size_t>(c)];
     if (dual) {
       for (int c = 0; c < 4; ++c) dual[c] += w * q.dual[static_cast<size_t>(c)];
     }
   }
-  return std::sqrt(real[0] * real[0] + real[1] * real[1] + real[2] * real[2] + real[3] * real[3]);
+  return real[0] * real[0] + real[1] * real[1] + real[2] * real[2] + real[3] * real[3];
+}
+
+// Rotates u by the (not necessarily unit) quaternion q = (w, r) with squared norm n2 and adds the result to out:
+// q u q* / n2 = u + (2 / n2) (w (r x u) + r x (r x u)) (Kavan et al. 2008), no square root.
+inline void add_rotated(const double q[4], double scale, const double u[3], double out[3]) {
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  const double a0 = y * u[2] - z * u[1] + w * u[0];  // r x u + w u
+  const double a1 = z * u[0] - x * u[2] + w * u[1];
+  const double a2 = x * u[1] - y * u[0] + w * u[2];
+  out[0] += u[0] + scale * (y * a2 - z * a1);       // u + scale * r x (r x u + w u)
+  out[1] += u[1] + scale * (z * a0 - x * a2);
+  out[2] += u[2] + scale * (x * a1 - y * a0);
 }
 
 inline void lbs_vertex(const SkinWeights& weights, const std::vector<std::array<double, 12>>& m, int64_t v,
@@ -142,26 +155,26 @@ Eigen::MatrixXd lbs(const Eigen::MatrixXd& rest, const SkinWeights& weights, con
 
 Eigen::MatrixXd dqs(const Eigen::MatrixXd& rest, const SkinWeights& weights, const SegmentTransforms& transforms) {
   const auto dq = dual_quaternions(transforms);
+  const auto sign = hemisphere_signs(dq);
   const int64_t n = rest.rows();
   Eigen::MatrixXd posed(n, 3);
   parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
     for (int64_t v = begin; v < end; ++v) {
-      double real[4], dual[4];
-      const double norm = blend(weights, dq, v, real, dual);
-      const double inv = 1.0 / norm;
-      for (int c = 0; c < 4; ++c) real[c] *= inv, dual[c] *= inv;
-      double r[9];
-      rotation_of(real, r);
-      // t = 2 * (dual * conj(real)).vec
-      const double w0 = real[0], x0 = real[1], y0 = real[2], z0 = real[3];
-      const double we = dual[0], xe = dual[1], ye = dual[2], ze = dual[3];
-      const double tx = 2.0 * (-we * x0 + xe * w0 - ye * z0 + ze * y0);
-      const double ty = 2.0 * (-we * y0 + xe * z0 + ye * w0 - ze * x0);
-      const double tz = 2.0 * (-we * z0 - xe * y0 + ye * x0 + ze * w0);
+      double b0[4], be[4];
+      const double scale = 2.0 / blend(weights, dq, sign, v, b0, be);
+      // v' = v + scale (r x (r x v + w v + d) + w d - d_w r) with b0 = (w, r), be = (d_w, d): the rotation and
+      // translation of the normalized blend in one (Kavan et al. 2008, section 3.3).
+      const double w = b0[0], x = b0[1], y = b0[2], z = b0[3];
       const double p[3] = {rest(v, 0), rest(v, 1), rest(v, 2)};
-      posed(v, 0) = r[0] * p[0] + r[1] * p[1] + r[2] * p[2] + tx;
-      posed(v, 1) = r[3] * p[0] + r[4] * p[1] + r[5] * p[2] + ty;
-      posed(v, 2) = r[6] * p[0] + r[7] * p[1] + r[8] * p[2] + tz;
+      const double a0 = y * p[2] - z * p[1] + w * p[0] + be[1];
+      const double a1 = z * p[0] - x * p[2] + w * p[1] + be[2];
+      const double a2 = x * p[1] - y * p[0] + w * p[2] + be[3];
+      const double out[3] = {p[0] + scale * (y * a2 - z * a1 + w * be[1] - be[0] * x),
+                             p[1] + scale * (z * a0 - x * a2 + w * be[2] - be[0] * y),
+                             p[2] + scale * (x * a1 - y * a0 + w * be[3] - be[0] * z)};
+      posed(v, 0) = out[0];
+      posed(v, 1) = out[1];
+      posed(v, 2) = out[2];
     }
   });
   return posed;
@@ -170,33 +183,46 @@ Eigen::MatrixXd dqs(const Eigen::MatrixXd& rest, const SkinWeights& weights, con
 Eigen::MatrixXd cor(const Eigen::MatrixXd& rest, const SkinWeights& weights, const RotationCentres& centres,
                     const SegmentTransforms& transforms) {
   const auto dq = dual_quaternions(transforms);
+  const auto sign = hemisphere_signs(dq);
   const auto m = affine_rows(transforms);
   const int64_t n = rest.rows();
   Eigen::MatrixXd posed(n, 3);
   parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
     for (int64_t v = begin; v < end; ++v) {
       const double p[3] = {rest(v, 0), rest(v, 1), rest(v, 2)};
+      double out[3];
       if (centres.rigid[static_cast<size_t>(v)]) {
-        double out[3];
         lbs_vertex(weights, m, v, p, out);
-        posed(v, 0) = out[0];
-        posed(v, 1) = out[1];
-        posed(v, 2) = out[2];
-        continue;
+      } else {
+        // v' = R (v - c) + sum_j w_j T_j(c): the blended rotation about the vertex's centre, which moves as LBS.
+        // One pass over the influences blends both.
+        const double c[3] = {centres.centre(v, 0), centres.centre(v, 1), centres.centre(v, 2)};
+        const int32_t* segment = weights.segment.data() + v * weights.influences;
+        const float* weight = weights.weight.data() + v * weights.influences;
+        const double* pivot_sign = sign.data() + static_cast<size_t>(segment[0] < 0 ? 0 : segment[0]) * dq.size();
+        double real[4] = {0.0, 0.0, 0.0, 0.0}, moved[3] = {0.0, 0.0, 0.0}, total = 0.0;
+        for (int i = 0; i < weights.influences; ++i) {
+          const int32_t sg = segment[i];
+          if (sg < 0) break;
+          const double w = weight[i];
+          const double* q = dq[static_cast<size_t>(sg)].real.data();
+          const double ws = pivot_sign[sg] * w;
+          for (int k = 0; k < 4; ++k) real[k] += ws * q[k];
+          const double* a = m[static_cast<size_t>(sg)].data();
+          total += w;
+          moved[0] += w * (a[0] * c[0] + a[1] * c[1] + a[2] * c[2] + a[3]);
+          moved[1] += w * (a[4] * c[0] + a[5] * c[1] + a[6] * c[2] + a[7]);
+          moved[2] += w * (a[8] * c[0] + a[9] * c[1] + a[10] * c[2] + a[11]);
+        }
+        const double inv = total > 0.0 ? 1.0 / total : 1.0;
+        for (int k = 0; k < 3; ++k) out[k] = moved[k] * inv;
+        const double scale = 2.0 / (real[0] * real[0] + real[1] * real[1] + real[2] * real[2] + real[3] * real[3]);
+        const double u[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+        add_rotated(real, scale, u, out);
       }
-      double real[4];
-      const double norm = blend(weights, dq, v, real, nullptr);
-      for (double& c : real) c /= norm;
-      double r[9];
-      rotation_of(real, r);
-      const double c[3] = {centres.centre(v, 0), centres.centre(v, 1), centres.centre(v, 2)};
-      double blended_c[3];
-      lbs_vertex(weights, m, v, c, blended_c);  // sum_j w_j T_j(c)
-      const double rc[3] = {r[0] * c[0] + r[1] * c[1] + r[2] * c[2], r[3] * c[0] + r[4] * c[1] + r[5] * c[2],
-                            r[6] * c[0] + r[7] * c[1] + r[8] * c[2]};
-      posed(v, 0) = r[0] * p[0] + r[1] * p[1] + r[2] * p[2] + blended_c[0] - rc[0];
-      posed(v, 1) = r[3] * p[0] + r[4] * p[1] + r[5] * p[2] + blended_c[1] - rc[1];
-      posed(v, 2) = r[6] * p[0] + r[7] * p[1] + r[8] * p[2] + blended_c[2] - rc[2];
+      posed(v, 0) = out[0];
+      posed(v, 1) = out[1];
+      posed(v, 2) = out[2];
     }
   });
   return posed;

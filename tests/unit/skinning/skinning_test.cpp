@@ -4,6 +4,8 @@
 
 #include <Eigen/Geometry>
 
+#include <cstdlib>
+
 #include "posewarp/skinning/tet_maps.h"
 
 namespace posewarp::skinning {
@@ -98,6 +100,68 @@ TEST(Skinning, LbsCollapsesATwistedJointWhileDqsAndCorKeepTheRadius) {
   EXPECT_LT(posed_lbs.row(middle).head<2>().norm(), 1e-6);
   EXPECT_NEAR(posed_dqs.row(middle).head<2>().norm(), 10.0, 1e-6);
   EXPECT_NEAR(posed_cor.row(middle).head<2>().norm(), 10.0, 1e-6);
+}
+
+// The skinning loops use Kavan's closed forms (no square root, no rotation matrix); here the textbook forms.
+TEST(Skinning, DqsAndCorMatchTheirTextbookFormulas) {
+  const int n = 200, segments = 6;
+  std::srand(3);
+  auto unit = [] { return static_cast<double>(std::rand()) / RAND_MAX; };
+  Eigen::MatrixXd rest(n, 3);
+  SkinWeights weights;
+  weights.influences = 3;
+  weights.segment_count = segments;
+  weights.segment.resize(n, 3);
+  weights.weight.resize(n, 3);
+  RotationCentres centres;
+  centres.centre.resize(n, 3);
+  centres.rigid.assign(n, 0);
+  for (int v = 0; v < n; ++v) {
+    rest.row(v) << 200 * unit() - 100, 200 * unit() - 100, 200 * unit() - 100;
+    centres.centre.row(v) << 50 * unit(), 50 * unit(), 50 * unit();
+    double w[3] = {unit() + 1.0, unit(), unit() * 0.5};
+    const double sum = w[0] + w[1] + w[2];
+    for (int i = 0; i < 3; ++i) {
+      weights.segment(v, i) = (v + 2 * i) % segments;
+      weights.weight(v, i) = static_cast<float>(w[i] / sum);
+    }
+  }
+  SegmentTransforms t;
+  for (int s = 0; s < segments; ++s) {
+    // Rotations up to 170 degrees, some on the far hemisphere of others.
+    t.rotation.push_back(Eigen::AngleAxisd(0.5 * s + 0.2, Eigen::Vector3d(1.0, s, 2.0 - s).normalized()).toRotationMatrix());
+    t.translation.push_back(Eigen::Vector3d(10.0 * s, -5.0 * s, 3.0));
+  }
+  const Eigen::MatrixXd dq = dqs(rest, weights, t);
+  const Eigen::MatrixXd cr = cor(rest, weights, centres, t);
+  for (int v = 0; v < n; ++v) {
+    Eigen::Quaterniond first(t.rotation[static_cast<size_t>(weights.segment(v, 0))]);
+    Eigen::Vector4d real = Eigen::Vector4d::Zero(), dual = Eigen::Vector4d::Zero();
+    Eigen::Vector3d lbs_centre = Eigen::Vector3d::Zero();
+    double total = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      const int s = weights.segment(v, i);
+      const double w = weights.weight(v, i);
+      Eigen::Quaterniond q(t.rotation[static_cast<size_t>(s)]);
+      const Eigen::Quaterniond tq(0.0, t.translation[static_cast<size_t>(s)].x(), t.translation[static_cast<size_t>(s)].y(),
+                                  t.translation[static_cast<size_t>(s)].z());
+      const Eigen::Quaterniond d = tq * q;  // twice the dual part
+      const double sign = q.coeffs().dot(first.coeffs()) < 0.0 ? -1.0 : 1.0;
+      real += sign * w * q.coeffs();
+      dual += sign * w * 0.5 * d.coeffs();
+      lbs_centre += w * (t.rotation[static_cast<size_t>(s)] * centres.centre.row(v).transpose() + t.translation[static_cast<size_t>(s)]);
+      total += w;
+    }
+    const double norm = real.norm();
+    const Eigen::Quaterniond q0(real / norm), qe(dual / norm);
+    const Eigen::Vector3d translation = 2.0 * (qe * q0.conjugate()).vec();
+    const Eigen::Vector3d p = rest.row(v).transpose();
+    const Eigen::Vector3d expected_dqs = q0.toRotationMatrix() * p + translation;
+    const Eigen::Vector3d c = centres.centre.row(v).transpose();
+    const Eigen::Vector3d expected_cor = q0.toRotationMatrix() * (p - c) + lbs_centre / total;
+    EXPECT_LT((dq.row(v).transpose() - expected_dqs).norm(), 1e-9) << v;
+    EXPECT_LT((cr.row(v).transpose() - expected_cor).norm(), 1e-9) << v;
+  }
 }
 
 TEST(Skinning, MismatchedInputsAreRefused) {
