@@ -11,6 +11,41 @@
 #include "posewarp/common/parallel.h"
 
 namespace posewarp::mapping {
+namespace {
+
+// Point indices sorted by hash cell (points outside the grid last), by an LSD radix sort on 16-bit digits.
+std::vector<int32_t> spatial_order(const TetLocator& locator, const Eigen::MatrixXd& points) {
+  const int64_t n = points.rows();
+  std::vector<uint64_t> key(static_cast<size_t>(n));
+  parallel_for(0, n, 8192, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const int64_t cell = locator.cell_of(Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
+      key[static_cast<size_t>(i)] = cell < 0 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(cell);
+    }
+  });
+  uint64_t largest = 0;
+  for (const uint64_t k : key) {
+    if (k != std::numeric_limits<uint64_t>::max()) largest = std::max(largest, k);
+  }
+  std::vector<int32_t> order(static_cast<size_t>(n)), next(static_cast<size_t>(n));
+  for (int64_t i = 0; i < n; ++i) order[static_cast<size_t>(i)] = static_cast<int32_t>(i);
+  // Outside points carry the largest key: one more digit than the inside keys need sorts them last.
+  int digits = 1;
+  while (digits < 4 && (largest >> (16 * digits)) != 0) ++digits;
+  ++digits;
+  std::vector<int64_t> count(65537);
+  for (int d = 0; d < digits && d < 4; ++d) {
+    const int shift = 16 * d;
+    std::fill(count.begin(), count.end(), 0);
+    for (const int32_t i : order) ++count[((key[static_cast<size_t>(i)] >> shift) & 0xffff) + 1];
+    for (size_t b = 1; b < count.size(); ++b) count[b] += count[b - 1];
+    for (const int32_t i : order) next[static_cast<size_t>(count[(key[static_cast<size_t>(i)] >> shift) & 0xffff]++)] = i;
+    order.swap(next);
+  }
+  return order;
+}
+
+}  // namespace
 
 Result<Embedding> embed_points(const TetMesh& rest, const Eigen::MatrixXd& points, const ProgressHooks& hooks) {
   const int64_t n = points.rows();
@@ -37,6 +72,14 @@ Result<Embedding> embed_points(const TetMesh& rest, const Eigen::MatrixXd& point
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory embedding " + std::to_string(n) + " points");
   }
+  // Locate the points in the order of their hash cells, so that the tets of a cell are read once for all of its
+  // points rather than once per point.
+  std::vector<int32_t> order;
+  try {
+    order = spatial_order(locator, points);
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory ordering " + std::to_string(n) + " points to embed");
+  }
   std::atomic<bool> cancelled{false};
   parallel_for(0, n, 2048, [&](int64_t begin, int64_t end) {
     if (cancelled.load(std::memory_order_relaxed)) return;
@@ -44,7 +87,8 @@ Result<Embedding> embed_points(const TetMesh& rest, const Eigen::MatrixXd& point
       cancelled.store(true);
       return;
     }
-    for (int64_t i = begin; i < end; ++i) {
+    for (int64_t position = begin; position < end; ++position) {
+      const int64_t i = order[static_cast<size_t>(position)];
       const TetLocator::Location location = locator.locate(Eigen::Vector3d(points(i, 0), points(i, 1), points(i, 2)));
       embedding.tet(i) = location.tet;
       embedding.barycentric.row(i) = location.barycentric.transpose();

@@ -274,6 +274,16 @@ double TetLocator::squared_distance_to_box(int32_t tet, const Eigen::Vector3d& p
   return sum;
 }
 
+int64_t TetLocator::cell_of(const Eigen::Vector3d& p) const {
+  int64_t cell[3];
+  for (int a = 0; a < 3; ++a) {
+    const double index = std::floor((p(a) - grid_origin_(a)) / cell_mm_);
+    if (!(index >= 0.0 && index < static_cast<double>(dims_[a]))) return -1;
+    cell[a] = static_cast<int64_t>(index);
+  }
+  return cell_key(cell[0], cell[1], cell[2]);
+}
+
 TetLocator::Location TetLocator::locate(const Eigen::Vector3d& p) const {
   Location location;
   if (!p.allFinite()) {

@@ -37,6 +37,10 @@ class TetLocator {
   // Thread-safe.
   Location locate(const Eigen::Vector3d& p) const;
 
+  // The hash cell of p as one number (x fastest), or -1 when p lies outside the grid or is not finite. Points sorted
+  // by it are located with the same few tets in cache.
+  int64_t cell_of(const Eigen::Vector3d& p) const;
+
   double cell_mm() const { return cell_mm_; }
   // Tets left out of the hash because they have no volume.
   int64_t degenerate_tet_count() const { return degenerate_count_; }
