@@ -152,10 +152,9 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   // The worst case for posewarp: every tet rasterized, as if the whole body moved off the root's transform.
   const api::Rig& engine_rig = engine->rig();
   const size_t root = static_cast<size_t>(engine_rig.skeleton.root);
-  const resample::RestTopology topology = resample::rest_topology(engine_rig.mesh);
   const double all_tets_s = best_of(repeats, [&] {
     const resample::TetWarp warp =
-        std::move(resample::TetWarp::build(engine_rig.mesh, topology, with_fields.posed_vertices, engine_rig.labels.geometry(),
+        std::move(resample::TetWarp::build(engine_rig.mesh, with_fields.posed_vertices, engine_rig.labels.geometry(),
                                            with_fields.output_grid, with_fields.segment_rotation[root],
                                            with_fields.segment_translation[root], nullptr, {}, {}))
             .value();

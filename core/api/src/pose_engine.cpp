@@ -35,10 +35,9 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
   PoseEngine engine;
   try {
     engine.frames_ = skinning::rest_tet_frames(rig.mesh);
-    engine.topology_ = resample::rest_topology(rig.mesh);
     const ImageGeometry& g = rig.labels.geometry();
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp identity,
-                              resample::TetWarp::build(rig.mesh, engine.topology_, rig.mesh.vertices, g, g,
+                              resample::TetWarp::build(rig.mesh, rig.mesh.vertices, g, g,
                                                        Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
                                                        {}, hooks));
     engine.rest_owner_ = identity.owner();
@@ -120,7 +119,7 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
     resample::ResampleParams params = request.resample;
     if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
-                              resample::TetWarp::build(mesh, topology_, result.posed_vertices, source, result.output_grid,
+                              resample::TetWarp::build(mesh, result.posed_vertices, source, result.output_grid,
                                                        root.rotation, root.translation, &rest_owner_, params, hooks));
     const resample::WarpStats& stats = warp.stats();
     qr.covered_voxels = stats.covered_voxels;

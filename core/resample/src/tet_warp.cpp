@@ -32,20 +32,6 @@ IndexSpace index_space(const ImageGeometry& g) {
   return {d.inverse(), Eigen::Vector3d(g.origin[0], g.origin[1], g.origin[2]), d};
 }
 
-// Height of every vertex over its opposite face, mm (for the shell distance).
-std::array<double, 4> heights(const Eigen::Vector3d v[4]) {
-  const double six_volume = std::abs((v[1] - v[0]).dot((v[2] - v[0]).cross(v[3] - v[0])));
-  std::array<double, 4> h{};
-  for (int m = 0; m < 4; ++m) {
-    const Eigen::Vector3d& a = v[(m + 1) % 4];
-    const Eigen::Vector3d& b = v[(m + 2) % 4];
-    const Eigen::Vector3d& c = v[(m + 3) % 4];
-    const double twice_area = (b - a).cross(c - a).norm();
-    h[m] = twice_area > 0.0 ? six_volume / twice_area : 0.0;
-  }
-  return h;
-}
-
 // Per-tet data for rasterizing in output index space: barycentric map and the inside interval of a row.
 // Barycentrics of voxel (i, j, k) are lambda_m = origin[m] + i * di[m] + j * dj[m] + k * dk[m] for m = 0..3
 // (lambda_0 = 1 - lambda_1 - lambda_2 - lambda_3), all affine in the output index.
@@ -56,11 +42,6 @@ struct RasterTet {
   double y[4], z[4];    // vertices' j and k
 };
 
-// For the skin shell of a boundary tet: height of each vertex over its opposite face (mm), the barycentric growth
-// that pushes each face out by the shell distance, and the grown tet's vertices' j and k.
-struct ShellTet {
-  double h[4], grow[4], grown_y[4], grown_z[4];
-};
 
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
 inline double fast_floor(double x) {
@@ -156,36 +137,7 @@ Status validate(const ResampleParams& params) {
   return ok_status();
 }
 
-RestTopology rest_topology(const TetMesh& rest) {
-  // A face is on the boundary when exactly one tet has it: sort all faces and look for unpaired ones.
-  constexpr int kFaces[4][3] = {{1, 2, 3}, {0, 2, 3}, {0, 1, 3}, {0, 1, 2}};
-  struct Face {
-    std::array<int32_t, 3> key;
-    int32_t tet;
-  };
-  std::vector<Face> faces;
-  faces.reserve(static_cast<size_t>(rest.tet_count()) * 4);
-  for (int64_t t = 0; t < rest.tet_count(); ++t) {
-    for (const auto& f : kFaces) {
-      std::array<int32_t, 3> key{rest.tets(t, f[0]), rest.tets(t, f[1]), rest.tets(t, f[2])};
-      std::sort(key.begin(), key.end());
-      faces.push_back({key, static_cast<int32_t>(t)});
-    }
-  }
-  std::sort(faces.begin(), faces.end(), [](const Face& a, const Face& b) { return a.key < b.key; });
-  std::vector<uint8_t> boundary(static_cast<size_t>(rest.tet_count()), 0);
-  for (size_t i = 0; i < faces.size();) {
-    size_t j = i + 1;
-    while (j < faces.size() && faces[j].key == faces[i].key) ++j;
-    if (j - i == 1) boundary[static_cast<size_t>(faces[i].tet)] = 1;
-    i = j;
-  }
-  RestTopology topology;
-  topology.boundary = std::move(boundary);
-  return topology;
-}
-
-Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology, const Eigen::MatrixXd& posed,
+Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
                                const std::vector<int32_t>* rest_owner, const ResampleParams& params,
@@ -201,9 +153,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     return resource_exhausted_error("the output grid has " + std::to_string(output.voxel_count()) +
                                     " voxels, over the limit of " + std::to_string(params.max_output_voxels));
   }
-  if (static_cast<int64_t>(topology.boundary.size()) != rest.tet_count()) {
-    return invalid_argument_error("the rest topology was computed for another mesh");
-  }
   if (rest_owner && static_cast<int64_t>(rest_owner->size()) != source.voxel_count()) {
     return invalid_argument_error("the rest ownership does not match the source grid");
   }
@@ -214,7 +163,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
   warp.label_background_ = params.label_background;
   warp.intensity_background_ = params.intensity_background;
   const double shell_mm =
-      params.shell_mm > 0.0 ? params.shell_mm : 1.5 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
+      params.shell_mm > 0.0 ? params.shell_mm : 2.0 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
 
   try {
     const IndexSpace out_space = index_space(output);
@@ -289,10 +238,13 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     const int64_t nm = static_cast<int64_t>(tets.size());
     warp.rasterized_tets_ = nm;
     // Per rasterized tet, densely (a pose that moves a few tets touches only theirs): the output-index ->
-    // source-index map, the raster data and, for boundary tets, the heights that measure the skin shell.
+    // source-index map and the raster data.
     warp.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
-    std::vector<RasterTet> raster(static_cast<size_t>(nm));
-    std::vector<ShellTet> shell_data(static_cast<size_t>(nm));
+    // The raster data and slab lists live in buffers this thread keeps between warps: on a 2-core VM, faulting in
+    // tens of MB of fresh pages per pose costs as much as the raster itself.
+    thread_local std::vector<RasterTet> raster_buffer;
+    if (raster_buffer.size() < static_cast<size_t>(nm)) raster_buffer.resize(static_cast<size_t>(nm));
+    RasterTet* raster = raster_buffer.data();
     std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
     parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
       for (int64_t c = begin; c < end; ++c) {
@@ -326,29 +278,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           r.hi[a] = std::max({u[0](a), u[1](a), u[2](a), u[3](a)});
         }
         for (int q = 0; q < 4; ++q) r.y[q] = u[q](1), r.z[q] = u[q](2);
-        if (topology.boundary[static_cast<size_t>(t)]) {
-          Eigen::Vector3d corners[4];
-          for (int q = 0; q < 4; ++q) corners[q] = posed.row(rest.tets(t, q)).transpose();
-          const std::array<double, 4> h = heights(corners);
-          ShellTet& sh = shell_data[static_cast<size_t>(c)];
-          for (int m = 0; m < 4; ++m) {
-            sh.h[m] = h[static_cast<size_t>(m)];
-            sh.grow[m] = h[static_cast<size_t>(m)] > 0.0 ? shell_mm / h[static_cast<size_t>(m)] + kInsideTolerance : 0.0;
-          }
-          // Vertex q of the grown tet has lambda_m = -grow_m for m != q, lambda_q = 1 + their sum.
-          for (int q = 0; q < 4; ++q) {
-            Eigen::Vector3d g = Eigen::Vector3d::Zero();
-            double rest_weight = 1.0;
-            for (int m = 0; m < 4; ++m) {
-              if (m == q) continue;
-              g -= sh.grow[m] * u[m];
-              rest_weight += sh.grow[m];
-            }
-            g += rest_weight * u[q];
-            sh.grown_y[q] = g(1);
-            sh.grown_z[q] = g(2);
-          }
-        }
         const Eigen::Matrix3d a = se * inverse;
         const Eigen::Vector3d b = s[0] - a * u[0];
         double* m = warp.maps_.get() + 12 * c;
@@ -363,12 +292,15 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
     progress.update(0.2);
 
-    // Slabs along output k; each tet goes to every slab its index box meets (boundary tets with the shell margin).
+    // Slabs along output k; each tet goes to every slab its index box meets.
     const Index3& n = output.size;
     const int64_t slab_count = std::clamp<int64_t>(n[2], 1, 16 * static_cast<int64_t>(thread_count()));
     const int64_t slab_depth = (n[2] + slab_count - 1) / slab_count;
-    std::vector<std::vector<int32_t>> interior(static_cast<size_t>(slab_count)), shell(static_cast<size_t>(slab_count));
-    const double margin[3] = {shell_mm / output.spacing[0], shell_mm / output.spacing[1], shell_mm / output.spacing[2]};
+    // (A thread_local is not captured by the lambdas below, which may run on other threads: they see references.)
+    thread_local std::vector<std::vector<int32_t>> interior_buffer;
+    std::vector<std::vector<int32_t>>& interior = interior_buffer;
+    if (interior.size() < static_cast<size_t>(slab_count)) interior.resize(static_cast<size_t>(slab_count));
+    for (std::vector<int32_t>& list : interior) list.clear();
     auto add_to_slabs = [&](std::vector<std::vector<int32_t>>& lists, int32_t c, double pad) {
       const RasterTet& r = raster[static_cast<size_t>(c)];
       const int64_t k0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[2] - pad)));
@@ -379,7 +311,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
     for (int64_t c = 0; c < nm; ++c) {
       if (!usable[static_cast<size_t>(c)]) continue;
       add_to_slabs(interior, static_cast<int32_t>(c), 0.0);
-      if (topology.boundary[static_cast<size_t>(tets[static_cast<size_t>(c)])]) add_to_slabs(shell, static_cast<int32_t>(c), margin[2]);
     }
 
     warp.owner_ = std::shared_ptr<int32_t[]>(new int32_t[static_cast<size_t>(output.voxel_count())]);
@@ -404,18 +335,26 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
       return (*rest_owner)[static_cast<size_t>(source.offset(x, y, z))];
     };
 
-    std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
+    // Pass 1, rasterize the moving tets, slabs in parallel; where two cover a voxel, resolve the fold. Each row
+    // (j, k) remembers the first and last voxel any tet covered, for the skin shell.
+    const int64_t row_count = n[1] * n[2];
+    std::vector<int32_t> row_first(static_cast<size_t>(row_count)), row_last(static_cast<size_t>(row_count));
+    std::vector<std::vector<uint8_t>> conflicts(static_cast<size_t>(slab_count));  // per slab voxel: a fold
+    auto slab_range = [&](int64_t s, int64_t& kb, int64_t& ke) {
+      kb = s * slab_depth;
+      ke = std::min(n[2], kb + slab_depth);
+      return kb < ke;
+    };
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
-      std::vector<float> best;
-      std::vector<int32_t> best_tet;
-      std::vector<uint8_t> conflict;
       for (int64_t s = s0; s < s1; ++s) {
-        const int64_t kb = s * slab_depth, ke = std::min(n[2], kb + slab_depth);
-        if (kb >= ke) continue;
+        int64_t kb = 0, ke = 0;
+        if (!slab_range(s, kb, ke)) continue;
         const int64_t slab_begin = kb * n[0] * n[1], slab_voxels = (ke - kb) * n[0] * n[1];
         std::fill(owner + slab_begin, owner + slab_begin + slab_voxels, -1);
+        std::fill(row_first.begin() + kb * n[1], row_first.begin() + ke * n[1], static_cast<int32_t>(n[0]));
+        std::fill(row_last.begin() + kb * n[1], row_last.begin() + ke * n[1], -1);
+        std::vector<uint8_t>& conflict = conflicts[static_cast<size_t>(s)];
         conflict.assign(static_cast<size_t>(slab_voxels), 0);
-        // 1. Rasterize the moving tets; where two cover a voxel, resolve the fold.
         for (const int32_t t : interior[static_cast<size_t>(s)]) {
           const RasterTet& r = raster[static_cast<size_t>(t)];
           const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2])));
@@ -432,67 +371,99 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
               row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
               if (!row_interval(r, alpha, kInside, first, last)) continue;
+              const size_t row = static_cast<size_t>(j + n[1] * k);
+              row_first[row] = std::min(row_first[row], static_cast<int32_t>(first));
+              row_last[row] = std::max(row_last[row], static_cast<int32_t>(last));
               int64_t v = output.offset(first, j, k);
               for (int64_t i = first; i <= last; ++i, ++v) {
                 int32_t& o = owner[v];
                 if (o < 0) {
                   o = t;
                 } else if (wins(warp.maps_.get() + 12 * t, tets[static_cast<size_t>(t)], warp.maps_.get() + 12 * o,
-                                tets[static_cast<size_t>(o)], double(i), double(j),
-                                double(k), conflict[static_cast<size_t>(v - slab_begin)])) {
+                                tets[static_cast<size_t>(o)], double(i), double(j), double(k),
+                                conflict[static_cast<size_t>(v - slab_begin)])) {
                   o = t;
                 }
               }
             }
           }
         }
-        // 2. Skin shell: uncovered voxels near a moving boundary tet, the nearest one.
-        best.assign(static_cast<size_t>(slab_voxels), std::numeric_limits<float>::infinity());
-        best_tet.assign(static_cast<size_t>(slab_voxels), -1);
-        for (const int32_t t : shell[static_cast<size_t>(s)]) {
-          const RasterTet& r = raster[static_cast<size_t>(t)];
-          const ShellTet& sh = shell_data[static_cast<size_t>(t)];
-          const double* h = sh.h;
-          if (!(std::min({h[0], h[1], h[2], h[3]}) > 0.0)) continue;
-          const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2] - margin[2])));
-          const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2] + margin[2])));
-          const int64_t j0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[1] - margin[1])));
-          const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1] + margin[1])));
-          const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0] - margin[0])));
-          const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0] + margin[0])));
-          // The shell of a tet is the tet with each face pushed out by shell_mm (lambda_m >= -shell_mm / h_m),
-          // within its bounding box grown by shell_mm.
-          for (int64_t k = k0; k <= k1; ++k) {
-            int64_t jb = j0, je = j1;
-            if (!slice_rows(sh.grown_y, sh.grown_z, double(k), jb, je)) continue;
-            for (int64_t j = jb; j <= je; ++j) {
-              double alpha[4];
-              row_start(r, double(j), double(k), alpha);
-              int64_t first = i0, last = i1;
-              if (!row_interval(r, alpha, sh.grow, first, last)) continue;
-              int64_t v = output.offset(first, j, k);
-              for (int64_t i = first; i <= last; ++i, ++v) {
-                if (owner[v] >= 0) continue;
-                double d = 0.0;
-                for (int m = 0; m < 4; ++m) {
-                  const double lambda = alpha[m] + double(i) * r.di[m];
-                  d = std::max(d, std::max(0.0, -lambda) * h[m]);
-                }
-                if (d > shell_mm) continue;
-                const size_t local = static_cast<size_t>(v - slab_begin);
-                if (d < best[local] || (d == best[local] && tets[static_cast<size_t>(t)] <
-                                                                  tets[static_cast<size_t>(best_tet[local])])) {
-                  best[local] = static_cast<float>(d);
-                  best_tet[local] = t;
+        progress.advance(1, 2 * slab_count);
+      }
+    });
+    POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+
+    // Pass 2, the skin shell: an uncovered voxel whose centre lies within shell_mm of a covered voxel's takes the
+    // map of the nearest such voxel's tet. Neighbour offsets in order of distance; rows far from any covered voxel
+    // are skipped by the rows' covered extents.
+    struct Offset {
+      int64_t di, dj, dk;
+      double distance;
+    };
+    std::vector<Offset> offsets;
+    const int64_t reach[3] = {static_cast<int64_t>(shell_mm / output.spacing[0]), static_cast<int64_t>(shell_mm / output.spacing[1]),
+                              static_cast<int64_t>(shell_mm / output.spacing[2])};
+    for (int64_t dk = -reach[2]; dk <= reach[2]; ++dk) {
+      for (int64_t dj = -reach[1]; dj <= reach[1]; ++dj) {
+        for (int64_t di = -reach[0]; di <= reach[0]; ++di) {
+          const double x = double(di) * output.spacing[0], y = double(dj) * output.spacing[1], z = double(dk) * output.spacing[2];
+          const double d = std::sqrt(x * x + y * y + z * z);
+          if ((di || dj || dk) && d <= shell_mm) offsets.push_back({di, dj, dk, d});
+        }
+      }
+    }
+    std::stable_sort(offsets.begin(), offsets.end(), [](const Offset& a, const Offset& b) { return a.distance < b.distance; });
+    std::vector<std::vector<std::pair<int32_t, int32_t>>> shells(static_cast<size_t>(slab_count));  // (slab voxel, owner)
+    parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
+      for (int64_t s = s0; s < s1; ++s) {
+        int64_t kb = 0, ke = 0;
+        if (!slab_range(s, kb, ke) || offsets.empty()) continue;
+        const int64_t slab_begin = kb * n[0] * n[1];
+        std::vector<std::pair<int32_t, int32_t>>& found = shells[static_cast<size_t>(s)];
+        for (int64_t k = kb; k < ke; ++k) {
+          for (int64_t j = 0; j < n[1]; ++j) {
+            int64_t lo = n[0], hi = -1;  // the hull of the neighbour rows' covered extents, grown by the reach
+            for (int64_t dk = std::max<int64_t>(-reach[2], -k); dk <= reach[2] && k + dk < n[2]; ++dk) {
+              for (int64_t dj = std::max<int64_t>(-reach[1], -j); dj <= reach[1] && j + dj < n[1]; ++dj) {
+                const size_t row = static_cast<size_t>(j + dj + n[1] * (k + dk));
+                if (row_first[row] > row_last[row]) continue;
+                lo = std::min<int64_t>(lo, row_first[row] - reach[0]);
+                hi = std::max<int64_t>(hi, row_last[row] + reach[0]);
+              }
+            }
+            lo = std::max<int64_t>(lo, 0);
+            hi = std::min<int64_t>(hi, n[0] - 1);
+            for (int64_t i = lo; i <= hi; ++i) {
+              const int64_t v = output.offset(i, j, k);
+              if (owner[v] >= 0) continue;
+              for (const Offset& o : offsets) {
+                const int64_t x = i + o.di, y = j + o.dj, z = k + o.dk;
+                if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) continue;
+                const int32_t near = owner[output.offset(x, y, z)];
+                if (near >= 0) {
+                  found.emplace_back(static_cast<int32_t>(v - slab_begin), near);
+                  break;
                 }
               }
             }
           }
         }
-        // 3. Classify every voxel of the slab. Without a rest owner: covered, shell or background. With one, a voxel
-        // the moving tets left alone maps through the background transform to a source voxel whose rest owner
-        // says what it is: a tet that follows the background (covered, or its shell), nothing (background), or a
-        // moving tet (the body moved away from there: the shell of a moving tet, or nothing to sample).
+      }
+    });
+
+    // Pass 3, classify every voxel. Without a rest owner: covered, shell or background. With one, a voxel the
+    // moving tets left alone maps through the background transform to a source voxel whose rest owner says what it
+    // is: a tet that follows the background (covered, or its shell), nothing (background), or a moving tet (the
+    // body moved away from there: the shell of a moving tet, or nothing to sample).
+    std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
+    parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
+      for (int64_t s = s0; s < s1; ++s) {
+        int64_t kb = 0, ke = 0;
+        if (!slab_range(s, kb, ke)) continue;
+        const int64_t slab_begin = kb * n[0] * n[1];
+        std::vector<uint8_t>& conflict = conflicts[static_cast<size_t>(s)];
+        const std::vector<std::pair<int32_t, int32_t>>& found = shells[static_cast<size_t>(s)];
+        size_t next_shell = 0;
         int64_t covered = 0, extrapolated = 0, background = 0, conflicted = 0;
         const double* bg = warp.background_map_;
         // Where the background map steps one source voxel along x per output voxel from a whole source index (the
@@ -502,33 +473,31 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
           for (int64_t j = 0; j < n[1]; ++j) {
             const int64_t row_begin = output.offset(0, j, k);
             const int64_t local_begin = row_begin - slab_begin;
-            if (!rest_owner) {
-              for (int64_t i = 0; i < n[0]; ++i) {
-                const size_t local = static_cast<size_t>(local_begin + i);
-                int32_t& o = owner[row_begin + i];
-                if (o >= 0) {
-                  ++covered;
-                } else if (best_tet[local] >= 0) {
-                  o = -2 - best_tet[local];
-                  ++extrapolated;
-                } else {
-                  ++background;
-                }
-                conflicted += conflict[local];
-              }
-              continue;
-            }
             double row[3];
             apply_map(bg, 0.0, double(j), double(k), row);
             const int32_t* rest_row = nullptr;  // rest_owner at source x = i + x0 for this output row
             int64_t x0 = 0, y = 0, z = 0;
-            const bool fast = bg_steps_x && integral(row[0], x0) && integral(row[1], y) && integral(row[2], z);
+            const bool fast = rest_owner && bg_steps_x && integral(row[0], x0) && integral(row[1], y) && integral(row[2], z);
             if (fast && y >= 0 && z >= 0 && y < source.size[1] && z < source.size[2]) {
               rest_row = rest_owner->data() + source.offset(0, y, z);
             }
             for (int64_t i = 0; i < n[0]; ++i) {
-              const size_t local = static_cast<size_t>(local_begin + i);
+              const int64_t local = local_begin + i;
               int32_t& o = owner[row_begin + i];
+              int32_t shell_owner = -1;
+              if (next_shell < found.size() && found[next_shell].first == local) shell_owner = found[next_shell++].second;
+              if (!rest_owner) {
+                if (o >= 0) {
+                  ++covered;
+                } else if (shell_owner >= 0) {
+                  o = -2 - shell_owner;
+                  ++extrapolated;
+                } else {
+                  ++background;
+                }
+                conflicted += conflict[static_cast<size_t>(local)];
+                continue;
+              }
               const double di = double(i);
               int32_t ro = -1;
               if (fast) {
@@ -542,22 +511,23 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
               const bool still = rt >= 0 && !moving[static_cast<size_t>(rt)];
               if (o >= 0) {
                 // A moving tet covers it; a tet that follows the background may cover it too (a fold).
-                if (ro >= 0 && still && wins(bg, ro, warp.maps_.get() + 12 * o, tets[static_cast<size_t>(o)], di, double(j), double(k),
-                                             conflict[local])) {
+                if (ro >= 0 && still &&
+                    wins(bg, ro, warp.maps_.get() + 12 * o, tets[static_cast<size_t>(o)], di, double(j), double(k),
+                         conflict[static_cast<size_t>(local)])) {
                   o = -1;
                 }
                 ++covered;
               } else if (still) {
                 o = -1;
                 ++(ro >= 0 ? covered : extrapolated);
-              } else if (best_tet[local] >= 0) {
-                o = -2 - best_tet[local];
+              } else if (shell_owner >= 0) {
+                o = -2 - shell_owner;
                 ++extrapolated;
               } else {
                 o = rt < 0 ? -1 : kNoSample;
                 ++background;
               }
-              conflicted += conflict[local];
+              conflicted += conflict[static_cast<size_t>(local)];
             }
           }
         }
@@ -566,7 +536,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const RestTopology& topology
         st.extrapolated_voxels = extrapolated;
         st.background_voxels = background;
         st.conflicted_voxels = conflicted;
-        progress.advance(1, slab_count);
+        std::vector<uint8_t>().swap(conflict);
+        progress.advance(1, 2 * slab_count);
       }
     });
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());

@@ -19,7 +19,6 @@ namespace {
 struct Scene {
   phantom::Phantom phantom;
   TetMesh mesh;
-  RestTopology topology;
   std::vector<int32_t> rest_owner;  // as a rig's engine keeps it
 };
 
@@ -40,9 +39,8 @@ const Scene& bar_scene() {
     mp.soft_cell_size_mm = 8.0;
     mp.parallel = false;
     s.mesh = *mesh::make_cgal_mesher()->mesh(classes, 3, mp, {}, nullptr);
-    s.topology = rest_topology(s.mesh);
     const ImageGeometry& g = s.phantom.labels.geometry();
-    Result<TetWarp> identity = TetWarp::build(s.mesh, s.topology, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+    Result<TetWarp> identity = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
                                               Eigen::Vector3d::Zero(), nullptr, {}, {});
     s.rest_owner = identity->owner();
     return s;
@@ -56,7 +54,7 @@ TEST(TetWarp, IdentityPoseGivesBackTheInputVoxelForVoxel) {
   // With the rest owner no tet moves and nothing is rasterized; without it every tet is.
   for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
     SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
-    Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+    Result<TetWarp> warp = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
                                           Eigen::Vector3d::Zero(), rest_owner, {}, {});
     ASSERT_TRUE(warp.ok()) << warp.status().to_string();
     EXPECT_EQ(warp->rasterized_tets(), rest_owner ? 0 : s.mesh.tet_count());
@@ -88,7 +86,7 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   ASSERT_TRUE(itk.ok()) << itk.status().to_string();
   for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
   SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
-  Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, posed, g, *out, r, t, rest_owner, {}, {});
+  Result<TetWarp> warp = TetWarp::build(s.mesh, posed, g, *out, r, t, rest_owner, {}, {});
   ASSERT_TRUE(warp.ok());
   Result<LabelVolume> ours = warp->warp_labels(s.phantom.labels);
   ASSERT_TRUE(ours.ok());
@@ -112,7 +110,7 @@ TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   // A non-rigid deformation: shear the upper half.
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
-  Result<TetWarp> warp = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> warp = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
   ASSERT_TRUE(warp.ok());
   Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
@@ -141,7 +139,7 @@ TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
   LabelVolume labels(g, 0);
   labels.at(1, 1, 1) = 5;    // soft tissue
   labels.at(11, 11, 11) = 7; // bone
-  Result<TetWarp> warp = TetWarp::build(mesh, rest_topology(mesh), posed, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> warp = TetWarp::build(mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), nullptr, {}, {});
   ASSERT_TRUE(warp.ok());
   EXPECT_GT(warp->stats().conflicted_voxels, 0);
@@ -165,14 +163,13 @@ TEST(TetWarp, AMovingSoftTetFoldedOntoAStillBoneLosesAndLeavesNoGhost) {
   LabelVolume labels(g, 0);
   labels.at(1, 1, 1) = 5;    // soft tissue
   labels.at(11, 11, 11) = 7; // bone
-  const RestTopology topology = rest_topology(mesh);
-  Result<TetWarp> identity = TetWarp::build(mesh, topology, mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> identity = TetWarp::build(mesh, mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
                                             Eigen::Vector3d::Zero(), nullptr, {}, {});
   ASSERT_TRUE(identity.ok());
   const std::vector<int32_t> rest_owner = identity->owner();
   Eigen::MatrixXd posed = mesh.vertices;
   posed.topRows(4).rowwise() += Eigen::RowVector3d(10, 10, 10);
-  Result<TetWarp> warp = TetWarp::build(mesh, topology, posed, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> warp = TetWarp::build(mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), &rest_owner, {}, {});
   ASSERT_TRUE(warp.ok());
   EXPECT_EQ(warp->rasterized_tets(), 1);
@@ -188,9 +185,9 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
   // Shear the upper half only: the lower half follows the (identity) background.
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
-  Result<TetWarp> full = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> full = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), nullptr, {}, {});
-  Result<TetWarp> lean = TetWarp::build(s.mesh, s.topology, posed, g, g, Eigen::Matrix3d::Identity(),
+  Result<TetWarp> lean = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
   ASSERT_TRUE(full.ok() && lean.ok());
   EXPECT_GT(lean->rasterized_tets(), 0);

@@ -45,7 +45,7 @@ struct PoseResult {
 
 class PoseEngine {
  public:
-  // Precomputes the rest tet frames, the mesh boundary and the rest coverage of the source grid.
+  // Precomputes the rest tet frames, the rest ownership of the source grid and the rest label counts.
   static Result<PoseEngine> create(Rig rig, const ProgressHooks& hooks = {});
 
   const Rig& rig() const { return rig_; }
@@ -55,7 +55,6 @@ class PoseEngine {
   PoseEngine() = default;
   Rig rig_;
   skinning::RestTetFrames frames_;
-  resample::RestTopology topology_;
   std::map<Label, int64_t> rest_label_counts_;  // the report's "before" counts, once
   std::vector<int32_t> rest_owner_;  // per source voxel: the rest tet covering it (-1 none), for forward fields
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it

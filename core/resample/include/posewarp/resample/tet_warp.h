@@ -25,9 +25,10 @@ enum class GridPolicy {
 };
 
 struct ResampleParams {
-  // Body voxels just outside the mesh surface (the mesh approximates the skin) take the map of the nearest
-  // boundary tet up to this distance, mm; 0 = one and a half voxels of the source grid (the mesher keeps the
-  // surface within facet_distance of the label boundary, 1.5 mm by default).
+  // Voxels just outside the mesh surface (the mesh approximates the skin) take the map of the tet under the nearest
+  // covered voxel whose centre lies within this distance of theirs, mm; 0 = two voxels of the source grid (the
+  // mesher keeps the surface within facet_distance of the label boundary, 1.5 mm by default, and covered voxel
+  // centres lie up to half a voxel inside the surface).
   double shell_mm = 0.0;
   Label label_background = 0;           // label where nothing maps back into the body
   float intensity_background = -1024.f; // intensity where nothing maps back (air in HU)
@@ -42,16 +43,10 @@ Status validate(const ResampleParams& params);
 Result<ImageGeometry> output_geometry(GridPolicy policy, const ImageGeometry& source, const Eigen::MatrixXd& posed,
                                       const ImageGeometry* given, const ResampleParams& params);
 
-// What a rig needs once for every warp: which tets touch the mesh boundary (for the skin shell).
-struct RestTopology {
-  std::vector<uint8_t> boundary;  // per tet: 1 when it has a face on the mesh boundary
-};
-RestTopology rest_topology(const TetMesh& rest);
-
 struct WarpStats {
   int64_t covered_voxels = 0;      // inside a posed tet
   int64_t conflicted_voxels = 0;   // inside posed tets that map back to different places (folds); bones win
-  int64_t extrapolated_voxels = 0; // in the skin shell, mapped by the nearest boundary tet
+  int64_t extrapolated_voxels = 0; // in the skin shell, mapped by the tet of the nearest covered voxel
   int64_t background_voxels = 0;   // outside mesh and shell: moved with the background (root) transform
   int64_t degenerate_tets = 0;     // posed tets with no volume, skipped
 };
@@ -72,7 +67,7 @@ class TetWarp {
   // on the source grid (built with rest_owner = null, which rasterizes every tet); with it, tets that follow the
   // background are not rasterized, and source voxels owned by moving tets are never copied by the background
   // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized.
-  static Result<TetWarp> build(const TetMesh& rest, const RestTopology& topology, const Eigen::MatrixXd& posed,
+  static Result<TetWarp> build(const TetMesh& rest, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
                                const std::vector<int32_t>* rest_owner, const ResampleParams& params,
