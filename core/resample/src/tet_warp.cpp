@@ -246,6 +246,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     if (raster_buffer.size() < static_cast<size_t>(nm)) raster_buffer.resize(static_cast<size_t>(nm));
     RasterTet* raster = raster_buffer.data();
     std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
+    std::vector<std::array<int32_t, 2>> k_range(static_cast<size_t>(nm), {1, 0});  // output k the tet spans
     parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
       for (int64_t c = begin; c < end; ++c) {
         const int64_t t = tets[static_cast<size_t>(c)];
@@ -286,6 +287,9 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
           m[9 + row] = b(row);
         }
         usable[static_cast<size_t>(c)] = 1;
+        k_range[static_cast<size_t>(c)] = {
+            static_cast<int32_t>(std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(std::max(r.lo[2], -1.0))))),
+            static_cast<int32_t>(std::min<int64_t>(output.size[2] - 1, static_cast<int64_t>(fast_floor(std::min(r.hi[2], 1e9)))))};
       }
     });
     for (const uint8_t ok : usable) warp.stats_.degenerate_tets += ok ? 0 : 1;
@@ -301,16 +305,11 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     std::vector<std::vector<int32_t>>& interior = interior_buffer;
     if (interior.size() < static_cast<size_t>(slab_count)) interior.resize(static_cast<size_t>(slab_count));
     for (std::vector<int32_t>& list : interior) list.clear();
-    auto add_to_slabs = [&](std::vector<std::vector<int32_t>>& lists, int32_t c, double pad) {
-      const RasterTet& r = raster[static_cast<size_t>(c)];
-      const int64_t k0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[2] - pad)));
-      const int64_t k1 = std::min<int64_t>(n[2] - 1, static_cast<int64_t>(fast_floor(r.hi[2] + pad)));
-      if (k0 > k1) return;
-      for (int64_t s = k0 / slab_depth; s <= k1 / slab_depth; ++s) lists[static_cast<size_t>(s)].push_back(c);
-    };
     for (int64_t c = 0; c < nm; ++c) {
-      if (!usable[static_cast<size_t>(c)]) continue;
-      add_to_slabs(interior, static_cast<int32_t>(c), 0.0);
+      const auto [k0, k1] = k_range[static_cast<size_t>(c)];
+      for (int64_t s = k0 / slab_depth; k0 <= k1 && s <= k1 / slab_depth; ++s) {
+        interior[static_cast<size_t>(s)].push_back(static_cast<int32_t>(c));
+      }
     }
 
     warp.owner_ = std::shared_ptr<int32_t[]>(new int32_t[static_cast<size_t>(output.voxel_count())]);
