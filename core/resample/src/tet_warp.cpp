@@ -16,6 +16,8 @@ namespace posewarp::resample {
 namespace {
 
 constexpr double kInsideTolerance = 1e-9;
+// Tets whose index box holds at most this many voxels are rasterized voxel by voxel, larger ones row by row.
+constexpr int64_t kSmallBox = 64;
 constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
 
 // Affine physical -> continuous index of a grid: u = M (x - o).
@@ -362,6 +364,43 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
           const int64_t j1 = std::min<int64_t>(n[1] - 1, static_cast<int64_t>(fast_floor(r.hi[1])));
           const int64_t i0 = std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[0])));
           const int64_t i1 = std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(r.hi[0])));
+          auto claim = [&](int64_t v, int64_t i, int64_t j, int64_t k) {
+            int32_t& o = owner[v];
+            if (o < 0) {
+              o = t;
+            } else if (wins(warp.maps_.get() + 12 * t, tets[static_cast<size_t>(t)], warp.maps_.get() + 12 * o,
+                            tets[static_cast<size_t>(o)], double(i), double(j), double(k),
+                            conflict[static_cast<size_t>(v - slab_begin)])) {
+              o = t;
+            }
+          };
+          if (k0 > k1 || j0 > j1 || i0 > i1) continue;
+          if ((i1 - i0 + 1) * (j1 - j0 + 1) * (k1 - k0 + 1) <= kSmallBox) {
+            // A small tet (most are a few voxels): test every voxel of its box, which costs less than finding
+            // each row's interval.
+            for (int64_t k = k0; k <= k1; ++k) {
+              for (int64_t j = j0; j <= j1; ++j) {
+                double alpha[4];
+                row_start(r, double(j), double(k), alpha);
+                int32_t first = static_cast<int32_t>(n[0]), last = -1;
+                int64_t v = output.offset(i0, j, k);
+                for (int64_t i = i0; i <= i1; ++i, ++v) {
+                  const double di = double(i);
+                  const double lambda = std::min(std::min(alpha[0] + di * r.di[0], alpha[1] + di * r.di[1]),
+                                                 std::min(alpha[2] + di * r.di[2], alpha[3] + di * r.di[3]));
+                  if (lambda < -kInsideTolerance) continue;
+                  claim(v, i, j, k);
+                  first = std::min(first, static_cast<int32_t>(i));
+                  last = static_cast<int32_t>(i);
+                }
+                if (last < 0) continue;
+                const size_t row = static_cast<size_t>(j + n[1] * k);
+                row_first[row] = std::min(row_first[row], first);
+                row_last[row] = std::max(row_last[row], last);
+              }
+            }
+            continue;
+          }
           for (int64_t k = k0; k <= k1; ++k) {
             int64_t jb = j0, je = j1;
             if (!slice_rows(r.y, r.z, double(k), jb, je)) continue;
@@ -374,16 +413,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
               row_first[row] = std::min(row_first[row], static_cast<int32_t>(first));
               row_last[row] = std::max(row_last[row], static_cast<int32_t>(last));
               int64_t v = output.offset(first, j, k);
-              for (int64_t i = first; i <= last; ++i, ++v) {
-                int32_t& o = owner[v];
-                if (o < 0) {
-                  o = t;
-                } else if (wins(warp.maps_.get() + 12 * t, tets[static_cast<size_t>(t)], warp.maps_.get() + 12 * o,
-                                tets[static_cast<size_t>(o)], double(i), double(j), double(k),
-                                conflict[static_cast<size_t>(v - slab_begin)])) {
-                  o = t;
-                }
-              }
+              for (int64_t i = first; i <= last; ++i, ++v) claim(v, i, j, k);
             }
           }
         }
