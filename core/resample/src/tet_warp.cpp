@@ -1,5 +1,6 @@
-// TetWarp: rasterize posed tets over output slabs (each thread owns whole slabs, as ITK threads over output
-// regions), resolve folds (bones win), extend boundary tets over the skin shell, then sample the source.
+// TetWarp: rasterize the posed tets that move off the root over output slabs (each thread owns whole slabs, as ITK
+// threads over output regions), resolve folds (bones win), extend the covered voxels' maps over the skin shell,
+// classify the rest through the rest ownership, then sample the source.
 #include "posewarp/resample/tet_warp.h"
 
 #include <Eigen/Dense>
@@ -8,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <new>
+#include <string>
 #include <utility>
 
 #include "posewarp/common/parallel.h"
@@ -18,6 +20,8 @@ namespace {
 constexpr double kInsideTolerance = 1e-9;
 // Tets whose index box holds at most this many voxels are rasterized voxel by voxel, larger ones row by row.
 constexpr int64_t kSmallBox = 64;
+// The skin shell reaches at most this many output voxels (each shell voxel searches that neighbourhood).
+constexpr int64_t kMaxShellVoxels = 8;
 constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
 
 // Affine physical -> continuous index of a grid: u = M (x - o).
@@ -43,7 +47,6 @@ struct RasterTet {
   double lo[3], hi[3];  // index bounding box
   double y[4], z[4];    // vertices' j and k
 };
-
 
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
 inline double fast_floor(double x) {
@@ -83,9 +86,8 @@ inline void row_start(const RasterTet& r, double j, double k, double alpha[4]) {
   for (int m = 0; m < 4; ++m) alpha[m] = r.origin[m] + j * r.dj[m] + k * r.dk[m];
 }
 
-// The i-interval of a row where every barycentric lambda_m >= -grow[m] (the tet itself for a tiny grow, the tet
-// with its faces pushed out for the skin shell), intersected with [first, last]; false when empty. Branch-free
-// over the planes but for the rare one parallel to the row.
+// The i-interval of a row where every barycentric lambda_m >= -grow[m], intersected with [first, last]; false when
+// empty. Branch-free over the planes but for the rare one parallel to the row.
 inline bool row_interval(const RasterTet& r, const double alpha[4], const double grow[4], int64_t& first, int64_t& last) {
   double lo = static_cast<double>(first), hi = static_cast<double>(last);
   for (int m = 0; m < 4; ++m) {
@@ -108,20 +110,17 @@ inline bool steps_one_x(double dx, double dy, double dz) {
   return std::abs(dx - 1.0) < 1e-12 && std::abs(dy) < 1e-12 && std::abs(dz) < 1e-12;
 }
 
-// Nearest integer of x when x is one to within 1e-9, else false.
-inline bool integral(double x, int64_t& n) {
-  const double y = x + 0.5;
-  int64_t r = static_cast<int64_t>(y);
-  r -= (y < static_cast<double>(r));
-  n = r;
-  return std::abs(x - static_cast<double>(r)) < 1e-9;
-}
-
 // Round to nearest without a libm call (ties away from zero do not matter at voxel centres).
 inline int64_t round_index(double x) {
   const double y = x + 0.5;
   int64_t r = static_cast<int64_t>(y);
   return r - (y < static_cast<double>(r));
+}
+
+// Nearest integer of x when x is one to within 1e-9, else false.
+inline bool integral(double x, int64_t& n) {
+  n = round_index(x);
+  return std::abs(x - static_cast<double>(n)) < 1e-9;
 }
 
 inline void apply_map(const double* m, double i, double j, double k, double s[3]) {
@@ -166,6 +165,12 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
   warp.intensity_background_ = params.intensity_background;
   const double shell_mm =
       params.shell_mm > 0.0 ? params.shell_mm : 2.0 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
+  const int64_t reach[3] = {static_cast<int64_t>(shell_mm / output.spacing[0]), static_cast<int64_t>(shell_mm / output.spacing[1]),
+                            static_cast<int64_t>(shell_mm / output.spacing[2])};
+  if (std::max({reach[0], reach[1], reach[2]}) > kMaxShellVoxels) {
+    return invalid_argument_error("a skin shell of " + std::to_string(shell_mm) + " mm spans more than " +
+                                  std::to_string(kMaxShellVoxels) + " voxels of the output grid; use a thinner shell");
+  }
 
   try {
     const IndexSpace out_space = index_space(output);
@@ -430,8 +435,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
       double distance;
     };
     std::vector<Offset> offsets;
-    const int64_t reach[3] = {static_cast<int64_t>(shell_mm / output.spacing[0]), static_cast<int64_t>(shell_mm / output.spacing[1]),
-                              static_cast<int64_t>(shell_mm / output.spacing[2])};
     for (int64_t dk = -reach[2]; dk <= reach[2]; ++dk) {
       for (int64_t dj = -reach[1]; dj <= reach[1]; ++dj) {
         for (int64_t di = -reach[0]; di <= reach[0]; ++di) {

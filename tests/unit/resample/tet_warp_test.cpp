@@ -211,6 +211,32 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
               static_cast<double>(lean->stats().covered_voxels + lean->stats().extrapolated_voxels), 1e-3 * body);
 }
 
+TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) {
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  // Every tet rasterized: body voxels the mesh surface leaves out must come back through the shell, as labels.
+  Result<TetWarp> warp = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
+                                        Eigen::Vector3d::Zero(), nullptr, {}, {});
+  ASSERT_TRUE(warp.ok());
+  EXPECT_GT(warp->stats().extrapolated_voxels, 0);
+  const std::vector<int32_t> owner = warp->owner();
+  int64_t body = 0, outside_mesh = 0;
+  for (int64_t v = 0; v < g.voxel_count(); ++v) {
+    if (s.phantom.labels.data()[v] == 0) continue;
+    ++body;
+    if (owner[static_cast<size_t>(v)] < 0) ++outside_mesh;
+    EXPECT_NE(owner[static_cast<size_t>(v)], -1) << "body voxel " << v << " is neither in the mesh nor in its shell";
+  }
+  EXPECT_LT(outside_mesh, body / 10);
+  ResampleParams wide;
+  wide.shell_mm = 100.0;
+  EXPECT_EQ(TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
+                           nullptr, wide, {})
+                .status()
+                .code(),
+            StatusCode::kInvalidArgument);
+}
+
 TEST(OutputGrid, GrowsToHoldTheBodyAndRefusesAbsurdGrids) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
