@@ -48,6 +48,24 @@ struct RasterTet {
   double y[4], z[4];    // vertices' j and k
 };
 
+// Buffers a thread reuses from one warp to the next, and whether a warp on that thread holds them.
+struct RasterScratch {
+  std::vector<RasterTet> raster;
+  std::vector<std::vector<int32_t>> interior;  // per slab: the rasterized tets that meet it
+  bool busy = false;
+};
+
+class ScratchLease {
+ public:
+  explicit ScratchLease(RasterScratch& scratch) : scratch_(scratch) { scratch_.busy = true; }
+  ~ScratchLease() { scratch_.busy = false; }
+  ScratchLease(const ScratchLease&) = delete;
+  ScratchLease& operator=(const ScratchLease&) = delete;
+
+ private:
+  RasterScratch& scratch_;
+};
+
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
 inline double fast_floor(double x) {
   const double t = static_cast<double>(static_cast<int64_t>(x));
@@ -248,10 +266,14 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     // source-index map and the raster data.
     warp.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
     // The raster data and slab lists live in buffers this thread keeps between warps: on a 2-core VM, faulting in
-    // tens of MB of fresh pages per pose costs as much as the raster itself.
-    thread_local std::vector<RasterTet> raster_buffer;
-    if (raster_buffer.size() < static_cast<size_t>(nm)) raster_buffer.resize(static_cast<size_t>(nm));
-    RasterTet* raster = raster_buffer.data();
+    // tens of MB of fresh pages per pose costs as much as the raster itself. A warp started on this thread while
+    // another is in flight on it (a task stolen inside a parallel loop) gets buffers of its own.
+    thread_local RasterScratch kept;
+    RasterScratch own;
+    RasterScratch& scratch = kept.busy ? own : kept;
+    const ScratchLease lease(scratch);
+    if (scratch.raster.size() < static_cast<size_t>(nm)) scratch.raster.resize(static_cast<size_t>(nm));
+    RasterTet* raster = scratch.raster.data();
     std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
     std::vector<std::array<int32_t, 2>> k_range(static_cast<size_t>(nm), {1, 0});  // output k the tet spans
     parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
@@ -307,9 +329,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     const Index3& n = output.size;
     const int64_t slab_count = std::clamp<int64_t>(n[2], 1, 16 * static_cast<int64_t>(thread_count()));
     const int64_t slab_depth = (n[2] + slab_count - 1) / slab_count;
-    // (A thread_local is not captured by the lambdas below, which may run on other threads: they see references.)
-    thread_local std::vector<std::vector<int32_t>> interior_buffer;
-    std::vector<std::vector<int32_t>>& interior = interior_buffer;
+    std::vector<std::vector<int32_t>>& interior = scratch.interior;
     if (interior.size() < static_cast<size_t>(slab_count)) interior.resize(static_cast<size_t>(slab_count));
     for (std::vector<int32_t>& list : interior) list.clear();
     for (int64_t c = 0; c < nm; ++c) {

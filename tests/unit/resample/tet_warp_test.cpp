@@ -8,6 +8,7 @@
 #include <map>
 #include <set>
 
+#include "posewarp/common/parallel.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/mesh/mesher.h"
@@ -235,6 +236,30 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
                 .status()
                 .code(),
             StatusCode::kInvalidArgument);
+}
+
+TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
+  // Warps keep raster buffers per thread; warps run from the tasks of a parallel loop, on several threads at once
+  // (and, when the scheduler lets a waiting thread pick up another task, nested on one), must not share them.
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  auto posed_by = [&](double shear) {
+    Eigen::MatrixXd posed = s.mesh.vertices;
+    for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += shear * std::max(0.0, posed(v, 2) - 60.0);
+    return posed;
+  };
+  auto warp_labels = [&](double shear) {
+    Result<TetWarp> warp = TetWarp::build(s.mesh, posed_by(shear), g, g, Eigen::Matrix3d::Identity(),
+                                          Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
+    return std::move(warp->warp_labels(s.phantom.labels)).value().voxels();
+  };
+  constexpr int kWarps = 8;
+  std::vector<std::vector<Label>> expected(kWarps), got(kWarps);
+  for (int w = 0; w < kWarps; ++w) expected[static_cast<size_t>(w)] = warp_labels(0.05 * w);
+  parallel_for(0, kWarps, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t w = begin; w < end; ++w) got[static_cast<size_t>(w)] = warp_labels(0.05 * static_cast<double>(w));
+  });
+  for (int w = 0; w < kWarps; ++w) EXPECT_EQ(got[static_cast<size_t>(w)], expected[static_cast<size_t>(w)]) << "warp " << w;
 }
 
 TEST(OutputGrid, GrowsToHoldTheBodyAndRefusesAbsurdGrids) {
