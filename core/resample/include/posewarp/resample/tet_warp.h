@@ -66,7 +66,9 @@ class TetWarp {
   // posed) of everything outside the mesh, normally the root segment's. rest_owner: owner() of the identity warp
   // on the source grid (built with rest_owner = null, which rasterizes every tet); with it, tets that follow the
   // background are not rasterized, and source voxels owned by moving tets are never copied by the background
-  // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized.
+  // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized. INVALID_ARGUMENT for posed
+  // vertices that do not fit the mesh, a rest ownership of another grid, or a skin shell wider than 8 output voxels;
+  // RESOURCE_EXHAUSTED for an output grid over max_output_voxels or out of memory.
   static Result<TetWarp> build(const TetMesh& rest, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
