@@ -20,6 +20,8 @@ namespace {
 constexpr double kInsideTolerance = 1e-9;
 // Tets whose index box holds at most this many voxels are rasterized voxel by voxel, larger ones row by row.
 constexpr int64_t kSmallBox = 64;
+// Raster buffers a thread keeps between warps, at most (a larger warp allocates its own and frees them).
+constexpr size_t kKeptScratchBytes = size_t{64} << 20;
 // The skin shell reaches at most this many output voxels (each shell voxel searches that neighbourhood).
 constexpr int64_t kMaxShellVoxels = 8;
 constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
@@ -93,9 +95,11 @@ inline bool slice_rows(const double y[4], const double z[4], double k, int64_t& 
       hi = std::max(hi, y_cut);
     }
   }
+  lo = std::max(lo - kSlack, static_cast<double>(j0) - 1.0);  // clamped before the casts
+  hi = std::min(hi + kSlack, static_cast<double>(j1) + 1.0);
   if (!(lo <= hi)) return false;
-  j0 = std::max(j0, static_cast<int64_t>(fast_ceil(lo - kSlack)));
-  j1 = std::min(j1, static_cast<int64_t>(fast_floor(hi + kSlack)));
+  j0 = std::max(j0, static_cast<int64_t>(fast_ceil(lo)));
+  j1 = std::min(j1, static_cast<int64_t>(fast_floor(hi)));
   return j0 <= j1;
 }
 
@@ -115,6 +119,7 @@ inline bool row_interval(const RasterTet& r, const double alpha[4], const double
     hi = r.di[m] < 0.0 ? std::min(hi, x) : hi;
     if (r.di[m] == 0.0 && a < 0.0) return false;
   }
+  if (!(lo <= hi)) return false;  // also keeps a far-away bound from reaching the casts
   lo = fast_ceil(lo);
   hi = fast_floor(hi);
   if (lo > hi) return false;
@@ -181,13 +186,19 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
   warp.output_ = output;
   warp.label_background_ = params.label_background;
   warp.intensity_background_ = params.intensity_background;
-  const double shell_mm =
-      params.shell_mm > 0.0 ? params.shell_mm : 2.0 * std::max({source.spacing[0], source.spacing[1], source.spacing[2]});
-  const int64_t reach[3] = {static_cast<int64_t>(shell_mm / output.spacing[0]), static_cast<int64_t>(shell_mm / output.spacing[1]),
-                            static_cast<int64_t>(shell_mm / output.spacing[2])};
-  if (std::max({reach[0], reach[1], reach[2]}) > kMaxShellVoxels) {
-    return invalid_argument_error("a skin shell of " + std::to_string(shell_mm) + " mm spans more than " +
-                                  std::to_string(kMaxShellVoxels) + " voxels of the output grid; use a thinner shell");
+  // The shell is an ellipsoid around each uncovered voxel, semi-axes shell[a] mm along the output axes: by default
+  // two source voxels along each axis (so a 5 mm slice thickness reaches one slice, not 12 in-plane voxels).
+  double shell[3];
+  int64_t reach[3];
+  for (int a = 0; a < 3; ++a) {
+    const double source_spacing = source.spacing[static_cast<size_t>(a)];
+    shell[a] = params.shell_mm > 0.0 ? params.shell_mm : 2.0 * source_spacing;
+    reach[a] = static_cast<int64_t>(std::min(shell[a] / output.spacing[static_cast<size_t>(a)], 1e6));
+    if (reach[a] > kMaxShellVoxels && params.shell_mm > 0.0) {
+      return invalid_argument_error("a skin shell of " + std::to_string(params.shell_mm) + " mm spans more than " +
+                                    std::to_string(kMaxShellVoxels) + " voxels of the output grid; use a thinner shell");
+    }
+    reach[a] = std::min(reach[a], kMaxShellVoxels);  // the default on a much finer output grid
   }
 
   try {
@@ -267,10 +278,12 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     warp.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
     // The raster data and slab lists live in buffers this thread keeps between warps: on a 2-core VM, faulting in
     // tens of MB of fresh pages per pose costs as much as the raster itself. A warp started on this thread while
-    // another is in flight on it (a task stolen inside a parallel loop) gets buffers of its own.
+    // another is in flight on it (a task stolen inside a parallel loop), or one larger than kKeptScratchBytes, gets
+    // buffers of its own.
     thread_local RasterScratch kept;
     RasterScratch own;
-    RasterScratch& scratch = kept.busy ? own : kept;
+    const bool keep = !kept.busy && static_cast<size_t>(nm) * sizeof(RasterTet) <= kKeptScratchBytes;
+    RasterScratch& scratch = keep ? kept : own;
     const ScratchLease lease(scratch);
     if (scratch.raster.size() < static_cast<size_t>(nm)) scratch.raster.resize(static_cast<size_t>(nm));
     RasterTet* raster = scratch.raster.data();
@@ -303,9 +316,12 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
           r.dk[m] = inverse(m - 1, 2);
         }
         for (int m = 0; m < 4; ++m) r.inv_di[m] = r.di[m] != 0.0 ? 1.0 / r.di[m] : 0.0;
+        // The index box, clamped in double to just outside the grid so that no later cast can overflow (a root
+        // translated by 1e9 mm is finite, and valid).
         for (int a = 0; a < 3; ++a) {
-          r.lo[a] = std::min({u[0](a), u[1](a), u[2](a), u[3](a)});
-          r.hi[a] = std::max({u[0](a), u[1](a), u[2](a), u[3](a)});
+          const double top = static_cast<double>(output.size[static_cast<size_t>(a)]);
+          r.lo[a] = std::clamp(std::min({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
+          r.hi[a] = std::clamp(std::max({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
         }
         for (int q = 0; q < 4; ++q) r.y[q] = u[q](1), r.z[q] = u[q](2);
         const Eigen::Matrix3d a = se * inverse;
@@ -317,8 +333,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
         }
         usable[static_cast<size_t>(c)] = 1;
         k_range[static_cast<size_t>(c)] = {
-            static_cast<int32_t>(std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(std::max(r.lo[2], -1.0))))),
-            static_cast<int32_t>(std::min<int64_t>(output.size[2] - 1, static_cast<int64_t>(fast_floor(std::min(r.hi[2], 1e9)))))};
+            static_cast<int32_t>(std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(r.lo[2])))),
+            static_cast<int32_t>(std::min<int64_t>(output.size[2] - 1, static_cast<int64_t>(fast_floor(r.hi[2]))))};
       }
     });
     for (const uint8_t ok : usable) warp.stats_.degenerate_tets += ok ? 0 : 1;
@@ -447,7 +463,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     });
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-    // Pass 2, the skin shell: an uncovered voxel whose centre lies within shell_mm of a covered voxel's takes the
+    // Pass 2, the skin shell: an uncovered voxel whose shell ellipsoid holds a covered voxel's centre takes the
     // map of the nearest such voxel's tet. Neighbour offsets in order of distance; rows far from any covered voxel
     // are skipped by the rows' covered extents.
     struct Offset {
@@ -459,19 +475,19 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
       for (int64_t dj = -reach[1]; dj <= reach[1]; ++dj) {
         for (int64_t di = -reach[0]; di <= reach[0]; ++di) {
           const double x = double(di) * output.spacing[0], y = double(dj) * output.spacing[1], z = double(dk) * output.spacing[2];
-          const double d = std::sqrt(x * x + y * y + z * z);
-          if ((di || dj || dk) && d <= shell_mm) offsets.push_back({di, dj, dk, d});
+          const double inside = (x / shell[0]) * (x / shell[0]) + (y / shell[1]) * (y / shell[1]) + (z / shell[2]) * (z / shell[2]);
+          if ((di || dj || dk) && inside <= 1.0 + 1e-12) offsets.push_back({di, dj, dk, std::sqrt(x * x + y * y + z * z)});
         }
       }
     }
     std::stable_sort(offsets.begin(), offsets.end(), [](const Offset& a, const Offset& b) { return a.distance < b.distance; });
-    std::vector<std::vector<std::pair<int32_t, int32_t>>> shells(static_cast<size_t>(slab_count));  // (slab voxel, owner)
+    std::vector<std::vector<std::pair<int64_t, int32_t>>> shells(static_cast<size_t>(slab_count));  // (slab voxel, owner)
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
         int64_t kb = 0, ke = 0;
         if (!slab_range(s, kb, ke) || offsets.empty()) continue;
         const int64_t slab_begin = kb * n[0] * n[1];
-        std::vector<std::pair<int32_t, int32_t>>& found = shells[static_cast<size_t>(s)];
+        std::vector<std::pair<int64_t, int32_t>>& found = shells[static_cast<size_t>(s)];
         for (int64_t k = kb; k < ke; ++k) {
           for (int64_t j = 0; j < n[1]; ++j) {
             int64_t lo = n[0], hi = -1;  // the hull of the neighbour rows' covered extents, grown by the reach
@@ -493,7 +509,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) continue;
                 const int32_t near = owner[output.offset(x, y, z)];
                 if (near >= 0) {
-                  found.emplace_back(static_cast<int32_t>(v - slab_begin), near);
+                  found.emplace_back(v - slab_begin, near);
                   break;
                 }
               }
@@ -514,7 +530,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
         if (!slab_range(s, kb, ke)) continue;
         const int64_t slab_begin = kb * n[0] * n[1];
         std::vector<uint8_t>& conflict = conflicts[static_cast<size_t>(s)];
-        const std::vector<std::pair<int32_t, int32_t>>& found = shells[static_cast<size_t>(s)];
+        const std::vector<std::pair<int64_t, int32_t>>& found = shells[static_cast<size_t>(s)];
         size_t next_shell = 0;
         int64_t covered = 0, extrapolated = 0, background = 0, conflicted = 0;
         const double* bg = warp.background_map_;
@@ -559,7 +575,9 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 const double sb[3] = {row[0] + di * bg[0], row[1] + di * bg[3], row[2] + di * bg[6]};
                 ro = rest_owner_at(sb);
               }
-              const int32_t rt = ro >= 0 ? ro : ro <= -2 ? -2 - ro : -1;  // the rest tet behind that code
+              if (ro == kNoSample) ro = -1;
+              int32_t rt = ro >= 0 ? ro : ro <= -2 ? -2 - ro : -1;  // the rest tet behind that code
+              if (rt >= nt) ro = rt = -1;  // not a tet of this mesh: as if nothing held the voxel
               const bool still = rt >= 0 && !moving[static_cast<size_t>(rt)];
               if (o >= 0) {
                 // A moving tet covers it; a tet that follows the background may cover it too (a fold).

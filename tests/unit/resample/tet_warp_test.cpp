@@ -236,6 +236,26 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
                 .status()
                 .code(),
             StatusCode::kInvalidArgument);
+  // The default shell follows each axis's spacing: thick slices (0.8 x 0.8 x 5 mm) and a much finer output grid
+  // are not refused, and a far-away root moves the body off the grid without harm.
+  ImageGeometry thick = g;
+  thick.spacing = {0.8, 0.8, 5.0};
+  ImageGeometry fine = g;
+  fine.spacing = {g.spacing[0] / 6.0, g.spacing[1] / 6.0, g.spacing[2] / 6.0};
+  fine.size = {8, 8, 8};
+  for (const ImageGeometry* out : {&thick, &fine}) {
+    EXPECT_TRUE(TetWarp::build(s.mesh, s.mesh.vertices, out == &thick ? thick : g, *out, Eigen::Matrix3d::Identity(),
+                               Eigen::Vector3d::Zero(), nullptr, {}, {})
+                    .ok());
+  }
+  const Eigen::Vector3d far(0.0, 0.0, 3e9);
+  const Eigen::MatrixXd moved = s.mesh.vertices.rowwise() + far.transpose();
+  for (const Eigen::Vector3d& root : {far, Eigen::Vector3d(Eigen::Vector3d::Zero())}) {  // tets still, or all moving
+    Result<TetWarp> away = TetWarp::build(s.mesh, moved, g, g, Eigen::Matrix3d::Identity(), root, &s.rest_owner, {}, {});
+    ASSERT_TRUE(away.ok());
+    EXPECT_EQ(away->rasterized_tets(), root.isZero() ? s.mesh.tet_count() : 0);
+    EXPECT_EQ(away->stats().covered_voxels, 0);
+  }
 }
 
 TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {

@@ -26,9 +26,9 @@ enum class GridPolicy {
 
 struct ResampleParams {
   // Voxels just outside the mesh surface (the mesh approximates the skin) take the map of the tet under the nearest
-  // covered voxel whose centre lies within this distance of theirs, mm; 0 = two voxels of the source grid (the
-  // mesher keeps the surface within facet_distance of the label boundary, 1.5 mm by default, and covered voxel
-  // centres lie up to half a voxel inside the surface).
+  // covered voxel whose centre lies within this distance of theirs, mm (at most 8 output voxels along an axis).
+  // 0 = two source voxels along each axis (the mesher keeps the surface within facet_distance of the label
+  // boundary, 1.5 mm by default, and covered voxel centres lie up to half a voxel inside the surface).
   double shell_mm = 0.0;
   Label label_background = 0;           // label where nothing maps back into the body
   float intensity_background = -1024.f; // intensity where nothing maps back (air in HU)
@@ -48,7 +48,7 @@ struct WarpStats {
   int64_t conflicted_voxels = 0;   // inside posed tets that map back to different places (folds); bones win
   int64_t extrapolated_voxels = 0; // in the skin shell, mapped by the tet of the nearest covered voxel
   int64_t background_voxels = 0;   // outside mesh and shell: moved with the background (root) transform
-  int64_t degenerate_tets = 0;     // posed tets with no volume, skipped
+  int64_t degenerate_tets = 0;     // rasterized tets with no volume once posed, skipped
 };
 
 // The map from an output grid back to the source grid for one posed mesh.
