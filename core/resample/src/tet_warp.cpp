@@ -21,7 +21,7 @@ constexpr double kInsideTolerance = 1e-9;
 // Tets whose index box holds at most this many voxels are rasterized voxel by voxel, larger ones row by row.
 constexpr int64_t kSmallBox = 64;
 // Raster buffers a thread keeps between warps, at most (a larger warp allocates its own and frees them).
-constexpr size_t kKeptScratchBytes = size_t{64} << 20;
+constexpr size_t kKeptScratchBytes = size_t{128} << 20;
 // The skin shell reaches at most this many output voxels (each shell voxel searches that neighbourhood).
 constexpr int64_t kMaxShellVoxels = 8;
 constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
@@ -45,9 +45,7 @@ IndexSpace index_space(const ImageGeometry& g) {
 // (lambda_0 = 1 - lambda_1 - lambda_2 - lambda_3), all affine in the output index.
 struct RasterTet {
   double origin[4], di[4], dj[4], dk[4];
-  double inv_di[4];  // 1 / di, 0 where di is 0
   double lo[3], hi[3];  // index bounding box
-  double y[4], z[4];    // vertices' j and k
 };
 
 // Buffers a thread reuses from one warp to the next, and whether a warp on that thread holds them.
@@ -110,11 +108,12 @@ inline void row_start(const RasterTet& r, double j, double k, double alpha[4]) {
 
 // The i-interval of a row where every barycentric lambda_m >= -grow[m], intersected with [first, last]; false when
 // empty. Branch-free over the planes but for the rare one parallel to the row.
-inline bool row_interval(const RasterTet& r, const double alpha[4], const double grow[4], int64_t& first, int64_t& last) {
+inline bool row_interval(const RasterTet& r, const double inv_di[4], const double alpha[4], const double grow[4],
+                         int64_t& first, int64_t& last) {
   double lo = static_cast<double>(first), hi = static_cast<double>(last);
   for (int m = 0; m < 4; ++m) {
     const double a = alpha[m] + grow[m];  // a + di * i >= 0
-    const double x = -a * r.inv_di[m];
+    const double x = -a * inv_di[m];
     lo = r.di[m] > 0.0 ? std::max(lo, x) : lo;
     hi = r.di[m] < 0.0 ? std::min(hi, x) : hi;
     if (r.di[m] == 0.0 && a < 0.0) return false;
@@ -315,7 +314,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
           r.dj[m] = inverse(m - 1, 1);
           r.dk[m] = inverse(m - 1, 2);
         }
-        for (int m = 0; m < 4; ++m) r.inv_di[m] = r.di[m] != 0.0 ? 1.0 / r.di[m] : 0.0;
         // The index box, clamped in double to just outside the grid so that no later cast can overflow (a root
         // translated by 1e9 mm is finite, and valid).
         for (int a = 0; a < 3; ++a) {
@@ -323,7 +321,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
           r.lo[a] = std::clamp(std::min({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
           r.hi[a] = std::clamp(std::max({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
         }
-        for (int q = 0; q < 4; ++q) r.y[q] = u[q](1), r.z[q] = u[q](2);
         const Eigen::Matrix3d a = se * inverse;
         const Eigen::Vector3d b = s[0] - a * u[0];
         double* m = warp.maps_.get() + 12 * c;
@@ -442,14 +439,22 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
             }
             continue;
           }
+          // A larger tet, row by row: each plane k's cross-section gives the rows, each row its interval.
+          double inv_di[4], y[4], z[4];
+          for (int m = 0; m < 4; ++m) inv_di[m] = r.di[m] != 0.0 ? 1.0 / r.di[m] : 0.0;
+          for (int q = 0; q < 4; ++q) {
+            const size_t vertex = static_cast<size_t>(rest.tets(tets[static_cast<size_t>(t)], q)) * 3;
+            y[q] = posed_index[vertex + 1];
+            z[q] = posed_index[vertex + 2];
+          }
           for (int64_t k = k0; k <= k1; ++k) {
             int64_t jb = j0, je = j1;
-            if (!slice_rows(r.y, r.z, double(k), jb, je)) continue;
+            if (!slice_rows(y, z, double(k), jb, je)) continue;
             for (int64_t j = jb; j <= je; ++j) {
               double alpha[4];
               row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
-              if (!row_interval(r, alpha, kInside, first, last)) continue;
+              if (!row_interval(r, inv_di, alpha, kInside, first, last)) continue;
               const size_t row = static_cast<size_t>(j + n[1] * k);
               row_first[row] = std::min(row_first[row], static_cast<int32_t>(first));
               row_last[row] = std::max(row_last[row], static_cast<int32_t>(last));
