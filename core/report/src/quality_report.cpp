@@ -94,10 +94,6 @@ LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<
   return change;
 }
 
-LabelChange label_change(const LabelVolume& before, const LabelVolume& after) {
-  return label_change(label_counts(before), label_counts(after));
-}
-
 std::string to_json(const QualityReport& r) {
   using json = nlohmann::json;
   json doc;

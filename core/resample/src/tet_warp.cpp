@@ -24,7 +24,6 @@ constexpr int64_t kSmallBox = 64;
 constexpr size_t kKeptScratchBytes = size_t{128} << 20;
 // The skin shell reaches at most this many output voxels (each shell voxel searches that neighbourhood).
 constexpr int64_t kMaxShellVoxels = 8;
-constexpr double kInside[4] = {kInsideTolerance, kInsideTolerance, kInsideTolerance, kInsideTolerance};
 
 // Affine physical -> continuous index of a grid: u = M (x - o).
 struct IndexSpace {
@@ -106,13 +105,13 @@ inline void row_start(const RasterTet& r, double j, double k, double alpha[4]) {
   for (int m = 0; m < 4; ++m) alpha[m] = r.origin[m] + j * r.dj[m] + k * r.dk[m];
 }
 
-// The i-interval of a row where every barycentric lambda_m >= -grow[m], intersected with [first, last]; false when
-// empty. Branch-free over the planes but for the rare one parallel to the row.
-inline bool row_interval(const RasterTet& r, const double inv_di[4], const double alpha[4], const double grow[4],
-                         int64_t& first, int64_t& last) {
+// The i-interval of a row inside the tet (every barycentric >= -kInsideTolerance), intersected with [first, last];
+// false when empty. Branch-free over the planes but for the rare one parallel to the row.
+inline bool row_interval(const RasterTet& r, const double inv_di[4], const double alpha[4], int64_t& first,
+                         int64_t& last) {
   double lo = static_cast<double>(first), hi = static_cast<double>(last);
   for (int m = 0; m < 4; ++m) {
-    const double a = alpha[m] + grow[m];  // a + di * i >= 0
+    const double a = alpha[m] + kInsideTolerance;  // a + di * i >= 0
     const double x = -a * inv_di[m];
     lo = r.di[m] > 0.0 ? std::max(lo, x) : lo;
     hi = r.di[m] < 0.0 ? std::min(hi, x) : hi;
@@ -143,6 +142,15 @@ inline int64_t round_index(double x) {
 inline bool integral(double x, int64_t& n) {
   n = round_index(x);
   return std::abs(x - static_cast<double>(n)) < 1e-9;
+}
+
+// Copies `count` source voxels from whole index (x0, y, z) along x to dst, the part that lies in the grid m.
+template <typename T>
+inline void copy_source_row(const T* in, const Index3& m, int64_t x0, int64_t y, int64_t z, int64_t count, T* dst) {
+  if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
+  const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
+  const T* row = in + m[0] * (y + m[1] * z) + x0;
+  if (c0 < c1) std::copy(row + c0, row + c1, dst + c0);
 }
 
 inline void apply_map(const double* m, double i, double j, double k, double s[3]) {
@@ -454,7 +462,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
               double alpha[4];
               row_start(r, double(j), double(k), alpha);
               int64_t first = i0, last = i1;
-              if (!row_interval(r, inv_di, alpha, kInside, first, last)) continue;
+              if (!row_interval(r, inv_di, alpha, first, last)) continue;
               const size_t row = static_cast<size_t>(j + n[1] * k);
               row_first[row] = std::min(row_first[row], static_cast<int32_t>(first));
               row_last[row] = std::max(row_last[row], static_cast<int32_t>(last));
@@ -677,10 +685,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   Label* dst = out.data();
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
     if (steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
-      const int64_t x0 = round_index(s0[0]), y = round_index(s0[1]), z = round_index(s0[2]);
-      if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
-      const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
-      if (c0 < c1) std::copy(in + x0 + c0 + m[0] * (y + m[1] * z), in + x0 + c1 + m[0] * (y + m[1] * z), dst + v + c0);
+      copy_source_row(in, m, round_index(s0[0]), round_index(s0[1]), round_index(s0[2]), count, dst + v);
       return;
     }
     for (int64_t c = 0; c < count; ++c) {
@@ -717,9 +722,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
     int64_t x0 = 0, y = 0, z = 0;
     if (steps_one_x(ds[0], ds[1], ds[2]) && integral(s0[0], x0) && integral(s0[1], y) && integral(s0[2], z)) {
       // A run along a source row through voxel centres: either interpolation gives the voxels themselves.
-      if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
-      const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
-      if (c0 < c1) std::copy(in + x0 + c0 + sy * y + sz * z, in + x0 + c1 + sy * y + sz * z, dst + v + c0);
+      copy_source_row(in, m, x0, y, z, count, dst + v);
       return;
     }
     for (int64_t c = 0; c < count; ++c) {
@@ -760,12 +763,6 @@ std::vector<int32_t> TetWarp::owner() const {
     }
   }
   return tet_owner;
-}
-
-std::vector<uint8_t> TetWarp::coverage() const {
-  std::vector<uint8_t> covered(static_cast<size_t>(output_.voxel_count()));
-  for (size_t v = 0; v < covered.size(); ++v) covered[v] = owner_[v] != -1 && owner_[v] != kNoSample ? 1 : 0;
-  return covered;
 }
 
 std::vector<float> TetWarp::inverse_displacement() const {

@@ -122,8 +122,9 @@ TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   EXPECT_GT(warp->stats().background_voxels, 0);
 }
 
-TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
-  // Two tets that cover the same region after posing: soft tissue (index 0) and bone (index 1).
+// Two disjoint tets: soft tissue (index 0) at the origin and bone (index 1) at (10, 10, 10), and a 20^3 label
+// volume marking one voxel of each.
+TetMesh soft_and_bone_tets() {
   TetMesh mesh;
   mesh.vertices.resize(8, 3);
   mesh.vertices << 0, 0, 0, 6, 0, 0, 0, 6, 0, 0, 0, 6,  //
@@ -133,13 +134,24 @@ TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
   mesh.tet_class.resize(2);
   mesh.tet_class << 1, 2;
   mesh.segment_count = 1;
+  return mesh;
+}
+
+LabelVolume soft_and_bone_labels(const ImageGeometry& g) {
+  LabelVolume labels(g, 0);
+  labels.at(1, 1, 1) = 5;    // soft tissue
+  labels.at(11, 11, 11) = 7; // bone
+  return labels;
+}
+
+TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
+  // Two tets that cover the same region after posing: soft tissue (index 0) and bone (index 1).
+  const TetMesh mesh = soft_and_bone_tets();
   Eigen::MatrixXd posed = mesh.vertices;
   posed.bottomRows(4).rowwise() -= Eigen::RowVector3d(10, 10, 10);  // the bone tet folds onto the soft one
   ImageGeometry g;
   g.size = {20, 20, 20};
-  LabelVolume labels(g, 0);
-  labels.at(1, 1, 1) = 5;    // soft tissue
-  labels.at(11, 11, 11) = 7; // bone
+  const LabelVolume labels = soft_and_bone_labels(g);
   Result<TetWarp> warp = TetWarp::build(mesh, posed, g, g, Eigen::Matrix3d::Identity(),
                                         Eigen::Vector3d::Zero(), nullptr, {}, {});
   ASSERT_TRUE(warp.ok());
@@ -150,20 +162,10 @@ TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
 
 TEST(TetWarp, AMovingSoftTetFoldedOntoAStillBoneLosesAndLeavesNoGhost) {
   // The soft tet (index 0) moves onto the bone tet (index 1), which follows the background and is not rasterized.
-  TetMesh mesh;
-  mesh.vertices.resize(8, 3);
-  mesh.vertices << 0, 0, 0, 6, 0, 0, 0, 6, 0, 0, 0, 6,  //
-      10, 10, 10, 16, 10, 10, 10, 16, 10, 10, 10, 16;
-  mesh.tets.resize(2, 4);
-  mesh.tets << 0, 1, 2, 3, 4, 5, 6, 7;
-  mesh.tet_class.resize(2);
-  mesh.tet_class << 1, 2;
-  mesh.segment_count = 1;
+  const TetMesh mesh = soft_and_bone_tets();
   ImageGeometry g;
   g.size = {20, 20, 20};
-  LabelVolume labels(g, 0);
-  labels.at(1, 1, 1) = 5;    // soft tissue
-  labels.at(11, 11, 11) = 7; // bone
+  const LabelVolume labels = soft_and_bone_labels(g);
   Result<TetWarp> identity = TetWarp::build(mesh, mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
                                             Eigen::Vector3d::Zero(), nullptr, {}, {});
   ASSERT_TRUE(identity.ok());

@@ -56,7 +56,7 @@ class PoseEngine {
   Rig rig_;
   skinning::RestTetFrames frames_;
   std::map<Label, int64_t> rest_label_counts_;  // the report's "before" counts, once
-  std::vector<int32_t> rest_owner_;  // per source voxel: the rest tet covering it (-1 none), for forward fields
+  std::vector<int32_t> rest_owner_;  // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
 };
 

@@ -48,7 +48,6 @@ struct LabelChange {
 // Voxels per label value (parallel; dense counting where the values span a small range).
 std::map<Label, int64_t> label_counts(const LabelVolume& labels);
 LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<Label, int64_t>& after);
-LabelChange label_change(const LabelVolume& before, const LabelVolume& after);
 
 struct QualityReport {
   std::string pose_name;

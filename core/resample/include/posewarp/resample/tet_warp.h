@@ -87,8 +87,6 @@ class TetWarp {
   // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
   // the background transform (inside a tet that follows it, or outside the body), kNoSample where nothing maps.
   std::vector<int32_t> owner() const;
-  // 1 where the output voxel lies in a rasterized tet or its skin shell.
-  std::vector<uint8_t> coverage() const;
   // x_source - x_output in mm for every output voxel (3 floats each, x fastest): the field ITK's
   // DisplacementFieldTransform takes to resample the source onto the output grid.
   std::vector<float> inverse_displacement() const;
