@@ -184,7 +184,7 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 pose::Pose flexion(const std::string& joint, double degrees) {
   pose::Pose p;
   p.name = joint + " flexion";
-  p.joints.push_back({joint, pose::rotation_from_angles_deg(degrees, 0.0, 0.0)});
+  p.joints.push_back(pose::anatomical_rotation(joint, degrees));
   return p;
 }
 
@@ -236,7 +236,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     pose::Pose p = flexion("knee_left", 90.0);
-    p.joints.push_back({"shoulder_right", pose::rotation_from_angles_deg(0.0, -90.0, 0.0)});
+    p.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
     out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), p, repeats));
   }
   std::cout << out.dump(2) << "\n";

@@ -107,13 +107,30 @@ int run_info(const std::string& path, bool as_json) {
                         {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
   }
   json joints = json::array();
+  auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
   for (const rig::Joint& joint : s.joints) {
-    joints.push_back({{"name", joint.name},
-                      {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
-                      {"child", s.segments[static_cast<size_t>(joint.child)].name},
-                      {"centre_mm", {joint.centre_mm.x(), joint.centre_mm.y(), joint.centre_mm.z()}},
-                      {"method", joint.method},
-                      {"contact_area_mm2", joint.contact_area_mm2}});
+    json entry{{"name", joint.name},
+               {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
+               {"child", s.segments[static_cast<size_t>(joint.child)].name},
+               {"centre_mm", triple(joint.centre_mm)},
+               {"method", joint.method},
+               {"kind", labels::joint_kind_name(joint.kind)},
+               {"side", rig::body_side_name(joint.side)},
+               {"declared", joint.declared},
+               {"contact_area_mm2", joint.contact_area_mm2},
+               // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
+               {"flexion_axis", triple(joint.frame.col(0))},
+               {"flexion_moves_child", labels::flexion_direction_name(joint.flexion)},
+               {"abduction_axis", triple(joint.frame.col(1))},
+               {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
+               {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
+               {"internal_rotation_sign", joint.internal_rotation_sign}};
+    if (joint.method == "sphere-fit" || joint.method == "cylinder-fit") {
+      entry["fit_radius_mm"] = joint.sphere_radius_mm;
+      entry["fit_rms_mm"] = joint.sphere_rms_mm;
+    }
+    if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
+    joints.push_back(std::move(entry));
   }
   doc["root"] = s.segments[static_cast<size_t>(s.root)].name;
   doc["segments"] = segments;
@@ -139,13 +156,24 @@ int run_info(const std::string& path, bool as_json) {
             << "  built by posewarp " << rig->provenance.software_version << " from " << rig->provenance.labels_source
             << (rig->provenance.ct_source.empty() ? "" : " + " + rig->provenance.ct_source) << "\n"
             << "  mesh: " << rig->mesh.vertex_count() << " vertices, " << rig->mesh.tet_count() << " tets\n"
-            << "  root: " << doc["root"].get<std::string>() << "\n  joints:\n";
+            << "  root: " << doc["root"].get<std::string>() << "\n"
+            << "  joints (axes in LPS: x patient left, y posterior, z superior; a positive angle turns the child about\n"
+            << "  the axis by the right-hand rule: flexion moves the child's far end the way shown, abduction away\n"
+            << "  from the midline (midline joints: toward the left), internal rotation turns its front medially):\n";
+  auto axis_text = [](const json& v) {
+    return "(" + fixed(v[0], 2) + ", " + fixed(v[1], 2) + ", " + fixed(v[2], 2) + ")";
+  };
   for (const json& joint : joints) {
     const auto& c = joint["centre_mm"];
     std::cout << "    " << std::left << std::setw(20) << joint["name"].get<std::string>() << std::setw(16)
               << joint["parent"].get<std::string>() << "-> " << std::setw(16) << joint["child"].get<std::string>()
               << std::right << " (" << fixed(c[0], 1) << ", " << fixed(c[1], 1) << ", " << fixed(c[2], 1) << ") mm  "
-              << joint["method"].get<std::string>() << "\n";
+              << joint["method"].get<std::string>() << ", " << joint["kind"].get<std::string>() << ", "
+              << joint["side"].get<std::string>() << "\n"
+              << "      flexion about " << axis_text(joint["flexion_axis"]) << " ("
+              << joint["flexion_moves_child"].get<std::string>() << "), abduction about "
+              << axis_text(joint["abduction_axis"]) << ", internal rotation about "
+              << axis_text(joint["internal_rotation_axis"]) << "\n";
   }
   if (doc["stats"].contains("weights")) {
     const json& w = doc["stats"]["weights"];

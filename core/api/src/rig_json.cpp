@@ -1,6 +1,8 @@
 // JSON forms of the skeleton and the build parameters.
 #include "rig_json.h"
 
+#include "posewarp/rig/anatomical_frame.h"
+
 #include <nlohmann/json.hpp>
 
 namespace posewarp::api {
@@ -24,6 +26,7 @@ std::string skeleton_to_json(const rig::Skeleton& skeleton) {
                         {"voxels", s.voxels},
                         {"centroid_mm", to_json3(s.centroid_mm)},
                         {"principal_axis", to_json3(s.principal_axis)},
+                        {"elongation", s.elongation},
                         {"parent_joint", s.parent_joint}});
   }
   doc["segments"] = segments;
@@ -37,7 +40,13 @@ std::string skeleton_to_json(const rig::Skeleton& skeleton) {
                       {"method", j.method},
                       {"contact_area_mm2", j.contact_area_mm2},
                       {"sphere_radius_mm", j.sphere_radius_mm},
-                      {"sphere_rms_mm", j.sphere_rms_mm}});
+                      {"sphere_rms_mm", j.sphere_rms_mm},
+                      {"internal_rotation_sign", j.internal_rotation_sign},
+                      {"kind", labels::joint_kind_name(j.kind)},
+                      {"flexion", labels::flexion_direction_name(j.flexion)},
+                      {"side", rig::body_side_name(j.side)},
+                      {"hinge_axis", to_json3(j.hinge_axis)},
+                      {"declared", j.declared}});
   }
   doc["joints"] = joints;
   doc["missing_segments"] = skeleton.missing_segments;
@@ -57,6 +66,7 @@ Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
       segment.voxels = s.at("voxels").get<int64_t>();
       segment.centroid_mm = vec(s.at("centroid_mm"));
       segment.principal_axis = vec(s.at("principal_axis"));
+      segment.elongation = s.value("elongation", 1.0);
       segment.parent_joint = s.at("parent_joint").get<int>();
       skeleton.segments.push_back(segment);
     }
@@ -71,6 +81,21 @@ Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
       joint.contact_area_mm2 = j.at("contact_area_mm2").get<double>();
       joint.sphere_radius_mm = j.at("sphere_radius_mm").get<double>();
       joint.sphere_rms_mm = j.at("sphere_rms_mm").get<double>();
+      // Rigs written before the anatomical frames lack these; their frames keep the old meaning.
+      joint.internal_rotation_sign = j.value("internal_rotation_sign", 1);
+      if (joint.internal_rotation_sign != 1 && joint.internal_rotation_sign != -1) {
+        return data_loss_error("rig skeleton joint '" + joint.name + "' has an internal rotation sign other than +-1");
+      }
+      if (j.contains("kind")) {
+        POSEWARP_ASSIGN_OR_RETURN(joint.kind, labels::joint_kind_from_name(j["kind"].get<std::string>()));
+      }
+      if (j.contains("flexion")) {
+        POSEWARP_ASSIGN_OR_RETURN(joint.flexion, labels::flexion_direction_from_name(j["flexion"].get<std::string>()));
+      }
+      const std::string side = j.value("side", std::string("midline"));
+      joint.side = side == "left" ? rig::BodySide::kLeft : side == "right" ? rig::BodySide::kRight : rig::BodySide::kMidline;
+      if (j.contains("hinge_axis")) joint.hinge_axis = vec(j["hinge_axis"]);
+      joint.declared = j.value("declared", false);
       skeleton.joints.push_back(joint);
     }
     skeleton.missing_segments = doc.at("missing_segments").get<std::vector<std::string>>();
@@ -95,7 +120,8 @@ std::string params_to_json(const BuildParams& p) {
   json doc;
   doc["skeleton"] = {{"contact_distance_mm", p.skeleton.contact_distance_mm},
                      {"sphere_max_relative_rms", p.skeleton.sphere_max_relative_rms},
-                     {"sphere_min_points", p.skeleton.sphere_min_points}};
+                     {"sphere_min_points", p.skeleton.sphere_min_points},
+                     {"max_centre_offset_mm", p.skeleton.max_centre_offset_mm}};
   doc["body"] = {{"use_ct", p.body.use_ct},
                  {"ct_threshold_hu", p.body.ct_threshold_hu},
                  {"keep_largest_component", p.body.keep_largest_component},

@@ -38,6 +38,45 @@ Result<LabelRole> role_from_name(std::string_view name) {
                                 "'; use one of background, bone, tissue, ignore");
 }
 
+std::string_view joint_kind_name(JointKind kind) {
+  switch (kind) {
+    case JointKind::kUnspecified: return "unspecified";
+    case JointKind::kBall: return "ball";
+    case JointKind::kHinge: return "hinge";
+    case JointKind::kPlane: return "plane";
+  }
+  return "unspecified";
+}
+
+Result<JointKind> joint_kind_from_name(std::string_view name) {
+  if (name == "unspecified") return JointKind::kUnspecified;
+  if (name == "ball") return JointKind::kBall;
+  if (name == "hinge") return JointKind::kHinge;
+  if (name == "plane") return JointKind::kPlane;
+  return invalid_argument_error("unknown joint kind '" + std::string(name) +
+                                "'; use one of ball (hip, shoulder), hinge (knee, elbow, ankle), plane, unspecified");
+}
+
+std::string_view flexion_direction_name(FlexionDirection direction) {
+  switch (direction) {
+    case FlexionDirection::kAnterior: return "anterior";
+    case FlexionDirection::kPosterior: return "posterior";
+    case FlexionDirection::kSuperior: return "superior";
+    case FlexionDirection::kInferior: return "inferior";
+  }
+  return "anterior";
+}
+
+Result<FlexionDirection> flexion_direction_from_name(std::string_view name) {
+  if (name == "anterior") return FlexionDirection::kAnterior;
+  if (name == "posterior") return FlexionDirection::kPosterior;
+  if (name == "superior") return FlexionDirection::kSuperior;
+  if (name == "inferior") return FlexionDirection::kInferior;
+  return invalid_argument_error("unknown flexion direction '" + std::string(name) +
+                                "'; use the way flexion moves the child's far end: anterior (hip, shoulder, elbow, "
+                                "spine), posterior (knee), superior (ankle dorsiflexion) or inferior");
+}
+
 Result<LabelMap> LabelMap::create(std::string name, std::vector<LabelEntry> entries,
                                   std::vector<JointName> joint_names, std::string root_segment) {
   LabelMap map;
@@ -68,6 +107,9 @@ Result<LabelMap> LabelMap::create(std::string name, std::vector<LabelEntry> entr
         return invalid_argument_error("joint name '" + joint.name + "' refers to segment '" + *segment +
                                       "', which no bone label of the map belongs to");
       }
+    }
+    if (joint.segment_a == joint.segment_b) {
+      return invalid_argument_error("joint '" + joint.name + "' joins segment '" + joint.segment_a + "' to itself");
     }
   }
   if (!root_segment.empty() && !known.count(root_segment)) {
@@ -105,6 +147,16 @@ std::vector<Label> LabelMap::labels_of_segment(std::string_view segment) const {
     if (entry.role == LabelRole::kBone && entry.segment == segment) values.push_back(entry.value);
   }
   return values;
+}
+
+const JointName* LabelMap::declared_joint(std::string_view segment_a, std::string_view segment_b) const {
+  for (const JointName& joint : joint_names_) {
+    if ((joint.segment_a == segment_a && joint.segment_b == segment_b) ||
+        (joint.segment_a == segment_b && joint.segment_b == segment_a)) {
+      return &joint;
+    }
+  }
+  return nullptr;
 }
 
 std::optional<std::string> LabelMap::joint_name(std::string_view segment_a, std::string_view segment_b) const {
@@ -162,13 +214,39 @@ Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_vie
     std::vector<JointName> joints;
     if (doc.contains("joints")) {
       for (const json& item : doc["joints"]) {
-        const json segments = item.value("segments", json::array());
-        if (!segments.is_array() || segments.size() != 2) {
-          return invalid_argument_error("label map " + where + ": joint " + item.dump() +
-                                        " needs \"segments\": [a, b]");
+        if (!item.is_object()) {
+          return invalid_argument_error("label map " + where + ": each joint must be an object, got " +
+                                        item.type_name());
         }
-        joints.push_back({item.value("name", std::string()), segments[0].get<std::string>(),
-                          segments[1].get<std::string>()});
+        JointName joint;
+        joint.name = item.value("name", std::string());
+        if (item.contains("parent") || item.contains("child")) {
+          joint.segment_a = item.value("parent", std::string());
+          joint.segment_b = item.value("child", std::string());
+        } else {
+          const json segments = item.value("segments", json::array());
+          if (!segments.is_array() || segments.size() != 2) {
+            return invalid_argument_error("label map " + where + ": joint '" + joint.name +
+                                          "' needs \"parent\" and \"child\" (or \"segments\": [parent, child])");
+          }
+          joint.segment_a = segments[0].get<std::string>();
+          joint.segment_b = segments[1].get<std::string>();
+        }
+        if (joint.segment_a.empty() || joint.segment_b.empty()) {
+          return invalid_argument_error("label map " + where + ": joint '" + joint.name +
+                                        "' needs both \"parent\" and \"child\"");
+        }
+        if (item.contains("kind")) {
+          Result<JointKind> kind = joint_kind_from_name(item["kind"].get<std::string>());
+          if (!kind.ok()) return kind.status().with_context("label map " + where + ", joint '" + joint.name + "'");
+          joint.kind = *kind;
+        }
+        if (item.contains("flexion")) {
+          Result<FlexionDirection> flexion = flexion_direction_from_name(item["flexion"].get<std::string>());
+          if (!flexion.ok()) return flexion.status().with_context("label map " + where + ", joint '" + joint.name + "'");
+          joint.flexion = *flexion;
+        }
+        joints.push_back(std::move(joint));
       }
     }
     Result<LabelMap> map = LabelMap::create(doc.value("name", std::string(source)), std::move(entries),
@@ -195,7 +273,11 @@ std::string label_map_to_json(const LabelMap& map) {
   doc["labels"] = std::move(labels);
   json joints = json::array();
   for (const JointName& joint : map.joint_names()) {
-    joints.push_back({{"name", joint.name}, {"segments", {joint.segment_a, joint.segment_b}}});
+    joints.push_back({{"name", joint.name},
+                      {"parent", joint.segment_a},
+                      {"child", joint.segment_b},
+                      {"kind", joint_kind_name(joint.kind)},
+                      {"flexion", flexion_direction_name(joint.flexion)}});
   }
   doc["joints"] = std::move(joints);
   return doc.dump(2) + "\n";

@@ -127,35 +127,41 @@ LabelMap totalsegmentator_v2_preset() {
       {116, "sternum", LabelRole::kBone, "thorax"},
       {117, "costal_cartilages", LabelRole::kBone, "thorax"},
   };
+  // Declared parent -> child in anatomical order; the automatic tree takes them first, so the shoulder girdle hangs
+  // thorax -> clavicle -> scapula -> humerus (scapulothoracic only when a clavicle is missing) and the pelvic ring
+  // opens at the pubic symphysis.
+  constexpr JointKind kBall = JointKind::kBall;
+  constexpr JointKind kPlane = JointKind::kPlane;
   std::vector<JointName> joints = {
-      {"hip_left", "hip_left", "femur_left"},
-      {"hip_right", "hip_right", "femur_right"},
-      {"sacroiliac_left", "sacrum", "hip_left"},
-      {"sacroiliac_right", "sacrum", "hip_right"},
-      {"pubic_symphysis", "hip_left", "hip_right"},
-      {"lumbosacral", "sacrum", "vertebrae_L5"},
-      {"L4_L5", "vertebrae_L5", "vertebrae_L4"},
-      {"L3_L4", "vertebrae_L4", "vertebrae_L3"},
-      {"L2_L3", "vertebrae_L3", "vertebrae_L2"},
-      {"L1_L2", "vertebrae_L2", "vertebrae_L1"},
-      {"thoracolumbar", "vertebrae_L1", "thorax"},
-      {"cervicothoracic", "thorax", "vertebrae_C7"},
-      {"C6_C7", "vertebrae_C7", "vertebrae_C6"},
-      {"C5_C6", "vertebrae_C6", "vertebrae_C5"},
-      {"C4_C5", "vertebrae_C5", "vertebrae_C4"},
-      {"C3_C4", "vertebrae_C4", "vertebrae_C3"},
-      {"C2_C3", "vertebrae_C3", "vertebrae_C2"},
-      {"atlantoaxial", "vertebrae_C2", "vertebrae_C1"},
-      {"atlanto_occipital", "vertebrae_C1", "skull"},
-      {"shoulder_left", "scapula_left", "humerus_left"},
-      {"shoulder_right", "scapula_right", "humerus_right"},
-      {"acromioclavicular_left", "clavicula_left", "scapula_left"},
-      {"acromioclavicular_right", "clavicula_right", "scapula_right"},
-      {"sternoclavicular_left", "thorax", "clavicula_left"},
-      {"sternoclavicular_right", "thorax", "clavicula_right"},
-      {"scapulothoracic_left", "thorax", "scapula_left"},
-      {"scapulothoracic_right", "thorax", "scapula_right"},
+      {"sacroiliac_left", "sacrum", "hip_left", kPlane},
+      {"sacroiliac_right", "sacrum", "hip_right", kPlane},
+      {"hip_left", "hip_left", "femur_left", kBall},
+      {"hip_right", "hip_right", "femur_right", kBall},
+      {"lumbosacral", "sacrum", "vertebrae_L5", kPlane},
+      {"L4_L5", "vertebrae_L5", "vertebrae_L4", kPlane},
+      {"L3_L4", "vertebrae_L4", "vertebrae_L3", kPlane},
+      {"L2_L3", "vertebrae_L3", "vertebrae_L2", kPlane},
+      {"L1_L2", "vertebrae_L2", "vertebrae_L1", kPlane},
+      {"thoracolumbar", "vertebrae_L1", "thorax", kPlane},
+      {"cervicothoracic", "thorax", "vertebrae_C7", kPlane},
+      {"C6_C7", "vertebrae_C7", "vertebrae_C6", kPlane},
+      {"C5_C6", "vertebrae_C6", "vertebrae_C5", kPlane},
+      {"C4_C5", "vertebrae_C5", "vertebrae_C4", kPlane},
+      {"C3_C4", "vertebrae_C4", "vertebrae_C3", kPlane},
+      {"C2_C3", "vertebrae_C3", "vertebrae_C2", kPlane},
+      {"atlantoaxial", "vertebrae_C2", "vertebrae_C1", kPlane},
+      {"atlanto_occipital", "vertebrae_C1", "skull", kPlane},
+      {"sternoclavicular_left", "thorax", "clavicula_left", kPlane},
+      {"sternoclavicular_right", "thorax", "clavicula_right", kPlane},
+      {"acromioclavicular_left", "clavicula_left", "scapula_left", kPlane},
+      {"acromioclavicular_right", "clavicula_right", "scapula_right", kPlane},
+      {"shoulder_left", "scapula_left", "humerus_left", kBall},
+      {"shoulder_right", "scapula_right", "humerus_right", kBall},
+      {"scapulothoracic_left", "thorax", "scapula_left", kPlane},
+      {"scapulothoracic_right", "thorax", "scapula_right", kPlane},
+      {"pubic_symphysis", "hip_left", "hip_right", kPlane},
   };
+
   Result<LabelMap> map = LabelMap::create("totalsegmentator_v2", std::move(entries), std::move(joints), "sacrum");
   assert(map.ok() && "the built-in preset is valid");
   return std::move(map).value();

@@ -332,7 +332,11 @@ Result<Phantom> make_mannequin(const MannequinParams& p) {
   }
   std::vector<JointName> joint_names;
   for (const JointTruth& joint : phantom.joints) {
-    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment});
+    const bool ball = joint.kind == "ball";
+    const bool knee = joint.name.rfind("knee", 0) == 0;
+    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment,
+                           ball ? labels::JointKind::kBall : labels::JointKind::kPlane,
+                           knee ? labels::FlexionDirection::kPosterior : labels::FlexionDirection::kAnterior});
   }
   phantom.root_segment = "pelvis";
   POSEWARP_ASSIGN_OR_RETURN(phantom.label_map, labels::LabelMap::create("mannequin_phantom", std::move(entries),

@@ -51,9 +51,8 @@ Result<std::vector<RigidTransform>> forward_kinematics(const rig::Skeleton& skel
     joints_from[static_cast<size_t>(joint.parent)].push_back(static_cast<int>(j));
   }
 
-  std::map<std::string, Eigen::Matrix3d> rotation_of;
-  for (const JointRotation& joint : pose.joints)
-    rotation_of[joint.joint] = joint.rotation.normalized().toRotationMatrix();
+  std::map<std::string, const JointRotation*> rotation_of;
+  for (const JointRotation& joint : pose.joints) rotation_of[joint.joint] = &joint;
 
   const rig::Segment& root = skeleton.segments[static_cast<size_t>(skeleton.root)];
   std::vector<RigidTransform> transforms(static_cast<size_t>(segment_count));
@@ -70,8 +69,8 @@ Result<std::vector<RigidTransform>> forward_kinematics(const rig::Skeleton& skel
     for (const int j : joints_from[static_cast<size_t>(s)]) {
       const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
       const auto it = rotation_of.find(joint.name);
-      const Eigen::Matrix3d local = it == rotation_of.end() ? Eigen::Matrix3d::Identity() : it->second;
-      const Eigen::Matrix3d world = joint.frame * local * joint.frame.transpose();
+      const Eigen::Matrix3d world =
+          it == rotation_of.end() ? Eigen::Matrix3d::Identity() : joint_rotation_in_lps(joint, *it->second);
       transforms[static_cast<size_t>(joint.child)] =
           transforms[static_cast<size_t>(s)] * RigidTransform::about(world, joint.centre_mm);
       reached[static_cast<size_t>(joint.child)] = true;

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include <initializer_list>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -39,7 +40,10 @@ Result<Eigen::VectorXd> finite_numbers(const Json& value, int size, const std::s
 
 // Reads an object holding exactly one of "quaternion", "axis_angle", "angles_deg" (see pose.h); `where` names the
 // joint or the root for the messages. The quaternion of the result is normalized (after the unit check).
-Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::string& where);
+// When `angles_deg` is given and the object uses "angles_deg", the angles are stored there too; without it the form
+// is refused (the root takes no anatomical angles).
+Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::string& where,
+                                              std::optional<Eigen::Vector3d>* angles_deg = nullptr);
 // {"quaternion": [w, x, y, z]}
 Json rotation_to_json(const Eigen::Quaterniond& rotation);
 

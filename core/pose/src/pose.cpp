@@ -7,6 +7,7 @@
 #include <set>
 
 #include "json_util.h"
+#include "posewarp/rig/anatomical_frame.h"
 
 namespace posewarp::pose {
 namespace {
@@ -74,9 +75,10 @@ Result<Pose> pose_from_object(const Json& doc, const std::string& where) {
                                     joints.dump() + ")");
     }
     for (const auto& [name, rotation] : joints.items()) {
+      std::optional<Eigen::Vector3d> angles;
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::Quaterniond q,
-                                rotation_from_json(rotation, where + ", joint \"" + name + "\""));
-      pose.joints.push_back({name, q});
+                                rotation_from_json(rotation, where + ", joint \"" + name + "\"", &angles));
+      pose.joints.push_back({name, q, angles});
     }
   }
   return pose;
@@ -94,12 +96,36 @@ Json pose_to_object(const Pose& pose) {
                        {"rotation", rotation_to_json(Eigen::Quaterniond(pose.root.rotation))}};
   }
   Json joints = Json::object();
-  for (const JointRotation& joint : pose.joints) joints[joint.joint] = rotation_to_json(joint.rotation);
+  for (const JointRotation& joint : pose.joints) {
+    if (joint.angles_deg) {
+      const Eigen::Vector3d& a = *joint.angles_deg;
+      joints[joint.joint] = Json{{"angles_deg", Json{{"flexion", a.x()}, {"abduction", a.y()}, {"rotation", a.z()}}}};
+    } else {
+      joints[joint.joint] = rotation_to_json(joint.rotation);
+    }
+  }
   doc["joints"] = std::move(joints);
   return doc;
 }
 
 }  // namespace detail
+
+JointRotation anatomical_rotation(std::string joint, double flexion_deg, double abduction_deg,
+                                  double internal_rotation_deg) {
+  JointRotation rotation;
+  rotation.joint = std::move(joint);
+  rotation.angles_deg = Eigen::Vector3d(flexion_deg, abduction_deg, internal_rotation_deg);
+  rotation.rotation = rotation_from_angles_deg(flexion_deg, abduction_deg, internal_rotation_deg);
+  return rotation;
+}
+
+Eigen::Matrix3d joint_rotation_in_lps(const rig::Joint& joint, const JointRotation& rotation) {
+  if (rotation.angles_deg) {
+    const Eigen::Vector3d& a = *rotation.angles_deg;
+    return rig::joint_rotation_from_angles(joint, a.x(), a.y(), a.z());
+  }
+  return joint.frame * rotation.rotation.normalized().toRotationMatrix() * joint.frame.transpose();
+}
 
 Result<Pose> pose_from_json(const std::string& text, const std::string& source) {
   const std::string where = "pose " + source;
@@ -140,6 +166,10 @@ Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton) {
     }
     if (!seen.insert(joint.joint).second) {
       return invalid_argument_error(where + " gives joint \"" + joint.joint + "\" twice; give each joint one rotation");
+    }
+    if (joint.angles_deg && !joint.angles_deg->allFinite()) {
+      return invalid_argument_error(where + ", joint \"" + joint.joint +
+                                    "\": an anatomical angle is NaN or infinite; give finite degrees");
     }
     const Eigen::Quaterniond& q = joint.rotation;
     if (!q.coeffs().allFinite()) {

@@ -141,7 +141,8 @@ Result<Eigen::VectorXd> finite_numbers(const Json& value, int size, const std::s
   return numbers;
 }
 
-Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::string& where) {
+Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::string& where,
+                                              std::optional<Eigen::Vector3d>* angles_deg) {
   if (!object.is_object()) {
     return invalid_argument_error(where + " must be an object (got " + object.dump() + "); " + kRotationForms);
   }
@@ -188,6 +189,10 @@ Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::str
 
   const Json& angles = object["angles_deg"];
   const std::string inner = where + ", \"angles_deg\"";
+  if (angles_deg == nullptr) {
+    return invalid_argument_error(inner + ": anatomical angles belong to joints; give the root's rotation as a "
+                                  "\"quaternion\" or an \"axis_angle\" in LPS axes");
+  }
   if (!angles.is_object()) {
     return invalid_argument_error(inner + " must be {\"flexion\": d, \"abduction\": d, \"rotation\": d} (got " +
                                   angles.dump() + ")");
@@ -200,6 +205,7 @@ Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::str
       POSEWARP_ASSIGN_OR_RETURN(values[i], finite_number(angles[names[i]], inner, names[i]));
     }
   }
+  *angles_deg = Eigen::Vector3d(values[0], values[1], values[2]);
   return rotation_from_angles_deg(values[0], values[1], values[2]);
 }
 

@@ -13,7 +13,9 @@
 
 #include "posewarp/rig/skeleton.h"
 
+#include "joint_fit.h"
 #include "posewarp/common/tet_mesh.h"
+#include "posewarp/rig/anatomical_frame.h"
 
 namespace posewarp::rig {
 namespace {
@@ -22,47 +24,8 @@ namespace {
 struct Contact {
   int64_t count = 0;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-  std::vector<Eigen::Vector3d> points;
+  std::vector<Index3> voxels;
 };
-
-struct SphereFit {
-  bool accepted = false;
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  double radius = 0.0;
-  double rms = 0.0;
-};
-
-// Algebraic least-squares sphere |p - c|^2 = r^2, accepted when the points are a good cap of it.
-SphereFit fit_sphere(const std::vector<Eigen::Vector3d>& points, const SkeletonParams& params) {
-  SphereFit fit;
-  if (static_cast<int>(points.size()) < params.sphere_min_points) return fit;
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const auto& p : points) mean += p;
-  mean /= static_cast<double>(points.size());
-  Eigen::MatrixXd a(static_cast<Eigen::Index>(points.size()), 4);
-  Eigen::VectorXd b(static_cast<Eigen::Index>(points.size()));
-  double extent = 0.0;
-  for (size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3d q = points[i] - mean;
-    a.row(static_cast<Eigen::Index>(i)) << 2.0 * q.x(), 2.0 * q.y(), 2.0 * q.z(), 1.0;
-    b(static_cast<Eigen::Index>(i)) = q.squaredNorm();
-    extent = std::max(extent, q.norm());
-  }
-  const Eigen::Vector4d x = a.colPivHouseholderQr().solve(b);
-  const Eigen::Vector3d c = x.head<3>();
-  const double r2 = x(3) + c.squaredNorm();
-  if (!(r2 > 0.0)) return fit;
-  fit.radius = std::sqrt(r2);
-  fit.centre = c + mean;
-  double sum = 0.0;
-  for (const auto& p : points) {
-    const double e = (p - fit.centre).norm() - fit.radius;
-    sum += e * e;
-  }
-  fit.rms = std::sqrt(sum / static_cast<double>(points.size()));
-  fit.accepted = fit.radius < 1.5 * extent && fit.rms < params.sphere_max_relative_rms * fit.radius;
-  return fit;
-}
 
 struct DisjointSets {
   std::vector<int> parent;
@@ -85,23 +48,229 @@ Eigen::Vector3d physical(const ImageGeometry& g, int64_t i, int64_t j, int64_t k
   return {p[0], p[1], p[2]};
 }
 
-// Rest frame of a joint: z along the child's principal axis (pointing into the child), x along the contact
-// normal when it is not parallel to z, else along the patient's left (LPS x) or, failing that, posterior.
-Eigen::Matrix3d joint_frame(const Eigen::Vector3d& centre, const Segment& child, const Eigen::Vector3d& normal) {
-  Eigen::Vector3d z = child.principal_axis.normalized();
-  if (z.dot(child.centroid_mm - centre) < 0.0) z = -z;
-  Eigen::Vector3d x = normal;
-  if (x.norm() < 1e-9 || std::abs(x.normalized().dot(z)) > std::cos(30.0 * M_PI / 180.0)) {
-    x = Eigen::Vector3d::UnitX();
-    if (std::abs(x.dot(z)) > 0.9) x = Eigen::Vector3d::UnitY();
+// The centres of the faces between voxel v of segment s and its 6-neighbours outside s: the bone's boundary at the
+// true position of the voxel surface, whatever the spacing (voxel centres would sit half a slice inside the bone).
+void add_face_points(const ImageGeometry& g, const std::vector<int16_t>& segment_at, int s, const Index3& v,
+                     std::vector<Eigen::Vector3d>& out) {
+  static constexpr int kFaces[6][3] = {{-1, 0, 0}, {1, 0, 0}, {0, -1, 0}, {0, 1, 0}, {0, 0, -1}, {0, 0, 1}};
+  for (const auto& f : kFaces) {
+    const int64_t x = v[0] + f[0], y = v[1] + f[1], z = v[2] + f[2];
+    const bool inside = x >= 0 && y >= 0 && z >= 0 && x < g.size[0] && y < g.size[1] && z < g.size[2] &&
+                        segment_at[static_cast<size_t>(g.offset(x, y, z))] == s;
+    if (inside) continue;
+    const Vec3 p = g.index_to_physical({v[0] + 0.5 * f[0], v[1] + 0.5 * f[1], v[2] + 0.5 * f[2]});
+    out.emplace_back(p[0], p[1], p[2]);
   }
-  x = (x - x.dot(z) * z).normalized();
-  const Eigen::Vector3d y = z.cross(x);
-  Eigen::Matrix3d frame;
-  frame.col(0) = x;
-  frame.col(1) = y;
-  frame.col(2) = z;
-  return frame;
+}
+
+// What placing a joint needs from the skeleton builder.
+struct JointPlacement {
+  const ImageGeometry& g;
+  const labels::LabelMap& map;
+  const RigSpec& spec;
+  const SkeletonParams& params;
+  Skeleton& skeleton;
+  const std::vector<int16_t>& segment_at;
+  const std::vector<std::vector<Index3>>& surface;
+  const std::map<std::pair<int, int>, Contact>& contacts;
+  double max_spacing;
+  double max_offset;
+};
+
+// Face points of segment s's boundary voxels in `voxels`, or of all its boundary voxels within `radius` of `near`.
+std::vector<Eigen::Vector3d> face_points(const JointPlacement& at, int s, const std::vector<Index3>& voxels) {
+  std::vector<Eigen::Vector3d> points;
+  for (const Index3& v : voxels) add_face_points(at.g, at.segment_at, s, v, points);
+  return points;
+}
+
+std::vector<Eigen::Vector3d> face_points_near(const JointPlacement& at, int s, const Eigen::Vector3d& near, double radius) {
+  std::vector<Eigen::Vector3d> points;
+  for (const Index3& v : at.surface[static_cast<size_t>(s)]) {
+    if ((physical(at.g, v[0], v[1], v[2]) - near).squaredNorm() < radius * radius) {
+      add_face_points(at.g, at.segment_at, s, v, points);
+    }
+  }
+  return points;
+}
+
+// Within max_offset of a voxel of either bone (or inside one): a centre a joint can turn about without tearing
+// the bones it joins apart.
+bool centre_is_plausible(const JointPlacement& at, const Eigen::Vector3d& centre, int parent, int child,
+                         const Contact* to_child, const Contact* to_parent) {
+  if (!centre.allFinite()) return false;
+  const Vec3 index = at.g.physical_to_index({centre.x(), centre.y(), centre.z()});
+  const int64_t i = std::llround(index[0]), j = std::llround(index[1]), k = std::llround(index[2]);
+  if (i >= 0 && j >= 0 && k >= 0 && i < at.g.size[0] && j < at.g.size[1] && k < at.g.size[2]) {
+    const int s = at.segment_at[static_cast<size_t>(at.g.offset(i, j, k))];
+    if (s == parent || s == child) return true;
+  }
+  for (const Contact* contact : {to_child, to_parent}) {
+    if (contact == nullptr) continue;
+    for (const Index3& v : contact->voxels) {
+      if ((physical(at.g, v[0], v[1], v[2]) - centre).norm() <= at.max_offset) return true;
+    }
+  }
+  return false;
+}
+
+// Places the joint between parent s and child c: its centre from the articular geometry (a sphere fitted to a ball,
+// a cylinder to a hinge's convex side, else the contact centroid), checked for sanity, then its anatomical frame.
+Joint place_joint(const JointPlacement& at, int s, int c, double area) {
+  Skeleton& skeleton = at.skeleton;
+  const Segment& parent_segment = skeleton.segments[static_cast<size_t>(s)];
+  const Segment& child_segment = skeleton.segments[static_cast<size_t>(c)];
+  Joint joint;
+  joint.parent = s;
+  joint.child = c;
+  joint.contact_area_mm2 = area;
+  const std::string& pn = parent_segment.name;
+  const std::string& cn = child_segment.name;
+  joint.name = at.map.joint_name(pn, cn).value_or(pn + "__" + cn);
+  if (const labels::JointName* declared = at.map.declared_joint(pn, cn)) {
+    joint.kind = declared->kind;
+    joint.flexion = declared->flexion;
+    joint.declared = true;
+    if (declared->segment_a != pn) {
+      skeleton.notes.push_back("joint '" + joint.name + "' is declared " + declared->segment_a + " -> " +
+                               declared->segment_b + ", but the root's position made " + cn +
+                               " the child; its flexion sense follows the child");
+    }
+  }
+
+  const auto to_child_it = at.contacts.find({s, c});   // parent's voxels near the child
+  const auto to_parent_it = at.contacts.find({c, s});  // child's voxels near the parent
+  const Contact* to_child = to_child_it == at.contacts.end() ? nullptr : &to_child_it->second;
+  const Contact* to_parent = to_parent_it == at.contacts.end() ? nullptr : &to_parent_it->second;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  if (to_child || to_parent) {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double count = 0.0;
+    for (const Contact* contact : {to_child, to_parent}) {
+      if (!contact) continue;
+      sum += contact->sum;
+      count += static_cast<double>(contact->count);
+    }
+    centroid = sum / count;
+    joint.centre_mm = centroid;
+    joint.method = "contact-centroid";
+  } else {
+    // Proximity attachment: the child's surface voxel nearest to the parent's centroid.
+    double best = std::numeric_limits<double>::infinity();
+    for (const Index3& v : at.surface[static_cast<size_t>(c)]) {
+      const Eigen::Vector3d p = physical(at.g, v[0], v[1], v[2]);
+      const double d = (p - parent_segment.centroid_mm).norm();
+      if (d < best) best = d, joint.centre_mm = p;
+    }
+    joint.method = "proximity";
+  }
+
+  if (to_child && to_parent) {
+    // Points into the child: the convex side of a ball or a hinge has its centre on its own bone's side.
+    const Eigen::Vector3d normal = (to_parent->sum / static_cast<double>(to_parent->count) -
+                                    to_child->sum / static_cast<double>(to_child->count));
+    detail::FitParams fit_params;
+    fit_params.max_relative_rms = at.params.sphere_max_relative_rms;
+    fit_params.min_points = at.params.sphere_min_points;
+    fit_params.band_floor_mm = 0.5 * at.max_spacing;
+    constexpr double kPoolRadiusMm = 90.0;
+    // Bone b (the child when towards_child is +1) is convex here when the fit's centre lies on its side.
+    auto convex = [&](const detail::SurfaceFit& fit, double towards_child) {
+      return fit.accepted && (fit.centre - centroid).dot(normal) * towards_child > 0.0;
+    };
+    std::string refused;
+    if (joint.kind == labels::JointKind::kBall || joint.kind == labels::JointKind::kUnspecified) {
+      const detail::SurfaceFit head = detail::fit_sphere(face_points(at, c, to_parent->voxels),
+                                                         face_points_near(at, c, centroid, kPoolRadiusMm), fit_params);
+      bool take = convex(head, 1.0);
+      if (take && joint.kind == labels::JointKind::kUnspecified) {
+        // Undeclared: a ball only where the parent's contact is a concentric cup (a flat bone end fits a sphere
+        // too, but the opposite end's sphere then lies elsewhere).
+        detail::FitParams loose = fit_params;
+        loose.max_relative_rms *= 2.0;
+        const std::vector<Eigen::Vector3d> cup_points = face_points(at, s, to_child->voxels);
+        const detail::SurfaceFit cup = detail::fit_sphere(cup_points, cup_points, loose);
+        take = cup.accepted && (cup.centre - head.centre).norm() < 0.3 * head.radius;
+      }
+      if (take && centre_is_plausible(at, head.centre, s, c, to_child, to_parent)) {
+        joint.centre_mm = head.centre;
+        joint.method = "sphere-fit";
+        joint.sphere_radius_mm = head.radius;
+        joint.sphere_rms_mm = head.rms;
+      } else if (joint.kind == labels::JointKind::kBall) {
+        refused = head.accepted ? "its sphere fit is not on the head's side or too far from the bones"
+                                : "no sphere fits the head (" + head.reason + ")";
+      }
+    } else if (joint.kind == labels::JointKind::kHinge) {
+      // The convex side is the femoral condyles / humeral trochlea (parent) or the talar dome (child); the axis is
+      // mediolateral, across the bone's long axis.
+      detail::SurfaceFit best;
+      for (const int side : {s, c}) {
+        const Segment& bone = skeleton.segments[static_cast<size_t>(side)];
+        Eigen::Vector3d guess = Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX().dot(bone.principal_axis) * bone.principal_axis;
+        if (guess.norm() < 0.3) guess = Eigen::Vector3d::UnitX();
+        const double max_radius = 60.0;
+        const detail::SurfaceFit fit = detail::fit_cylinder(face_points_near(at, side, centroid, 0.6 * kPoolRadiusMm),
+                                                            guess, 25.0, max_radius, fit_params);
+        if (!convex(fit, side == c ? 1.0 : -1.0)) {
+          if (refused.empty()) refused = fit.accepted ? "a cylinder fits only the concave side" : fit.reason;
+          continue;
+        }
+        if (!centre_is_plausible(at, fit.centre, s, c, to_child, to_parent)) continue;
+        if (!best.accepted || fit.rms / fit.radius < best.rms / best.radius) best = fit;
+      }
+      if (best.accepted) {
+        joint.centre_mm = best.centre;
+        joint.hinge_axis = best.axis.x() >= 0.0 ? best.axis : Eigen::Vector3d(-best.axis);
+        joint.method = "cylinder-fit";
+        joint.sphere_radius_mm = best.radius;
+        joint.sphere_rms_mm = best.rms;
+        refused.clear();
+      } else {
+        refused = "no cylinder fits its condyles (" + refused + ")";
+      }
+    }
+    if (!refused.empty()) {
+      skeleton.notes.push_back("joint '" + joint.name + "' is declared a " + std::string(labels::joint_kind_name(joint.kind)) +
+                               ", but " + refused + "; it is placed at the contact centroid (check it, or give its "
+                               "centre in a rig spec)");
+    }
+  }
+
+  for (const JointSpec& js : at.spec.joints) {
+    if (js.child != cn) continue;
+    if (!js.name.empty()) joint.name = js.name;
+    if (js.centre_mm) {
+      joint.centre_mm = *js.centre_mm;
+      joint.method = "rig-spec";
+    }
+  }
+  if (joint.method != "rig-spec" && !centre_is_plausible(at, joint.centre_mm, s, c, to_child, to_parent) &&
+      (to_child || to_parent)) {
+    skeleton.notes.push_back("joint '" + joint.name + "': the " + joint.method + " centre lies far from both bones; "
+                             "the contact centroid is used instead");
+    joint.centre_mm = centroid;
+    joint.method = "contact-centroid";
+  }
+
+  // The frame: the child's long axis from the centre into the child, the patient's axes, the side. A bone that is
+  // not long, or whose longest spread runs across the way it leaves the joint (a vertebra is wider than tall, the
+  // thorax too), points from the joint to its centroid instead.
+  constexpr double kLongBone = 1.5;
+  constexpr double kAlongJoint = 0.7;  // cos 45 degrees
+  const Eigen::Vector3d to_centroid = child_segment.centroid_mm - joint.centre_mm;
+  Eigen::Vector3d long_axis = child_segment.principal_axis.normalized();
+  if (long_axis.dot(to_centroid) < 0.0) long_axis = -long_axis;
+  const bool long_bone = child_segment.elongation >= kLongBone &&
+                         long_axis.dot(to_centroid) >= kAlongJoint * to_centroid.norm();
+  if (!long_bone && to_centroid.norm() > 1e-6) long_axis = to_centroid.normalized();
+  const Segment& root = skeleton.segments[static_cast<size_t>(skeleton.root)];
+  joint.side = side_of_joint(joint.name, cn, child_segment.centroid_mm, root.centroid_mm);
+  const AnatomicalFrame frame = anatomical_frame(long_axis, joint.flexion, joint.side, joint.hinge_axis);
+  joint.frame = frame.frame;
+  joint.internal_rotation_sign = frame.internal_rotation_sign;
+  if (frame.degenerate) skeleton.notes.push_back("joint '" + joint.name + "': " + frame.note);
+  return joint;
 }
 
 }  // namespace
@@ -245,6 +414,8 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
         second_moment[static_cast<size_t>(s)] / count - segment.centroid_mm * segment.centroid_mm.transpose();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen(covariance);
     segment.principal_axis = eigen.eigenvectors().col(2).normalized();
+    const Eigen::Vector3d spread = eigen.eigenvalues().cwiseMax(1e-12);
+    segment.elongation = std::sqrt(spread(2) / spread(1));
   }
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   progress.update(0.2);
@@ -280,7 +451,7 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
         Contact& contact = contacts[{s, other}];
         ++contact.count;
         contact.sum += p;
-        contact.points.push_back(p);
+        contact.voxels.push_back(v);
       }
     }
     progress.update(0.2 + 0.6 * (s + 1) / n);
@@ -333,15 +504,21 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
   struct Edge {
     int a, b;
     double area;
-    bool forced;
+    int priority;   // 2 rig spec, 1 declared by the label map, 0 contact only
+    int order = 0;  // declaration order among the map's joints
   };
   std::vector<Edge> edges;
+  auto area_of = [&](int x, int y) {
+    const auto one = contacts.find({x, y});
+    const auto other = contacts.find({y, x});
+    const double count = 0.5 * ((one == contacts.end() ? 0.0 : static_cast<double>(one->second.count)) +
+                                (other == contacts.end() ? 0.0 : static_cast<double>(other->second.count)));
+    return count * face_area;
+  };
   for (const auto& [pair, contact] : contacts) {
     if (pair.first > pair.second) continue;
     if (removed.count(pair)) continue;
-    const auto other = contacts.find({pair.second, pair.first});
-    const double count = 0.5 * (static_cast<double>(contact.count) + (other == contacts.end() ? 0.0 : static_cast<double>(other->second.count)));
-    edges.push_back({pair.first, pair.second, count * face_area, false});
+    edges.push_back({pair.first, pair.second, area_of(pair.first, pair.second), 0});
   }
   std::map<int, int> forced_parent;  // child -> parent
   for (const JointSpec& joint : spec.joints) {
@@ -350,17 +527,27 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
     POSEWARP_ASSIGN_OR_RETURN(const int parent, segment_named(joint.parent, "joint parent"));
     if (parent == child) return invalid_argument_error("the rig spec joins segment '" + joint.child + "' to itself");
     forced_parent[child] = parent;
-    edges.push_back({parent, child, 0.0, true});
+    edges.push_back({parent, child, area_of(parent, child), 2});
+  }
+  // The label map's declared joints come next, in its order, whenever both segments are present: they give the
+  // anatomical tree (thorax -> clavicle -> scapula -> humerus) where the largest contact would not.
+  int declared_order = 0;
+  for (const labels::JointName& declared : map.joint_names()) {
+    const int a = skeleton.segment_index(declared.segment_a), b = skeleton.segment_index(declared.segment_b);
+    if (a < 0 || b < 0 || removed.count({std::min(a, b), std::max(a, b)})) continue;
+    edges.push_back({a, b, area_of(a, b), 1, declared_order++});
   }
   std::stable_sort(edges.begin(), edges.end(), [](const Edge& x, const Edge& y) {
-    if (x.forced != y.forced) return x.forced;
+    if (x.priority != y.priority) return x.priority > y.priority;
+    if (x.priority == 1) return x.order < y.order;
     return x.area > y.area;
   });
   DisjointSets sets(n);
   std::vector<std::vector<std::pair<int, double>>> adjacency(static_cast<size_t>(n));
   for (const Edge& e : edges) {
     if (!sets.unite(e.a, e.b)) {
-      if (e.forced) {
+      // A declared joint that closes a loop is an alternative (scapulothoracic when the clavicle is there).
+      if (e.priority == 2) {
         return invalid_argument_error("the rig spec's joints between '" + skeleton.segments[static_cast<size_t>(e.a)].name +
                                       "' and '" + skeleton.segments[static_cast<size_t>(e.b)].name +
                                       "' close a loop; a skeleton is a tree");
@@ -393,6 +580,9 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
   }
 
   // 6. Orient from the root (breadth first, so parents come before children) and place the joints.
+  const double max_offset =
+      params.max_centre_offset_mm > 0.0 ? params.max_centre_offset_mm : std::max(10.0, 2.0 * max_spacing);
+  const JointPlacement placement{g, map, spec, params, skeleton, segment_at, surface, contacts, max_spacing, max_offset};
   std::vector<int> parent_of(static_cast<size_t>(n), -2);
   parent_of[static_cast<size_t>(root)] = -1;
   std::queue<int> queue;
@@ -407,64 +597,7 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
       parent_of[static_cast<size_t>(c)] = s;
       queue.push(c);
 
-      Joint joint;
-      joint.parent = s;
-      joint.child = c;
-      joint.contact_area_mm2 = area;
-      const auto to_child = contacts.find({s, c});    // parent's voxels near the child
-      const auto to_parent = contacts.find({c, s});   // child's voxels near the parent
-      Eigen::Vector3d normal = Eigen::Vector3d::Zero();
-      if (to_child != contacts.end() || to_parent != contacts.end()) {
-        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        double count = 0.0;
-        for (const auto& it : {to_child, to_parent}) {
-          if (it == contacts.end()) continue;
-          sum += it->second.sum;
-          count += static_cast<double>(it->second.count);
-        }
-        joint.centre_mm = sum / count;
-        joint.method = "contact-centroid";
-        if (to_child != contacts.end() && to_parent != contacts.end()) {
-          normal = to_parent->second.sum / static_cast<double>(to_parent->second.count) -
-                   to_child->second.sum / static_cast<double>(to_child->second.count);
-        }
-        if (to_parent != contacts.end() && to_child != contacts.end()) {
-          // A ball in a socket: the child's contact surface is a sphere cap and the parent's is a concentric cup.
-          // A flat bone end also fits a sphere, but the opposite end's sphere then lies on the other side.
-          const SphereFit fit = fit_sphere(to_parent->second.points, params);
-          SkeletonParams loose = params;
-          loose.sphere_max_relative_rms *= 2.0;
-          const SphereFit cup = fit_sphere(to_child->second.points, loose);
-          if (fit.accepted && cup.accepted && (cup.centre - fit.centre).norm() < 0.3 * fit.radius) {
-            joint.centre_mm = fit.centre;
-            joint.method = "sphere-fit";
-            joint.sphere_radius_mm = fit.radius;
-            joint.sphere_rms_mm = fit.rms;
-          }
-        }
-      } else {
-        // Proximity attachment: the child's surface voxel nearest to the parent's centroid.
-        const Segment& parent_segment = skeleton.segments[static_cast<size_t>(s)];
-        double best = std::numeric_limits<double>::infinity();
-        for (const Index3& v : surface[static_cast<size_t>(c)]) {
-          const Eigen::Vector3d p = physical(g, v[0], v[1], v[2]);
-          const double d = (p - parent_segment.centroid_mm).norm();
-          if (d < best) best = d, joint.centre_mm = p;
-        }
-        joint.method = "proximity";
-      }
-      const std::string& pn = skeleton.segments[static_cast<size_t>(s)].name;
-      const std::string& cn = skeleton.segments[static_cast<size_t>(c)].name;
-      joint.name = map.joint_name(pn, cn).value_or(pn + "__" + cn);
-      for (const JointSpec& js : spec.joints) {
-        if (js.child != cn) continue;
-        if (!js.name.empty()) joint.name = js.name;
-        if (js.centre_mm) {
-          joint.centre_mm = *js.centre_mm;
-          joint.method = "rig-spec";
-        }
-      }
-      joint.frame = joint_frame(joint.centre_mm, skeleton.segments[static_cast<size_t>(c)], normal);
+      Joint joint = place_joint(placement, s, c, area);
       skeleton.segments[static_cast<size_t>(c)].parent_joint = static_cast<int>(skeleton.joints.size());
       skeleton.joints.push_back(joint);
     }

@@ -27,7 +27,7 @@ const PoseEngine& bar_engine() {
 pose::Pose joint_pose(const std::string& joint, double flexion, double rotation) {
   pose::Pose p;
   p.name = joint;
-  p.joints.push_back({joint, pose::rotation_from_angles_deg(flexion, 0.0, rotation)});
+  p.joints.push_back(pose::anatomical_rotation(joint, flexion, 0.0, rotation));
   return p;
 }
 

@@ -188,3 +188,81 @@ TEST(Skeleton, ALabelMapNamingOnlyAbsentBonesIsAClearError) {
 
 }  // namespace
 }  // namespace posewarp::rig
+
+namespace posewarp::rig {
+namespace {
+
+// A thorax block, a clavicle on top of it and a scapula lying flat against it: the scapula's contact with the
+// thorax is by far the largest, so contact area alone would hang the scapula (and the arm) off the ribs.
+struct Girdle {
+  LabelVolume labels;
+  Girdle() {
+    ImageGeometry g;
+    g.size = {40, 30, 30};
+    g.spacing = {2.0, 2.0, 2.0};
+    labels = LabelVolume(g, 1);
+    auto fill = [&](int i0, int i1, int j0, int j1, int k0, int k1, Label value) {
+      for (int k = k0; k < k1; ++k)
+        for (int j = j0; j < j1; ++j)
+          for (int i = i0; i < i1; ++i) labels.at(i, j, k) = value;
+    };
+    fill(2, 20, 2, 20, 2, 20, 10);   // thorax
+    fill(21, 24, 2, 20, 2, 20, 12);  // scapula: a plate one voxel off the thorax's side
+    fill(2, 26, 8, 12, 21, 24, 11);  // clavicle: over the thorax, reaching over the scapula's top
+  }
+};
+
+labels::LabelMap girdle_map(bool declare) {
+  std::vector<labels::LabelEntry> entries{{0, "background", labels::LabelRole::kBackground, ""},
+                                          {1, "soft", labels::LabelRole::kTissue, ""},
+                                          {10, "thorax", labels::LabelRole::kBone, "thorax"},
+                                          {11, "clavicula_left", labels::LabelRole::kBone, "clavicula_left"},
+                                          {12, "scapula_left", labels::LabelRole::kBone, "scapula_left"}};
+  std::vector<labels::JointName> joints;
+  if (declare) {
+    joints = {{"sternoclavicular_left", "thorax", "clavicula_left", labels::JointKind::kPlane},
+              {"acromioclavicular_left", "clavicula_left", "scapula_left", labels::JointKind::kPlane},
+              {"scapulothoracic_left", "thorax", "scapula_left", labels::JointKind::kPlane}};
+  }
+  return labels::LabelMap::create("girdle", entries, joints, "thorax").value();
+}
+
+TEST(Skeleton, DeclaredJointsGiveTheAnatomicalTreeWhereContactAreaWouldNot) {
+  const Girdle girdle;
+  Result<Skeleton> by_area = build_skeleton(girdle.labels, girdle_map(false), {}, {}, {});
+  ASSERT_TRUE(by_area.ok()) << by_area.status().to_string();
+  EXPECT_NE(joint_between(*by_area, "thorax", "scapula_left"), nullptr);  // the largest contact wins
+
+  Result<Skeleton> declared = build_skeleton(girdle.labels, girdle_map(true), {}, {}, {});
+  ASSERT_TRUE(declared.ok()) << declared.status().to_string();
+  const Joint* ac = joint_between(*declared, "clavicula_left", "scapula_left");
+  ASSERT_NE(ac, nullptr);
+  EXPECT_EQ(ac->name, "acromioclavicular_left");
+  EXPECT_EQ(declared->segments[static_cast<size_t>(ac->parent)].name, "clavicula_left");
+  EXPECT_TRUE(ac->declared);
+  EXPECT_EQ(joint_between(*declared, "thorax", "scapula_left"), nullptr);  // the alternative closes a loop
+  EXPECT_NE(joint_between(*declared, "thorax", "clavicula_left"), nullptr);
+}
+
+TEST(Skeleton, DeclaredJointsRoundTripThroughLabelMapJson) {
+  const labels::LabelMap map = girdle_map(true);
+  Result<labels::LabelMap> back = labels::label_map_from_json(labels::label_map_to_json(map), "inline");
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  ASSERT_EQ(back->joint_names().size(), 3u);
+  EXPECT_EQ(back->joint_names()[1].segment_a, "clavicula_left");
+  EXPECT_EQ(back->joint_names()[1].kind, labels::JointKind::kPlane);
+  Result<labels::LabelMap> old_form = labels::label_map_from_json(
+      R"({"labels": [{"value": 1, "name": "a", "role": "bone"}, {"value": 2, "name": "b", "role": "bone"}],
+          "joints": [{"name": "ab", "segments": ["a", "b"]}]})", "old");
+  ASSERT_TRUE(old_form.ok()) << old_form.status().to_string();
+  EXPECT_EQ(old_form->joint_names()[0].kind, labels::JointKind::kUnspecified);
+  EXPECT_EQ(labels::label_map_from_json(
+                R"({"labels": [{"value": 1, "name": "a", "role": "bone"}, {"value": 2, "name": "b", "role": "bone"}],
+                    "joints": [{"name": "ab", "parent": "a", "child": "b", "kind": "saddle"}]})", "bad")
+                .status()
+                .code(),
+            StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::rig

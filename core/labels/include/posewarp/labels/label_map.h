@@ -31,11 +31,33 @@ struct LabelEntry {
   std::string segment;
 };
 
-// A joint name for a pair of adjacent segments (order does not matter), used when the rig names its joints.
+// What kind of articulation a joint is; it decides how the rig finds its centre (and, for hinges, its axis).
+enum class JointKind {
+  kUnspecified,  // a sphere fit where a ball sits in a socket, else the contact centroid
+  kBall,         // a head in a socket (hip, shoulder): the centre of a sphere fitted to the head
+  kHinge,        // condyles or a trochlea (knee, elbow, ankle): the axis of a cylinder fitted to the convex side
+  kPlane,        // flat or irregular surfaces (spine, sacroiliac, wrist): the contact centroid
+};
+
+// Which way positive flexion moves the child's far end from the rest pose, in the patient's axes. Hip, shoulder,
+// elbow, spine and neck flex forward (anterior), the knee bends the heel back (posterior), the ankle dorsiflexes the
+// toes up (superior).
+enum class FlexionDirection { kAnterior, kPosterior, kSuperior, kInferior };
+
+std::string_view joint_kind_name(JointKind kind);
+Result<JointKind> joint_kind_from_name(std::string_view name);
+std::string_view flexion_direction_name(FlexionDirection direction);
+Result<FlexionDirection> flexion_direction_from_name(std::string_view name);
+
+// A joint the map declares between two segments: its name, and for the automatic skeleton the anatomical
+// parent -> child order (the tree takes declared joints first, in the map's order, whenever both segments are
+// present; a declared joint that would close a loop is an alternative and is skipped), its kind and flexion sense.
 struct JointName {
   std::string name;
-  std::string segment_a;
-  std::string segment_b;
+  std::string segment_a;  // the parent, nearer the root
+  std::string segment_b;  // the child
+  JointKind kind = JointKind::kUnspecified;
+  FlexionDirection flexion = FlexionDirection::kAnterior;
 };
 
 class LabelMap {
@@ -64,6 +86,8 @@ class LabelMap {
   std::vector<Label> labels_of_segment(std::string_view segment) const;
   // The joint name the map gives to a pair of segments, if any.
   std::optional<std::string> joint_name(std::string_view segment_a, std::string_view segment_b) const;
+  // The joint the map declares between two segments (either order), or nullptr.
+  const JointName* declared_joint(std::string_view segment_a, std::string_view segment_b) const;
 
  private:
   std::string name_;
@@ -76,7 +100,10 @@ class LabelMap {
 // JSON form:
 // {"format": "posewarp.label_map", "version": 1, "name": "...", "root_segment": "sacrum",
 //  "labels": [{"value": 75, "name": "femur_left", "role": "bone", "segment": "femur_left"}, ...],
-//  "joints": [{"name": "hip_left", "segments": ["hip_left", "femur_left"]}, ...]}
+//  "joints": [{"name": "hip_left", "parent": "hip_left", "child": "femur_left", "kind": "ball",
+//              "flexion": "anterior"}, ...]}
+// A joint may give "segments": [parent, child] instead of "parent" and "child"; "kind" (ball, hinge, plane) and
+// "flexion" (anterior, posterior, superior, inferior) are optional.
 // `source` names the text's origin (a file path) in error messages.
 Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source);
 std::string label_map_to_json(const LabelMap& map);

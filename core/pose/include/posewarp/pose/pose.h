@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -15,12 +16,22 @@
 namespace posewarp::pose {
 
 // The rotation of a joint's child segment relative to its parent, expressed in the joint's rest frame F
-// (rig::Joint::frame, columns x, y, z in LPS; z points along the child's long axis). In LPS the child turns by
-// F * R * F^T about the joint centre. Must be a unit quaternion (within 1e-3).
+// (rig::Joint::frame, columns x, y, z in LPS: x the flexion axis, y the abduction axis, z along the child's long
+// axis). In LPS the child turns by F * R * F^T about the joint centre. Must be a unit quaternion (within 1e-3).
 struct JointRotation {
   std::string joint;
   Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();
+  // Anatomical angles in degrees (flexion, abduction, internal rotation), when the pose gave them: they are turned
+  // into a rotation with the joint's own signs (rig::joint_rotation_from_angles) and `rotation` is not used.
+  std::optional<Eigen::Vector3d> angles_deg;
 };
+
+// A joint rotation given by anatomical angles in degrees.
+JointRotation anatomical_rotation(std::string joint, double flexion_deg, double abduction_deg = 0.0,
+                                  double internal_rotation_deg = 0.0);
+
+// The rotation in LPS (about the joint centre) that `rotation` gives at `joint`.
+Eigen::Matrix3d joint_rotation_in_lps(const rig::Joint& joint, const JointRotation& rotation);
 
 struct Pose {
   std::string name;
@@ -41,9 +52,13 @@ struct Pose {
 // A rotation is given exactly one of three ways:
 //   "quaternion": [w, x, y, z]   unit within 1e-3 (an error otherwise, never normalized silently);
 //   "axis_angle": {"axis": [x, y, z], "degrees": d}   axis non-zero, any length; right-hand rule;
-//   "angles_deg": {"flexion": a, "abduction": b, "rotation": c}   each optional (default 0): intrinsic rotations
-//       about the frame's x (flexion), then y (abduction), then z (axial rotation about the child's long axis),
-//       R = Rx(a) * Ry(b) * Rz(c).
+//   "angles_deg": {"flexion": a, "abduction": b, "rotation": c}   each optional (default 0), anatomical: positive
+//       flexion is flexion (hip and shoulder forward, knee bending the heel back, elbow bringing the hand forward and
+//       up, ankle dorsiflexion, spine and neck bending forward), positive abduction moves the child away from the
+//       midline (midline joints: bends toward the patient's left), positive rotation is internal rotation (midline
+//       joints: turns toward the patient's left), the same on both sides. Intrinsic, flexion first:
+//       R = Rx(a) * Ry(b) * Rz(s c), s the joint's internal rotation sign (rig::Joint::internal_rotation_sign).
+//       The root rotation takes no angles_deg.
 // Joint rotations are in the joint's frame (see JointRotation). The root rotation uses the same forms in LPS axes
 // (x patient left, y posterior, z superior) and turns about the root segment's centroid; "translation_mm" is in
 // LPS mm. Numbers must be finite; JSON has no NaN or Infinity.
@@ -58,7 +73,7 @@ std::string pose_to_json(const Pose& pose);
 // root translation.
 Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton);
 
-// R = Rx(flexion) * Ry(abduction) * Rz(rotation), angles in degrees: the "angles_deg" form.
+// R = Rx(flexion) * Ry(abduction) * Rz(rotation), angles in degrees, in a frame (no anatomical signs).
 Eigen::Quaterniond rotation_from_angles_deg(double flexion, double abduction, double rotation);
 
 }  // namespace posewarp::pose

@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 
 #include <optional>
+#include <string_view>
 #include <string>
 #include <vector>
 
@@ -21,19 +22,37 @@ struct Segment {
   int64_t voxels = 0;
   Eigen::Vector3d centroid_mm = Eigen::Vector3d::Zero();      // LPS mm
   Eigen::Vector3d principal_axis = Eigen::Vector3d::UnitZ();  // unit, largest spread of its voxels
+  double elongation = 1.0;             // sqrt of the largest over the middle spread: > 1.5 for a long bone
   int parent_joint = -1;               // index of the joint whose child this segment is; -1 for the root
 };
+
+// Which side of the body a joint is on (from its names, else from where its child lies against the root).
+enum class BodySide { kMidline, kLeft, kRight };
+std::string_view body_side_name(BodySide side);
 
 struct Joint {
   std::string name;
   int parent = -1;                     // segment nearer the root
   int child = -1;
   Eigen::Vector3d centre_mm = Eigen::Vector3d::Zero();   // LPS mm
-  Eigen::Matrix3d frame = Eigen::Matrix3d::Identity();   // columns x, y, z: the joint's rest axes in LPS
-  std::string method;                  // "contact-centroid", "sphere-fit", "rig-spec", "proximity"
+  // The anatomical frame, a rotation (columns x, y, z in LPS), after the ISB joint coordinate systems (Grood and
+  // Suntay 1983; Wu et al. 2002, 2005): x is the flexion axis, mediolateral (the hinge axis where one was fitted):
+  // a positive turn about x is flexion (the way `flexion` says the child's far end goes); y is the ab/adduction
+  // axis: a positive turn about y moves the child's far end away from the midline (abduction), or, for a midline
+  // joint, bends it toward the patient's left; z = x cross y lies along the child's long axis, and a positive turn
+  // about (internal_rotation_sign * z) is internal rotation (the child's front turns toward the midline; for a
+  // midline joint, toward the patient's left). Angles compose as x, then y, then z (flexion first).
+  Eigen::Matrix3d frame = Eigen::Matrix3d::Identity();
+  int internal_rotation_sign = 1;      // +1 or -1
+  labels::JointKind kind = labels::JointKind::kUnspecified;
+  labels::FlexionDirection flexion = labels::FlexionDirection::kAnterior;
+  BodySide side = BodySide::kMidline;
+  Eigen::Vector3d hinge_axis = Eigen::Vector3d::Zero();  // unit, LPS, toward the patient's left; zero unless fitted
+  std::string method;                  // "contact-centroid", "sphere-fit", "cylinder-fit", "rig-spec", "proximity"
   double contact_area_mm2 = 0.0;
-  double sphere_radius_mm = 0.0;       // when method is "sphere-fit"
-  double sphere_rms_mm = 0.0;
+  double sphere_radius_mm = 0.0;       // radius of the fitted sphere or cylinder
+  double sphere_rms_mm = 0.0;          // rms distance of the fit's inlier points from it
+  bool declared = false;               // the label map or the rig spec declared this joint
 };
 
 struct Skeleton {
@@ -72,9 +91,13 @@ Result<RigSpec> read_rig_spec(const std::string& path);
 struct SkeletonParams {
   // Voxels of two segments closer than this (centre to centre) are in contact; 0 = 3.5 x the largest spacing.
   double contact_distance_mm = 0.0;
-  // Sphere fit accepted when rms / radius is below this and the radius below 1.5 x the contact extent.
+  // Sphere and cylinder fits are accepted when rms / radius is below this (after trimming outliers such as the
+  // femoral neck or the shaft).
   double sphere_max_relative_rms = 0.15;
   int sphere_min_points = 20;
+  // A joint centre further than this from the voxels where its two bones meet (and inside neither) is refused:
+  // the contact centroid is used and a note says so. 0 = max(10 mm, 2 x the largest spacing).
+  double max_centre_offset_mm = 0.0;
 };
 
 Status validate(const SkeletonParams& params);
