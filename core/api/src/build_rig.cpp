@@ -124,6 +124,7 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     mesh::MeshHealth health;
     POSEWARP_ASSIGN_OR_RETURN(rig.mesh, mesh::make_cgal_mesher()->mesh(classes, static_cast<int>(names.size()),
                                                                        params.mesh, hooks, &health));
+    for (const std::string& warning : health.warnings) rig.skeleton.notes.push_back("mesh: " + warning);
     const int64_t bridging = mesh::separate_bone_segments(rig.mesh);
     POSEWARP_RETURN_IF_ERROR(mesh::check_mesh_health(rig.mesh, classes, names, &health));
     stats["mesh"] = {{"vertices", rig.mesh.vertex_count()},
@@ -135,7 +136,8 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
                      {"body_volume_error", health.body_volume_error},
                      {"body_components", health.body_components},
                      {"degenerate_tets", health.degenerate_tets},
-                     {"min_tet_quality", health.min_tet_quality}};
+                     {"min_tet_quality", health.min_tet_quality},
+                     {"sequential_fallback", health.sequential_fallback}};
     clock.lap("mesh");
 
     weights::WeightStats weight_stats;

@@ -2,8 +2,12 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <new>
+#include <thread>
 
 #include "cgal_mesher_common.h"
 
@@ -88,6 +92,53 @@ Result<TetMesh> assemble_mesh(const std::vector<std::array<double, 3>>& points, 
 
 namespace {
 
+// Watches a refinement from its own thread: sets `stop` when `limit_s` has passed (0 = never) or the caller asks to
+// cancel, and keeps the stage's progress moving on elapsed time, since CGAL reports none while it refines.
+class Watchdog {
+ public:
+  Watchdog(std::atomic<bool>& stop, StageProgress& progress, double limit_s)
+      : stop_(stop), progress_(progress), limit_s_(limit_s), thread_([this] { watch(); }) {}
+  ~Watchdog() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    wake_.notify_all();
+    thread_.join();
+  }
+  Watchdog(const Watchdog&) = delete;
+  Watchdog& operator=(const Watchdog&) = delete;
+
+  bool fired() const { return fired_.load(); }
+
+ private:
+  void watch() {
+    using Clock = std::chrono::steady_clock;
+    const auto start = Clock::now();
+    std::unique_lock<std::mutex> lock(mutex_);
+    while (!wake_.wait_for(lock, std::chrono::milliseconds(50), [this] { return done_; })) {
+      const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+      if (progress_.cancel_requested()) {
+        stop_.store(true);
+      } else if (limit_s_ > 0.0 && elapsed > limit_s_ && !stop_.load()) {
+        fired_.store(true);
+        stop_.store(true);
+      }
+      // An estimate on elapsed time (most bodies refine within half a minute), never reaching the end.
+      progress_.update(0.1 + 0.65 * (1.0 - std::exp(-elapsed / 15.0)));
+    }
+  }
+
+  std::atomic<bool>& stop_;
+  StageProgress& progress_;
+  const double limit_s_;
+  std::atomic<bool> fired_{false};
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  bool done_ = false;
+  std::thread thread_;  // last: starts once everything it reads is built
+};
+
 class CgalMesher final : public Mesher {
  public:
   std::string name() const override { return "cgal-mesh_3"; }
@@ -106,8 +157,25 @@ class CgalMesher final : public Mesher {
       detail::MesherInput input{downsample_classes(classes, factor), segment_count, detail::GridDistance(LabelVolume())};
       input.bone_distance = detail::GridDistance(input.classes);
       POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-      Result<TetMesh> mesh = params.parallel ? detail::run_cgal_parallel(input, params, progress)
-                                             : detail::run_cgal_sequential(input, params, progress);
+      std::atomic<bool> stop{false};
+      Result<TetMesh> mesh = internal_error("the mesher did not run");
+      bool fell_back = false;
+      if (params.parallel) {
+        Watchdog watchdog(stop, progress, params.parallel_watchdog_s);
+        mesh = detail::run_cgal_parallel(input, params, progress, stop);
+        fell_back = !mesh.ok() && watchdog.fired() && !progress.cancel_requested();
+      }
+      if (!params.parallel || fell_back) {
+        if (fell_back && health) {
+          health->sequential_fallback = true;
+          health->warnings.push_back("the parallel mesher did not finish within " +
+                                     std::to_string(static_cast<int>(params.parallel_watchdog_s)) +
+                                     " s (parallel_watchdog_s); the body was meshed again sequentially");
+        }
+        stop.store(false);
+        Watchdog cancel_only(stop, progress, 0.0);
+        mesh = detail::run_cgal_sequential(input, params, progress, stop);
+      }
       if (mesh.ok()) progress.finish();
       return mesh;
     } catch (const std::bad_alloc&) {

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <vector>
 
 #include "posewarp/common/progress.h"
@@ -32,7 +33,10 @@ struct MesherInput {
 Result<TetMesh> assemble_mesh(const std::vector<std::array<double, 3>>& points, std::vector<std::array<int, 4>>& tets,
                               const std::vector<int>& tet_class, int segment_count);
 
-Result<TetMesh> run_cgal_sequential(const MesherInput& input, const MeshParams& params, StageProgress& progress);
-Result<TetMesh> run_cgal_parallel(const MesherInput& input, const MeshParams& params, StageProgress& progress);
+// Both stop refining when `stop` is set (DEADLINE_EXCEEDED, or CANCELLED when the hooks asked for it).
+Result<TetMesh> run_cgal_sequential(const MesherInput& input, const MeshParams& params, StageProgress& progress,
+                                    std::atomic<bool>& stop);
+Result<TetMesh> run_cgal_parallel(const MesherInput& input, const MeshParams& params, StageProgress& progress,
+                                  std::atomic<bool>& stop);
 
 }  // namespace posewarp::mesh::detail

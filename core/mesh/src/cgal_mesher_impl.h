@@ -11,9 +11,11 @@
 #include <CGAL/Mesh_3/initialize_triangulation_from_labeled_image.h>
 #include <CGAL/make_mesh_3.h>
 #include <CGAL/refine_mesh_3.h>
+#include <CGAL/exude_mesh_3.h>
 #include <CGAL/Random.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <iostream>
@@ -46,8 +48,20 @@ class CellSizeField {
   const MeshParams* params_;
 };
 
+// The same complex seen as sequential: CGAL's exuder picks its code path from C3t3::Concurrency_tag, and its
+// parallel path can spin forever (seen after 39 minutes in Slivers_exuder / flush_work_buffers with CGAL 5.5; its
+// time limit is only checked when a task ends, and a cancelled TBB task group is reset by the next wait). Swapping
+// a refined parallel complex into this view runs the sequential exuder, which honours its time limit; without the
+// triangulation's lock data structure nothing is locked.
+template <typename C3t3>
+struct SequentialView : C3t3 {
+  using Concurrency_tag = CGAL::Sequential_tag;
+};
+
+// Refinement stops (between CGAL's refinement steps) when `stop` is set: by the watchdog or by a cancel request.
 template <typename Concurrency>
-Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& params, StageProgress& progress) {
+Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& params, StageProgress& progress,
+                                std::atomic<bool>& stop) {
   using Tr = typename CGAL::Mesh_triangulation_3<Domain, CGAL::Default, Concurrency>::type;
   using C3t3 = CGAL::Mesh_complex_3_in_triangulation_3<Tr>;
   using Criteria = CGAL::Mesh_criteria_3<Tr>;
@@ -85,11 +99,18 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
     initialize_triangulation_from_labeled_image(c3t3, domain, image, criteria, static_cast<unsigned char>(0));
     std::cout.rdbuf(saved);
   }
+  progress.update(0.1);
+  CGAL::parameters::internal::Mesh_3_options options;
+  options.pointer_to_stop_atomic_boolean = &stop;
+  CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(), p::no_exude(), options);
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  if (stop.load()) return deadline_exceeded_error("mesh refinement was stopped by the watchdog");
+  progress.update(0.8);
   if (params.exude) {
-    CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(),
-                        p::exude(p::time_limit = params.exude_time_limit_s, p::sliver_bound = 10));
-  } else {
-    CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(), p::no_exude());
+    SequentialView<C3t3> sequential;
+    sequential.swap(c3t3);
+    CGAL::exude_mesh_3(sequential, p::time_limit = params.exude_time_limit_s, p::sliver_bound = 10);
+    c3t3.swap(sequential);
   }
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   progress.update(0.9);

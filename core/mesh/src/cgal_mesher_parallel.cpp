@@ -3,11 +3,12 @@
 
 namespace posewarp::mesh::detail {
 
-Result<TetMesh> run_cgal_parallel(const MesherInput& input, const MeshParams& params, StageProgress& progress) {
+Result<TetMesh> run_cgal_parallel(const MesherInput& input, const MeshParams& params, StageProgress& progress,
+                                  std::atomic<bool>& stop) {
 #ifdef CGAL_LINKED_WITH_TBB
-  return run_cgal_mesh_3<CGAL::Parallel_tag>(input, params, progress);
+  return run_cgal_mesh_3<CGAL::Parallel_tag>(input, params, progress, stop);
 #else
-  return run_cgal_mesh_3<CGAL::Sequential_tag>(input, params, progress);
+  return run_cgal_mesh_3<CGAL::Sequential_tag>(input, params, progress, stop);
 #endif
 }
 

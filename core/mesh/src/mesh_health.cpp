@@ -30,7 +30,12 @@ Status validate(const MeshParams& p) {
   }
   if (p.size_growth < 0.0) return invalid_argument_error("mesh size_growth must not be negative");
   if (p.voxel_budget < 1000) return invalid_argument_error("mesh voxel_budget must be at least 1000 voxels");
-  if (p.exude_time_limit_s < 0.0) return invalid_argument_error("mesh exude_time_limit_s must not be negative");
+  if (!(p.exude_time_limit_s >= 0.0) || !std::isfinite(p.exude_time_limit_s)) {
+    return invalid_argument_error("mesh exude_time_limit_s must be a finite number of seconds, 0 or more");
+  }
+  if (!(p.parallel_watchdog_s >= 0.0) || !std::isfinite(p.parallel_watchdog_s)) {
+    return invalid_argument_error("mesh parallel_watchdog_s must be a finite number of seconds, 0 or more (0: none)");
+  }
   return ok_status();
 }
 

@@ -4,6 +4,9 @@
 
 #include <Eigen/Dense>
 
+#include <atomic>
+#include <chrono>
+
 #include "posewarp/labels/body.h"
 #include "posewarp/phantom/phantom.h"
 
@@ -33,6 +36,54 @@ MeshParams small_sizes() {
   params.bone_cell_size_mm = 4.0;
   params.soft_cell_size_mm = 8.0;
   return params;
+}
+
+TEST(CgalMesher, AParallelMesherPastItsWatchdogFallsBackToTheSequentialOneWithAWarning) {
+  const BarClasses bar = bar_classes();
+  MeshParams params = small_sizes();
+  params.parallel = true;
+  params.parallel_watchdog_s = 1e-3;  // the first look of the watchdog (50 ms) already finds it late
+  MeshHealth health;
+  Result<TetMesh> mesh = make_cgal_mesher()->mesh(bar.classes, 3, params, {}, &health);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().to_string();
+  EXPECT_TRUE(health.sequential_fallback);
+  ASSERT_EQ(health.warnings.size(), 1u);
+  EXPECT_NE(health.warnings[0].find("sequentially"), std::string::npos);
+  ASSERT_TRUE(check_mesh_health(*mesh, bar.classes, bar.segments, &health).ok());
+  EXPECT_EQ(health.body_components, 1);
+  // Exactly the sequential mesh: the fallback is the reproducible mesher with the same seed.
+  MeshParams sequential = small_sizes();
+  sequential.parallel = false;
+  Result<TetMesh> reference = make_cgal_mesher()->mesh(bar.classes, 3, sequential, {}, nullptr);
+  ASSERT_TRUE(reference.ok());
+  EXPECT_EQ(mesh->tets, reference->tets);
+}
+
+TEST(CgalMesher, ACancelledMeshingStopsPromptlyWithCancelled) {
+  const BarClasses bar = bar_classes();
+  for (const bool parallel : {true, false}) {
+    SCOPED_TRACE(parallel ? "parallel" : "sequential");
+    MeshParams params = small_sizes();
+    params.parallel = parallel;
+    params.facet_size_mm = 2.0;  // slow enough to be caught refining
+    params.bone_cell_size_mm = 2.0;
+    const auto start = std::chrono::steady_clock::now();
+    std::atomic<bool> asked{false};
+    std::chrono::steady_clock::time_point asked_at;
+    ProgressHooks hooks;
+    hooks.cancel_requested = [&] {
+      if (!asked && std::chrono::steady_clock::now() - start > std::chrono::milliseconds(300)) {
+        asked_at = std::chrono::steady_clock::now();
+        asked = true;
+      }
+      return asked.load();
+    };
+    Result<TetMesh> mesh = make_cgal_mesher()->mesh(bar.classes, 3, params, hooks, nullptr);
+    ASSERT_TRUE(asked.load()) << "meshing finished before the cancel request; make it slower";
+    EXPECT_EQ(mesh.status().code(), StatusCode::kCancelled) << mesh.status().to_string();
+    // Not a timing benchmark: a bound far above the 50 ms polling, far below "never".
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - asked_at).count(), 5.0);
+  }
 }
 
 TEST(CgalMesher, MeshesEveryBoneOfTheBarWithPositiveTets) {

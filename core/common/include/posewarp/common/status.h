@@ -54,6 +54,7 @@ class [[nodiscard]] Status {
 
 inline Status ok_status() { return Status(); }
 inline Status cancelled_error(std::string m) { return {StatusCode::kCancelled, std::move(m)}; }
+inline Status deadline_exceeded_error(std::string m) { return {StatusCode::kDeadlineExceeded, std::move(m)}; }
 inline Status invalid_argument_error(std::string m) { return {StatusCode::kInvalidArgument, std::move(m)}; }
 inline Status not_found_error(std::string m) { return {StatusCode::kNotFound, std::move(m)}; }
 inline Status already_exists_error(std::string m) { return {StatusCode::kAlreadyExists, std::move(m)}; }

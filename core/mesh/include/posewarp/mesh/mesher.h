@@ -27,8 +27,11 @@ struct MeshParams {
   int64_t voxel_budget = 24'000'000;
   bool parallel = true;   // TBB-parallel refinement; false = sequential and reproducible for a given seed
   uint32_t seed = 1;      // random seed of the sequential mode
-  bool exude = true;      // sliver exudation after refinement
+  bool exude = true;      // sliver exudation after refinement, always sequential (CGAL 5.5's parallel one can hang)
   double exude_time_limit_s = 10.0;
+  // The parallel refinement is stopped after this long and the body meshed again sequentially (with a warning in
+  // MeshHealth): a build that sometimes never ends is worse than a slow one. 0 = no watchdog.
+  double parallel_watchdog_s = 120.0;
 };
 
 // INVALID_ARGUMENT naming the field and its valid range.
@@ -46,6 +49,8 @@ struct MeshHealth {
   int64_t degenerate_tets = 0;                  // volume quality below 1e-4 (1 = regular tet)
   double min_tet_quality = 1.0;
   std::vector<std::string> lost_segments;       // bone segments without a single tet
+  bool sequential_fallback = false;             // the watchdog stopped the parallel mesher
+  std::vector<std::string> warnings;            // what a user should know about how the mesh was made
 };
 
 class Mesher {
