@@ -120,10 +120,23 @@ void summarize(const api::PoseResult& result) {
                      std::to_string(r.conflicted_voxels) + " conflicted and " + std::to_string(r.extrapolated_voxels) +
                      " extrapolated voxels";
   say(line);
+  if (r.bone_voxels > 0 || !r.voxel_rigidity.empty()) {
+    say("bones: " + std::to_string(r.bone_voxels) + " voxels mapped rigidly, largest voxel deviation " +
+        fixed(r.bone_voxel_deviation_mm, 2) + " mm, " + std::to_string(r.bone_overlaps.size()) + " overlapping pairs");
+  }
+  for (const report::JointRegionChange& c : r.joint_regions) {
+    say("  " + c.joint + " within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm: soft tissue " +
+        fixed(100.0 * c.volume_change, 1) + "%, folded " + fixed(100.0 * c.folded_fraction, 2) + "%, stretched " +
+        fixed(100.0 * c.stretched_fraction, 2) + "%");
+  }
   if (!r.labels.vanished.empty()) {
     std::string vanished;
     for (const Label l : r.labels.vanished) vanished += " " + std::to_string(l);
     say("warning: labels vanished in this pose:" + vanished);
+  }
+  for (const std::string& warning : r.warnings) {
+    if (warning.rfind("labels vanished", 0) == 0) continue;  // said above with the values
+    say("warning: " + warning);
   }
   std::string timings = "timings:";
   double total = 0.0;

@@ -41,6 +41,9 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
                                                        Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
                                                        {}, hooks));
     engine.rest_owner_ = identity.owner();
+    std::vector<std::vector<Label>> segment_labels;
+    for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
+    POSEWARP_ASSIGN_OR_RETURN(engine.bone_voxels_, resample::bone_voxels(rig.labels, segment_labels));
     engine.rest_label_counts_ = report::label_counts(rig.labels);
     if (rig.ct) {
       engine.ct_minimum_ = 0.0f;
@@ -90,6 +93,13 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
   const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
   for (const report::SegmentRigidity& s : qr.rigidity) qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
   qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
+  std::vector<std::pair<std::string, Eigen::Vector3d>> moved_joints;
+  for (const pose::JointRotation& rotation : request.pose.joints) {
+    const int j = skeleton.joint_index(rotation.joint);
+    const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
+    if (!pose::joint_rotation_in_lps(joint, rotation).isIdentity(1e-12)) moved_joints.emplace_back(joint.name, joint.centre_mm);
+  }
+  qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, {50.0, 100.0});
   clock.lap("report-mesh");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
 
@@ -118,9 +128,14 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
                                                         request.resample));
     resample::ResampleParams params = request.resample;
     if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
+    resample::RigidBones bones;
+    bones.voxels = &bone_voxels_;
+    bones.rotation = segments.rotation;
+    bones.translation = segments.translation;
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
                               resample::TetWarp::build(mesh, result.posed_vertices, source, result.output_grid,
-                                                       root.rotation, root.translation, &rest_owner_, params, hooks));
+                                                       root.rotation, root.translation, &rest_owner_, params, hooks,
+                                                       &bones));
     const resample::WarpStats& stats = warp.stats();
     qr.covered_voxels = stats.covered_voxels;
     qr.conflicted_voxels = stats.conflicted_voxels;
@@ -128,6 +143,12 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
     qr.background_voxels = stats.background_voxels;
     qr.degenerate_tets = stats.degenerate_tets;
     qr.rasterized_tets = warp.rasterized_tets();
+    qr.bone_voxels = stats.bone_voxels;
+    for (const auto& [pair, count] : stats.bone_overlap_voxels) {
+      qr.bone_overlaps.push_back({names[static_cast<size_t>(pair.first)], names[static_cast<size_t>(pair.second)], count,
+                                  static_cast<double>(count) * result.output_grid.spacing[0] *
+                                      result.output_grid.spacing[1] * result.output_grid.spacing[2] / 1000.0});
+    }
     clock.lap("warp-prepare");
     if (request.want_labels) {
       POSEWARP_ASSIGN_OR_RETURN(result.labels, warp.warp_labels(rig_.labels));
@@ -135,6 +156,11 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
       qr.labels = report::label_change(rest_label_counts_, report::label_counts(*result.labels));
       for (const auto& [value, counts] : qr.labels.voxels) {
         if (const labels::LabelEntry* entry = rig_.label_map.find(value)) qr.label_names[value] = entry->name;
+      }
+      const std::vector<std::pair<double, double>> deviation = warp.bone_deviation_mm();
+      for (size_t k = 0; k < deviation.size(); ++k) {
+        qr.voxel_rigidity.push_back({names[k], deviation[k].first, deviation[k].second});
+        qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
       }
       clock.lap("report-labels");
     }
@@ -177,6 +203,7 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
       clock.lap("fields");
     }
   }
+  report::add_warnings(qr, voxel);
   return result;
 }
 

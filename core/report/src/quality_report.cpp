@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <mutex>
 
 #include "posewarp/common/parallel.h"
@@ -94,6 +95,82 @@ LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<
   return change;
 }
 
+std::vector<JointRegionChange> joint_region_changes(const TetMesh& rest, const Eigen::VectorXd& det,
+                                                   const Eigen::VectorXd& rest_volume,
+                                                   const std::vector<std::pair<std::string, Eigen::Vector3d>>& joints,
+                                                   const std::vector<double>& radii_mm) {
+  std::vector<JointRegionChange> changes;
+  for (const auto& [name, centre] : joints) {
+    for (const double radius : radii_mm) {
+      JointRegionChange change;
+      change.joint = name;
+      change.radius_mm = radius;
+      double rest_sum = 0.0, posed_sum = 0.0, folded = 0.0, stretched = 0.0;
+      for (int64_t t = 0; t < rest.tet_count(); ++t) {
+        if (rest.tet_class(t) != kSoftTissueClass) continue;
+        Eigen::Vector3d c = Eigen::Vector3d::Zero();
+        for (int q = 0; q < 4; ++q) c += rest.vertices.row(rest.tets(t, q)).transpose();
+        if ((0.25 * c - centre).squaredNorm() > radius * radius) continue;
+        const double v = rest_volume(t), d = det(t);
+        rest_sum += v;
+        posed_sum += v * d;
+        if (d <= 0.0) folded += v;
+        else if (d > 2.0 || d < 0.5) stretched += v;
+      }
+      change.rest_volume_ml = rest_sum / 1000.0;
+      if (rest_sum > 0.0) {
+        change.volume_change = posed_sum / rest_sum - 1.0;
+        change.folded_fraction = folded / rest_sum;
+        change.stretched_fraction = stretched / rest_sum;
+      }
+      changes.push_back(change);
+    }
+  }
+  return changes;
+}
+
+void add_warnings(QualityReport& r, double voxel_mm, const WarningThresholds& limits) {
+  auto percent = [](double x) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%+.1f%%", 100.0 * x);
+    return std::string(text);
+  };
+  auto mm = [](double x) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.1f mm", x);
+    return std::string(text);
+  };
+  for (const SegmentVoxelRigidity& s : r.voxel_rigidity) {
+    if (s.max_mm > limits.bone_deviation_voxels * voxel_mm) {
+      r.warnings.push_back("bone '" + s.segment + "' is not rigid at voxel level: voxels up to " + mm(s.max_mm) +
+                           " off its rigid motion (99th percentile " + mm(s.p99_mm) + ")");
+    }
+  }
+  for (const BoneOverlap& o : r.bone_overlaps) {
+    if (o.volume_ml > limits.bone_overlap_ml) {
+      char ml[32];
+      std::snprintf(ml, sizeof ml, "%.1f ml", o.volume_ml);
+      r.warnings.push_back("bones '" + o.segment_a + "' and '" + o.segment_b + "' pass through each other: " + ml +
+                           " overlap (a centre of rotation off the joint, or a pose past the joint's range)");
+    }
+  }
+  for (const JointRegionChange& c : r.joint_regions) {
+    const std::string where = "soft tissue within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm of '" + c.joint + "'";
+    if (std::abs(c.volume_change) > limits.local_volume_change) {
+      r.warnings.push_back(where + " changed volume by " + percent(c.volume_change));
+    }
+    if (c.folded_fraction > limits.folded_fraction) {
+      r.warnings.push_back(where + ": " + percent(c.folded_fraction).substr(1) + " of it is folded (det <= 0)");
+    }
+    if (c.stretched_fraction > limits.stretched_fraction) {
+      r.warnings.push_back(where + ": " + percent(c.stretched_fraction).substr(1) +
+                           " of it is strongly stretched or squashed (det > 2 or < 0.5)");
+    }
+  }
+  if (!r.labels.appeared.empty()) r.warnings.push_back("labels appeared that the input does not hold");
+  if (!r.labels.vanished.empty()) r.warnings.push_back("labels vanished in this pose");
+}
+
 std::string to_json(const QualityReport& r) {
   using json = nlohmann::json;
   json doc;
@@ -113,11 +190,37 @@ std::string to_json(const QualityReport& r) {
   for (const SegmentRigidity& s : r.rigidity) rigidity.push_back({{"segment", s.segment}, {"max_error_mm", s.max_error_mm}});
   doc["bone_rigidity"] = {{"max_error_mm", r.bone_rigidity_error_mm},
                           {"max_error_voxels", r.bone_rigidity_error_voxels},
-                          {"segments", rigidity}};
+                          {"segments", rigidity},
+                          {"measured_on", "bone tet vertices"}};
+  json voxel_rigidity = json::array();
+  for (const SegmentVoxelRigidity& s : r.voxel_rigidity) {
+    voxel_rigidity.push_back({{"segment", s.segment}, {"max_mm", s.max_mm}, {"p99_mm", s.p99_mm}});
+  }
+  doc["bone_voxel_rigidity"] = {{"max_mm", r.bone_voxel_deviation_mm},
+                                {"segments", voxel_rigidity},
+                                {"measured_on", "output voxels holding a bone's value: distance of their source from the "
+                                                "bone's rigid inverse"}};
+  json overlaps = json::array();
+  for (const BoneOverlap& o : r.bone_overlaps) {
+    overlaps.push_back({{"segments", {o.segment_a, o.segment_b}}, {"voxels", o.voxels}, {"volume_ml", o.volume_ml}});
+  }
+  doc["bone_overlaps"] = overlaps;
+  json regions = json::array();
+  for (const JointRegionChange& c : r.joint_regions) {
+    regions.push_back({{"joint", c.joint},
+                       {"radius_mm", c.radius_mm},
+                       {"rest_soft_tissue_ml", c.rest_volume_ml},
+                       {"volume_change", c.volume_change},
+                       {"folded_fraction", c.folded_fraction},
+                       {"stretched_fraction", c.stretched_fraction}});
+  }
+  doc["moved_joints"] = regions;
+  doc["warnings"] = r.warnings;
   doc["voxels"] = {{"covered", r.covered_voxels},
                    {"conflicted", r.conflicted_voxels},
                    {"extrapolated", r.extrapolated_voxels},
-                   {"background", r.background_voxels}};
+                   {"background", r.background_voxels},
+                   {"bone", r.bone_voxels}};
   json labels = json::array();
   for (const auto& [label, counts] : r.labels.voxels) {
     json entry{{"value", label}, {"before", counts.first}, {"after", counts.second}};

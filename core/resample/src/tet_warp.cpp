@@ -6,6 +6,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <new>
@@ -172,8 +173,18 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
                                const std::vector<int32_t>* rest_owner, const ResampleParams& params,
-                               const ProgressHooks& hooks) {
+                               const ProgressHooks& hooks, const RigidBones* bones) {
   POSEWARP_RETURN_IF_ERROR(validate(params));
+  if (bones) {
+    if (!bones->voxels || static_cast<int64_t>(bones->voxels->segment.size()) != source.voxel_count() ||
+        bones->voxels->substitute.size() != bones->voxels->segment.size()) {
+      return invalid_argument_error("the bone voxels do not match the source grid");
+    }
+    if (bones->rotation.size() != bones->translation.size() || bones->rotation.size() != bones->voxels->box.size() ||
+        bones->rotation.size() > static_cast<size_t>(kMaxBoneSegments)) {
+      return invalid_argument_error("the bone transforms do not match the bone segments");
+    }
+  }
   if (posed.rows() != rest.vertex_count() || posed.cols() != 3) {
     return invalid_argument_error("posed vertices (" + std::to_string(posed.rows()) + ") do not match the mesh (" +
                                   std::to_string(rest.vertex_count()) + ")");
@@ -214,14 +225,51 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     const int64_t nt = rest.tet_count();
     const int64_t nv = rest.vertex_count();
 
-    // Background: output index -> output physical -> rest physical (inverse rigid) -> source index.
-    {
-      const Eigen::Matrix3d a = src_space.to_index * background_rotation.transpose() * out_space.to_physical;
+    // Background: output index -> output physical -> rest physical (inverse rigid) -> source index. Each bone's
+    // own map the same way.
+    auto rigid_map = [&](const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation, double* m) {
+      const Eigen::Matrix3d a = src_space.to_index * rotation.transpose() * out_space.to_physical;
       const Eigen::Vector3d b =
-          src_space.to_index * (background_rotation.transpose() * (out_space.origin - background_translation) - src_space.origin);
+          src_space.to_index * (rotation.transpose() * (out_space.origin - translation) - src_space.origin);
       for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) warp.background_map_[3 * r + c] = a(r, c);
-        warp.background_map_[9 + r] = b(r);
+        for (int c = 0; c < 3; ++c) m[3 * r + c] = a(r, c);
+        m[9 + r] = b(r);
+      }
+    };
+    rigid_map(background_rotation, background_translation, warp.background_map_);
+    // Bone segments: which move off the background, and each moving bone's posed index box in the output.
+    const int segment_count = bones ? static_cast<int>(bones->rotation.size()) : 0;
+    std::vector<uint8_t> bone_moves(static_cast<size_t>(segment_count), 0);
+    std::vector<std::array<double, 6>> bone_box(static_cast<size_t>(segment_count));
+    if (bones) {
+      warp.bones_ = bones->voxels;
+      warp.bone_maps_.assign(static_cast<size_t>(segment_count) * 12, 0.0);
+      for (int k = 0; k < segment_count; ++k) {
+        const Eigen::Matrix3d& rotation = bones->rotation[static_cast<size_t>(k)];
+        const Eigen::Vector3d& translation = bones->translation[static_cast<size_t>(k)];
+        rigid_map(rotation, translation, warp.bone_maps_.data() + 12 * k);
+        bone_moves[static_cast<size_t>(k)] = (rotation - background_rotation).cwiseAbs().maxCoeff() > 1e-12 ||
+                                             (translation - background_translation).cwiseAbs().maxCoeff() > 1e-9;
+        const std::array<int64_t, 6>& box = bones->voxels->box[static_cast<size_t>(k)];
+        std::array<double, 6>& out_box = bone_box[static_cast<size_t>(k)];
+        out_box = {1.0, 1.0, 1.0, 0.0, 0.0, 0.0};  // empty
+        if (box[0] > box[3]) {
+          bone_moves[static_cast<size_t>(k)] = 0;
+          continue;
+        }
+        for (int a = 0; a < 3; ++a) out_box[static_cast<size_t>(a)] = std::numeric_limits<double>::infinity(),
+                                    out_box[static_cast<size_t>(a + 3)] = -std::numeric_limits<double>::infinity();
+        for (int corner = 0; corner < 8; ++corner) {
+          const Eigen::Vector3d u((corner & 1) ? box[3] + 0.5 : box[0] - 0.5, (corner & 2) ? box[4] + 0.5 : box[1] - 0.5,
+                                  (corner & 4) ? box[5] + 0.5 : box[2] - 0.5);
+          const Eigen::Vector3d rest_point = src_space.origin + src_space.to_physical * u;
+          const Eigen::Vector3d o = out_space.to_index * (rotation * rest_point + translation - out_space.origin);
+          for (int a = 0; a < 3; ++a) {
+            const double top = static_cast<double>(output.size[static_cast<size_t>(a)]);
+            out_box[static_cast<size_t>(a)] = std::min(out_box[static_cast<size_t>(a)], std::clamp(o(a), -2.0, top + 1.0));
+            out_box[static_cast<size_t>(a + 3)] = std::max(out_box[static_cast<size_t>(a + 3)], std::clamp(o(a), -2.0, top + 1.0));
+          }
+        }
       }
     }
 
@@ -536,13 +584,55 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     // moving tets left alone maps through the background transform to a source voxel whose rest owner says what it
     // is: a tet that follows the background (covered, or its shell), nothing (background), or a moving tet (the
     // body moved away from there: the shell of a moving tet, or nothing to sample).
+    // Then the bones claim their voxels, ahead of any tet: a moving bone where its own rigid inverse lands on one of
+    // its source voxels; a bone that follows the background where a moving tet or the shell would sample it.
     std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
+    const int16_t* bone_of = bones ? bones->voxels->segment.data() : nullptr;
+    auto bone_at = [&](const double* map, double i, double j, double k) -> int {
+      double src[3];
+      apply_map(map, i, j, k, src);
+      const int64_t x = round_index(src[0]), y = round_index(src[1]), z = round_index(src[2]);
+      if (x < 0 || y < 0 || z < 0 || x >= source.size[0] || y >= source.size[1] || z >= source.size[2]) return -1;
+      return bone_of[source.offset(x, y, z)];
+    };
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
         int64_t kb = 0, ke = 0;
         if (!slab_range(s, kb, ke)) continue;
         const int64_t slab_begin = kb * n[0] * n[1];
         std::vector<uint8_t>& conflict = conflicts[static_cast<size_t>(s)];
+        WarpStats& bone_stats = slab_stats[static_cast<size_t>(s)];
+        std::vector<std::array<int64_t, 3>> row_bones;  // (segment, i0, i1) of the moving bones on a row
+        // Claims voxel (i, j, k) for a bone, given its owner after classification.
+        auto claim_bone = [&](int32_t& o, int64_t i, int64_t j, int64_t k) {
+          int claimed = -1;
+          for (const auto& [segment, i0, i1] : row_bones) {
+            if (i < i0 || i > i1) continue;
+            const int k_seg = static_cast<int>(segment);
+            if (bone_at(warp.bone_maps_.data() + 12 * k_seg, double(i), double(j), double(k)) != k_seg) continue;
+            if (claimed < 0) {
+              claimed = k_seg;
+            } else {
+              ++bone_stats.bone_overlap_voxels[{std::min(claimed, k_seg), std::max(claimed, k_seg)}];
+              claimed = std::min(claimed, k_seg);
+            }
+          }
+          if (o >= 0 || (o <= -2 && o != kNoSample)) {
+            const int still = bone_at(warp.background_map_, double(i), double(j), double(k));
+            if (still >= 0 && !bone_moves[static_cast<size_t>(still)]) {
+              if (claimed < 0) {
+                claimed = still;
+              } else if (claimed != still) {
+                ++bone_stats.bone_overlap_voxels[{std::min(claimed, still), std::max(claimed, still)}];
+                claimed = std::min(claimed, still);
+              }
+            }
+          }
+          if (claimed >= 0) {
+            o = kBoneOwner + claimed;
+            ++bone_stats.bone_voxels;
+          }
+        };
         const std::vector<std::pair<int64_t, int32_t>>& found = shells[static_cast<size_t>(s)];
         size_t next_shell = 0;
         int64_t covered = 0, extrapolated = 0, background = 0, conflicted = 0;
@@ -552,6 +642,17 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
         const bool bg_steps_x = steps_one_x(bg[0], bg[3], bg[6]);
         for (int64_t k = kb; k < ke; ++k) {
           for (int64_t j = 0; j < n[1]; ++j) {
+            row_bones.clear();
+            for (int seg = 0; seg < segment_count; ++seg) {
+              const std::array<double, 6>& box = bone_box[static_cast<size_t>(seg)];
+              if (!bone_moves[static_cast<size_t>(seg)] || double(j) < box[1] || double(j) > box[4] ||
+                  double(k) < box[2] || double(k) > box[5]) {
+                continue;
+              }
+              row_bones.push_back({seg, std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(box[0]))),
+                                   std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(box[3])))});
+            }
+            const bool bones_here = bones && (!row_bones.empty() || segment_count > 0);
             const int64_t row_begin = output.offset(0, j, k);
             const int64_t local_begin = row_begin - slab_begin;
             double row[3];
@@ -577,6 +678,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                   ++background;
                 }
                 conflicted += conflict[static_cast<size_t>(local)];
+                if (bones_here) claim_bone(o, i, j, k);
                 continue;
               }
               const double di = double(i);
@@ -611,6 +713,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 ++background;
               }
               conflicted += conflict[static_cast<size_t>(local)];
+              if (bones_here) claim_bone(o, i, j, k);
             }
           }
         }
@@ -629,6 +732,8 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
       warp.stats_.extrapolated_voxels += st.extrapolated_voxels;
       warp.stats_.background_voxels += st.background_voxels;
       warp.stats_.conflicted_voxels += st.conflicted_voxels;
+      warp.stats_.bone_voxels += st.bone_voxels;
+      for (const auto& [pair, count] : st.bone_overlap_voxels) warp.stats_.bone_overlap_voxels[pair] += count;
     }
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory preparing the warp onto " + output.describe());
@@ -639,6 +744,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
 
 const double* TetWarp::map_of(int32_t o) const {
   if (o >= 0) return maps_.get() + 12 * o;
+  if (is_bone_owner(o)) return bone_maps_.data() + 12 * (o - kBoneOwner);
   if (o <= -2 && o != kNoSample) return maps_.get() + 12 * (-2 - o);
   return background_map_;
 }
@@ -660,7 +766,8 @@ void TetWarp::for_each_mapped_run(const Sample& sample) const {
             double s[3];
             apply_map(m, double(i), double(j), double(k), s);
             const double ds[3] = {m[0], m[3], m[6]};
-            sample(row + i, end - i, s, ds);
+            const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
+            sample(row + i, end - i, s, ds, soft);
           }
           i = end;
         }
@@ -683,8 +790,11 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   const Index3& m = source_.size;
   const Label* in = labels.data();
   Label* dst = out.data();
-  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
-    if (steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
+  const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
+  const int32_t* substitute = bones_ ? bones_->substitute.data() : nullptr;
+  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
+    const bool keep_bones_out = soft && bone_of;
+    if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
       copy_source_row(in, m, round_index(s0[0]), round_index(s0[1]), round_index(s0[2]), count, dst + v);
       return;
     }
@@ -693,7 +803,9 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
       const int64_t x = round_index(s0[0] + dc * ds[0]), y = round_index(s0[1] + dc * ds[1]),
                     z = round_index(s0[2] + dc * ds[2]);
       if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
-      dst[v + c] = in[x + m[0] * (y + m[1] * z)];
+      int64_t at = x + m[0] * (y + m[1] * z);
+      if (keep_bones_out && bone_of[at] >= 0) at = substitute[at];
+      dst[v + c] = in[at];
     }
   });
   return out;
@@ -718,9 +830,13 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   const double hi[3] = {static_cast<double>(m[0]) - 0.5, static_cast<double>(m[1]) - 0.5, static_cast<double>(m[2]) - 0.5};
   const double top[3] = {static_cast<double>(m[0] - 1), static_cast<double>(m[1] - 1), static_cast<double>(m[2] - 1)};
   const int64_t base_max[3] = {std::max<int64_t>(0, m[0] - 2), std::max<int64_t>(0, m[1] - 2), std::max<int64_t>(0, m[2] - 2)};
-  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3]) {
+  const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
+  const int32_t* substitute = bones_ ? bones_->substitute.data() : nullptr;
+  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
+    const bool keep_bones_out = soft && bone_of;
     int64_t x0 = 0, y = 0, z = 0;
-    if (steps_one_x(ds[0], ds[1], ds[2]) && integral(s0[0], x0) && integral(s0[1], y) && integral(s0[2], z)) {
+    if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2]) && integral(s0[0], x0) && integral(s0[1], y) &&
+        integral(s0[2], z)) {
       // A run along a source row through voxel centres: either interpolation gives the voxels themselves.
       copy_source_row(in, m, x0, y, z, count, dst + v);
       return;
@@ -729,6 +845,13 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
       const double dc = double(c);
       const double s[3] = {s0[0] + dc * ds[0], s0[1] + dc * ds[1], s0[2] + dc * ds[2]};
       if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > hi[0] || s[1] > hi[1] || s[2] > hi[2]) continue;
+      if (keep_bones_out) {
+        const int64_t nearest = round_index(s[0]) + sy * round_index(s[1]) + sz * round_index(s[2]);
+        if (bone_of[nearest] >= 0) {
+          dst[v + c] = in[substitute[nearest]];
+          continue;
+        }
+      }
       if (interpolation == Interpolation::kNearest) {
         dst[v + c] = in[round_index(s[0]) + sy * round_index(s[1]) + sz * round_index(s[2])];
         continue;
@@ -758,11 +881,57 @@ std::vector<int32_t> TetWarp::owner() const {
   for (int32_t& o : tet_owner) {
     if (o >= 0) {
       o = tets_[static_cast<size_t>(o)];
-    } else if (o <= -2 && o != kNoSample) {
+    } else if (o <= -2 && o != kNoSample && !is_bone_owner(o)) {
       o = -2 - tets_[static_cast<size_t>(-2 - o)];
     }
   }
   return tet_owner;
+}
+
+std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
+  if (!bones_) return {};
+  const int segment_count = static_cast<int>(bone_maps_.size() / 12);
+  const Index3& n = output_.size;
+  const Index3& m = source_.size;
+  Eigen::Matrix3d to_mm;  // source index step -> mm
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) to_mm(r, c) = source_.direction[static_cast<size_t>(3 * r + c)] * source_.spacing[static_cast<size_t>(c)];
+  // Per slice, the deviations of the voxels holding a bone value, by segment; then max and 99th percentile.
+  std::vector<std::vector<std::vector<float>>> found(static_cast<size_t>(n[2]));
+  parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
+    for (int64_t k = k0; k < k1; ++k) {
+      std::vector<std::vector<float>>& slice = found[static_cast<size_t>(k)];
+      slice.assign(static_cast<size_t>(segment_count), {});
+      for (int64_t j = 0; j < n[1]; ++j) {
+        for (int64_t i = 0; i < n[0]; ++i) {
+          const int32_t o = owner_[output_.offset(i, j, k)];
+          if (o == kNoSample) continue;
+          double s[3];
+          apply_map(map_of(o), double(i), double(j), double(k), s);
+          const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
+          if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
+          const int segment = bones_->segment[static_cast<size_t>(x + m[0] * (y + m[1] * z))];
+          const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
+          if (segment < 0 || soft) continue;  // no bone value here (a soft map takes the substitute)
+          double b[3];
+          apply_map(bone_maps_.data() + 12 * segment, double(i), double(j), double(k), b);
+          const Eigen::Vector3d d(s[0] - b[0], s[1] - b[1], s[2] - b[2]);
+          slice[static_cast<size_t>(segment)].push_back(static_cast<float>((to_mm * d).norm()));
+        }
+      }
+    }
+  });
+  std::vector<std::pair<double, double>> result(static_cast<size_t>(segment_count), {0.0, 0.0});
+  for (int segment = 0; segment < segment_count; ++segment) {
+    std::vector<float> all;
+    for (const auto& slice : found) all.insert(all.end(), slice[static_cast<size_t>(segment)].begin(), slice[static_cast<size_t>(segment)].end());
+    if (all.empty()) continue;
+    const size_t p99 = std::min(all.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(all.size())));
+    std::nth_element(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(p99), all.end());
+    const double percentile = all[p99];
+    result[static_cast<size_t>(segment)] = {*std::max_element(all.begin(), all.end()), percentile};
+  }
+  return result;
 }
 
 std::vector<float> TetWarp::inverse_displacement() const {

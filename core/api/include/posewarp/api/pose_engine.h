@@ -57,6 +57,7 @@ class PoseEngine {
   skinning::RestTetFrames frames_;
   std::map<Label, int64_t> rest_label_counts_;  // the report's "before" counts, once
   std::vector<int32_t> rest_owner_;  // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
+  resample::BoneVoxels bone_voxels_;  // which source voxel is which bone: bones rigid at voxel level
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
 };
 

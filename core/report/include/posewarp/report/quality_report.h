@@ -39,6 +39,45 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
                                            const std::vector<Eigen::Vector3d>& translation,
                                            const std::vector<std::string>& segment_names);
 
+// Soft tissue around one moved joint: the tets whose rest centroid lies within radius_mm of the joint centre.
+struct JointRegionChange {
+  std::string joint;
+  double radius_mm = 0.0;
+  double rest_volume_ml = 0.0;
+  double volume_change = 0.0;       // posed / rest soft-tissue volume - 1
+  double folded_fraction = 0.0;     // of the rest volume in tets with det <= 0
+  double stretched_fraction = 0.0;  // of the rest volume in tets with det > 2 or 0 < det < 0.5
+};
+
+// For each joint centre (rest, LPS mm) and each radius: the soft-tissue change around it.
+std::vector<JointRegionChange> joint_region_changes(const TetMesh& rest, const Eigen::VectorXd& det,
+                                                   const Eigen::VectorXd& rest_volume,
+                                                   const std::vector<std::pair<std::string, Eigen::Vector3d>>& joints,
+                                                   const std::vector<double>& radii_mm);
+
+// Bone rigidity measured on the output voxels that hold a bone's value (TetWarp::bone_deviation_mm).
+struct SegmentVoxelRigidity {
+  std::string segment;
+  double max_mm = 0.0;
+  double p99_mm = 0.0;
+};
+
+// Two bones that pass through each other in the pose.
+struct BoneOverlap {
+  std::string segment_a, segment_b;
+  int64_t voxels = 0;
+  double volume_ml = 0.0;
+};
+
+// When a figure of the report is bad enough to warn about.
+struct WarningThresholds {
+  double bone_deviation_voxels = 0.5;  // a bone voxel further than this from its bone's rigid motion
+  double bone_overlap_ml = 1.0;        // per pair of bones
+  double local_volume_change = 0.10;   // |change| of soft tissue within a moved joint's largest radius
+  double folded_fraction = 0.01;
+  double stretched_fraction = 0.05;
+};
+
 struct LabelChange {
   std::map<Label, std::pair<int64_t, int64_t>> voxels;  // label -> (before, after)
   std::vector<Label> vanished;                          // present before, absent after
@@ -61,8 +100,17 @@ struct QualityReport {
   int64_t covered_voxels = 0, conflicted_voxels = 0, extrapolated_voxels = 0, background_voxels = 0;
   int64_t degenerate_tets = 0;
   int64_t rasterized_tets = 0;  // tets the warp rasterized: those not moving with the background (root)
+  int64_t bone_voxels = 0;      // output voxels mapped by their bone's own rigid transform
+  std::vector<SegmentVoxelRigidity> voxel_rigidity;  // per segment, when labels were warped
+  double bone_voxel_deviation_mm = 0.0;              // max over segments
+  std::vector<BoneOverlap> bone_overlaps;
+  std::vector<JointRegionChange> joint_regions;      // around each joint the pose moves, at 50 and 100 mm
+  std::vector<std::string> warnings;                 // figures over WarningThresholds, in words
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
+
+// Fills report.warnings from its figures. `voxel_mm`: the source grid's smallest spacing.
+void add_warnings(QualityReport& report, double voxel_mm, const WarningThresholds& thresholds = {});
 
 std::string to_json(const QualityReport& report);
 

@@ -6,13 +6,16 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <map>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
+#include "posewarp/resample/rigid_bones.h"
 
 namespace posewarp::resample {
 
@@ -49,6 +52,10 @@ struct WarpStats {
   int64_t extrapolated_voxels = 0; // in the skin shell, mapped by the tet of the nearest covered voxel
   int64_t background_voxels = 0;   // outside mesh and shell: moved with the background (root) transform
   int64_t degenerate_tets = 0;     // rasterized tets with no volume once posed, skipped
+  int64_t bone_voxels = 0;         // mapped by a bone's own rigid transform (RigidBones), ahead of any tet
+  // Output voxels two bones claim (each would put its own voxel there): bones passing through each other. Keyed by
+  // the segment pair (lower index first); the lower index keeps the voxel.
+  std::map<std::pair<int, int>, int64_t> bone_overlap_voxels;
 };
 
 // The map from an output grid back to the source grid for one posed mesh.
@@ -61,6 +68,10 @@ class TetWarp {
  public:
   // Owner code of an output voxel that nothing maps back to (the place a moved limb left): background value.
   static constexpr int32_t kNoSample = -2147483647 - 1;
+  // Owner code of an output voxel mapped by bone segment k's rigid transform: kBoneOwner + k.
+  static constexpr int32_t kBoneOwner = kNoSample + 1;
+  static constexpr int32_t kMaxBoneSegments = 32767;
+  static bool is_bone_owner(int32_t o) { return o >= kBoneOwner && o < kBoneOwner + kMaxBoneSegments; }
 
   // rest/posed: the rig's tet mesh and its posed vertices (#V x 3). background_*: the rigid transform (rest ->
   // posed) of everything outside the mesh, normally the root segment's. rest_owner: owner() of the identity warp
@@ -69,11 +80,17 @@ class TetWarp {
   // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized. INVALID_ARGUMENT for posed
   // vertices that do not fit the mesh, a rest ownership of another grid, or a skin shell wider than 8 output voxels;
   // RESOURCE_EXHAUSTED for an output grid over max_output_voxels or out of memory.
+  //
+  // bones (may be null): bones rigid at voxel level. An output voxel that bone segment k's rigid inverse maps onto a
+  // source voxel of segment k takes that map, whatever tet covers it; a voxel a moving tet or the skin shell maps
+  // onto a bone that does not move takes the bone's (the background) map; and a tet map that lands inside a bone
+  // samples the bone voxel's soft-tissue substitute (BoneVoxels::substitute), so no bone value appears where its
+  // bone did not put it. `bones->voxels` must outlive the warp.
   static Result<TetWarp> build(const TetMesh& rest, const Eigen::MatrixXd& posed,
                                const ImageGeometry& source, const ImageGeometry& output,
                                const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
                                const std::vector<int32_t>* rest_owner, const ResampleParams& params,
-                               const ProgressHooks& hooks);
+                               const ProgressHooks& hooks, const RigidBones* bones = nullptr);
 
   const ImageGeometry& output() const { return output_; }
   const WarpStats& stats() const { return stats_; }
@@ -85,16 +102,22 @@ class TetWarp {
   // Intensities, trilinear or nearest; the result keeps the source's type on disk.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
   // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
-  // the background transform (inside a tet that follows it, or outside the body), kNoSample where nothing maps.
+  // the background transform (inside a tet that follows it, or outside the body), kBoneOwner + k for a voxel of bone
+  // segment k (with RigidBones), kNoSample where nothing maps.
   std::vector<int32_t> owner() const;
+  // Per bone segment with RigidBones: how far (mm) the output voxels that end up holding a value of that bone sample
+  // from where the bone's own rigid inverse would (0 for every voxel a bone owns): {max, 99th percentile}. Empty
+  // without RigidBones.
+  std::vector<std::pair<double, double>> bone_deviation_mm() const;
   // x_source - x_output in mm for every output voxel (3 floats each, x fastest): the field ITK's
   // DisplacementFieldTransform takes to resample the source onto the output grid.
   std::vector<float> inverse_displacement() const;
 
  private:
   TetWarp() = default;
-  // Calls sample(v, n, s, ds) for every run of n output voxels from v along a row that map to source index s,
+  // Calls sample(v, n, s, ds, soft) for every run of n output voxels from v along a row that map to source index s,
   // s + ds, ..., output slices in parallel.
+  // `soft` tells whether the run is mapped by a tet or the skin shell (its bone samples take substitutes).
   template <typename Sample>
   void for_each_mapped_run(const Sample& sample) const;
   const double* map_of(int32_t owner) const;
@@ -105,6 +128,8 @@ class TetWarp {
   std::vector<int32_t> tets_;              // rasterized index -> tet
   std::shared_ptr<double[]> maps_;         // 12 per rasterized tet: output index -> source index, s = A u + b
   double background_map_[12] = {};         // the same for the background transform
+  std::vector<double> bone_maps_;          // 12 per bone segment (RigidBones)
+  const BoneVoxels* bones_ = nullptr;
   Label label_background_ = 0;
   float intensity_background_ = 0.0f;
   int64_t rasterized_tets_ = 0;
