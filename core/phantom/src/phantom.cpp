@@ -1,4 +1,4 @@
-// The bar and mannequin phantoms: label volumes, CTs, label maps and true joint centres.
+// The bar and mannequin phantoms: label volumes, CTs, label maps and true joint centres; the joints JSON.
 #include "posewarp/phantom/phantom.h"
 
 #include <nlohmann/json.hpp>
@@ -324,13 +324,18 @@ std::string joints_to_json(const Phantom& phantom) {
   doc["space"] = "LPS, mm";
   nlohmann::json joints = nlohmann::json::array();
   for (const JointTruth& joint : phantom.joints) {
-    joints.push_back({{"name", joint.name},
-                      {"parent", joint.parent_segment},
-                      {"child", joint.child_segment},
-                      {"centre_mm", {joint.centre_mm[0], joint.centre_mm[1], joint.centre_mm[2]}},
-                      {"kind", joint.kind}});
+    nlohmann::json entry{{"name", joint.name},
+                         {"parent", joint.parent_segment},
+                         {"child", joint.child_segment},
+                         {"centre_mm", {joint.centre_mm[0], joint.centre_mm[1], joint.centre_mm[2]}},
+                         {"kind", joint.kind}};
+    if (joint.axis != Vec3{0.0, 0.0, 0.0}) entry["axis"] = {joint.axis[0], joint.axis[1], joint.axis[2]};
+    joints.push_back(std::move(entry));
   }
   doc["joints"] = std::move(joints);
+  nlohmann::json contacts = nlohmann::json::array();
+  for (const auto& [a, b] : phantom.skin_contacts) contacts.push_back({a, b});
+  doc["skin_contacts"] = std::move(contacts);
   return doc.dump(2) + "\n";
 }
 
