@@ -1,4 +1,4 @@
-// The bar and mannequin phantoms: label volumes, CTs, label maps and true joint centres.
+// The bar and mannequin phantoms: label volumes, CTs, label maps and true joint centres; the joints JSON.
 #include "posewarp/phantom/phantom.h"
 
 #include <nlohmann/json.hpp>
@@ -8,59 +8,28 @@
 #include <string>
 
 #include "raster.h"
+#include "support.h"
 
 namespace posewarp::phantom {
 namespace {
 
+using detail::check_positive;
+using detail::check_size;
+using detail::kAirHu;
+using detail::kBoneHu;
+using detail::kBrainHu;
+using detail::kFatHu;
+using detail::kLiverHu;
+using detail::kSoftHu;
 using detail::Shape;
+using detail::validate_direction;
 using labels::JointName;
 using labels::LabelEntry;
 using labels::LabelRole;
 
-// Hounsfield units of the phantom tissues.
-constexpr float kAirHu = -1000.0f;
-constexpr float kFatHu = -100.0f;
-constexpr float kSoftHu = 40.0f;
-constexpr float kLiverHu = 60.0f;
-constexpr float kBrainHu = 35.0f;
-constexpr float kBoneHu = 700.0f;
-
-Status validate_direction(const std::array<double, 9>& d) {
-  ImageGeometry probe;
-  probe.size = {1, 1, 1};
-  probe.direction = d;
-  return probe.validate().with_context("phantom direction");
-}
-
-Status check_positive(double value, const char* name) {
-  if (!(value > 0.0) || !std::isfinite(value)) {
-    return invalid_argument_error(std::string(name) + " must be positive and finite (got " + std::to_string(value) +
-                                  ")");
-  }
-  return ok_status();
-}
-
-Status check_size(const ImageGeometry& g) {
-  constexpr int64_t kMaxPhantomVoxels = int64_t{1} << 30;
-  if (g.voxel_count() > kMaxPhantomVoxels) {
-    return resource_exhausted_error("the phantom would have " + std::to_string(g.voxel_count()) +
-                                    " voxels (" + g.describe() + "); use a coarser spacing");
-  }
-  return ok_status();
-}
-
-// Sets the grid of `labels` to hold the union of shapes' bounds.
 ImageGeometry grid_for(const std::vector<Shape>& shapes, double spacing, const std::array<double, 9>& direction,
                        double margin) {
-  Vec3 lo{detail::kInf, detail::kInf, detail::kInf};
-  Vec3 hi{-detail::kInf, -detail::kInf, -detail::kInf};
-  for (const Shape& shape : shapes) {
-    Vec3 slo{};
-    Vec3 shi{};
-    shape.bounds(slo, shi);
-    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
-  }
-  return detail::fit_grid(lo, hi, spacing, direction, margin);
+  return detail::grid_for(shapes, Vec3{spacing, spacing, spacing}, direction, margin);
 }
 
 // ---- mannequin layout -------------------------------------------------------------------------------------------
@@ -359,13 +328,18 @@ std::string joints_to_json(const Phantom& phantom) {
   doc["space"] = "LPS, mm";
   nlohmann::json joints = nlohmann::json::array();
   for (const JointTruth& joint : phantom.joints) {
-    joints.push_back({{"name", joint.name},
-                      {"parent", joint.parent_segment},
-                      {"child", joint.child_segment},
-                      {"centre_mm", {joint.centre_mm[0], joint.centre_mm[1], joint.centre_mm[2]}},
-                      {"kind", joint.kind}});
+    nlohmann::json entry{{"name", joint.name},
+                         {"parent", joint.parent_segment},
+                         {"child", joint.child_segment},
+                         {"centre_mm", {joint.centre_mm[0], joint.centre_mm[1], joint.centre_mm[2]}},
+                         {"kind", joint.kind}};
+    if (joint.axis != Vec3{0.0, 0.0, 0.0}) entry["axis"] = {joint.axis[0], joint.axis[1], joint.axis[2]};
+    joints.push_back(std::move(entry));
   }
   doc["joints"] = std::move(joints);
+  nlohmann::json contacts = nlohmann::json::array();
+  for (const auto& [a, b] : phantom.skin_contacts) contacts.push_back({a, b});
+  doc["skin_contacts"] = std::move(contacts);
   return doc.dump(2) + "\n";
 }
 

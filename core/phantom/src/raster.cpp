@@ -13,6 +13,10 @@ namespace {
 double dot(const Vec3& u, const Vec3& v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
 Vec3 sub(const Vec3& u, const Vec3& v) { return {u[0] - v[0], u[1] - v[1], u[2] - v[2]}; }
 double norm(const Vec3& u) { return std::sqrt(dot(u, u)); }
+Vec3 cross(const Vec3& u, const Vec3& v) {
+  return {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
+}
+double sign(double x) { return x > 0.0 ? 1.0 : x < 0.0 ? -1.0 : 0.0; }
 
 // Distance from p to segment [a, b], and the segment parameter of the closest point (unclamped).
 double segment_parameter(const Vec3& p, const Vec3& a, const Vec3& b) {
@@ -115,6 +119,56 @@ double Shape::sdf(const Vec3& p) const {
       d = norm(outside) + std::min(inside, 0.0);
       break;
     }
+    case Kind::kRoundCone: {
+      // Quilez's exact round-cone distance (one square root per branch).
+      const double r1 = radius;
+      const double r2 = radii[0];
+      const Vec3 ba = sub(b, a);
+      const Vec3 pa = sub(p, a);
+      const double l2 = dot(ba, ba);
+      const double rr = r1 - r2;
+      const double a2 = l2 - rr * rr;
+      const double il2 = 1.0 / l2;
+      const double y = dot(pa, ba);
+      const double z = y - l2;
+      const Vec3 xv{pa[0] * l2 - ba[0] * y, pa[1] * l2 - ba[1] * y, pa[2] * l2 - ba[2] * y};
+      const double x2 = dot(xv, xv);
+      const double y2 = y * y * l2;
+      const double z2 = z * z * l2;
+      const double k = sign(rr) * rr * rr * x2;
+      if (sign(z) * a2 * z2 > k) {
+        d = std::sqrt(x2 + z2) * il2 - r2;
+      } else if (sign(y) * a2 * y2 < k) {
+        d = std::sqrt(x2 + y2) * il2 - r1;
+      } else {
+        d = (std::sqrt(x2 * a2 * il2) + y * rr) * il2 - r1;
+      }
+      break;
+    }
+    case Kind::kSphericalCup: {
+      const Vec3 q = sub(p, a);
+      const double r = norm(q);
+      const double shell = std::max(radius - r, r - radii[0]);
+      const double cos_angle = r > 0.0 ? std::clamp(dot(q, b) / r, -1.0, 1.0) : 1.0;
+      const double beyond = std::acos(cos_angle) - radii[1];  // radians past the rim (negative inside)
+      const double cone = r * std::sin(std::min(beyond, 0.5 * 3.14159265358979323846));
+      d = std::max(shell, cone);
+      break;
+    }
+    case Kind::kOrientedBox: {
+      const Vec3 q = sub(p, a);
+      const Vec3 w = cross(axis_u, axis_v);
+      const Vec3 local{dot(q, axis_u), dot(q, axis_v), dot(q, w)};
+      Vec3 outside{};
+      double inside = -kInf;
+      for (int axis = 0; axis < 3; ++axis) {
+        const double e = std::abs(local[axis]) - (b[axis] - radius);
+        outside[axis] = std::max(e, 0.0);
+        inside = std::max(inside, e);
+      }
+      d = norm(outside) + std::min(inside, 0.0) - radius;
+      break;
+    }
   }
   for (int axis = 0; axis < 3; ++axis) {
     if (p[axis] < clip_min[axis] || p[axis] > clip_max[axis]) return std::max(d, 1e-9);
@@ -144,6 +198,23 @@ void Shape::bounds(Vec3& lo, Vec3& hi) const {
       lo = a;
       hi = b;
       break;
+    case Kind::kRoundCone: {
+      const double r = std::max(radius, radii[0]);
+      for (int i = 0; i < 3; ++i) lo[i] = std::min(a[i], b[i]) - r, hi[i] = std::max(a[i], b[i]) + r;
+      break;
+    }
+    case Kind::kSphericalCup:
+      for (int i = 0; i < 3; ++i) lo[i] = a[i] - radii[0], hi[i] = a[i] + radii[0];
+      break;
+    case Kind::kOrientedBox: {
+      const Vec3 w = cross(axis_u, axis_v);
+      for (int i = 0; i < 3; ++i) {
+        const double extent = std::abs(axis_u[i]) * b[0] + std::abs(axis_v[i]) * b[1] + std::abs(w[i]) * b[2];
+        lo[i] = a[i] - extent;
+        hi[i] = a[i] + extent;
+      }
+      break;
+    }
   }
   for (int i = 0; i < 3; ++i) {
     lo[i] = std::max(lo[i], clip_min[i]);
@@ -199,10 +270,48 @@ Shape box(const Vec3& lo, const Vec3& hi) {
   return s;
 }
 
+Shape round_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_b) {
+  Shape s;
+  s.kind = Shape::Kind::kRoundCone;
+  s.a = a;
+  s.b = b;
+  s.radius = radius_a;
+  s.radii = {radius_b, 0.0, 0.0};
+  return s;
+}
+
+Shape spherical_cup(const Vec3& centre, const Vec3& pole, double inner_radius, double outer_radius,
+                    double half_angle) {
+  Shape s;
+  s.kind = Shape::Kind::kSphericalCup;
+  s.a = centre;
+  const double length = norm(pole);
+  s.b = {pole[0] / length, pole[1] / length, pole[2] / length};
+  s.radius = inner_radius;
+  s.radii = {outer_radius, half_angle, 0.0};
+  return s;
+}
+
+Shape oriented_box(const Vec3& centre, const Vec3& u, const Vec3& v, const Vec3& half_extents, double rounding) {
+  Shape s;
+  s.kind = Shape::Kind::kOrientedBox;
+  s.a = centre;
+  s.b = half_extents;
+  s.radius = rounding;
+  s.axis_u = u;
+  s.axis_v = v;
+  return s;
+}
+
 ImageGeometry fit_grid(const Vec3& lo, const Vec3& hi, double spacing, const std::array<double, 9>& direction,
                        double margin) {
+  return fit_grid(lo, hi, Vec3{spacing, spacing, spacing}, direction, margin);
+}
+
+ImageGeometry fit_grid(const Vec3& lo, const Vec3& hi, const Vec3& spacing, const std::array<double, 9>& direction,
+                       double margin) {
   ImageGeometry g;
-  g.spacing = {spacing, spacing, spacing};
+  g.spacing = spacing;
   g.direction = direction;
   // Extent of the box along each grid axis (columns of the direction matrix).
   Vec3 origin{0.0, 0.0, 0.0};
@@ -218,7 +327,7 @@ ImageGeometry fit_grid(const Vec3& lo, const Vec3& hi, double spacing, const std
     }
     min_proj -= margin;
     max_proj += margin;
-    g.size[axis] = static_cast<int64_t>(std::ceil((max_proj - min_proj) / spacing)) + 1;
+    g.size[axis] = static_cast<int64_t>(std::ceil((max_proj - min_proj) / spacing[axis])) + 1;
     for (int r = 0; r < 3; ++r) origin[r] += column[r] * min_proj;
   }
   g.origin = origin;
@@ -238,14 +347,28 @@ void paint(LabelVolume& labels, const Shape& shape, Label label) {
   });
 }
 
+void repaint(LabelVolume& labels, const Shape& shape, Label from, Label to) {
+  Vec3 lo{};
+  Vec3 hi{};
+  shape.bounds(lo, hi);
+  Index3 first{};
+  Index3 last{};
+  if (!index_box(labels.geometry(), lo, hi, first, last)) return;
+  Label* out = labels.data();
+  for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
+    if (out[offset] == from && shape.contains(p)) out[offset] = to;
+  });
+}
+
 void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner_label, Label shell_label,
                 double shell_mm) {
   Vec3 lo{kInf, kInf, kInf};
   Vec3 hi{-kInf, -kInf, -kInf};
-  for (const Shape& shape : body) {
-    Vec3 slo{};
-    Vec3 shi{};
-    shape.bounds(slo, shi);
+  std::vector<std::pair<Vec3, Vec3>> shape_bounds(body.size());
+  for (size_t s = 0; s < body.size(); ++s) {
+    Vec3& slo = shape_bounds[s].first;
+    Vec3& shi = shape_bounds[s].second;
+    body[s].bounds(slo, shi);
     for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
   }
   Index3 first{};
@@ -253,8 +376,17 @@ void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner
   if (!index_box(labels.geometry(), lo, hi, first, last)) return;
   Label* out = labels.data();
   for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
+    // A shape whose bounds miss p has a positive distance there, so it cannot change a depth d <= 0: skipping it
+    // gives the same labels, faster.
     double d = kInf;
-    for (const Shape& shape : body) d = std::min(d, shape.sdf(p));
+    for (size_t s = 0; s < body.size(); ++s) {
+      const Vec3& slo = shape_bounds[s].first;
+      const Vec3& shi = shape_bounds[s].second;
+      if (p[0] < slo[0] || p[1] < slo[1] || p[2] < slo[2] || p[0] > shi[0] || p[1] > shi[1] || p[2] > shi[2]) {
+        continue;
+      }
+      d = std::min(d, body[s].sdf(p));
+    }
     if (d <= 0.0) out[offset] = d > -shell_mm ? shell_label : inner_label;
   });
 }

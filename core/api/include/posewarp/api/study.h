@@ -34,11 +34,16 @@ Result<StudyInspection> inspect_study(const LabelVolume& labels, const Intensity
                                       const labels::BodyParams& params);
 
 using phantom::BarParams;
+using phantom::body_grid;
+using phantom::body_spacing_for_voxels;
+using phantom::BodyParams;
 using phantom::make_bar;
+using phantom::make_body;
 using phantom::make_mannequin;
 using phantom::mannequin_spacing_for_voxels;
 using phantom::MannequinParams;
 using phantom::Phantom;
+using phantom::rotation_direction;
 
 // Writes labels<extension>, ct<extension>, label_map.json and joints.json into `dir` (created if needed) and
 // returns the paths written.

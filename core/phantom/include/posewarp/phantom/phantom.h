@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "posewarp/common/result.h"
@@ -18,7 +19,11 @@ struct JointTruth {
   std::string parent_segment;  // the segment nearer the root
   std::string child_segment;
   Vec3 centre_mm{};            // LPS, mm
-  std::string kind;            // "ball" (a sphere in a socket) or "plane" (two flat bone ends facing)
+  // "ball" (a sphere in a socket; the centre is the sphere's), "hinge" (a transverse cylinder in a notch or under
+  // a flat end; the centre is the midpoint of its axis) or "plane" (bone ends facing across a soft gap; the centre
+  // is the middle of the gap)
+  std::string kind;
+  Vec3 axis{};  // hinges: the unit hinge axis in LPS, pointing to the patient's left; zero for other kinds
 };
 
 struct Phantom {
@@ -29,6 +34,9 @@ struct Phantom {
   std::string root_segment;
   std::vector<JointTruth> joints;
   double joint_gap_mm = 0.0;
+  // Body parts whose skins touch or overlap by construction, so the body mask is one piece there (e.g.
+  // {"arm_left", "trunk"}); empty for phantoms whose limbs stand free.
+  std::vector<std::pair<std::string, std::string>> skin_contacts;
 };
 
 // The paper's bar (Sujar et al. 2018, Fig. 7): a soft-tissue cylinder along +z holding a chain of bones on its
@@ -63,17 +71,60 @@ struct MannequinParams {
   std::array<double, 9> direction{1, 0, 0, 0, 1, 0, 0, 0, 1};
 };
 
+// The direction matrix (row-major, columns = index axes in LPS) of a rotation by `degrees` about `axis` (any
+// non-zero length), by Rodrigues' formula.
+std::array<double, 9> rotation_direction(Vec3 axis, double degrees);
+
+// A supine body as CT shows it, in LPS (x = patient left, y = posterior, z = superior), feet near z = 0, every
+// length scaled by height / 1700 mm. Skin: elliptic trunk, shoulders, neck, head, thighs whose skins overlap at
+// the midline, legs and feet pointing anteriorly, upper arms whose skin overlaps the trunk's, forearms along the
+// flank and hands resting on the lateral thighs; a subcutaneous fat shell, a liver and a brain.
+// Bones and joints (the true centres in Phantom::joints; default gap = 1.2 voxel diagonals):
+// - pelvis (sacrum, hip_left/right halves) with hemispherical acetabula; hips are balls (femoral head r 24) in
+//   them; femur with neck at 130 degrees to the shaft, greater trochanter, shaft inclined medially, transverse
+//   condyle cylinder (r 22, 70 long): the knee is a hinge over a flat tibial plateau; a patella in front of the
+//   condyles; ankle = hinge (talar dome, a transverse cylinder r 18, under a concave tibial mortise with a
+//   medial malleolus); a foot pointing anteriorly;
+// - lumbar vertebrae L5..L1 and the thorax (thoracic spine, rib shell, sternum), cervical spine, skull: flat
+//   ends across soft gaps;
+// - clavicles (sternoclavicular and acromioclavicular gaps), scapulae lying on the rib shell (touching it) with
+//   an acromion and a shallow glenoid cup (half-angle 35 degrees) holding the humeral head (r 22); elbow = hinge
+//   (trochlea, a transverse cylinder r 13, in the forearm's notch); wrist = flat ends across a gap to the hand.
+// Label values, names (TotalSegmentator-like) and segments are in the phantom's label map; the root is pelvis.
+struct BodyParams {
+  // Voxel spacing along the index axes (i, j in-plane, k between slices), mm.
+  Vec3 spacing_mm{2.5, 2.5, 5.0};
+  double height_mm = 1700.0;  // standing height; every length scales with it
+  double joint_gap_mm = 0.0;  // soft gap at every joint; 0 = 1.2 voxel diagonals (a soft voxel in every direction)
+  double fat_mm = 10.0;       // subcutaneous fat thickness at 1700 mm height
+  double margin_mm = 12.0;    // air around the body
+  double noise_hu = 5.0;      // amplitude of deterministic CT noise
+  uint64_t seed = 1;
+  // Grid direction (row-major, columns = index axes in LPS); must be a rotation. Default: oblique, 8 degrees
+  // about the tilted axis (1, 2, 6).
+  std::array<double, 9> direction = rotation_direction({1.0, 2.0, 6.0}, 8.0);
+};
+
 Status validate(const BarParams& params);
 Status validate(const MannequinParams& params);
+Status validate(const BodyParams& params);
 
 Result<Phantom> make_bar(const BarParams& params);
 Result<Phantom> make_mannequin(const MannequinParams& params);
+Result<Phantom> make_body(const BodyParams& params);
+
+// The grid make_body would fill (validated, size checked), without rasterizing anything.
+Result<ImageGeometry> body_grid(const BodyParams& params);
 
 // The isotropic spacing that gives a mannequin of about `target_voxels` voxels with the other parameters kept.
 double mannequin_spacing_for_voxels(const MannequinParams& params, int64_t target_voxels);
 
-// {"phantom": ..., "root_segment": ..., "joint_gap_mm": ..., "joints": [{"name", "parent", "child",
-//  "centre_mm": [x, y, z], "kind"}]}
+// The spacing, in the ratios of params.spacing_mm, that gives a body of about `target_voxels` voxels.
+Vec3 body_spacing_for_voxels(const BodyParams& params, int64_t target_voxels);
+
+// {"phantom": ..., "root_segment": ..., "joint_gap_mm": ..., "space": "LPS, mm",
+//  "joints": [{"name", "parent", "child", "centre_mm": [x, y, z], "kind", "axis": [x, y, z] (hinges only)}],
+//  "skin_contacts": [["arm_left", "trunk"], ...]}
 std::string joints_to_json(const Phantom& phantom);
 
 }  // namespace posewarp::phantom
