@@ -571,7 +571,15 @@ Result<Phantom> make_body(const BodyParams& p) {
   phantom.joints = body_joints(m);
   std::vector<JointName> joint_names;
   for (const JointTruth& joint : phantom.joints) {
-    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment});
+    // Declared as a label map for real bodies would: kinds, and flexion moving the heel back at the knee and the
+    // toes up at the ankle.
+    const labels::JointKind kind = joint.kind == "ball"    ? labels::JointKind::kBall
+                                   : joint.kind == "hinge" ? labels::JointKind::kHinge
+                                                           : labels::JointKind::kPlane;
+    const labels::FlexionDirection flexion = joint.name.rfind("knee", 0) == 0    ? labels::FlexionDirection::kPosterior
+                                             : joint.name.rfind("ankle", 0) == 0 ? labels::FlexionDirection::kSuperior
+                                                                                 : labels::FlexionDirection::kAnterior;
+    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment, kind, flexion});
   }
   phantom.root_segment = "pelvis";
   POSEWARP_ASSIGN_OR_RETURN(phantom.label_map, labels::LabelMap::create("body_phantom", body_entries(),

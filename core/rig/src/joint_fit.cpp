@@ -94,8 +94,13 @@ struct Trimmed {
   double rms = 0.0;
   std::vector<int> inliers;
   double mean_direction = 1.0;  // length of the mean unit direction of the inliers from the centre
+  double core_rms = 0.0;        // rms of the kCoreFraction of all points closest to the fit
   bool ok = false;
 };
+
+// A hinge's articular end is never alone near the joint (the shaft, a malleolus, the talus body): the fit is judged
+// on the best-fitting part of the points, a least-trimmed-squares measure.
+constexpr double kCoreFraction = 0.6;
 
 // Alternates trimming (robust band of residuals) and geometric refinement, starting from an algebraic fit.
 template <int D>
@@ -125,6 +130,16 @@ Trimmed<D> trimmed_fit(const std::vector<Eigen::Matrix<double, D, 1>>& points, d
   }
   fit.rms = std::sqrt(sum / static_cast<double>(kept.size()));
   fit.mean_direction = direction.norm() / static_cast<double>(kept.size());
+  std::vector<double> squared(points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    const double e = (points[i] - fit.centre).norm() - fit.radius;
+    squared[i] = e * e;
+  }
+  const size_t core = std::max<size_t>(1, static_cast<size_t>(kCoreFraction * static_cast<double>(points.size())));
+  std::nth_element(squared.begin(), squared.begin() + static_cast<std::ptrdiff_t>(core - 1), squared.end());
+  double core_sum = 0.0;
+  for (size_t i = 0; i < core; ++i) core_sum += squared[i];
+  fit.core_rms = std::sqrt(core_sum / static_cast<double>(core));
   fit.ok = fit.radius > 0.0 && fit.centre.allFinite();
   return fit;
 }
@@ -135,7 +150,7 @@ void judge(SurfaceFit& fit, double mean_direction, double max_radius, const FitP
     fit.reason = std::to_string(fit.inliers) + " inlier points (" + std::to_string(params.min_points) + " needed)";
   } else if (!(fit.radius > 0.0) || fit.radius > max_radius) {
     fit.reason = "radius " + std::to_string(static_cast<int>(std::lround(fit.radius))) + " mm is not an articular surface";
-  } else if (fit.rms > params.max_relative_rms * fit.radius) {
+  } else if (fit.rms > std::max(params.max_relative_rms * fit.radius, params.rms_floor_mm)) {
     fit.reason = "rms " + std::to_string(fit.rms) + " mm is too large for radius " + std::to_string(fit.radius) + " mm";
   } else if (mean_direction > kMaxMeanDirection) {
     fit.reason = "the surface is too flat to fix a centre";
@@ -156,7 +171,10 @@ struct AxisScore {
   Trimmed<2> circle;
 };
 
-AxisScore score_axis(const std::vector<Vector3d>& points, const Vector3d& axis, double band_floor) {
+// A hinge's axis is close to mediolateral (the guess); on coarse slices a short cylinder's tilt is weakly determined,
+// so each degree away from the guess costs a little: r (1 - cos tilt) mm, 0.75 mm at 18 degrees for a 15 mm radius.
+AxisScore score_axis(const std::vector<Vector3d>& points, const Vector3d& axis, double band_floor,
+                     const Vector3d& guess) {
   Vector3d b1, b2;
   perpendicular_basis(axis, b1, b2);
   std::vector<Vector2d> projected(points.size());
@@ -165,7 +183,8 @@ AxisScore score_axis(const std::vector<Vector3d>& points, const Vector3d& axis, 
   result.circle = trimmed_fit<2>(projected, band_floor, 3);
   if (!result.circle.ok || result.circle.inliers.empty()) return result;
   const double fraction = static_cast<double>(result.circle.inliers.size()) / static_cast<double>(points.size());
-  result.score = result.circle.rms / fraction;
+  (void)fraction;
+  result.score = result.circle.core_rms + result.circle.radius * (1.0 - std::abs(axis.dot(guess)));
   return result;
 }
 
@@ -225,32 +244,57 @@ SurfaceFit fit_cylinder(const std::vector<Vector3d>& pool, const Vector3d& axis_
   for (size_t i = 0; i < pool.size(); i += stride) points.push_back(pool[i] - mean);
 
   const Vector3d guess = axis_guess.normalized();
-  Vector3d g1, g2;
-  perpendicular_basis(guess, g1, g2);
-  Vector3d best_axis = guess;
-  AxisScore best = score_axis(points, guess, params.band_floor_mm);
-  // Coarse: tilts in 5 degree steps, azimuths in 30 degree steps.
-  for (double tilt = 5.0; tilt <= max_tilt_deg + 1e-9; tilt += 5.0) {
-    for (double azimuth = 0.0; azimuth < 360.0; azimuth += 30.0) {
-      const double t = tilt * M_PI / 180.0, a = azimuth * M_PI / 180.0;
-      const Vector3d axis =
-          (std::cos(t) * guess + std::sin(t) * (std::cos(a) * g1 + std::sin(a) * g2)).normalized();
-      AxisScore s = score_axis(points, axis, params.band_floor_mm);
-      if (s.score < best.score) best = std::move(s), best_axis = axis;
-    }
-  }
-  // Fine: one degree steps about two axes across the best.
-  for (int pass = 0; pass < 2; ++pass) {
-    Vector3d f1, f2;
-    perpendicular_basis(best_axis, f1, f2);
-    const Vector3d centre_axis = best_axis;
-    for (int u = -4; u <= 4; ++u) {
-      for (int v = -4; v <= 4; ++v) {
-        if (u == 0 && v == 0) continue;
-        const double step = (pass == 0 ? 1.0 : 0.25) * M_PI / 180.0;
-        const Vector3d axis = (centre_axis + std::tan(u * step) * f1 + std::tan(v * step) * f2).normalized();
-        AxisScore s = score_axis(points, axis, params.band_floor_mm);
+  // Best axis near `start` over `candidates`: coarse tilts in 5 degree steps (azimuths in 30), then two passes of
+  // small steps about the best.
+  auto search = [&](const std::vector<Vector3d>& candidates, const Vector3d& start, double tilt_deg, Vector3d& axis_out) {
+    Vector3d g1, g2;
+    perpendicular_basis(start, g1, g2);
+    Vector3d best_axis = start;
+    AxisScore best = score_axis(candidates, start, params.band_floor_mm, guess);
+    for (double tilt = 5.0; tilt <= tilt_deg + 1e-9; tilt += 5.0) {
+      for (double azimuth = 0.0; azimuth < 360.0; azimuth += 30.0) {
+        const double t = tilt * M_PI / 180.0, a = azimuth * M_PI / 180.0;
+        const Vector3d axis = (std::cos(t) * start + std::sin(t) * (std::cos(a) * g1 + std::sin(a) * g2)).normalized();
+        AxisScore s = score_axis(candidates, axis, params.band_floor_mm, guess);
         if (s.score < best.score) best = std::move(s), best_axis = axis;
+      }
+    }
+    for (const double step_deg : {1.0, 0.25}) {
+      Vector3d f1, f2;
+      perpendicular_basis(best_axis, f1, f2);
+      const Vector3d centre_axis = best_axis;
+      for (int u = -4; u <= 4; ++u) {
+        for (int v = -4; v <= 4; ++v) {
+          if (u == 0 && v == 0) continue;
+          const double step = step_deg * M_PI / 180.0;
+          const Vector3d axis = (centre_axis + std::tan(u * step) * f1 + std::tan(v * step) * f2).normalized();
+          AxisScore s = score_axis(candidates, axis, params.band_floor_mm, guess);
+          if (s.score < best.score) best = std::move(s), best_axis = axis;
+        }
+      }
+    }
+    axis_out = best_axis;
+    return best;
+  };
+  Vector3d best_axis;
+  AxisScore best = search(points, guess, max_tilt_deg, best_axis);
+  // Then once more on the points near that cylinder only (the articular surface without the shaft and the rims).
+  if (best.circle.ok) {
+    Vector3d b1, b2;
+    perpendicular_basis(best_axis, b1, b2);
+    const double keep = std::max(params.band_floor_mm, 0.25 * best.circle.radius);
+    std::vector<Vector3d> near;
+    for (const Vector3d& p : points) {
+      const Vector2d q(p.dot(b1), p.dot(b2));
+      if (std::abs((q - best.circle.centre).norm() - best.circle.radius) < keep) near.push_back(p);
+    }
+    if (static_cast<int>(near.size()) >= params.min_points) {
+      Vector3d refined_axis;
+      AxisScore refined = search(near, best_axis, 5.0, refined_axis);
+      if (refined.circle.ok) {
+        points.swap(near);
+        best = std::move(refined);
+        best_axis = refined_axis;
       }
     }
   }
@@ -266,10 +310,22 @@ SurfaceFit fit_cylinder(const std::vector<Vector3d>& pool, const Vector3d& axis_
   fit.axis = best_axis;
   fit.centre = mean + best.circle.centre.x() * b1 + best.circle.centre.y() * b2 + along * best_axis;
   fit.radius = best.circle.radius;
-  fit.rms = best.circle.rms;
+  fit.rms = best.circle.core_rms;
   fit.inliers = static_cast<int>(best.circle.inliers.size());
   judge(fit, best.circle.mean_direction, max_radius_mm, params);
   return fit;
+}
+
+double surface_support(const SurfaceFit& fit, const std::vector<Vector3d>& points, double band_mm) {
+  if (points.empty()) return 0.0;
+  const bool cylinder = fit.axis.norm() > 0.5;
+  int64_t on = 0;
+  for (const Vector3d& p : points) {
+    Vector3d d = p - fit.centre;
+    if (cylinder) d -= d.dot(fit.axis) * fit.axis;
+    on += std::abs(d.norm() - fit.radius) < band_mm ? 1 : 0;
+  }
+  return static_cast<double>(on) / static_cast<double>(points.size());
 }
 
 }  // namespace posewarp::rig::detail

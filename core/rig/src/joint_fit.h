@@ -23,6 +23,7 @@ struct FitParams {
   double max_relative_rms = 0.15;  // accept when rms / radius is below this
   int min_points = 20;             // inliers needed
   double band_floor_mm = 1.0;      // the inlier band is never narrower than this (about half a voxel)
+  double rms_floor_mm = 0.0;       // rms accepted whatever the radius (the staircase of thick slices)
 };
 
 // Sphere through `seed` (the bone's points at the contact: an algebraic start), then grown over `pool` (the same
@@ -38,5 +39,9 @@ SurfaceFit fit_sphere(const std::vector<Eigen::Vector3d>& seed, const std::vecto
 // `max_radius_mm` (a flat plateau fits a huge circle).
 SurfaceFit fit_cylinder(const std::vector<Eigen::Vector3d>& pool, const Eigen::Vector3d& axis_guess,
                         double max_tilt_deg, double max_radius_mm, const FitParams& params);
+
+// The fraction of `points` (a bone's articular surface: where it nearly touches the other bone) that lie within
+// `band_mm` of the fitted sphere or cylinder. A convex articular surface is on its fit; a fit to the shaft is not.
+double surface_support(const SurfaceFit& fit, const std::vector<Eigen::Vector3d>& points, double band_mm);
 
 }  // namespace posewarp::rig::detail

@@ -25,6 +25,7 @@ struct Contact {
   int64_t count = 0;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   std::vector<Index3> voxels;
+  std::vector<float> distance_mm;  // per voxel: to the nearest voxel of b (centre to centre)
 };
 
 struct DisjointSets {
@@ -173,7 +174,29 @@ Joint place_joint(const JointPlacement& at, int s, int c, double area) {
     fit_params.max_relative_rms = at.params.sphere_max_relative_rms;
     fit_params.min_points = at.params.sphere_min_points;
     fit_params.band_floor_mm = 0.5 * at.max_spacing;
+    fit_params.rms_floor_mm = 0.35 * at.max_spacing;
     constexpr double kPoolRadiusMm = 90.0;
+    // The articular region: the contact voxels nearly as close to the other bone as the closest (a long contact
+    // distance on thick slices also catches shafts and rims), its centre and how far it reaches.
+    double closest = std::numeric_limits<double>::infinity();
+    for (const Contact* contact : {to_child, to_parent}) {
+      for (const float d : contact->distance_mm) closest = std::min(closest, static_cast<double>(d));
+    }
+    const double articular_mm = closest + 1.5 * at.max_spacing;
+    Eigen::Vector3d articular_centre = Eigen::Vector3d::Zero();
+    double articular_count = 0.0;
+    for (const Contact* contact : {to_child, to_parent}) {
+      for (size_t i = 0; i < contact->voxels.size(); ++i) {
+        if (contact->distance_mm[i] > articular_mm) continue;
+        const Index3& v = contact->voxels[i];
+        articular_centre += physical(at.g, v[0], v[1], v[2]);
+        articular_count += 1.0;
+      }
+    }
+    articular_centre /= std::max(1.0, articular_count);
+    // Flat and irregular joints turn about the middle of where the bones nearly touch, not of everything within
+    // the contact distance (a clavicle lying along the first rib, thick slices).
+    joint.centre_mm = articular_centre;
     // Bone b (the child when towards_child is +1) is convex here when the fit's centre lies on its side.
     auto convex = [&](const detail::SurfaceFit& fit, double towards_child) {
       return fit.accepted && (fit.centre - centroid).dot(normal) * towards_child > 0.0;
@@ -205,19 +228,36 @@ Joint place_joint(const JointPlacement& at, int s, int c, double area) {
       // The convex side is the femoral condyles / humeral trochlea (parent) or the talar dome (child); the axis is
       // mediolateral, across the bone's long axis.
       detail::SurfaceFit best;
+      double best_support = 0.0;
       for (const int side : {s, c}) {
         const Segment& bone = skeleton.segments[static_cast<size_t>(side)];
         Eigen::Vector3d guess = Eigen::Vector3d::UnitX() - Eigen::Vector3d::UnitX().dot(bone.principal_axis) * bone.principal_axis;
         if (guess.norm() < 0.3) guess = Eigen::Vector3d::UnitX();
         const double max_radius = 60.0;
-        const detail::SurfaceFit fit = detail::fit_cylinder(face_points_near(at, side, centroid, 0.6 * kPoolRadiusMm),
-                                                            guess, 25.0, max_radius, fit_params);
+        // The articular end only: the bone's boundary a little beyond the contact (the shaft would dominate).
+        // The convex side of the contact: the bone's voxels within the contact distance of the other.
+        const Contact* own_contact = side == c ? to_parent : to_child;
+        const detail::SurfaceFit fit = detail::fit_cylinder(face_points(at, side, own_contact->voxels), guess,
+                                                            15.0, max_radius, fit_params);
         if (!convex(fit, side == c ? 1.0 : -1.0)) {
           if (refused.empty()) refused = fit.accepted ? "a cylinder fits only the concave side" : fit.reason;
           continue;
         }
         if (!centre_is_plausible(at, fit.centre, s, c, to_child, to_parent)) continue;
-        if (!best.accepted || fit.rms / fit.radius < best.rms / best.radius) best = fit;
+        // Which side's fit is the articular surface: the one its own close-contact points lie on.
+        const Contact* own = side == c ? to_parent : to_child;
+        std::vector<Index3> articular;
+        for (size_t i = 0; i < own->voxels.size(); ++i) {
+          if (own->distance_mm[i] <= articular_mm) articular.push_back(own->voxels[i]);
+        }
+        const double support =
+            detail::surface_support(fit, face_points(at, side, articular), std::max(at.max_spacing, 0.2 * fit.radius));
+        constexpr double kMinSupport = 0.4;
+        if (support < kMinSupport) {
+          if (refused.empty()) refused = "a cylinder fits the bone but not its articular surface";
+          continue;
+        }
+        if (!best.accepted || support > best_support) best = fit, best_support = support;
       }
       if (best.accepted) {
         joint.centre_mm = best.centre;
@@ -428,7 +468,7 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
                             static_cast<int64_t>(std::floor(contact_mm / g.spacing[1])),
                             static_cast<int64_t>(std::floor(contact_mm / g.spacing[2]))};
   std::map<std::pair<int, int>, Contact> contacts;
-  std::vector<int> near;
+  std::vector<std::pair<int, double>> near;  // segment, squared distance to its nearest voxel
   for (int s = 0; s < n; ++s) {
     for (const Index3& v : surface[static_cast<size_t>(s)]) {
       near.clear();
@@ -440,18 +480,23 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
             const int64_t x = v[0] + di, y = v[1] + dj, z = v[2] + dk;
             if (!labels.contains(x, y, z)) continue;
             const int other = segment_at[static_cast<size_t>(g.offset(x, y, z))];
-            if (other >= 0 && other != s && std::find(near.begin(), near.end(), other) == near.end()) {
-              near.push_back(other);
+            if (other < 0 || other == s) continue;
+            auto known = std::find_if(near.begin(), near.end(), [&](const auto& e) { return e.first == other; });
+            if (known == near.end()) {
+              near.emplace_back(other, d2);
+            } else {
+              known->second = std::min(known->second, d2);
             }
           }
         }
       }
       const Eigen::Vector3d p = physical(g, v[0], v[1], v[2]);
-      for (const int other : near) {
+      for (const auto& [other, d2] : near) {
         Contact& contact = contacts[{s, other}];
         ++contact.count;
         contact.sum += p;
         contact.voxels.push_back(v);
+        contact.distance_mm.push_back(static_cast<float>(std::sqrt(d2)));
       }
     }
     progress.update(0.2 + 0.6 * (s + 1) / n);
