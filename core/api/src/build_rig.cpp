@@ -60,6 +60,7 @@ std::string Rig::id() const {
 Status validate(const BuildParams& params) {
   POSEWARP_RETURN_IF_ERROR(rig::validate(params.skeleton));
   POSEWARP_RETURN_IF_ERROR(labels::validate(params.body));
+  POSEWARP_RETURN_IF_ERROR(rig::validate(params.skin_contacts));
   POSEWARP_RETURN_IF_ERROR(mesh::validate(params.mesh));
   POSEWARP_RETURN_IF_ERROR(weights::validate(params.weights));
   POSEWARP_RETURN_IF_ERROR(cor::validate(params.cor));
@@ -118,9 +119,19 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     }
     clock.lap("body");
 
-    const LabelVolume classes = rig::skeleton_classes(rig.skeleton, inputs.labels, body);
+    LabelVolume classes = rig::skeleton_classes(rig.skeleton, inputs.labels, body);
     std::vector<std::string> names;
     for (const rig::Segment& segment : rig.skeleton.segments) names.push_back(segment.name);
+    if (params.skin_contacts.depth_mm > 0.0) {
+      POSEWARP_ASSIGN_OR_RETURN(const rig::BodyRegions regions, rig::body_regions(rig.skeleton, inputs.labels, body));
+      const rig::SkinContactCut cut = rig::cut_skin_contacts(classes, rig.skeleton, regions, params.skin_contacts);
+      nlohmann::json pairs = nlohmann::json::array();
+      for (const auto& [a, b] : cut.segment_pairs) {
+        pairs.push_back({names[static_cast<size_t>(a)], names[static_cast<size_t>(b)]});
+      }
+      stats["skin_contacts"] = {{"voxels_cut", cut.voxels}, {"segment_pairs", pairs}};
+      clock.lap("contacts");
+    }
     mesh::MeshHealth health;
     POSEWARP_ASSIGN_OR_RETURN(rig.mesh, mesh::make_cgal_mesher()->mesh(classes, static_cast<int>(names.size()),
                                                                        params.mesh, hooks, &health));

@@ -122,6 +122,7 @@ std::string params_to_json(const BuildParams& p) {
                      {"sphere_max_relative_rms", p.skeleton.sphere_max_relative_rms},
                      {"sphere_min_points", p.skeleton.sphere_min_points},
                      {"max_centre_offset_mm", p.skeleton.max_centre_offset_mm}};
+  doc["skin_contacts"] = {{"depth_mm", p.skin_contacts.depth_mm}};
   doc["body"] = {{"use_ct", p.body.use_ct},
                  {"ct_threshold_hu", p.body.ct_threshold_hu},
                  {"keep_largest_component", p.body.keep_largest_component},

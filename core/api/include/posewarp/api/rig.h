@@ -16,6 +16,7 @@
 #include "posewarp/mapping/tet_locator.h"
 #include "posewarp/mesh/mesher.h"
 #include "posewarp/rig/skeleton.h"
+#include "posewarp/rig/skin_contacts.h"
 #include "posewarp/surface/surface_mesh.h"
 #include "posewarp/weights/laplace_weights.h"
 
@@ -25,6 +26,7 @@ namespace posewarp::api {
 struct BuildParams {
   rig::SkeletonParams skeleton;
   labels::BodyParams body;
+  rig::SkinContactParams skin_contacts;  // body parts touching at rest are cut apart before meshing
   mesh::MeshParams mesh;
   weights::WeightsParams weights;
   cor::CorParams cor;

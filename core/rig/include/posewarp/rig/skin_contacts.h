@@ -1,0 +1,48 @@
+// Body parts that touch at rest (an arm against the trunk, thigh against thigh, a hand on the thigh) are joined in
+// the body mask, so one tet mesh would tie their soft tissue together and posing would tear a web of tissue between
+// them. The body is cut along such skin contacts before meshing: each soft voxel belongs to the region of its
+// nearest bone, and where two regions that must move apart meet near the skin, the voxels on both sides leave the
+// mesh (the warp's skin shell still maps them).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "posewarp/common/result.h"
+#include "posewarp/common/volume.h"
+#include "posewarp/rig/skeleton.h"
+
+namespace posewarp::rig {
+
+struct SkinContactParams {
+  // Cut where two separated regions meet within this depth below the skin, mm; 0 = no cut.
+  double depth_mm = 30.0;
+};
+
+Status validate(const SkinContactParams& params);
+
+// Per voxel of the labels' grid: the bone segment whose voxels are nearest through the body (-1 outside it) and the
+// depth below the skin (mm; 0 outside), both from 26-neighbour chamfer distances (within about 8%).
+struct BodyRegions {
+  std::vector<int16_t> segment;
+  std::vector<float> depth_mm;
+};
+
+Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& labels, const LabelVolume& body);
+
+// separated[a * n + b]: regions a and b must not share soft tissue where they meet near the skin. A limb is the
+// subtree below a ball joint whose child is on one side (hip, shoulder; without declared kinds, a sphere-fitted
+// joint). Two limbs are separated (thigh against thigh, hand on thigh); a limb is separated from the trunk except
+// from the bone it hangs from and that bone's lateral ancestors (scapula, clavicle); the trunk is never cut.
+std::vector<uint8_t> separated_segments(const Skeleton& skeleton);
+
+struct SkinContactCut {
+  int64_t voxels = 0;                                // soft voxels taken out of the mesher classes
+  std::vector<std::pair<int, int>> segment_pairs;    // the separated regions that touched, (a < b)
+};
+
+// Sets to 0 (outside) the soft-tissue mesher classes (1) on both sides of every skin contact.
+SkinContactCut cut_skin_contacts(LabelVolume& classes, const Skeleton& skeleton, const BodyRegions& regions,
+                                 const SkinContactParams& params);
+
+}  // namespace posewarp::rig

@@ -1,0 +1,204 @@
+// Skin contacts: nearest-bone regions of the body, their depth below the skin, and the cut between regions that
+// must move apart.
+#include "posewarp/rig/skin_contacts.h"
+
+#include "posewarp/common/tet_mesh.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <new>
+#include <set>
+#include <unordered_map>
+
+namespace posewarp::rig {
+namespace {
+
+struct Step {
+  int64_t di, dj, dk;
+  float length;
+};
+
+// The 13 neighbours that come before a voxel in memory order, with their lengths in mm.
+std::vector<Step> backward_steps(const ImageGeometry& g) {
+  std::vector<Step> steps;
+  for (int64_t dk = -1; dk <= 0; ++dk)
+    for (int64_t dj = -1; dj <= 1; ++dj)
+      for (int64_t di = -1; di <= 1; ++di) {
+        if (dk == 0 && (dj > 0 || (dj == 0 && di >= 0))) continue;
+        const double x = double(di) * g.spacing[0], y = double(dj) * g.spacing[1], z = double(dk) * g.spacing[2];
+        steps.push_back({di, dj, dk, static_cast<float>(std::sqrt(x * x + y * y + z * z))});
+      }
+  return steps;
+}
+
+// Two-pass chamfer: distance[v] = min over neighbours (distance + step) for voxels where `open(v)`; `carry` copies
+// what travels with the distance (the nearest segment).
+template <typename Open, typename Carry>
+void chamfer(const ImageGeometry& g, std::vector<float>& distance, const Open& open, const Carry& carry) {
+  const std::vector<Step> steps = backward_steps(g);
+  const Index3 n = g.size;
+  for (int pass = 0; pass < 2; ++pass) {
+    const int sign = pass == 0 ? 1 : -1;
+    for (int64_t kk = 0; kk < n[2]; ++kk) {
+      const int64_t k = pass == 0 ? kk : n[2] - 1 - kk;
+      for (int64_t jj = 0; jj < n[1]; ++jj) {
+        const int64_t j = pass == 0 ? jj : n[1] - 1 - jj;
+        for (int64_t ii = 0; ii < n[0]; ++ii) {
+          const int64_t i = pass == 0 ? ii : n[0] - 1 - ii;
+          const int64_t v = g.offset(i, j, k);
+          if (!open(v)) continue;
+          for (const Step& s : steps) {
+            const int64_t x = i + sign * s.di, y = j + sign * s.dj, z = k + sign * s.dk;
+            if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) continue;
+            const int64_t w = g.offset(x, y, z);
+            const float through = distance[static_cast<size_t>(w)] + s.length;
+            if (through < distance[static_cast<size_t>(v)]) {
+              distance[static_cast<size_t>(v)] = through;
+              carry(v, w);
+            }
+          }
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+Status validate(const SkinContactParams& params) {
+  if (!(params.depth_mm >= 0.0) || !std::isfinite(params.depth_mm) || params.depth_mm > 200.0) {
+    return invalid_argument_error("skin contact depth_mm must lie in 0..200 mm (0: no cut)");
+  }
+  return ok_status();
+}
+
+Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& labels, const LabelVolume& body) {
+  if (!labels.geometry().same_grid(body.geometry())) {
+    return invalid_argument_error("the body mask is not on the labels' grid");
+  }
+  BodyRegions regions;
+  try {
+    const ImageGeometry& g = labels.geometry();
+    const int64_t nv = labels.voxel_count();
+    std::unordered_map<Label, int16_t> segment_of;
+    for (size_t k = 0; k < skeleton.segments.size(); ++k) {
+      for (const Label v : skeleton.segments[k].labels) segment_of[v] = static_cast<int16_t>(k);
+    }
+    constexpr float kFar = std::numeric_limits<float>::max() / 4;
+    regions.segment.assign(static_cast<size_t>(nv), -1);
+    std::vector<float> to_bone(static_cast<size_t>(nv), kFar);
+    regions.depth_mm.assign(static_cast<size_t>(nv), 0.0f);
+    for (int64_t v = 0; v < nv; ++v) {
+      if (body.data()[v] == 0) continue;
+      regions.depth_mm[static_cast<size_t>(v)] = kFar;
+      const auto it = segment_of.find(labels.data()[v]);
+      if (it != segment_of.end()) {
+        regions.segment[static_cast<size_t>(v)] = it->second;
+        to_bone[static_cast<size_t>(v)] = 0.0f;
+      }
+    }
+    auto inside = [&](int64_t v) { return body.data()[v] != 0; };
+    chamfer(g, to_bone, inside, [&](int64_t v, int64_t w) { regions.segment[static_cast<size_t>(v)] = regions.segment[static_cast<size_t>(w)]; });
+    chamfer(g, regions.depth_mm, inside, [](int64_t, int64_t) {});
+    // A body touching the grid's edge: those voxels are at the skin too (the scan cut through the body there).
+    for (int64_t v = 0; v < nv; ++v) {
+      if (regions.depth_mm[static_cast<size_t>(v)] >= kFar) regions.depth_mm[static_cast<size_t>(v)] = 0.0f;
+    }
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory finding the body regions of " + labels.geometry().describe());
+  }
+  return regions;
+}
+
+std::vector<uint8_t> separated_segments(const Skeleton& skeleton) {
+  const size_t n = skeleton.segments.size();
+  std::vector<uint8_t> separated(n * n, 0);
+  bool any_ball = false;
+  for (const Joint& joint : skeleton.joints) any_ball = any_ball || joint.kind == labels::JointKind::kBall;
+  auto limb_root = [&](const Joint& joint) {
+    const bool ball = any_ball ? joint.kind == labels::JointKind::kBall : joint.method == "sphere-fit";
+    return ball && joint.side != BodySide::kMidline;
+  };
+  // limb[s]: the limb-root joint above segment s (-1 in the trunk); joints come parents first.
+  std::vector<int> limb(n, -1);
+  std::vector<std::vector<int>> attached(skeleton.joints.size());  // per limb root: trunk bones it hangs from
+  for (size_t j = 0; j < skeleton.joints.size(); ++j) {
+    const Joint& joint = skeleton.joints[j];
+    const int from_parent = limb[static_cast<size_t>(joint.parent)];
+    if (from_parent >= 0) {
+      limb[static_cast<size_t>(joint.child)] = from_parent;
+    } else if (limb_root(joint)) {
+      limb[static_cast<size_t>(joint.child)] = static_cast<int>(j);
+      // The bone it hangs from and its lateral ancestors: the shoulder girdle moves with the arm's tissue.
+      int s = joint.parent;
+      attached[j].push_back(s);
+      // A segment is lateral when the joint above it is (the scapula under the clavicle under the thorax).
+      for (int up = skeleton.segments[static_cast<size_t>(s)].parent_joint;
+           up >= 0 && skeleton.joints[static_cast<size_t>(up)].side != BodySide::kMidline;
+           up = skeleton.segments[static_cast<size_t>(s)].parent_joint) {
+        s = skeleton.joints[static_cast<size_t>(up)].parent;
+        const int above = skeleton.segments[static_cast<size_t>(s)].parent_joint;
+        if (above < 0 || skeleton.joints[static_cast<size_t>(above)].side == BodySide::kMidline) break;
+        attached[j].push_back(s);
+      }
+    }
+  }
+  for (size_t a = 0; a < n; ++a) {
+    for (size_t b = 0; b < n; ++b) {
+      if (a == b) continue;
+      const int la = limb[a], lb = limb[b];
+      bool cut = false;
+      if (la >= 0 && lb >= 0) {
+        cut = la != lb;
+      } else if (la >= 0 || lb >= 0) {
+        const int l = la >= 0 ? la : lb;
+        const int trunk = static_cast<int>(la >= 0 ? b : a);
+        const std::vector<int>& hangs = attached[static_cast<size_t>(l)];
+        cut = std::find(hangs.begin(), hangs.end(), trunk) == hangs.end();
+      }
+      separated[a * n + b] = cut;
+    }
+  }
+  return separated;
+}
+
+SkinContactCut cut_skin_contacts(LabelVolume& classes, const Skeleton& skeleton, const BodyRegions& regions,
+                                 const SkinContactParams& params) {
+  SkinContactCut cut;
+  if (params.depth_mm <= 0.0) return cut;
+  const ImageGeometry& g = classes.geometry();
+  const size_t n = skeleton.segments.size();
+  const std::vector<uint8_t> separated = separated_segments(skeleton);
+  std::vector<int64_t> marked;
+  std::set<std::pair<int, int>> pairs;
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (int64_t j = 0; j < g.size[1]; ++j) {
+      for (int64_t i = 0; i < g.size[0]; ++i) {
+        const int64_t v = g.offset(i, j, k);
+        if (classes.data()[v] != kSoftTissueClass || regions.depth_mm[static_cast<size_t>(v)] > params.depth_mm) continue;
+        const int a = regions.segment[static_cast<size_t>(v)];
+        if (a < 0) continue;
+        bool touches = false;
+        for (int64_t dk = -1; dk <= 1 && !touches; ++dk) {
+          for (int64_t dj = -1; dj <= 1 && !touches; ++dj) {
+            for (int64_t di = -1; di <= 1 && !touches; ++di) {
+              if (!classes.contains(i + di, j + dj, k + dk)) continue;
+              const int b = regions.segment[static_cast<size_t>(g.offset(i + di, j + dj, k + dk))];
+              if (b < 0 || b == a || !separated[static_cast<size_t>(a) * n + static_cast<size_t>(b)]) continue;
+              touches = true;
+              pairs.insert({std::min(a, b), std::max(a, b)});
+            }
+          }
+        }
+        if (touches) marked.push_back(v);
+      }
+    }
+  }
+  for (const int64_t v : marked) classes.data()[v] = 0;
+  cut.voxels = static_cast<int64_t>(marked.size());
+  cut.segment_pairs.assign(pairs.begin(), pairs.end());
+  return cut;
+}
+
+}  // namespace posewarp::rig
