@@ -122,9 +122,10 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
     LabelVolume classes = rig::skeleton_classes(rig.skeleton, inputs.labels, body);
     std::vector<std::string> names;
     for (const rig::Segment& segment : rig.skeleton.segments) names.push_back(segment.name);
+    std::optional<rig::BodyRegions> regions;
     if (params.skin_contacts.depth_mm > 0.0) {
-      POSEWARP_ASSIGN_OR_RETURN(const rig::BodyRegions regions, rig::body_regions(rig.skeleton, inputs.labels, body));
-      const rig::SkinContactCut cut = rig::cut_skin_contacts(classes, rig.skeleton, regions, params.skin_contacts);
+      POSEWARP_ASSIGN_OR_RETURN(regions, rig::body_regions(rig.skeleton, inputs.labels, body));
+      const rig::SkinContactCut cut = rig::cut_skin_contacts(classes, rig.skeleton, *regions, params.skin_contacts);
       nlohmann::json pairs = nlohmann::json::array();
       for (const auto& [a, b] : cut.segment_pairs) {
         pairs.push_back({names[static_cast<size_t>(a)], names[static_cast<size_t>(b)]});
@@ -137,6 +138,9 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
                                                                        params.mesh, hooks, &health));
     for (const std::string& warning : health.warnings) rig.skeleton.notes.push_back("mesh: " + warning);
     const int64_t bridging = mesh::separate_bone_segments(rig.mesh);
+    if (regions) {
+      stats["skin_contacts"]["tets_torn"] = rig::tear_skin_contacts(rig.mesh, rig.skeleton, *regions, grid);
+    }
     POSEWARP_RETURN_IF_ERROR(mesh::check_mesh_health(rig.mesh, classes, names, &health));
     stats["mesh"] = {{"vertices", rig.mesh.vertex_count()},
                      {"tets", rig.mesh.tet_count()},
@@ -153,6 +157,11 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
 
     weights::WeightStats weight_stats;
     POSEWARP_ASSIGN_OR_RETURN(rig.weights, weights::laplace_weights(rig.mesh, params.weights, hooks, &weight_stats));
+    if (regions) {
+      const std::vector<int> vertex_region = rig::vertex_regions(rig.mesh, *regions, grid);
+      stats["skin_contacts"]["vertices_reweighted"] =
+          rig::keep_weights_within_regions(rig.weights, vertex_region, rig.skeleton);
+    }
     stats["weights"] = {{"free_vertices", weight_stats.free_vertices},
                         {"fixed_vertices", weight_stats.fixed_vertices},
                         {"min_raw_weight", weight_stats.min_raw_weight},

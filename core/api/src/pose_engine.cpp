@@ -44,6 +44,20 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
     std::vector<std::vector<Label>> segment_labels;
     for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
     POSEWARP_ASSIGN_OR_RETURN(engine.bone_voxels_, resample::bone_voxels(rig.labels, segment_labels));
+    // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
+    POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
+                              labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
+    POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
+    engine.region_ = std::move(regions.segment);
+    engine.separated_ = rig::separated_segments(rig.skeleton);
+    engine.tet_region_.assign(static_cast<size_t>(rig.mesh.tet_count()), -1);
+    for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
+      const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
+      const int64_t i = std::llround(u[0]), j = std::llround(u[1]), k = std::llround(u[2]);
+      if (rig.labels.contains(i, j, k)) engine.tet_region_[static_cast<size_t>(t)] = engine.region_[static_cast<size_t>(g.offset(i, j, k))];
+    }
     engine.rest_label_counts_ = report::label_counts(rig.labels);
     if (rig.ct) {
       engine.ct_minimum_ = 0.0f;
@@ -132,6 +146,9 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
     bones.voxels = &bone_voxels_;
     bones.rotation = segments.rotation;
     bones.translation = segments.translation;
+    bones.region = &region_;
+    bones.tet_region = &tet_region_;
+    bones.separated = &separated_;
     POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
                               resample::TetWarp::build(mesh, result.posed_vertices, source, result.output_grid,
                                                        root.rotation, root.translation, &rest_owner_, params, hooks,

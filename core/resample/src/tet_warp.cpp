@@ -184,6 +184,11 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
         bones->rotation.size() > static_cast<size_t>(kMaxBoneSegments)) {
       return invalid_argument_error("the bone transforms do not match the bone segments");
     }
+    if (bones->region && (static_cast<int64_t>(bones->region->size()) != source.voxel_count() || !bones->tet_region ||
+                          static_cast<int64_t>(bones->tet_region->size()) != rest.tet_count() || !bones->separated ||
+                          bones->separated->size() != bones->rotation.size() * bones->rotation.size())) {
+      return invalid_argument_error("the body regions do not match the source grid, the mesh or the segments");
+    }
   }
   if (posed.rows() != rest.vertex_count() || posed.cols() != 3) {
     return invalid_argument_error("posed vertices (" + std::to_string(posed.rows()) + ") do not match the mesh (" +
@@ -588,6 +593,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     // its source voxels; a bone that follows the background where a moving tet or the shell would sample it.
     std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
     const int16_t* bone_of = bones ? bones->voxels->segment.data() : nullptr;
+    const bool guarded = bones && bones->region && bones->tet_region && bones->separated;
     auto bone_at = [&](const double* map, double i, double j, double k) -> int {
       double src[3];
       apply_map(map, i, j, k, src);
@@ -603,6 +609,21 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
         std::vector<uint8_t>& conflict = conflicts[static_cast<size_t>(s)];
         WarpStats& bone_stats = slab_stats[static_cast<size_t>(s)];
         std::vector<std::array<int64_t, 3>> row_bones;  // (segment, i0, i1) of the moving bones on a row
+        // Drops a tet's (or its shell's) sample of tissue from a body part separated from the tet's own.
+        auto guard_contact = [&](int32_t& o, int64_t i, int64_t j, int64_t k) {
+          const bool tet_owned = o >= 0, shell_owned = o <= -2 && o != kNoSample && !is_bone_owner(o);
+          if (!tet_owned && !shell_owned) return;
+          const int32_t c = tet_owned ? o : -2 - o;
+          const int rt = (*bones->tet_region)[static_cast<size_t>(tets[static_cast<size_t>(c)])];
+          double src[3];
+          apply_map(warp.maps_.get() + 12 * c, double(i), double(j), double(k), src);
+          const int64_t x = round_index(src[0]), y = round_index(src[1]), z = round_index(src[2]);
+          if (rt < 0 || x < 0 || y < 0 || z < 0 || x >= source.size[0] || y >= source.size[1] || z >= source.size[2]) return;
+          const int rs = (*bones->region)[static_cast<size_t>(source.offset(x, y, z))];
+          if (rs < 0 || rs == rt || !(*bones->separated)[static_cast<size_t>(rt) * segment_count + static_cast<size_t>(rs)]) return;
+          o = kNoSample;
+          ++bone_stats.contact_guarded_voxels;
+        };
         // Claims voxel (i, j, k) for a bone, given its owner after classification.
         auto claim_bone = [&](int32_t& o, int64_t i, int64_t j, int64_t k) {
           int claimed = -1;
@@ -678,6 +699,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                   ++background;
                 }
                 conflicted += conflict[static_cast<size_t>(local)];
+                if (guarded) guard_contact(o, i, j, k);
                 if (bones_here) claim_bone(o, i, j, k);
                 continue;
               }
@@ -713,6 +735,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 ++background;
               }
               conflicted += conflict[static_cast<size_t>(local)];
+              if (guarded) guard_contact(o, i, j, k);
               if (bones_here) claim_bone(o, i, j, k);
             }
           }
@@ -733,6 +756,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
       warp.stats_.background_voxels += st.background_voxels;
       warp.stats_.conflicted_voxels += st.conflicted_voxels;
       warp.stats_.bone_voxels += st.bone_voxels;
+      warp.stats_.contact_guarded_voxels += st.contact_guarded_voxels;
       for (const auto& [pair, count] : st.bone_overlap_voxels) warp.stats_.bone_overlap_voxels[pair] += count;
     }
   } catch (const std::bad_alloc&) {

@@ -201,4 +201,118 @@ SkinContactCut cut_skin_contacts(LabelVolume& classes, const Skeleton& skeleton,
   return cut;
 }
 
+std::vector<int> vertex_regions(const TetMesh& mesh, const BodyRegions& regions, const ImageGeometry& grid) {
+  std::vector<int> region(static_cast<size_t>(mesh.vertex_count()), -1);
+  for (int64_t v = 0; v < mesh.vertex_count(); ++v) {
+    const Vec3 u = grid.physical_to_index({mesh.vertices(v, 0), mesh.vertices(v, 1), mesh.vertices(v, 2)});
+    const int64_t ci = std::llround(u[0]), cj = std::llround(u[1]), ck = std::llround(u[2]);
+    double best = std::numeric_limits<double>::infinity();
+    for (int64_t dk = -2; dk <= 2; ++dk) {
+      for (int64_t dj = -2; dj <= 2; ++dj) {
+        for (int64_t di = -2; di <= 2; ++di) {
+          const int64_t i = ci + di, j = cj + dj, k = ck + dk;
+          if (i < 0 || j < 0 || k < 0 || i >= grid.size[0] || j >= grid.size[1] || k >= grid.size[2]) continue;
+          const int r = regions.segment[static_cast<size_t>(grid.offset(i, j, k))];
+          if (r < 0) continue;
+          const double d = std::pow((i - u[0]) * grid.spacing[0], 2) + std::pow((j - u[1]) * grid.spacing[1], 2) +
+                           std::pow((k - u[2]) * grid.spacing[2], 2);
+          if (d < best) best = d, region[static_cast<size_t>(v)] = r;
+        }
+      }
+    }
+  }
+  return region;
+}
+
+int64_t keep_weights_within_regions(SkinWeights& weights, const std::vector<int>& vertex_region,
+                                    const Skeleton& skeleton) {
+  const size_t n = skeleton.segments.size();
+  const std::vector<uint8_t> separated = separated_segments(skeleton);
+  int64_t changed = 0;
+  for (int64_t v = 0; v < weights.vertex_count(); ++v) {
+    const int r = vertex_region[static_cast<size_t>(v)];
+    if (r < 0) continue;
+    float kept = 0.0f;
+    bool dropped = false;
+    for (int c = 0; c < weights.influences; ++c) {
+      const int s = weights.segment(v, c);
+      if (s < 0) continue;
+      if (s != r && separated[static_cast<size_t>(r) * n + static_cast<size_t>(s)]) {
+        weights.weight(v, c) = 0.0f;
+        weights.segment(v, c) = -1;
+        dropped = true;
+      } else {
+        kept += weights.weight(v, c);
+      }
+    }
+    if (!dropped) continue;
+    ++changed;
+    if (kept <= 0.0f) {
+      weights.segment(v, 0) = r;
+      weights.weight(v, 0) = 1.0f;
+      for (int c = 1; c < weights.influences; ++c) weights.segment(v, c) = -1, weights.weight(v, c) = 0.0f;
+      continue;
+    }
+    // Renormalize and keep the slots in descending order, unused ones last.
+    std::vector<std::pair<float, int>> slots;
+    for (int c = 0; c < weights.influences; ++c) {
+      if (weights.segment(v, c) >= 0) slots.emplace_back(weights.weight(v, c) / kept, weights.segment(v, c));
+    }
+    std::sort(slots.begin(), slots.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    for (int c = 0; c < weights.influences; ++c) {
+      const bool used = c < static_cast<int>(slots.size());
+      weights.weight(v, c) = used ? slots[static_cast<size_t>(c)].first : 0.0f;
+      weights.segment(v, c) = used ? slots[static_cast<size_t>(c)].second : -1;
+    }
+  }
+  return changed;
+}
+
+int64_t tear_skin_contacts(TetMesh& mesh, const Skeleton& skeleton, const BodyRegions& regions, const ImageGeometry& grid) {
+  const size_t n = skeleton.segments.size();
+  const std::vector<uint8_t> separated = separated_segments(skeleton);
+  const std::vector<int> region = vertex_regions(mesh, regions, grid);
+  std::vector<uint8_t> keep(static_cast<size_t>(mesh.tet_count()), 1);
+  int64_t torn = 0;
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    if (mesh.tet_class(t) != kSoftTissueClass) continue;
+    for (int a = 0; a < 4 && keep[static_cast<size_t>(t)]; ++a) {
+      for (int b = a + 1; b < 4; ++b) {
+        const int ra = region[static_cast<size_t>(mesh.tets(t, a))], rb = region[static_cast<size_t>(mesh.tets(t, b))];
+        if (ra >= 0 && rb >= 0 && ra != rb && separated[static_cast<size_t>(ra) * n + static_cast<size_t>(rb)]) {
+          keep[static_cast<size_t>(t)] = 0;
+          ++torn;
+          break;
+        }
+      }
+    }
+  }
+  if (torn == 0) return 0;
+  std::vector<int> new_index(static_cast<size_t>(mesh.vertex_count()), -1);
+  int64_t kept_tets = 0;
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    if (!keep[static_cast<size_t>(t)]) continue;
+    for (int c = 0; c < 4; ++c) new_index[static_cast<size_t>(mesh.tets(t, c))] = 0;
+    ++kept_tets;
+  }
+  int next = 0;
+  for (int& index : new_index) index = index < 0 ? -1 : next++;
+  TetMesh torn_mesh;
+  torn_mesh.segment_count = mesh.segment_count;
+  torn_mesh.vertices.resize(next, 3);
+  for (int64_t v = 0; v < mesh.vertex_count(); ++v) {
+    if (new_index[static_cast<size_t>(v)] >= 0) torn_mesh.vertices.row(new_index[static_cast<size_t>(v)]) = mesh.vertices.row(v);
+  }
+  torn_mesh.tets.resize(kept_tets, 4);
+  torn_mesh.tet_class.resize(kept_tets);
+  for (int64_t t = 0, out = 0; t < mesh.tet_count(); ++t) {
+    if (!keep[static_cast<size_t>(t)]) continue;
+    for (int c = 0; c < 4; ++c) torn_mesh.tets(out, c) = new_index[static_cast<size_t>(mesh.tets(t, c))];
+    torn_mesh.tet_class(out) = mesh.tet_class(t);
+    ++out;
+  }
+  mesh = std::move(torn_mesh);
+  return torn;
+}
+
 }  // namespace posewarp::rig

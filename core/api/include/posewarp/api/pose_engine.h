@@ -58,6 +58,9 @@ class PoseEngine {
   std::map<Label, int64_t> rest_label_counts_;  // the report's "before" counts, once
   std::vector<int32_t> rest_owner_;  // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
   resample::BoneVoxels bone_voxels_;  // which source voxel is which bone: bones rigid at voxel level
+  std::vector<int16_t> region_;       // per source voxel: nearest-bone region (skin contacts)
+  std::vector<int16_t> tet_region_;   // per tet: the region at its rest centroid
+  std::vector<uint8_t> separated_;    // regions that must not show each other's tissue
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
 };
 

@@ -53,6 +53,7 @@ struct WarpStats {
   int64_t background_voxels = 0;   // outside mesh and shell: moved with the background (root) transform
   int64_t degenerate_tets = 0;     // rasterized tets with no volume once posed, skipped
   int64_t bone_voxels = 0;         // mapped by a bone's own rigid transform (RigidBones), ahead of any tet
+  int64_t contact_guarded_voxels = 0;  // would have shown tissue of a body part separated from their tet's
   // Output voxels two bones claim (each would put its own voxel there): bones passing through each other. Keyed by
   // the segment pair (lower index first); the lower index keeps the voxel.
   std::map<std::pair<int, int>, int64_t> bone_overlap_voxels;

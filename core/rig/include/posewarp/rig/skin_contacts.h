@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "posewarp/common/result.h"
+#include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/rig/skeleton.h"
 
@@ -44,5 +45,20 @@ struct SkinContactCut {
 // Sets to 0 (outside) the soft-tissue mesher classes (1) on both sides of every skin contact.
 SkinContactCut cut_skin_contacts(LabelVolume& classes, const Skeleton& skeleton, const BodyRegions& regions,
                                  const SkinContactParams& params);
+
+// Per mesh vertex: the region of the voxel it lies in, or of the nearest voxel with one within two voxels; -1.
+std::vector<int> vertex_regions(const TetMesh& mesh, const BodyRegions& regions, const ImageGeometry& grid);
+
+// Keeps each vertex's weights within its body part: a bone separated from the vertex's region (the other thigh, the
+// arm for the trunk's flank) loses its weight there, the rest are renormalized (a vertex left with none follows its
+// region's own bone). Laplace weights otherwise diffuse from one thigh through the groin into the other. Returns the
+// number of vertices changed.
+int64_t keep_weights_within_regions(SkinWeights& weights, const std::vector<int>& vertex_region,
+                                    const Skeleton& skeleton);
+
+// Tears the mesh along skin contacts: removes the soft-tissue tets whose vertices lie in separated regions (the
+// mesher bridges a cut thinner than its cells), and the vertices no tet uses any more. `regions` is on `grid`.
+// Returns the number of tets removed.
+int64_t tear_skin_contacts(TetMesh& mesh, const Skeleton& skeleton, const BodyRegions& regions, const ImageGeometry& grid);
 
 }  // namespace posewarp::rig
