@@ -266,3 +266,52 @@ TEST(Skeleton, DeclaredJointsRoundTripThroughLabelMapJson) {
 
 }  // namespace
 }  // namespace posewarp::rig
+
+namespace posewarp::rig {
+namespace {
+
+// The anatomical body phantom (a shallow glenoid, condyles, a talar dome, a clavicle -> scapula chain, ribs under
+// the scapula, an oblique grid with thick slices): the tree is the anatomical one, ball and hinge centres lie within
+// one voxel (the largest spacing) of the truth and hinge axes within 5 degrees.
+void expect_anatomical_joints(const Vec3& spacing) {
+  phantom::BodyParams params;
+  params.spacing_mm = spacing;
+  Result<phantom::Phantom> body = phantom::make_body(params);
+  ASSERT_TRUE(body.ok()) << body.status().to_string();
+  Result<Skeleton> skeleton = build_skeleton(body->labels, body->label_map, {}, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  const double voxel = std::max({spacing[0], spacing[1], spacing[2]});
+  EXPECT_EQ(skeleton->joints.size(), body->joints.size());
+  for (const phantom::JointTruth& truth : body->joints) {
+    SCOPED_TRACE(truth.name);
+    const Joint* joint = joint_between(*skeleton, truth.parent_segment, truth.child_segment);
+    ASSERT_NE(joint, nullptr);
+    EXPECT_EQ(skeleton->segments[static_cast<size_t>(joint->parent)].name, truth.parent_segment);
+    const double error =
+        (joint->centre_mm - Eigen::Vector3d(truth.centre_mm[0], truth.centre_mm[1], truth.centre_mm[2])).norm();
+    if (truth.kind == "ball") {
+      EXPECT_EQ(joint->method, "sphere-fit");
+      EXPECT_LT(error, voxel);
+    } else if (truth.kind == "hinge") {
+      EXPECT_EQ(joint->method, "cylinder-fit");
+      EXPECT_LT(error, voxel);
+      const Eigen::Vector3d axis(truth.axis[0], truth.axis[1], truth.axis[2]);
+      EXPECT_GT(std::abs(joint->hinge_axis.dot(axis)), std::cos(5.0 * M_PI / 180.0));
+      EXPECT_GT(std::abs(joint->frame.col(0).dot(axis)), std::cos(5.0 * M_PI / 180.0));  // the flexion axis
+    } else if (truth.name.rfind("sternoclavicular", 0) == 0) {
+      // Known: the clavicle lies along the first rib, so the nearly-touching region reaches far from the joint.
+      EXPECT_LT(error, 30.0);
+    } else {
+      EXPECT_LT(error, voxel);
+    }
+  }
+}
+
+TEST(Skeleton, FindsTheBodyPhantomsJointsOnItsDefaultObliqueAnisotropicGrid) {
+  expect_anatomical_joints({2.5, 2.5, 5.0});
+}
+
+TEST(Skeleton, FindsTheBodyPhantomsJointsOnEightMillimetreSlices) { expect_anatomical_joints({4.0, 4.0, 8.0}); }
+
+}  // namespace
+}  // namespace posewarp::rig
