@@ -122,7 +122,8 @@ void summarize(const api::PoseResult& result) {
   say(line);
   if (r.bone_voxels > 0 || !r.voxel_rigidity.empty()) {
     say("bones: " + std::to_string(r.bone_voxels) + " voxels mapped rigidly, largest voxel deviation " +
-        fixed(r.bone_voxel_deviation_mm, 2) + " mm, " + std::to_string(r.bone_overlaps.size()) + " overlapping pairs");
+        fixed(r.bone_voxel_deviation_mm, 2) + " mm, " + std::to_string(r.bone_overlaps.size()) + " overlapping pairs; " +
+        std::to_string(r.skin_contact_voxels) + " voxels kept from showing tissue across a skin contact");
   }
   for (const report::JointRegionChange& c : r.joint_regions) {
     say("  " + c.joint + " within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm: soft tissue " +

@@ -161,6 +161,7 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
     qr.degenerate_tets = stats.degenerate_tets;
     qr.rasterized_tets = warp.rasterized_tets();
     qr.bone_voxels = stats.bone_voxels;
+    qr.skin_contact_voxels = stats.contact_guarded_voxels;
     for (const auto& [pair, count] : stats.bone_overlap_voxels) {
       qr.bone_overlaps.push_back({names[static_cast<size_t>(pair.first)], names[static_cast<size_t>(pair.second)], count,
                                   static_cast<double>(count) * result.output_grid.spacing[0] *

@@ -220,7 +220,8 @@ std::string to_json(const QualityReport& r) {
                    {"conflicted", r.conflicted_voxels},
                    {"extrapolated", r.extrapolated_voxels},
                    {"background", r.background_voxels},
-                   {"bone", r.bone_voxels}};
+                   {"bone", r.bone_voxels},
+                   {"kept_from_crossing_skin_contacts", r.skin_contact_voxels}};
   json labels = json::array();
   for (const auto& [label, counts] : r.labels.voxels) {
     json entry{{"value", label}, {"before", counts.first}, {"after", counts.second}};

@@ -72,19 +72,32 @@ AnatomicalFrame anatomical_frame(const Vector3d& long_axis, labels::FlexionDirec
   AnatomicalFrame result;
   const Vector3d d = long_axis.normalized();
 
-  // Flexion: a turn about f moves the far end d toward m, so f = d x m (m across d).
-  Vector3d m = across(direction_of(flexion), d);
-  if (m.norm() < kMinProjected) {
-    // The child points the way it flexes (a foot declared "anterior"): take the perpendicular sagittal direction.
-    const bool sagittal = flexion == labels::FlexionDirection::kAnterior || flexion == labels::FlexionDirection::kPosterior;
-    m = across(sagittal ? kSuperior : kAnterior, d);
+  // Flexion turns about the mediolateral axis (ISB: the proximal segment's medial-lateral axis), signed so that the
+  // far end goes toward `flexion`: a turn about f moves d by f x d. A child that points sideways (a truncated femur
+  // whose centroid lies toward the trochanter, a clavicle) says nothing about the sign: a limb hanging down, or a
+  // foot pointing forward, is assumed.
+  const Vector3d toward = direction_of(flexion);
+  Vector3d reference = d;
+  if (across(d, kLeft).norm() < 0.5) {
+    reference = flexion == labels::FlexionDirection::kSuperior || flexion == labels::FlexionDirection::kInferior
+                    ? kAnterior
+                    : Vector3d(-kSuperior);
+    result.degenerate = true;
+    result.note = "the child's long axis points sideways; flexion taken as for a limb hanging down";
+  }
+  Vector3d x = kLeft.cross(reference).dot(toward) >= 0.0 ? kLeft : Vector3d(-kLeft);
+  if (std::abs(kLeft.cross(reference).dot(toward)) < 1e-6 * reference.norm()) {
+    // The far end already points the way it flexes (a foot declared "anterior"): the sagittal perpendicular.
+    const Vector3d other = flexion == labels::FlexionDirection::kAnterior || flexion == labels::FlexionDirection::kPosterior
+                               ? kSuperior
+                               : kAnterior;
+    x = kLeft.cross(reference).dot(other) >= 0.0 ? kLeft : Vector3d(-kLeft);
     result.degenerate = true;
     result.note = "the child's long axis points the way it flexes; flexion taken in the sagittal plane";
   }
-  Vector3d x = d.cross(m.normalized());
   if (hinge_axis.norm() > 0.5) x = hinge_axis.normalized() * (hinge_axis.dot(x) >= 0.0 ? 1.0 : -1.0);
   x.normalize();
-  Vector3d z = across(d, x);
+  Vector3d z = across(reference, x);
   if (z.norm() < kMinProjected) {
     // A hinge axis along the bone: keep the flexion axis and any perpendicular long axis.
     z = across(kSuperior, x).norm() > kMinProjected ? across(kSuperior, x) : across(kAnterior, x);
@@ -96,9 +109,9 @@ AnatomicalFrame anatomical_frame(const Vector3d& long_axis, labels::FlexionDirec
 
   // Abduction: a turn about a moves the far end laterally (for midline joints: toward the patient's left).
   const Vector3d lateral = side == BodySide::kRight ? Vector3d(-kLeft) : kLeft;
-  const Vector3d l = across(lateral, d);
+  const Vector3d l = across(lateral, z);
   if (l.norm() >= kMinProjected) {
-    if (y.dot(d.cross(l.normalized())) < 0.0) {
+    if (y.dot(z.cross(l.normalized())) < 0.0) {
       y = -y;
       z = -z;  // keeps the frame a rotation: x cross (-y) = -z
     }
@@ -110,8 +123,8 @@ AnatomicalFrame anatomical_frame(const Vector3d& long_axis, labels::FlexionDirec
   // Internal rotation: a turn about +-z carries the child's front toward the midline (midline joints: to the left).
   Vector3d front = across(kAnterior, z);
   if (front.norm() < kMinProjected) front = across(kSuperior, z);
-  const Vector3d toward = side == BodySide::kMidline ? kLeft : Vector3d(-lateral);
-  const double turn = z.cross(front.normalized()).dot(toward);
+  const Vector3d medial = side == BodySide::kMidline ? kLeft : Vector3d(-lateral);
+  const double turn = z.cross(front.normalized()).dot(medial);
   result.internal_rotation_sign = turn >= 0.0 ? 1 : -1;
   if (std::abs(turn) < 0.1 && !result.degenerate) {
     result.degenerate = true;

@@ -295,17 +295,22 @@ Joint place_joint(const JointPlacement& at, int s, int c, double area) {
 
   // The frame: the child's long axis from the centre into the child, the patient's axes, the side. A bone that is
   // not long, or whose longest spread runs across the way it leaves the joint (a vertebra is wider than tall, the
-  // thorax too), points from the joint to its centroid instead.
+  // thorax too, a femur cut off by the field of view), points from the joint to its centroid instead, or, in a limb,
+  // down: limbs lie along the body in a supine scan.
   constexpr double kLongBone = 1.5;
   constexpr double kAlongJoint = 0.7;  // cos 45 degrees
+  const Segment& root = skeleton.segments[static_cast<size_t>(skeleton.root)];
+  joint.side = side_of_joint(joint.name, cn, child_segment.centroid_mm, root.centroid_mm);
   const Eigen::Vector3d to_centroid = child_segment.centroid_mm - joint.centre_mm;
   Eigen::Vector3d long_axis = child_segment.principal_axis.normalized();
   if (long_axis.dot(to_centroid) < 0.0) long_axis = -long_axis;
   const bool long_bone = child_segment.elongation >= kLongBone &&
                          long_axis.dot(to_centroid) >= kAlongJoint * to_centroid.norm();
-  if (!long_bone && to_centroid.norm() > 1e-6) long_axis = to_centroid.normalized();
-  const Segment& root = skeleton.segments[static_cast<size_t>(skeleton.root)];
-  joint.side = side_of_joint(joint.name, cn, child_segment.centroid_mm, root.centroid_mm);
+  if (!long_bone && joint.side != BodySide::kMidline) {
+    long_axis = -Eigen::Vector3d::UnitZ();
+  } else if (!long_bone && to_centroid.norm() > 1e-6) {
+    long_axis = to_centroid.normalized();
+  }
   const AnatomicalFrame frame = anatomical_frame(long_axis, joint.flexion, joint.side, joint.hinge_axis);
   joint.frame = frame.frame;
   joint.internal_rotation_sign = frame.internal_rotation_sign;

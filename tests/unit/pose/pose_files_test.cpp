@@ -75,6 +75,16 @@ TEST(PoseFiles, SampleHipFlexionTakesTheLeftThighForward) {
   ASSERT_TRUE(pose.ok());
   const Eigen::Vector3d thigh = centroid_motion(*skeleton, *pose, "femur_left");
   EXPECT_LT(thigh.dot(kPosterior), -5.0);  // forward
+  // The scan holds only the top of the femur (its centroid lies toward the trochanter), yet flexion turns about the
+  // mediolateral axis: a point of the shaft 100 mm below the hip swings forward and up, not sideways.
+  const rig::Joint& hip = skeleton->joints[static_cast<size_t>(skeleton->joint_index("hip_left"))];
+  EXPECT_GT(std::abs(hip.frame.col(0).dot(kLeft)), 0.99);
+  Result<std::vector<RigidTransform>> transforms = forward_kinematics(*skeleton, *pose);
+  ASSERT_TRUE(transforms.ok());
+  const Eigen::Vector3d shaft = hip.centre_mm - 100.0 * kSuperior;
+  const Eigen::Vector3d moved = (*transforms)[static_cast<size_t>(hip.child)].apply(shaft) - shaft;
+  EXPECT_NEAR(moved.dot(-kPosterior), 100.0 * std::sin(30.0 * M_PI / 180.0), 1.0);
+  EXPECT_NEAR(moved.dot(kLeft), 0.0, 1.0);
 }
 
 }  // namespace

@@ -101,6 +101,9 @@ struct QualityReport {
   int64_t degenerate_tets = 0;
   int64_t rasterized_tets = 0;  // tets the warp rasterized: those not moving with the background (root)
   int64_t bone_voxels = 0;      // output voxels mapped by their bone's own rigid transform
+  // Output voxels whose tet (or skin shell) would have shown tissue of a body part cut apart from its own at a skin
+  // contact (a hand's shell over the thigh it rested on): left empty (background) instead.
+  int64_t skin_contact_voxels = 0;
   std::vector<SegmentVoxelRigidity> voxel_rigidity;  // per segment, when labels were warped
   double bone_voxel_deviation_mm = 0.0;              // max over segments
   std::vector<BoneOverlap> bone_overlaps;
