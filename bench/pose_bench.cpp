@@ -1,7 +1,8 @@
 // Posing throughput: skinning of 1M tet vertices per method, the volume warp against ITK's ResampleImageFilter
 // through a DisplacementFieldTransform (same output grid, volume and threads, same run), and whole poses of the
 // real sample and of a mannequin.
-// Usage: posewarp_bench_pose [--threads N] [--mannequin-mvoxels M (0 = skip)] [--repeats R]
+// Usage: posewarp_bench_pose [--threads N] [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)]
+//                            [--repeats R]
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Geometry>
@@ -192,16 +193,18 @@ pose::Pose flexion(const std::string& joint, double degrees) {
 
 int main(int argc, char** argv) {
   int threads = 0, repeats = 3;
-  double mannequin_mvoxels = 20.0;
+  double mannequin_mvoxels = 20.0, body_mvoxels = 20.0;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
       threads = std::atoi(argv[++i]);
     } else if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
       mannequin_mvoxels = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--body-mvoxels") && i + 1 < argc) {
+      body_mvoxels = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(1, std::atoi(argv[++i]));
     } else {
-      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--repeats R]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--body-mvoxels M] [--repeats R]\n", argv[0]);
       return 2;
     }
   }
@@ -238,6 +241,27 @@ int main(int argc, char** argv) {
     pose::Pose p = flexion("knee_left", 90.0);
     p.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
     out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), p, repeats));
+  }
+  if (body_mvoxels > 0.0) {
+    phantom::BodyParams params;
+    params.spacing_mm = phantom::body_spacing_for_voxels(params, static_cast<int64_t>(body_mvoxels * 1e6));
+    Result<phantom::Phantom> body = phantom::make_body(params);
+    if (!body.ok()) {
+      std::fprintf(stderr, "%s\n", body.status().to_string().c_str());
+      return 1;
+    }
+    api::BuildInputs inputs;
+    inputs.labels = body->labels;
+    inputs.ct = body->ct;
+    inputs.label_map = body->label_map;
+    Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+    if (!rig.ok()) {
+      std::fprintf(stderr, "%s\n", rig.status().to_string().c_str());
+      return 1;
+    }
+    pose::Pose p = flexion("knee_left", 90.0);
+    p.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
+    out["poses"].push_back(bench_pose("body", std::move(rig).value(), p, repeats));
   }
   std::cout << out.dump(2) << "\n";
   return 0;

@@ -1,5 +1,6 @@
-// Rig build stage timings for the mannequin at ~1M, ~5M and ~20M voxels and for the real sample.
-// Usage: posewarp_bench_rig [--threads N] [--sizes 1,5,20] [--no-sample]
+// Rig build stage timings for the mannequin at ~1M, ~5M and ~20M voxels, the anatomical body phantom at ~20M voxels
+// (oblique, anisotropic, arms against the trunk) and the real sample.
+// Usage: posewarp_bench_rig [--threads N] [--sizes 1,5,20] [--body-mvoxels M (0 = skip)] [--no-sample]
 // Prints one line per case with voxels, vertices, tets and seconds per stage, and a JSON summary at the end.
 #include <nlohmann/json.hpp>
 
@@ -54,6 +55,7 @@ int main(int argc, char** argv) {
   int threads = 0;
   std::vector<int> sizes{1, 5, 20};
   bool sample = true;
+  double body_mvoxels = 20.0;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
       threads = std::atoi(argv[++i]);
@@ -62,10 +64,12 @@ int main(int argc, char** argv) {
       std::stringstream list(argv[++i]);
       std::string item;
       while (std::getline(list, item, ',')) sizes.push_back(std::atoi(item.c_str()));
+    } else if (!std::strcmp(argv[i], "--body-mvoxels") && i + 1 < argc) {
+      body_mvoxels = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--no-sample")) {
       sample = false;
     } else {
-      std::fprintf(stderr, "usage: %s [--threads N] [--sizes 1,5,20] [--no-sample]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--threads N] [--sizes 1,5,20] [--body-mvoxels M] [--no-sample]\n", argv[0]);
       return 2;
     }
   }
@@ -92,6 +96,20 @@ int main(int argc, char** argv) {
     inputs.ct = m->ct;
     inputs.label_map = m->label_map;
     rows.push_back(run_case("mannequin-" + std::to_string(millions) + "M", inputs));
+  }
+  if (body_mvoxels > 0.0) {
+    phantom::BodyParams params;
+    params.spacing_mm = phantom::body_spacing_for_voxels(params, static_cast<int64_t>(body_mvoxels * 1e6));
+    Result<phantom::Phantom> body = phantom::make_body(params);
+    if (!body.ok()) {
+      std::fprintf(stderr, "%s\n", body.status().to_string().c_str());
+      return 1;
+    }
+    api::BuildInputs inputs;
+    inputs.labels = body->labels;
+    inputs.ct = body->ct;
+    inputs.label_map = body->label_map;
+    rows.push_back(run_case("body-" + std::to_string(static_cast<int>(body_mvoxels)) + "M", inputs));
   }
   std::cout << rows.dump(2) << "\n";
   return 0;
