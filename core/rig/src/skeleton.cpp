@@ -183,17 +183,40 @@ Joint place_joint(const JointPlacement& at, int s, int c, double area) {
       for (const float d : contact->distance_mm) closest = std::min(closest, static_cast<double>(d));
     }
     const double articular_mm = closest + 1.5 * at.max_spacing;
-    Eigen::Vector3d articular_centre = Eigen::Vector3d::Zero();
-    double articular_count = 0.0;
+    // A joint sits at the end of a long child bone, the end toward its parent (a clavicle meets the sternum at its
+    // medial end, though it lies along the first rib): within a tenth of its length (two voxels at least) of it.
+    double end_lo = -std::numeric_limits<double>::infinity(), end_hi = std::numeric_limits<double>::infinity();
+    const Eigen::Vector3d child_axis = child_segment.principal_axis.normalized();
+    constexpr double kLongChild = 1.5;
+    if (child_segment.elongation >= kLongChild) {
+      double t_min = std::numeric_limits<double>::infinity(), t_max = -t_min;
+      for (const Index3& v : at.surface[static_cast<size_t>(c)]) {
+        const double t = (physical(at.g, v[0], v[1], v[2]) - child_segment.centroid_mm).dot(child_axis);
+        t_min = std::min(t_min, t), t_max = std::max(t_max, t);
+      }
+      const double t_parent = (parent_segment.centroid_mm - child_segment.centroid_mm).dot(child_axis);
+      const double end_reach = std::max(0.1 * (t_max - t_min), 2.0 * at.max_spacing);
+      if (t_parent < 0.5 * (t_min + t_max)) {
+        end_hi = t_min + end_reach;
+      } else {
+        end_lo = t_max - end_reach;
+      }
+    }
+    Eigen::Vector3d articular_centre = Eigen::Vector3d::Zero(), near_end = Eigen::Vector3d::Zero();
+    double articular_count = 0.0, near_end_count = 0.0;
     for (const Contact* contact : {to_child, to_parent}) {
       for (size_t i = 0; i < contact->voxels.size(); ++i) {
         if (contact->distance_mm[i] > articular_mm) continue;
         const Index3& v = contact->voxels[i];
-        articular_centre += physical(at.g, v[0], v[1], v[2]);
+        const Eigen::Vector3d p = physical(at.g, v[0], v[1], v[2]);
+        articular_centre += p;
         articular_count += 1.0;
+        const double t = (p - child_segment.centroid_mm).dot(child_axis);
+        if (t >= end_lo && t <= end_hi) near_end += p, near_end_count += 1.0;
       }
     }
-    articular_centre /= std::max(1.0, articular_count);
+    articular_centre = near_end_count > 0.0 ? Eigen::Vector3d(near_end / near_end_count)
+                                            : Eigen::Vector3d(articular_centre / std::max(1.0, articular_count));
     // Flat and irregular joints turn about the middle of where the bones nearly touch, not of everything within
     // the contact distance (a clavicle lying along the first rib, thick slices).
     joint.centre_mm = articular_centre;

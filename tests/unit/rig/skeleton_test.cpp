@@ -299,8 +299,8 @@ void expect_anatomical_joints(const Vec3& spacing) {
       EXPECT_GT(std::abs(joint->hinge_axis.dot(axis)), std::cos(5.0 * M_PI / 180.0));
       EXPECT_GT(std::abs(joint->frame.col(0).dot(axis)), std::cos(5.0 * M_PI / 180.0));  // the flexion axis
     } else if (truth.name.rfind("sternoclavicular", 0) == 0) {
-      // Known: the clavicle lies along the first rib, so the nearly-touching region reaches far from the joint.
-      EXPECT_LT(error, 30.0);
+      // The clavicle lies along the first rib: the joint is found at its medial end, a little lateral of the truth.
+      EXPECT_LT(error, 1.5 * voxel);
     } else {
       EXPECT_LT(error, voxel);
     }
