@@ -4,6 +4,8 @@
 
 #include <Eigen/Geometry>
 
+#include <tuple>
+
 #include "posewarp/phantom/phantom.h"
 #include "posewarp/rig/skeleton.h"
 
@@ -129,6 +131,44 @@ TEST(AnatomicalFrame, MannequinLimbsMoveTheAnatomicalWayOnBothSides) {
     const Vector3d up = skeleton->segments[static_cast<size_t>(joint.child)].centroid_mm - joint.centre_mm;
     EXPECT_GT(moved(joint, up, 20, 0, 0).normalized().dot(kAnterior), 0.9);
     EXPECT_GT(moved(joint, up, 0, 20, 0).normalized().dot(kLeft), 0.9);
+  }
+}
+
+}  // namespace
+}  // namespace posewarp::rig
+
+namespace posewarp::rig {
+namespace {
+
+// On the anatomical body phantom (oblique grid, 8 mm slices): knee, elbow, hip, shoulder and ankle on both sides.
+TEST(AnatomicalFrame, BodyPhantomLimbsMoveTheAnatomicalWayOnBothSides) {
+  phantom::BodyParams params;
+  params.spacing_mm = {4.0, 4.0, 8.0};
+  Result<phantom::Phantom> body = phantom::make_body(params);
+  ASSERT_TRUE(body.ok());
+  Result<Skeleton> skeleton = build_skeleton(body->labels, body->label_map, {}, {}, {});
+  ASSERT_TRUE(skeleton.ok()) << skeleton.status().to_string();
+  const Eigen::Vector3d left(1, 0, 0), anterior(0, -1, 0), superior(0, 0, 1);
+  // Where flexion takes a point of the child 150 mm from the joint along the way the limb lies at rest.
+  const std::vector<std::tuple<std::string, Eigen::Vector3d, Eigen::Vector3d>> cases{
+      {"hip", -superior, anterior}, {"knee", -superior, -anterior}, {"shoulder", -superior, anterior},
+      {"elbow", -superior, anterior}, {"ankle", anterior, superior}};
+  for (const auto& [kind, lies, flexes] : cases) {
+    for (const std::string side : {"left", "right"}) {
+      const std::string name = kind + "_" + side;
+      SCOPED_TRACE(name);
+      const int j = skeleton->joint_index(name);
+      ASSERT_GE(j, 0);
+      const Joint& joint = skeleton->joints[static_cast<size_t>(j)];
+      const Eigen::Vector3d far_end = 150.0 * lies;
+      const Eigen::Vector3d lateral = side == "left" ? left : Eigen::Vector3d(-left);
+      EXPECT_GT(moved(joint, far_end, 30, 0, 0).normalized().dot(flexes), 0.9);
+      if (kind != "ankle") {
+        EXPECT_GT(moved(joint, far_end, 0, 30, 0).normalized().dot(lateral), 0.9);
+        const Eigen::Vector3d turn = moved(joint, far_end + 20.0 * anterior, 0, 0, 30);
+        EXPECT_GT(turn.dot(-lateral), 0.5 * turn.norm());
+      }
+    }
   }
 }
 
