@@ -1,6 +1,8 @@
 // Status reporting, progress bars and global options for the CLI.
 #include "cli_support.h"
 
+#include <filesystem>
+
 #include <unistd.h>
 
 #include <cstdio>
@@ -22,13 +24,41 @@ api::ReadOptions read_options() {
 int report(const Status& status) {
   if (status.ok()) return 0;
   std::cerr << "error: " << status.message() << " [" << status_code_name(status.code()) << "]\n";
-  // Exit codes: 2 for the caller's mistakes, 3 for resource limits, 1 otherwise.
-  switch (status.code()) {
+  return exit_code(status.code());
+}
+
+Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs) {
+  namespace fs = std::filesystem;
+  for (const std::string& output : outputs) {
+    if (output.empty()) continue;
+    std::error_code ec;
+    const fs::path out = fs::weakly_canonical(output, ec);
+    for (const std::string& input : inputs) {
+      if (input.empty()) continue;
+      std::error_code ec_in;
+      const bool same = fs::exists(output, ec) ? fs::equivalent(output, input, ec_in)
+                                               : fs::weakly_canonical(input, ec_in) == out;
+      if (same && !ec_in) {
+        return invalid_argument_error("the output '" + output + "' is the input '" + input +
+                                      "'; writing it would destroy the input. Choose another output path");
+      }
+    }
+  }
+  return ok_status();
+}
+
+int exit_code(StatusCode code) {
+  // The one table (README "Exit codes"): 2 for bad input or usage (a damaged file included), 3 for resource
+  // limits, 1 for everything else (an internal error, a cancelled or timed-out run).
+  switch (code) {
+    case StatusCode::kOk: return 0;
     case StatusCode::kInvalidArgument:
     case StatusCode::kNotFound:
     case StatusCode::kAlreadyExists:
     case StatusCode::kFailedPrecondition:
-    case StatusCode::kOutOfRange: return 2;
+    case StatusCode::kOutOfRange:
+    case StatusCode::kPermissionDenied:
+    case StatusCode::kDataLoss: return 2;
     case StatusCode::kResourceExhausted: return 3;
     default: return 1;
   }

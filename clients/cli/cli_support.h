@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/status.h"
@@ -24,6 +25,12 @@ api::ReadOptions read_options();
 
 // Prints "error: <message>" (and the code) to stderr and returns the process exit code for the status.
 int report(const Status& status);
+// The process exit code of a status code: 0, 2 bad input or usage, 3 over a resource limit, 1 otherwise.
+int exit_code(StatusCode code);
+
+// INVALID_ARGUMENT when an output path is, or links to, one of the inputs (checked before any work, so a typo
+// never overwrites a study). Empty paths are skipped.
+Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs);
 
 // A progress bar on stderr for ProgressHooks; silent when --quiet or stderr is not a terminal (then one line per
 // stage at completion).

@@ -39,6 +39,11 @@ std::string fixed(double value, int digits) {
 
 int run_build(BuildOptions& options) {
   const auto start = std::chrono::steady_clock::now();
+  if (Status s = refuse_overwriting_inputs({options.out}, {options.labels_path, options.ct_path, options.body_path,
+                                                           options.label_map_path, options.spec_path});
+      !s.ok()) {
+    return report(s);
+  }
   api::BuildInputs inputs;
   Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());

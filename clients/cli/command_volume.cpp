@@ -107,6 +107,7 @@ struct ConvertOptions {
 };
 
 int run_convert(const ConvertOptions& options) {
+  if (Status s = refuse_overwriting_inputs({options.output}, {options.input}); !s.ok()) return report(s);
   api::WriteOptions write;
   if (!options.pixel_type.empty()) write.pixel_type = parse_pixel_type(options.pixel_type);
   Status status;

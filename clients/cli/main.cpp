@@ -31,7 +31,10 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& error) {
-    return app.exit(error);
+    // A command's own failure carries its exit code; help and version are 0; any usage error is bad input (2).
+    const int code = app.exit(error);
+    if (dynamic_cast<const CLI::RuntimeError*>(&error) != nullptr || code == 0) return code;
+    return 2;
   }
   return 0;
 }

@@ -1,5 +1,6 @@
 // Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
 #include "posewarp/api/rig_file.h"
+#include "posewarp/common/input_file.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -472,9 +473,9 @@ Status save_rig(const Rig& rig, const std::string& path) {
 }
 
 Result<Rig> load_rig(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found_error("cannot open rig file '" + path + "'");
-  const std::string file((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // A rig holds the source volumes: a 20M-voxel study is a few hundred MB; 8 GB is far beyond any.
+  constexpr int64_t kMaxRigBytes = int64_t{8} << 30;
+  POSEWARP_ASSIGN_OR_RETURN(const std::string file, read_text_input(path, "rig file", kMaxRigBytes));
   const std::string where = "'" + path + "'";
   if (file.size() < 16 || std::memcmp(file.data(), kMagic, sizeof(kMagic)) != 0) {
     return invalid_argument_error(where + " is not a posewarp rig file (build one with `posewarp rig build`)");

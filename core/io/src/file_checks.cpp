@@ -130,6 +130,61 @@ Status check_nifti_file(const std::string& path) {
   return ok_status();
 }
 
+Status check_nifti_geometry_fields(const std::string& path) {
+  unsigned char header[348];
+  {
+    gzFile file = gzopen(path.c_str(), "rb");
+    if (!file) return not_found_error("cannot open " + in_quotes(path));
+    const int n = gzread(file, header, sizeof(header));
+    gzclose(file);
+    if (n != static_cast<int>(sizeof(header))) {
+      return invalid_argument_error(in_quotes(path) + " is too short to hold a NIfTI header (" +
+                                    std::to_string(std::max(n, 0)) + " bytes); the file is truncated or not NIfTI");
+    }
+  }
+  bool swap = false;
+  if (read_field<int32_t>(header, 0, false) != 348) {
+    swap = true;
+    if (read_field<int32_t>(header, 0, true) != 348) return ok_status();  // NIfTI-2 or not NIfTI: ITK decides
+  }
+  struct Field {
+    size_t offset;
+    int count;
+    const char* name;
+  };
+  constexpr Field kFields[] = {{76, 8, "pixdim"},       {108, 1, "vox_offset"}, {256, 3, "quatern_b/c/d"},
+                               {268, 3, "qoffset_x/y/z"}, {280, 4, "srow_x"},     {296, 4, "srow_y"},
+                               {312, 4, "srow_z"}};
+  for (const Field& field : kFields) {
+    for (int i = 0; i < field.count; ++i) {
+      const float value = read_field<float>(header, field.offset + 4 * static_cast<size_t>(i), swap);
+      if (!std::isfinite(value)) {
+        return invalid_argument_error(in_quotes(path) + " has a NaN or infinite " + field.name +
+                                      " in its NIfTI header; the header is corrupt (fix or regenerate the file)");
+      }
+    }
+  }
+  if (read_field<float>(header, 108, swap) < 0.0f) {
+    return invalid_argument_error(in_quotes(path) + " has a negative vox_offset in its NIfTI header; the header is "
+                                  "corrupt (fix or regenerate the file)");
+  }
+  const int16_t sform_code = read_field<int16_t>(header, 254, swap);
+  if (sform_code > 0) {
+    double norm = 0.0;
+    for (int i = 0; i < 12; ++i) {
+      if (i % 4 == 3) continue;  // the offsets
+      const float v = read_field<float>(header, 280 + 4 * static_cast<size_t>(i), swap);
+      norm += static_cast<double>(v) * v;
+    }
+    if (!(norm > 0.0)) {
+      return invalid_argument_error(in_quotes(path) + " has an sform (sform_code " + std::to_string(sform_code) +
+                                    ") whose matrix is all zero; the header cannot place its voxels (fix the sform or "
+                                    "set sform_code to 0)");
+    }
+  }
+  return ok_status();
+}
+
 Status check_metaimage_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return not_found_error("cannot open " + in_quotes(path));

@@ -12,6 +12,11 @@ namespace posewarp::io::detail {
 // them, which also catches a corrupt gzip stream).
 Status check_nifti_file(const std::string& path);
 
+// NIfTI-1, before ITK reads the header: every geometry field finite (pixdim, quatern_*, qoffset_*, srow_*: a NaN
+// in the sform aborts inside ITK's SVD), vox_offset finite and not negative, and the qform or sform in use a real
+// orientation (an infinite or all-zero sform cannot place a voxel).
+Status check_nifti_geometry_fields(const std::string& path);
+
 // MetaImage (.mha, .mhd): the data (inline or in the named file) must hold every byte the header promises,
 // compressed or not (ITK's reader only prints a warning when it reads short).
 Status check_metaimage_file(const std::string& path);

@@ -31,6 +31,7 @@
 #include <unistd.h>
 
 #include "file_checks.h"
+#include "posewarp/common/input_file.h"
 #include "itk_geometry.h"
 
 namespace posewarp::io {
@@ -222,13 +223,13 @@ Result<VolumeHeader> read_dicom_header(const std::string& directory, const ReadO
 }
 
 Result<VolumeHeader> read_file_header(const std::string& path, VolumeFormat format, const ReadOptions& options) {
+  POSEWARP_RETURN_IF_ERROR(check_input_file(path, "volume"));
   std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) {
-    return not_found_error("cannot read " + in_quotes(path) + ": no such file");
-  }
   if (fs::file_size(path, ec) == 0) {
     return invalid_argument_error(in_quotes(path) + " is empty (0 bytes); the file was not written completely");
   }
+  // Fields ITK would choke on (a NaN in the sform aborts inside its SVD) are refused before ITK sees them.
+  if (format == VolumeFormat::kNifti) POSEWARP_RETURN_IF_ERROR(detail::check_nifti_geometry_fields(path));
   itk::ImageIOBase::Pointer io = make_file_io(format);
   try {
     if (!io->CanReadFile(path.c_str())) {

@@ -1,5 +1,6 @@
 // LabelMap validation, JSON form and census against a label volume.
 #include "posewarp/labels/label_map.h"
+#include "posewarp/common/input_file.h"
 
 #include <nlohmann/json.hpp>
 
@@ -284,11 +285,8 @@ std::string label_map_to_json(const LabelMap& map) {
 }
 
 Result<LabelMap> read_label_map(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found_error("cannot open label map '" + path + "': no such file or not readable");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return label_map_from_json(text.str(), "'" + path + "'");
+  POSEWARP_ASSIGN_OR_RETURN(const std::string text, read_text_input(path, "label map"));
+  return label_map_from_json(text, "'" + path + "'");
 }
 
 Status write_label_map(const LabelMap& map, const std::string& path) {

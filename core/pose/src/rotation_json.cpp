@@ -9,6 +9,7 @@
 
 #include "json_util.h"
 #include "posewarp/pose/pose.h"
+#include "posewarp/common/input_file.h"
 
 namespace posewarp::pose {
 
@@ -76,12 +77,7 @@ Result<Json> parse_json(const std::string& text, const std::string& what) {
 }
 
 Result<std::string> read_text_file(const std::string& path, std::string_view kind) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found_error("cannot open " + std::string(kind) + " '" + path + "': no such file or not readable");
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return data_loss_error("reading " + std::string(kind) + " '" + path + "' failed");
-  return text.str();
+  return read_text_input(path, kind);
 }
 
 Status check_fields(const Json& object, std::initializer_list<std::string_view> known, const std::string& where) {

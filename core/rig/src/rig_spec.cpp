@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "posewarp/rig/skeleton.h"
+#include "posewarp/common/input_file.h"
 
 namespace posewarp::rig {
 
@@ -74,11 +75,8 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
 }
 
 Result<RigSpec> read_rig_spec(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found_error("cannot open rig spec '" + path + "'");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return rig_spec_from_json(text.str(), "'" + path + "'");
+  POSEWARP_ASSIGN_OR_RETURN(const std::string text, read_text_input(path, "rig spec"));
+  return rig_spec_from_json(text, "'" + path + "'");
 }
 
 }  // namespace posewarp::rig

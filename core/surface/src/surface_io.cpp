@@ -1,6 +1,7 @@
 // read_surface and write_surface: STL, OBJ, PLY and VTP through VTK's readers and writers, with VTK's silent
 // failures (warnings and empty outputs) turned into Status errors that name the file.
 #include "posewarp/surface/surface_mesh.h"
+#include "posewarp/common/input_file.h"
 
 #include <vtkNew.h>
 #include <vtkOBJWriter.h>
@@ -87,10 +88,8 @@ Result<SurfaceMesh> run_reader(Reader* reader, const std::string& path, MeshForm
 }
 
 Result<std::string> file_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) return invalid_argument_error("cannot read mesh " + quoted(path) + ": read error");
-  return bytes;
+  constexpr int64_t kMaxMeshBytes = int64_t{2} << 30;
+  return read_text_input(path, "mesh", kMaxMeshBytes);
 }
 
 // STL and VTP go through VTK's readers, which survive damaged files; OBJ and PLY through posewarp's own, because
@@ -139,13 +138,8 @@ Status check_mesh(const SurfaceMesh& mesh, const std::string& path) {
 Result<SurfaceMesh> read_surface(const std::string& path) {
   const MeshFormat format = format_of(path);
   if (format == MeshFormat::kUnknown) return unknown_format(path);
+  POSEWARP_RETURN_IF_ERROR(check_input_file(path, "mesh"));
   std::error_code ec;
-  const fs::file_status status = fs::status(path, ec);
-  if (!fs::exists(status)) return not_found_error("cannot read mesh " + quoted(path) + ": no such file");
-  if (!fs::is_regular_file(status)) return not_found_error("cannot read mesh " + quoted(path) + ": not a file");
-  if (::access(path.c_str(), R_OK) != 0) {
-    return Status(StatusCode::kPermissionDenied, "cannot read mesh " + quoted(path) + ": permission denied");
-  }
   if (fs::file_size(path, ec) == 0) {
     return invalid_argument_error("mesh " + quoted(path) + " is empty (0 bytes); the file was not written completely");
   }

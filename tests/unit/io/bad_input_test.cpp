@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 
@@ -195,6 +198,63 @@ TEST(BadInput, EmptyVolumeIsNotWritten) {
   ScratchDir dir;
   EXPECT_EQ(write_volume(LabelVolume(), dir.file("empty.nii.gz")).code(), StatusCode::kInvalidArgument);
   EXPECT_FALSE(std::filesystem::exists(dir.file("empty.nii.gz")));
+}
+
+}  // namespace
+}  // namespace posewarp::io
+
+namespace posewarp::io {
+namespace {
+
+// NIfTI-1 header offsets (nifti1.h) of the geometry ITK would otherwise take as it is.
+constexpr size_t kVoxOffset = 108;   // float vox_offset
+constexpr size_t kSformCode = 254;   // int16 sform_code
+constexpr size_t kSrowX = 280;       // float srow_x[4]
+
+TEST(BadInput, NonFiniteOrEmptySformAndNegativeOffsetAreRefusedBeforeItk) {
+  ScratchDir dir;
+  const std::string good = read_bytes(valid_nifti(dir, "good.nii"));
+  struct Case {
+    std::string name;
+    size_t offset;
+    float value;
+    std::string says;
+  };
+  const std::vector<Case> cases{{"nan_sform.nii", kSrowX, std::nanf(""), "srow_x"},
+                                {"inf_qoffset.nii", 268, INFINITY, "qoffset"},
+                                {"nan_pixdim.nii", kPixdimOffset + 4, std::nanf(""), "pixdim"},
+                                {"negative_offset.nii", kVoxOffset, -352.0f, "vox_offset"}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::string bytes = good;
+    patch<float>(bytes, c.offset, c.value);
+    write_bytes(dir.file(c.name), bytes);
+    const Status status = read_label_volume(dir.file(c.name)).status();
+    expect_error_naming(status, c.name, StatusCode::kInvalidArgument);
+    EXPECT_NE(status.message().find(c.says), std::string::npos) << status.to_string();
+  }
+  std::string zero = good;
+  patch<int16_t>(zero, kSformCode, 1);
+  for (int i = 0; i < 12; ++i) patch<float>(zero, kSrowX + 4 * static_cast<size_t>(i), 0.0f);
+  write_bytes(dir.file("zero_sform.nii"), zero);
+  expect_error_naming(read_label_volume(dir.file("zero_sform.nii")).status(), "zero_sform.nii",
+                      StatusCode::kInvalidArgument);
+}
+
+TEST(BadInput, DirectoriesFifosAndDevicesAreNamedForWhatTheyAre) {
+  ScratchDir dir;
+  std::filesystem::create_directories(dir.file("folder.nii"));
+  const Status folder = read_label_volume(dir.file("folder.nii")).status();
+  expect_error_naming(folder, "folder.nii", StatusCode::kInvalidArgument);
+  EXPECT_NE(folder.message().find("directory"), std::string::npos) << folder.to_string();
+  ASSERT_EQ(::mkfifo(dir.file("pipe.nii").c_str(), 0600), 0);
+  const Status fifo = read_label_volume(dir.file("pipe.nii")).status();  // must not block
+  expect_error_naming(fifo, "pipe.nii", StatusCode::kInvalidArgument);
+  EXPECT_NE(fifo.message().find("FIFO"), std::string::npos) << fifo.to_string();
+  std::filesystem::create_symlink("/dev/zero", dir.file("zero.nii"));
+  const Status device = read_intensity_volume(dir.file("zero.nii")).status();
+  EXPECT_EQ(device.code(), StatusCode::kInvalidArgument) << device.to_string();
+  EXPECT_NE(device.message().find("device"), std::string::npos) << device.to_string();
 }
 
 }  // namespace

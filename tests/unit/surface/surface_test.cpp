@@ -364,7 +364,7 @@ TEST(MeshFiles, BadFilesAreClearErrorsNamingTheFileAndPrintNothing) {
   };
   expect_error("missing.stl", StatusCode::kNotFound);
   std::filesystem::create_directories(dir.file("folder.obj"));
-  expect_error("folder.obj", StatusCode::kNotFound);
+  expect_error("folder.obj", StatusCode::kInvalidArgument);
   write_bytes(dir.file("mesh.off"), "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
   expect_error("mesh.off", StatusCode::kInvalidArgument);
   for (const std::string extension : {".stl", ".obj", ".ply", ".vtp"}) {

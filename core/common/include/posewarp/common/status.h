@@ -57,6 +57,7 @@ inline Status cancelled_error(std::string m) { return {StatusCode::kCancelled, s
 inline Status deadline_exceeded_error(std::string m) { return {StatusCode::kDeadlineExceeded, std::move(m)}; }
 inline Status invalid_argument_error(std::string m) { return {StatusCode::kInvalidArgument, std::move(m)}; }
 inline Status not_found_error(std::string m) { return {StatusCode::kNotFound, std::move(m)}; }
+inline Status permission_denied_error(std::string m) { return {StatusCode::kPermissionDenied, std::move(m)}; }
 inline Status already_exists_error(std::string m) { return {StatusCode::kAlreadyExists, std::move(m)}; }
 inline Status resource_exhausted_error(std::string m) { return {StatusCode::kResourceExhausted, std::move(m)}; }
 inline Status failed_precondition_error(std::string m) { return {StatusCode::kFailedPrecondition, std::move(m)}; }

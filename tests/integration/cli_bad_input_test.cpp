@@ -1,0 +1,149 @@
+// Damaged and hostile inputs given to the real `posewarp` process: the documented exit code, a message that names
+// the file and the problem, no hang, small time and memory, and no input changed.
+#include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CliRun {
+  int exit_code = -1;
+  std::string err;
+  double seconds = 0.0;
+  long max_rss_kb = 0;
+};
+
+// Runs posewarp with `args` (stdout to /dev/null, stderr captured), killed after 60 s.
+CliRun posewarp(const std::vector<std::string>& args) {
+  const fs::path err_file = fs::temp_directory_path() / ("posewarp-it-err-" + std::to_string(::getpid()));
+  const auto start = std::chrono::steady_clock::now();
+  const pid_t child = ::fork();
+  if (child == 0) {
+    std::vector<char*> argv{const_cast<char*>(POSEWARP_CLI)};
+    for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    if (!std::freopen("/dev/null", "w", stdout) || !std::freopen(err_file.c_str(), "w", stderr)) ::_exit(127);
+    ::alarm(60);
+    ::execv(POSEWARP_CLI, argv.data());
+    ::_exit(127);
+  }
+  CliRun run;
+  int status = 0;
+  struct rusage usage {};
+  ::wait4(child, &status, 0, &usage);
+  run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  run.max_rss_kb = usage.ru_maxrss;
+  std::ifstream in(err_file);
+  run.err.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  fs::remove(err_file);
+  return run;
+}
+
+std::string file_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+// A bar phantom, its rig and a pose, once for every test.
+class BadInput : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / ("posewarp-it-" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    ASSERT_EQ(posewarp({"--quiet", "phantom", "bar", "-o", dir_.string()}).exit_code, 0);
+    const CliRun built = posewarp({"--quiet", "rig", "build", "--labels", (dir_ / "labels.nii.gz").string(), "--label-map",
+                                (dir_ / "label_map.json").string(), "-o", (dir_ / "bar.rig").string()});
+    ASSERT_EQ(built.exit_code, 0) << built.err;
+    fs::copy_file(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json", dir_ / "pose.json");
+  }
+  static void TearDownTestSuite() { fs::remove_all(dir_); }
+
+  static std::string at(const std::string& name) { return (dir_ / name).string(); }
+
+  // The failure every bad input must give: `code`, a message naming `names` and saying `says`, quickly and small.
+  static void expect_refused(const CliRun& run, int code, const std::string& names, const std::string& says) {
+    EXPECT_EQ(run.exit_code, code) << run.err;
+    EXPECT_NE(run.err.find(names), std::string::npos) << run.err;
+    EXPECT_NE(run.err.find(says), std::string::npos) << run.err;
+    EXPECT_LT(run.seconds, 30.0);            // generous: a refusal is milliseconds, a hang is forever
+    EXPECT_LT(run.max_rss_kb, 1024 * 1024);  // under 1 GB
+  }
+
+  static fs::path dir_;
+};
+
+fs::path BadInput::dir_;
+
+TEST_F(BadInput, UsageErrorsExitWithTwoLikeOtherBadInput) {
+  EXPECT_EQ(posewarp({"rig", "buidl"}).exit_code, 2);
+  EXPECT_EQ(posewarp({"rig", "build", "--labels"}).exit_code, 2);
+  EXPECT_EQ(posewarp({"pose", at("bar.rig"), "--method", "nope", "--pose", at("pose.json")}).exit_code, 2);
+  EXPECT_EQ(posewarp({"--help"}).exit_code, 0);
+  EXPECT_EQ(posewarp({"--version"}).exit_code, 0);
+}
+
+TEST_F(BadInput, OutputsOntoInputsAreRefusedAndTheInputsKept) {
+  const std::string labels = file_text(at("labels.nii.gz"));
+  const std::string pose = file_text(at("pose.json"));
+  expect_refused(posewarp({"rig", "build", "--labels", at("labels.nii.gz"), "--label-map", at("label_map.json"), "-o",
+                           at("labels.nii.gz")}),
+                 2, "labels.nii.gz", "destroy the input");
+  expect_refused(posewarp({"pose", at("bar.rig"), "--pose", at("pose.json"), "--report", at("pose.json")}), 2,
+                 "pose.json", "destroy the input");
+  fs::create_symlink(at("pose.json"), at("link_to_pose.json"));
+  expect_refused(posewarp({"pose", at("bar.rig"), "--pose", at("pose.json"), "--report", at("link_to_pose.json")}), 2,
+                 "pose.json", "destroy the input");
+  expect_refused(posewarp({"convert", at("labels.nii.gz"), at("labels.nii.gz")}), 2, "labels.nii.gz",
+                 "destroy the input");
+  EXPECT_EQ(file_text(at("labels.nii.gz")), labels);
+  EXPECT_EQ(file_text(at("pose.json")), pose);
+}
+
+TEST_F(BadInput, DirectoriesFifosAndDevicesAreNamedAndNeverBlock) {
+  fs::create_directories(at("a_directory.rig"));
+  expect_refused(posewarp({"rig", "info", at("a_directory.rig")}), 2, "a_directory.rig", "is a directory");
+  ASSERT_EQ(::mkfifo(at("fifo.json").c_str(), 0600), 0);
+  expect_refused(posewarp({"pose", at("bar.rig"), "--pose", at("fifo.json")}), 2, "fifo.json", "FIFO");
+  fs::create_symlink("/dev/zero", at("zero.rig"));
+  expect_refused(posewarp({"rig", "info", at("zero.rig")}), 2, "zero.rig", "device");
+  expect_refused(posewarp({"pose", at("bar.rig"), "--pose", "/dev/zero"}), 2, "/dev/zero", "device");
+  expect_refused(posewarp({"rig", "info", at("missing.rig")}), 2, "missing.rig", "no such file");
+}
+
+TEST_F(BadInput, DamagedFilesExitWithTwo) {
+  // A truncated rig (DATA_LOSS is bad input: copy the file again).
+  const std::string rig = file_text(at("bar.rig"));
+  std::ofstream(at("truncated.rig"), std::ios::binary) << rig.substr(0, rig.size() / 2);
+  const CliRun truncated = posewarp({"rig", "info", at("truncated.rig")});
+  EXPECT_EQ(truncated.exit_code, 2) << truncated.err;
+  EXPECT_NE(truncated.err.find("truncated.rig"), std::string::npos) << truncated.err;
+  // A NIfTI whose sform holds a NaN (ITK would abort in its SVD).
+  std::string nifti;
+  {
+    const CliRun converted = posewarp({"--quiet", "convert", at("labels.nii.gz"), at("plain.nii")});
+    ASSERT_EQ(converted.exit_code, 0) << converted.err;
+    nifti = file_text(at("plain.nii"));
+  }
+  const float nan = std::nanf("");
+  std::memcpy(nifti.data() + 280, &nan, sizeof nan);
+  std::ofstream(at("nan_sform.nii"), std::ios::binary) << nifti;
+  expect_refused(posewarp({"info", at("nan_sform.nii")}), 2, "nan_sform.nii", "srow_x");
+}
+
+}  // namespace
