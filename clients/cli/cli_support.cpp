@@ -5,7 +5,9 @@
 
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <iostream>
 
 namespace posewarp::cli {
@@ -25,6 +27,29 @@ int report(const Status& status) {
   if (status.ok()) return 0;
   std::cerr << "error: " << status.message() << " [" << status_code_name(status.code()) << "]\n";
   return exit_code(status.code());
+}
+
+Status check_output_files(const std::vector<std::string>& outputs) {
+  namespace fs = std::filesystem;
+  for (const std::string& output : outputs) {
+    if (output.empty()) continue;
+    const fs::path parent = fs::path(output).parent_path();
+    const std::string dir = parent.empty() ? "." : parent.string();
+    std::error_code ec;
+    const fs::file_status status = fs::status(dir, ec);
+    std::string why;
+    if (!fs::exists(status)) {
+      why = "the directory does not exist (create it first)";
+    } else if (!fs::is_directory(status)) {
+      why = "it is not a directory";
+    } else if (::access(dir.c_str(), W_OK | X_OK) != 0) {
+      why = "the directory is not writable (" + std::string(std::strerror(errno)) + ")";
+    }
+    if (!why.empty()) {
+      return invalid_argument_error("cannot write '" + output + "' in '" + dir + "': " + why);
+    }
+  }
+  return ok_status();
 }
 
 Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs) {

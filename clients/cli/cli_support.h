@@ -30,6 +30,10 @@ int exit_code(StatusCode code);
 
 // INVALID_ARGUMENT when an output path is, or links to, one of the inputs (checked before any work, so a typo
 // never overwrites a study). Empty paths are skipped.
+// INVALID_ARGUMENT naming the directory and the reason when an output file could not be created there (missing, not a
+// directory, not writable): checked before any work. Empty paths are skipped.
+Status check_output_files(const std::vector<std::string>& outputs);
+
 Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs);
 
 // A progress bar on stderr for ProgressHooks; silent when --quiet or stderr is not a terminal (then one line per

@@ -156,6 +156,7 @@ int run_pose(const PoseOptions& o) {
   std::vector<std::string> outputs{o.labels_out, o.ct_out, o.field_out, o.report_out};
   if (!o.field_out.empty()) outputs.push_back(forward_field_path(o.field_out));
   if (Status s = refuse_overwriting_inputs(outputs, inputs); !s.ok()) return report(s);
+  if (Status s = check_output_files(outputs); !s.ok()) return report(s);
   Result<pose::Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
   Result<api::PoseRequest> request = make_request(o.output);

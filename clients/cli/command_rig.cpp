@@ -44,6 +44,7 @@ int run_build(BuildOptions& options) {
       !s.ok()) {
     return report(s);
   }
+  if (Status s = check_output_files({options.out}); !s.ok()) return report(s);
   api::BuildInputs inputs;
   Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
@@ -94,6 +95,7 @@ int run_build(BuildOptions& options) {
 }
 
 int run_info(const std::string& path, bool as_json) {
+  api::remove_stale_partial_files(std::filesystem::path(path).parent_path().string());
   const auto start = std::chrono::steady_clock::now();
   Result<api::Rig> rig = api::load_rig(path);
   if (!rig.ok()) return report(rig.status());

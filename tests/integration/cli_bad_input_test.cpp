@@ -147,3 +147,43 @@ TEST_F(BadInput, DamagedFilesExitWithTwo) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST_F(BadInput, HostileJsonAndParametersAreRefusedQuickly) {
+  {
+    std::ofstream deep(at("deep.json"));
+    deep << "{\"joints\": " << std::string(1000000, '[') << std::string(1000000, ']') << "}";
+  }
+  expect_refused(posewarp({"pose", at("bar.rig"), "--pose", at("deep.json")}), 2, "deep.json", "levels deep");
+  std::ofstream(at("far_contacts.json")) << R"({"contact_distance_mm": 1e6})";
+  expect_refused(posewarp({"rig", "build", "--labels", at("labels.nii.gz"), "--label-map", at("label_map.json"),
+                           "--rig-spec", at("far_contacts.json"), "-o", at("far.rig")}),
+                 2, "far_contacts.json", "contact_distance_mm");
+}
+
+TEST_F(BadInput, PartialFilesOfDeadWritersAreCleanedUp) {
+  // A writer killed mid-write leaves its partial file; pid 2^22 - 1 is beyond Linux's default pid_max.
+  const fs::path stale = dir_ / ".posewarp-partial-4194303-old.rig";
+  std::ofstream(stale) << "half a rig";
+  const fs::path live = dir_ / (".posewarp-partial-" + std::to_string(::getpid()) + "-mine.rig");
+  std::ofstream(live) << "being written";
+  EXPECT_EQ(posewarp({"rig", "info", at("bar.rig")}).exit_code, 0);
+  EXPECT_FALSE(fs::exists(stale));
+  EXPECT_TRUE(fs::exists(live));  // its writer is alive
+  fs::remove(live);
+}
+
+TEST_F(BadInput, WritesIntoAMissingDirectoryNameItAndExitTwo) {
+  const CliRun run = posewarp({"rig", "build", "--labels", at("labels.nii.gz"), "--label-map", at("label_map.json"),
+                               "-o", at("no/such/dir/bar.rig")});
+  EXPECT_EQ(run.exit_code, 2) << run.err;
+  EXPECT_NE(run.err.find("no/such/dir"), std::string::npos) << run.err;
+  EXPECT_NE(run.err.find("does not exist"), std::string::npos) << run.err;
+  EXPECT_EQ(run.err.find("skeleton"), std::string::npos) << run.err;  // refused before any stage ran
+  const CliRun pose = posewarp({"pose", at("bar.rig"), "--pose", at("pose.json"), "--labels-out", at("nowhere/l.nii.gz")});
+  EXPECT_EQ(pose.exit_code, 2) << pose.err;
+  EXPECT_NE(pose.err.find("nowhere"), std::string::npos) << pose.err;
+}
+
+}  // namespace

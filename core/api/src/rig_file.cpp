@@ -102,8 +102,12 @@ class Reader {
     uint64_t rows = 0, cols = 0;
     POSEWARP_RETURN_IF_ERROR(get(rows));
     POSEWARP_RETURN_IF_ERROR(get(cols));
-    const uint64_t bytes = rows * cols * sizeof(typename Matrix::Scalar);
-    if (cols > 64 || bytes > bytes_.size() - offset_) {
+    // rows * cols * size can overflow for crafted counts: bound each factor by what is left before multiplying.
+    const uint64_t left = bytes_.size() - offset_;
+    const uint64_t element = sizeof(typename Matrix::Scalar);
+    const bool fits = cols <= 64 && (cols == 0 || rows <= left / element / cols);
+    const uint64_t bytes = fits ? rows * cols * element : 0;
+    if (!fits || bytes > left) {
       return data_loss_error("rig section " + section_ + " declares a " + std::to_string(rows) + " x " +
                              std::to_string(cols) + " array larger than the section");
     }
@@ -415,6 +419,29 @@ Status check_consistency(const Rig& rig) {
   if (static_cast<int>(rig.skeleton.segments.size()) != rig.mesh.segment_count) {
     return data_loss_error("rig skeleton and mesh disagree on the number of segments");
   }
+  // Every index the posing code follows, against its range (a crafted section with valid checksums would otherwise
+  // read out of bounds in skinning).
+  const int segments = rig.mesh.segment_count;
+  if (rig.mesh.tet_class.size() > 0 &&
+      (rig.mesh.tet_class.minCoeff() < kSoftTissueClass || rig.mesh.tet_class.maxCoeff() >= kFirstBoneClass + segments)) {
+    return data_loss_error("rig mesh has tets of a class that is neither soft tissue nor one of its " +
+                           std::to_string(segments) + " bone segments");
+  }
+  if (rig.weights.segment_count != segments) return data_loss_error("rig weights name another number of segments");
+  if (rig.weights.segment.size() > 0 &&
+      (rig.weights.segment.minCoeff() < -1 || rig.weights.segment.maxCoeff() >= segments)) {
+    return data_loss_error("rig weights name a segment that does not exist");
+  }
+  if (rig.weights.weight.size() > 0 && (!rig.weights.weight.allFinite() || rig.weights.weight.minCoeff() < 0.0f ||
+                                        rig.weights.weight.maxCoeff() > 1.0f + 1e-4f)) {
+    return data_loss_error("rig weights hold values outside [0, 1]");
+  }
+  if (!rig.mesh.vertices.allFinite()) return data_loss_error("rig mesh has NaN or infinite vertices");
+  for (const rig::Joint& joint : rig.skeleton.joints) {
+    if (!joint.centre_mm.allFinite() || !joint.frame.allFinite()) {
+      return data_loss_error("rig joint '" + joint.name + "' has a NaN or infinite centre or frame");
+    }
+  }
   return ok_status();
 }
 
@@ -442,10 +469,15 @@ Status save_rig(const Rig& rig, const std::string& path) {
   put64(std::stoull(hash_of_sections(sections), nullptr, 16));
 
   const fs::path target(path);
-  const fs::path temporary = target.parent_path() / (".posewarp-partial-" + std::to_string(::getpid()) + "-" +
-                                                     target.filename().string());
+  // Partial files that a killed writer left here go first.
+  remove_stale_partial_files(target.parent_path().string());
+  const fs::path temporary = target.parent_path() / partial_file_name(target.filename().string());
   const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  if (fd < 0) return invalid_argument_error("cannot write rig file '" + path + "': " + std::strerror(errno));
+  if (fd < 0) {
+    const int error = errno;
+    return invalid_argument_error("cannot write rig file '" + path + "' in '" + target.parent_path().string() +
+                                  "': " + std::strerror(error) + " (check that the directory exists and is writable)");
+  }
   size_t written = 0;
   while (written < file.size()) {
     const ssize_t n = ::write(fd, file.data() + written, file.size() - written);
@@ -519,6 +551,10 @@ Result<Rig> load_rig(const std::string& path) {
   if (!ended) {
     return data_loss_error(where + " is truncated (" + std::to_string(file.size()) +
                            " bytes, no end marker); the write did not finish. Rebuild the rig");
+  }
+  if (offset != file.size()) {
+    return data_loss_error(where + " has " + std::to_string(file.size() - offset) +
+                           " bytes after its end marker (two rigs joined, or a damaged copy); copy the rig again");
   }
   Status consistent = check_consistency(rig);
   if (!consistent.ok()) return consistent.with_context(where);

@@ -5,8 +5,11 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <signal.h>
+
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
 
 namespace posewarp {
 namespace {
@@ -80,6 +83,69 @@ Result<std::string> read_text_input(const std::string& path, std::string_view ki
                            std::to_string(done) + " of " + std::to_string(text.size()) + " bytes)");
   }
   return text;
+}
+
+Status check_json_depth(std::string_view json_text, const std::string& what, int max_depth) {
+  int depth = 0;
+  bool in_string = false, escaped = false;
+  for (const char c : json_text) {
+    if (in_string) {
+      if (escaped) {
+        escaped = false;
+      } else if (c == '\\') {
+        escaped = true;
+      } else if (c == '"') {
+        in_string = false;
+      }
+      continue;
+    }
+    if (c == '"') {
+      in_string = true;
+    } else if (c == '[' || c == '{') {
+      if (++depth > max_depth) {
+        return invalid_argument_error(what + " nests arrays or objects more than " + std::to_string(max_depth) +
+                                      " levels deep; it is not a posewarp file (or is damaged)");
+      }
+    } else if (c == ']' || c == '}') {
+      --depth;
+    }
+  }
+  return ok_status();
+}
+
+}  // namespace posewarp
+
+namespace posewarp {
+namespace {
+
+constexpr std::string_view kPartialPrefix = ".posewarp-partial-";
+
+}  // namespace
+
+std::string partial_file_name(const std::string& target_name) {
+  return std::string(kPartialPrefix) + std::to_string(::getpid()) + "-" + target_name;
+}
+
+int remove_stale_partial_files(const std::string& directory) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  int removed = 0;
+  for (fs::directory_iterator it(directory.empty() ? "." : directory, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.compare(0, kPartialPrefix.size(), kPartialPrefix) != 0) continue;
+    const size_t dash = name.find('-', kPartialPrefix.size());
+    if (dash == std::string::npos || dash == kPartialPrefix.size()) continue;
+    long pid = 0;
+    try {
+      pid = std::stol(name.substr(kPartialPrefix.size(), dash - kPartialPrefix.size()));
+    } catch (const std::exception&) {
+      continue;
+    }
+    if (pid <= 0 || (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH)) continue;  // alive, or not ours to judge
+    std::error_code removing;
+    if (fs::remove(it->path(), removing)) ++removed;
+  }
+  return removed;
 }
 
 }  // namespace posewarp

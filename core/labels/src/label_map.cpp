@@ -172,6 +172,7 @@ std::optional<std::string> LabelMap::joint_name(std::string_view segment_a, std:
 
 Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source) {
   const std::string where(source);
+  POSEWARP_RETURN_IF_ERROR(check_json_depth(json_text, "label map " + where));
   json doc;
   try {
     doc = json::parse(json_text);

@@ -39,6 +39,7 @@ bool mentions_non_finite(const std::string& text) {
 }  // namespace
 
 Result<Json> parse_json(const std::string& text, const std::string& what) {
+  POSEWARP_RETURN_IF_ERROR(check_json_depth(text, what));
   // nlohmann keeps the last of two equal keys; a pose that names a joint twice is a mistake worth reporting.
   std::vector<std::set<std::string>> open_objects;
   std::string duplicate;

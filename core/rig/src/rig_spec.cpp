@@ -11,6 +11,7 @@ namespace posewarp::rig {
 
 Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& source) {
   using json = nlohmann::json;
+  POSEWARP_RETURN_IF_ERROR(check_json_depth(text, "rig spec " + source));
   json doc;
   try {
     doc = json::parse(text);
@@ -38,7 +39,12 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
     spec.root = doc.value("root", std::string());
     if (doc.contains("contact_distance_mm")) {
       const double d = doc["contact_distance_mm"].get<double>();
-      if (!(d > 0.0)) return invalid_argument_error("rig spec " + source + ": contact_distance_mm must be positive");
+      if (!(d > 0.0) || d > kMaxContactDistanceMm) {
+        return invalid_argument_error("rig spec " + source + ": contact_distance_mm must lie in (0, " +
+                                      std::to_string(static_cast<int>(kMaxContactDistanceMm)) +
+                                      "] mm (joint spaces are a few mm; a larger distance joins bones that do not "
+                                      "touch and makes the contact search unbounded)");
+      }
       spec.contact_distance_mm = d;
     }
     if (doc.contains("joints")) {

@@ -358,8 +358,11 @@ int Skeleton::joint_index(const std::string& name) const {
 }
 
 Status validate(const SkeletonParams& params) {
-  if (params.contact_distance_mm < 0.0 || !std::isfinite(params.contact_distance_mm)) {
-    return invalid_argument_error("contact_distance_mm must be 0 (automatic) or positive");
+  if (params.contact_distance_mm < 0.0 || !std::isfinite(params.contact_distance_mm) ||
+      params.contact_distance_mm > kMaxContactDistanceMm) {
+    return invalid_argument_error("contact_distance_mm must be 0 (automatic) or up to " +
+                                  std::to_string(static_cast<int>(kMaxContactDistanceMm)) +
+                                  " mm (joint spaces are a few mm; the contact search grows with its cube)");
   }
   if (!(params.sphere_max_relative_rms > 0.0)) return invalid_argument_error("sphere_max_relative_rms must be positive");
   if (params.sphere_min_points < 4) return invalid_argument_error("sphere_min_points must be at least 4");
@@ -491,7 +494,7 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
   // 3. Contacts: surface voxels of a within the contact distance of a voxel of b.
   const double max_spacing = std::max({g.spacing[0], g.spacing[1], g.spacing[2]});
   const double contact_mm = spec.contact_distance_mm.value_or(
-      params.contact_distance_mm > 0.0 ? params.contact_distance_mm : 3.5 * max_spacing);
+      params.contact_distance_mm > 0.0 ? params.contact_distance_mm : std::min(3.5 * max_spacing, kMaxContactDistanceMm));
   const int64_t reach[3] = {static_cast<int64_t>(std::floor(contact_mm / g.spacing[0])),
                             static_cast<int64_t>(std::floor(contact_mm / g.spacing[1])),
                             static_cast<int64_t>(std::floor(contact_mm / g.spacing[2]))};

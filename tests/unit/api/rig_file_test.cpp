@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "posewarp/api/vtk_export.h"
 #include "rig_test_support.h"
@@ -99,6 +101,60 @@ TEST(VtkExport, WritesMeshAndSkeletonFiles) {
   EXPECT_NE(vtu.find("NumberOfCells=\"" + std::to_string(shared_bar_rig().mesh.tet_count()) + "\""), std::string::npos);
   EXPECT_NE(vtu.find("Name=\"w_bar_bone_1\""), std::string::npos);
   EXPECT_NE(read_bytes(dir.file("skeleton.vtp")).find("NumberOfLines=\"4\""), std::string::npos);
+}
+
+}  // namespace
+}  // namespace posewarp::api
+
+namespace posewarp::api {
+namespace {
+
+// Sections whose checksums are right but whose contents point out of range (what a crafted file holds) are refused
+// on load, before any posing code follows an index.
+TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
+  ScratchDir dir;
+  auto refused = [&](Rig rig, const std::string& says) {
+    ASSERT_TRUE(save_rig(rig, dir.file("crafted.rig")).ok());
+    const Status status = load_rig(dir.file("crafted.rig")).status();
+    EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+    EXPECT_NE(status.message().find(says), std::string::npos) << status.to_string();
+    EXPECT_NE(status.message().find("crafted.rig"), std::string::npos) << status.to_string();
+  };
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.weights.segment(0, 0) = 99;
+    refused(std::move(rig), "segment that does not exist");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.weights.weight(0, 0) = std::nanf("");
+    refused(std::move(rig), "outside [0, 1]");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.mesh.tet_class(0) = 57;
+    refused(std::move(rig), "class");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.mesh.vertices(0, 0) = std::numeric_limits<double>::infinity();
+    refused(std::move(rig), "NaN or infinite vertices");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.skeleton.joints[0].centre_mm.x() = std::numeric_limits<double>::infinity();  // JSON writes null
+    refused(std::move(rig), "skeleton");
+  }
+}
+
+TEST(RigFile, TwoRigsJoinedAreRefused) {
+  ScratchDir dir;
+  ASSERT_TRUE(save_rig(posewarp::testing::shared_bar_rig(), dir.file("bar.rig")).ok());
+  const std::string bytes = read_bytes(dir.file("bar.rig"));
+  write_bytes(dir.file("twice.rig"), bytes + bytes);
+  const Status status = load_rig(dir.file("twice.rig")).status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("after its end marker"), std::string::npos) << status.to_string();
 }
 
 }  // namespace

@@ -3,6 +3,7 @@
 
 #include <string>
 
+#include "posewarp/common/input_file.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
 #include "posewarp/labels/label_map.h"
@@ -16,6 +17,7 @@
 namespace posewarp::api {
 
 // Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
+using posewarp::remove_stale_partial_files;
 using io::format_name;
 using io::read_header;
 using io::read_intensity_volume;

@@ -88,6 +88,10 @@ struct RigSpec {
 Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& source);
 Result<RigSpec> read_rig_spec(const std::string& path);
 
+// The largest contact distance accepted (SkeletonParams, rig spec): far above any joint space, small enough to keep
+// the contact search bounded (it visits a ball of this radius around every surface voxel).
+inline constexpr double kMaxContactDistanceMm = 50.0;
+
 struct SkeletonParams {
   // Voxels of two segments closer than this (centre to centre) are in contact; 0 = 3.5 x the largest spacing.
   double contact_distance_mm = 0.0;
