@@ -64,6 +64,33 @@ int64_t decompressed_size(const std::string& path) {
   return err == Z_OK || err == Z_STREAM_END ? total : -1;
 }
 
+// Bytes a zlib or gzip stream in `path` from `offset` inflates to, reading at most until `limit` bytes came out;
+// -1 when the stream is corrupt or ends early (truncated).
+int64_t inflated_size(const std::string& path, int64_t offset, int64_t limit) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in || !in.seekg(offset)) return -1;
+  z_stream stream{};
+  if (inflateInit2(&stream, 15 + 32) != Z_OK) return -1;  // zlib or gzip header, detected
+  std::vector<unsigned char> input(1 << 16), output(1 << 16);
+  int64_t total = 0;
+  int status = Z_OK;
+  while (status != Z_STREAM_END && total <= limit) {
+    if (stream.avail_in == 0) {
+      in.read(reinterpret_cast<char*>(input.data()), static_cast<std::streamsize>(input.size()));
+      stream.avail_in = static_cast<uInt>(in.gcount());
+      stream.next_in = input.data();
+      if (stream.avail_in == 0) break;  // the stream ends before its end marker
+    }
+    stream.next_out = output.data();
+    stream.avail_out = static_cast<uInt>(output.size());
+    status = inflate(&stream, Z_NO_FLUSH);
+    if (status != Z_OK && status != Z_STREAM_END) break;
+    total += static_cast<int64_t>(output.size() - stream.avail_out);
+  }
+  inflateEnd(&stream);
+  return status == Z_STREAM_END || total > limit ? total : -1;
+}
+
 }  // namespace
 
 Status check_nifti_file(const std::string& path) {
@@ -185,6 +212,65 @@ Status check_nifti_geometry_fields(const std::string& path) {
   return ok_status();
 }
 
+Status check_nrrd_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open " + in_quotes(path));
+  std::map<std::string, std::string> fields;
+  std::string line;
+  std::getline(in, line);
+  if (line.rfind("NRRD", 0) != 0) return ok_status();  // ITK reports
+  while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty()) break;  // the data follows (inline)
+    if (line[0] == '#') continue;
+    const size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    std::string value = line.substr(colon + 1);
+    if (!value.empty() && value[0] == '=') value.erase(0, 1);  // key:=value
+    value.erase(0, value.find_first_not_of(" \t"));
+    fields[line.substr(0, colon)] = value;
+  }
+  const std::streamoff data_offset = in.tellg();
+  const std::string encoding = fields["encoding"];
+  if (encoding != "gzip" && encoding != "gz") return ok_status();  // raw: ITK refuses a short file before allocating
+  static const std::map<std::string, int> kTypeBytes{
+      {"uchar", 1},  {"unsigned char", 1}, {"uint8", 1},  {"uint8_t", 1}, {"signed char", 1}, {"int8", 1},
+      {"int8_t", 1}, {"char", 1},          {"short", 2},  {"int16", 2},   {"int16_t", 2},     {"ushort", 2},
+      {"uint16", 2}, {"uint16_t", 2},      {"unsigned short", 2}, {"int", 4}, {"int32", 4}, {"int32_t", 4},
+      {"uint", 4},   {"uint32", 4},        {"uint32_t", 4}, {"unsigned int", 4}, {"float", 4}, {"double", 8},
+      {"longlong", 8}, {"int64", 8}, {"int64_t", 8}, {"ulonglong", 8}, {"uint64", 8}, {"uint64_t", 8}};
+  const auto type = kTypeBytes.find(fields["type"]);
+  if (type == kTypeBytes.end() || !fields.count("sizes")) return ok_status();
+  int64_t promised = type->second;
+  {
+    std::istringstream sizes(fields["sizes"]);
+    int64_t size = 0;
+    while (sizes >> size) {
+      if (size < 1) return ok_status();  // the header check refuses it
+      promised *= size;
+      if (promised > (int64_t{1} << 40)) return ok_status();  // the voxel limit refuses it
+    }
+  }
+  std::string data_path = path;
+  int64_t offset = static_cast<int64_t>(data_offset);
+  const std::string detached = fields.count("data file") ? fields["data file"] : fields["datafile"];
+  if (!detached.empty()) {
+    if (detached.find(' ') != std::string::npos || detached == "LIST") return ok_status();  // file lists: ITK checks
+    data_path = (fs::path(path).parent_path() / detached).string();
+    offset = 0;
+  }
+  const int64_t inflated = inflated_size(data_path, offset, promised);
+  if (inflated < 0) {
+    return data_loss_error("the gzip data of " + in_quotes(path) + " is corrupt or truncated; copy the file again");
+  }
+  if (inflated < promised) {
+    return data_loss_error("the gzip data of " + in_quotes(path) + " holds " + std::to_string(inflated) +
+                           " bytes, but its header promises " + std::to_string(promised) + " (sizes " +
+                           fields["sizes"] + "); the file is damaged or not what it claims");
+  }
+  return ok_status();
+}
+
 Status check_metaimage_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return not_found_error("cannot open " + in_quotes(path));
@@ -253,6 +339,23 @@ Status check_metaimage_file(const std::string& path) {
     available = static_cast<int64_t>(fs::file_size(data_path, ec));
   }
   const bool compressed = fields["CompressedData"] == "True" || fields["CompressedData"] == "true";
+  if (compressed) {
+    // The stream must inflate to every voxel the header promises, checked before anything is allocated: ITK
+    // allocates the whole grid first and only prints "Uncompress failed" when the data runs out.
+    const int64_t promised = voxels * channels * element->second;
+    const std::string data_path =
+        data_file == "LOCAL" ? path : (fs::path(path).parent_path() / data_file).string();
+    const int64_t inflated = inflated_size(data_path, data_file == "LOCAL" ? static_cast<int64_t>(data_offset) : 0,
+                                           promised);
+    if (inflated < 0) {
+      return data_loss_error("the compressed data of " + in_quotes(path) + " is corrupt or truncated; copy the file again");
+    }
+    if (inflated < promised) {
+      return data_loss_error("the compressed data of " + in_quotes(path) + " holds " + std::to_string(inflated) +
+                             " bytes, but its header promises " + std::to_string(promised) +
+                             " (DimSize " + fields["DimSize"] + "); the file is damaged or not what it claims");
+    }
+  }
   const int64_t needed = compressed && fields.count("CompressedDataSize")
                              ? std::atoll(fields["CompressedDataSize"].c_str())
                              : (compressed ? 0 : voxels * channels * element->second);

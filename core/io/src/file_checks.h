@@ -17,6 +17,10 @@ Status check_nifti_file(const std::string& path);
 // orientation (an infinite or all-zero sform cannot place a voxel).
 Status check_nifti_geometry_fields(const std::string& path);
 
+// NRRD (.nrrd, .nhdr) with gzip encoding: the stream (inline or in the data file) must inflate to every byte the
+// header promises, checked before anything is allocated (ITK allocates the grid, then fails).
+Status check_nrrd_file(const std::string& path);
+
 // MetaImage (.mha, .mhd): the data (inline or in the named file) must hold every byte the header promises,
 // compressed or not (ITK's reader only prints a warning when it reads short).
 Status check_metaimage_file(const std::string& path);

@@ -250,6 +250,7 @@ Result<VolumeHeader> read_file_header(const std::string& path, VolumeFormat form
   // After the voxel limit (so an absurd header is reported as such), before any voxel is read.
   if (format == VolumeFormat::kNifti) POSEWARP_RETURN_IF_ERROR(detail::check_nifti_file(path));
   if (format == VolumeFormat::kMetaImage) POSEWARP_RETURN_IF_ERROR(detail::check_metaimage_file(path));
+  if (format == VolumeFormat::kNrrd) POSEWARP_RETURN_IF_ERROR(detail::check_nrrd_file(path));
   return header;
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <sys/stat.h>
+#include <zlib.h>
 
 #include <cmath>
 #include <cstring>
@@ -255,6 +256,45 @@ TEST(BadInput, DirectoriesFifosAndDevicesAreNamedForWhatTheyAre) {
   const Status device = read_intensity_volume(dir.file("zero.nii")).status();
   EXPECT_EQ(device.code(), StatusCode::kInvalidArgument) << device.to_string();
   EXPECT_NE(device.message().find("device"), std::string::npos) << device.to_string();
+}
+
+}  // namespace
+}  // namespace posewarp::io
+
+namespace posewarp::io {
+namespace {
+
+// A few bytes of compressed data whose header promises a large grid: refused before anything is allocated (ITK
+// would allocate the grid, then print "Uncompress failed" and hand back uninitialised voxels).
+TEST(BadInput, CompressedDataShorterThanItsHeaderPromisesIsRefusedBeforeAllocating) {
+  ScratchDir dir;
+  const std::string zeros(1000, '\0');
+  // A zlib stream of 1000 zero bytes (what MetaIO writes), and the same as gzip (what NRRD writes).
+  auto deflated = [&](int window_bits) {
+    z_stream stream{};
+    deflateInit2(&stream, Z_DEFAULT_COMPRESSION, Z_DEFLATED, window_bits, 8, Z_DEFAULT_STRATEGY);
+    std::string out(2048, '\0');
+    stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(zeros.data()));
+    stream.avail_in = static_cast<uInt>(zeros.size());
+    stream.next_out = reinterpret_cast<Bytef*>(out.data());
+    stream.avail_out = static_cast<uInt>(out.size());
+    deflate(&stream, Z_FINISH);
+    out.resize(stream.total_out);
+    deflateEnd(&stream);
+    return out;
+  };
+  const std::string zlib = deflated(15), gzip = deflated(15 + 16);
+  write_bytes(dir.file("bomb.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 400 400 400\nElementSpacing = 1 1 1\n"
+                                    "ElementType = MET_UCHAR\nCompressedData = True\nCompressedDataSize = " +
+                                        std::to_string(zlib.size()) + "\nElementDataFile = LOCAL\n" + zlib);
+  write_bytes(dir.file("bomb.nrrd"),
+              "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 400 400 400\nencoding: gzip\n\n" + gzip);
+  for (const std::string name : {"bomb.mha", "bomb.nrrd"}) {
+    SCOPED_TRACE(name);
+    const Status status = read_label_volume(dir.file(name)).status();
+    expect_error_naming(status, name, StatusCode::kDataLoss);
+    EXPECT_NE(status.message().find("promises 64000000"), std::string::npos) << status.to_string();
+  }
 }
 
 }  // namespace
