@@ -139,7 +139,8 @@ std::string params_to_json(const BuildParams& p) {
                  {"seed", p.mesh.seed},
                  {"exude", p.mesh.exude},
                  {"exude_time_limit_s", p.mesh.exude_time_limit_s},
-                 {"parallel_watchdog_s", p.mesh.parallel_watchdog_s}};
+                 {"parallel_watchdog_s", p.mesh.parallel_watchdog_s},
+                 {"max_vertices", p.mesh.max_vertices}};
   doc["weights"] = {{"max_influences", p.weights.max_influences},
                     {"prune_below", p.weights.prune_below},
                     {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},

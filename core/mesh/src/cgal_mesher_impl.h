@@ -102,9 +102,17 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
   progress.update(0.1);
   CGAL::parameters::internal::Mesh_3_options options;
   options.pointer_to_stop_atomic_boolean = &stop;
+  CGAL::Mesh_error_code error = CGAL::CGAL_MESH_3_NO_ERROR;
+  options.pointer_to_error_code = &error;
+  options.maximal_number_of_vertices = static_cast<std::size_t>(params.max_vertices);
   CGAL::refine_mesh_3(c3t3, domain, criteria, p::no_perturb(), p::no_odt(), p::no_lloyd(), p::no_exude(), options);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   if (stop.load()) return deadline_exceeded_error("mesh refinement was stopped by the watchdog");
+  if (error == CGAL::CGAL_MESH_3_MAXIMAL_NUMBER_OF_VERTICES_REACHED) {
+    return resource_exhausted_error("the mesh reached " + std::to_string(params.max_vertices) +
+                                    " vertices before meeting its size criteria; use larger mesh sizes (bone and soft "
+                                    "cell sizes, facet size) or raise max_vertices");
+  }
   progress.update(0.8);
   if (params.exude) {
     SequentialView<C3t3> sequential;

@@ -1,4 +1,6 @@
 // CGAL Mesh_3, TBB-parallel refinement (thread count from posewarp::set_thread_count).
+// The vertex cap (MeshParams::max_vertices) needs the concurrent container's approximate size (about 3% slower).
+#define CGAL_CONCURRENT_COMPACT_CONTAINER_APPROXIMATE_SIZE 1
 #include "cgal_mesher_impl.h"
 
 namespace posewarp::mesh::detail {

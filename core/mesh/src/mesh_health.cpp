@@ -33,6 +33,17 @@ Status validate(const MeshParams& p) {
   if (!(p.exude_time_limit_s >= 0.0) || !std::isfinite(p.exude_time_limit_s)) {
     return invalid_argument_error("mesh exude_time_limit_s must be a finite number of seconds, 0 or more");
   }
+  if (p.max_vertices < 1000 || p.max_vertices > 50'000'000) {
+    return invalid_argument_error("mesh max_vertices must lie in 1000..50000000");
+  }
+  constexpr double kSmallestMm = 0.25;  // below a quarter millimetre no CT or MR mesh is meaningful
+  for (const auto& [value, name] : {std::pair{p.facet_size_mm, "facet_size_mm"}, {p.bone_cell_size_mm, "bone_cell_size_mm"},
+                                    {p.soft_cell_size_mm, "soft_cell_size_mm"}}) {
+    if (value < kSmallestMm) {
+      return invalid_argument_error(std::string("mesh parameter ") + name + " must be at least 0.25 mm (got " +
+                                    std::to_string(value) + "); finer meshes grow without bound");
+    }
+  }
   if (!(p.parallel_watchdog_s >= 0.0) || !std::isfinite(p.parallel_watchdog_s)) {
     return invalid_argument_error("mesh parallel_watchdog_s must be a finite number of seconds, 0 or more (0: none)");
   }

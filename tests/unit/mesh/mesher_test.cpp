@@ -86,6 +86,22 @@ TEST(CgalMesher, ACancelledMeshingStopsPromptlyWithCancelled) {
   }
 }
 
+TEST(CgalMesher, AMeshThatWouldGrowPastItsVertexCapStopsWithResourceExhausted) {
+  const BarClasses bar = bar_classes();
+  for (const bool parallel : {true, false}) {
+    SCOPED_TRACE(parallel ? "parallel" : "sequential");
+    MeshParams params = small_sizes();
+    params.parallel = parallel;
+    params.max_vertices = 1000;  // the bar needs several thousand at these sizes
+    Result<TetMesh> mesh = make_cgal_mesher()->mesh(bar.classes, 3, params, {}, nullptr);
+    EXPECT_EQ(mesh.status().code(), StatusCode::kResourceExhausted) << mesh.status().to_string();
+    EXPECT_NE(mesh.status().message().find("1000 vertices"), std::string::npos) << mesh.status().to_string();
+  }
+  MeshParams tiny;
+  tiny.bone_cell_size_mm = 0.05;
+  EXPECT_EQ(validate(tiny).code(), StatusCode::kInvalidArgument);
+}
+
 TEST(CgalMesher, MeshesEveryBoneOfTheBarWithPositiveTets) {
   const BarClasses bar = bar_classes();
   MeshHealth health;

@@ -32,6 +32,9 @@ struct MeshParams {
   // The parallel refinement is stopped after this long and the body meshed again sequentially (with a warning in
   // MeshHealth): a build that sometimes never ends is worse than a slow one. 0 = no watchdog.
   double parallel_watchdog_s = 120.0;
+  // Refinement stops with RESOURCE_EXHAUSTED at this many vertices (a body at the default sizes has about 100k; each
+  // vertex costs CGAL about 1 KB while it refines).
+  int64_t max_vertices = 2'000'000;
 };
 
 // INVALID_ARGUMENT naming the field and its valid range.
