@@ -3,6 +3,8 @@
 
 #include <Eigen/Dense>
 
+#include <unistd.h>
+
 #include <chrono>
 #include <new>
 
@@ -140,6 +142,22 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
                               resample::output_geometry(request.grid, source, result.posed_vertices,
                                                         request.given_grid ? &*request.given_grid : nullptr,
                                                         request.resample));
+    // What the output will cost, before any of it is allocated: per output voxel the warp's owner code, labels
+    // (stored as 32-bit), CT and the inverse field; the forward field per source voxel.
+    {
+      const int64_t per_voxel = 4 + (request.want_labels ? 4 : 0) + (request.want_ct && rig_.ct ? 4 : 0) +
+                                (request.want_fields ? 12 : 0);
+      const int64_t bytes = result.output_grid.voxel_count() * per_voxel +
+                            (request.want_fields ? source.voxel_count() * 12 : 0);
+      int64_t budget = request.resample.max_output_bytes;
+      if (budget <= 0) budget = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) / 2;
+      if (budget > 0 && bytes > budget) {
+        return resource_exhausted_error("this pose's output (" + result.output_grid.describe() + ") would take " +
+                                        std::to_string(bytes >> 20) + " MB, over the budget of " +
+                                        std::to_string(budget >> 20) + " MB; use a coarser or smaller grid, or leave "
+                                        "out the fields or the CT");
+      }
+    }
     resample::ResampleParams params = request.resample;
     if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
     resample::RigidBones bones;

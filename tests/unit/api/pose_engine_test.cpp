@@ -156,6 +156,13 @@ TEST(Posing, BadRequestsAreClearErrors) {
   grid.size = {50000, 50000, 50000};
   huge.given_grid = grid;
   EXPECT_EQ(engine.pose(huge).status().code(), StatusCode::kResourceExhausted);
+  // Within the voxel limit but over a byte budget: refused before allocating, saying how much it would take.
+  PoseRequest over_budget;
+  over_budget.want_fields = true;
+  over_budget.resample.max_output_bytes = 1 << 20;
+  const Status budget = engine.pose(over_budget).status();
+  EXPECT_EQ(budget.code(), StatusCode::kResourceExhausted);
+  EXPECT_NE(budget.message().find("over the budget of 1 MB"), std::string::npos) << budget.to_string();
   PoseRequest nan;
   nan.pose = joint_pose("joint_1_2", 0.0, 0.0);
   nan.pose.joints[0].rotation = Eigen::Quaterniond(std::nan(""), 0, 0, 0);

@@ -36,6 +36,9 @@ struct ResampleParams {
   Label label_background = 0;           // label where nothing maps back into the body
   float intensity_background = -1024.f; // intensity where nothing maps back (air in HU)
   int64_t max_output_voxels = int64_t{1} << 29;
+  // Bytes a pose may allocate for its output (the warp's owner map, labels, CT, displacement fields), estimated
+  // before anything is allocated; 0 = half the machine's physical memory.
+  int64_t max_output_bytes = 0;
   double grow_margin_mm = 10.0;         // extra room around the posed body for kGrow
 };
 
