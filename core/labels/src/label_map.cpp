@@ -176,7 +176,7 @@ Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_vie
   json doc;
   try {
     doc = json::parse(json_text);
-  } catch (const json::parse_error& error) {
+  } catch (const json::exception& error) {  // parse_error, and out_of_range for a number past a double (1e999)
     return invalid_argument_error("label map " + where + " is not valid JSON: " + error.what());
   }
   try {

@@ -15,7 +15,7 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
   json doc;
   try {
     doc = json::parse(text);
-  } catch (const json::parse_error& error) {
+  } catch (const json::exception& error) {  // parse_error, and out_of_range for a number past a double (1e999)
     return invalid_argument_error("rig spec " + source + " is not valid JSON: " + error.what());
   }
   RigSpec spec;

@@ -123,3 +123,17 @@ TEST(Census, ReportsUnknownAndAbsentLabelsAndSegments) {
 
 }  // namespace
 }  // namespace posewarp::labels
+
+namespace posewarp::labels {
+namespace {
+
+// Found by fuzzing (tests/fuzz): a number too large for a double escaped as an exception and aborted.
+TEST(LabelMapJson, NumbersPastADoubleAreAnErrorNotACrash) {
+  for (const char* text : {"66666666E66666666666666666666", R"({"labels": [{"value": 1e999, "name": "x"}]})"}) {
+    const Status status = label_map_from_json(text, "huge").status();
+    EXPECT_EQ(status.code(), StatusCode::kInvalidArgument) << text;
+  }
+}
+
+}  // namespace
+}  // namespace posewarp::labels

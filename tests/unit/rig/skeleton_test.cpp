@@ -315,3 +315,16 @@ TEST(Skeleton, FindsTheBodyPhantomsJointsOnEightMillimetreSlices) { expect_anato
 
 }  // namespace
 }  // namespace posewarp::rig
+
+namespace posewarp::rig {
+namespace {
+
+// Found by fuzzing the label map reader, which shared the flaw: a number too large for a double aborted.
+TEST(RigSpec, NumbersPastADoubleAreAnErrorNotACrash) {
+  EXPECT_EQ(rig_spec_from_json(R"({"contact_distance_mm": 1e999})", "huge").status().code(),
+            StatusCode::kInvalidArgument);
+  EXPECT_EQ(rig_spec_from_json("7E99999", "huge").status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::rig
