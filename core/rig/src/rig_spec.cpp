@@ -1,11 +1,13 @@
 // Rig spec JSON: a user's corrections to the automatic skeleton.
 #include <nlohmann/json.hpp>
 
+#include <cmath>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
-#include "posewarp/rig/skeleton.h"
 #include "posewarp/common/input_file.h"
+#include "posewarp/rig/skeleton.h"
 
 namespace posewarp::rig {
 
@@ -33,7 +35,21 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
         if (!labels.is_array() || labels.empty()) {
           return invalid_argument_error("rig spec " + source + ": segment \"" + name + "\" needs a list of labels");
         }
-        spec.segments.emplace_back(name, labels.get<std::vector<Label>>());
+        // Whole numbers in Label's range only: get<Label>() of 3.3e120 is undefined, and of 25.7 silently 25 (a
+        // soft-tissue label would become a bone).
+        std::vector<Label> values;
+        for (const json& value : labels) {
+          const bool whole = value.is_number_integer() || (value.is_number_float() && std::isfinite(value.get<double>()) &&
+                                                           std::floor(value.get<double>()) == value.get<double>());
+          const double v = value.is_number() ? value.get<double>() : -1.0;
+          if (!whole || v < 0.0 || v > static_cast<double>(std::numeric_limits<Label>::max())) {
+            return invalid_argument_error("rig spec " + source + ": segment \"" + name + "\" lists " + value.dump() +
+                                          ", which is not a label value (a whole number from 0 to " +
+                                          std::to_string(std::numeric_limits<Label>::max()) + ")");
+          }
+          values.push_back(static_cast<Label>(v));
+        }
+        spec.segments.emplace_back(name, std::move(values));
       }
     }
     spec.root = doc.value("root", std::string());
@@ -59,7 +75,11 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
         joint.name = item.value("name", std::string());
         if (item.contains("centre_mm")) {
           const auto c = item["centre_mm"].get<std::vector<double>>();
-          if (c.size() != 3) return invalid_argument_error("rig spec " + source + ": centre_mm needs 3 numbers");
+          if (c.size() != 3 || !std::isfinite(c[0]) || !std::isfinite(c[1]) || !std::isfinite(c[2]) ||
+              std::abs(c[0]) > 1e5 || std::abs(c[1]) > 1e5 || std::abs(c[2]) > 1e5) {
+            return invalid_argument_error("rig spec " + source + ": centre_mm needs 3 finite numbers within 100 m "
+                                          "of the scanner's origin (LPS mm)");
+          }
           joint.centre_mm = Eigen::Vector3d(c[0], c[1], c[2]);
         }
         spec.joints.push_back(joint);

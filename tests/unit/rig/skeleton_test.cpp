@@ -324,6 +324,16 @@ TEST(RigSpec, NumbersPastADoubleAreAnErrorNotACrash) {
   EXPECT_EQ(rig_spec_from_json(R"({"contact_distance_mm": 1e999})", "huge").status().code(),
             StatusCode::kInvalidArgument);
   EXPECT_EQ(rig_spec_from_json("7E99999", "huge").status().code(), StatusCode::kInvalidArgument);
+  // Found by fuzzing: a label value far past an int converted with undefined behaviour; a fractional one was
+  // truncated into another label.
+  for (const char* text : {R"({"segments": {"pelvis": [3333333333333333333333333333333333, 26]}})",
+                           R"({"segments": {"pelvis": [25.7]}})", R"({"segments": {"pelvis": [-1]}})",
+                           R"({"segments": {"pelvis": ["25"]}})",
+                           R"({"joints": [{"child": "a", "centre_mm": [1e300, 0, 0]}]})"}) {
+    const Status status = rig_spec_from_json(text, "crafted").status();
+    EXPECT_EQ(status.code(), StatusCode::kInvalidArgument) << text;
+  }
+  EXPECT_TRUE(rig_spec_from_json(R"({"segments": {"pelvis": [25, 26.0]}})", "whole").ok());
 }
 
 }  // namespace
