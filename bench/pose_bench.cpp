@@ -194,6 +194,21 @@ pose::Pose flexion(const std::string& joint, double degrees) {
   return p;
 }
 
+// The rig of a phantom with default build parameters; prints the error when either step fails.
+Result<api::Rig> rig_of(Result<phantom::Phantom> p) {
+  if (!p.ok()) {
+    std::fprintf(stderr, "%s\n", p.status().to_string().c_str());
+    return p.status();
+  }
+  api::BuildInputs inputs;
+  inputs.labels = p->labels;
+  inputs.ct = p->ct;
+  inputs.label_map = p->label_map;
+  Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+  if (!rig.ok()) std::fprintf(stderr, "%s\n", rig.status().to_string().c_str());
+  return rig;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -230,43 +245,21 @@ int main(int argc, char** argv) {
   }
   out["poses"].push_back(bench_pose("real-sample", std::move(sample_rig).value(), flexion("hip_left", 30.0), repeats));
 
+  pose::Pose knee_and_arm = flexion("knee_left", 90.0);
+  knee_and_arm.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
   if (mannequin_mvoxels > 0.0) {
     phantom::MannequinParams params;
     params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
-    Result<phantom::Phantom> m = phantom::make_mannequin(params);
-    api::BuildInputs inputs;
-    inputs.labels = m->labels;
-    inputs.ct = m->ct;
-    inputs.label_map = m->label_map;
-    Result<api::Rig> rig = api::build_rig(inputs, {}, {});
-    if (!rig.ok()) {
-      std::fprintf(stderr, "%s\n", rig.status().to_string().c_str());
-      return 1;
-    }
-    pose::Pose p = flexion("knee_left", 90.0);
-    p.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
-    out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), p, repeats));
+    Result<api::Rig> rig = rig_of(phantom::make_mannequin(params));
+    if (!rig.ok()) return 1;
+    out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), knee_and_arm, repeats));
   }
   if (body_mvoxels > 0.0) {
     phantom::BodyParams params;
     params.spacing_mm = phantom::body_spacing_for_voxels(params, static_cast<int64_t>(body_mvoxels * 1e6));
-    Result<phantom::Phantom> body = phantom::make_body(params);
-    if (!body.ok()) {
-      std::fprintf(stderr, "%s\n", body.status().to_string().c_str());
-      return 1;
-    }
-    api::BuildInputs inputs;
-    inputs.labels = body->labels;
-    inputs.ct = body->ct;
-    inputs.label_map = body->label_map;
-    Result<api::Rig> rig = api::build_rig(inputs, {}, {});
-    if (!rig.ok()) {
-      std::fprintf(stderr, "%s\n", rig.status().to_string().c_str());
-      return 1;
-    }
-    pose::Pose p = flexion("knee_left", 90.0);
-    p.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
-    out["poses"].push_back(bench_pose("body", std::move(rig).value(), p, repeats));
+    Result<api::Rig> rig = rig_of(phantom::make_body(params));
+    if (!rig.ok()) return 1;
+    out["poses"].push_back(bench_pose("body", std::move(rig).value(), knee_and_arm, repeats));
   }
   std::cout << out.dump(2) << "\n";
   return 0;

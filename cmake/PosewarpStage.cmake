@@ -1,7 +1,8 @@
 # Helpers that give every core stage the same shape: one target, one alias, dependencies named in one place.
 
 add_library(posewarp_warnings INTERFACE)
-target_compile_options(posewarp_warnings INTERFACE -Wall -Wextra -Wpedantic -Wshadow=local -Wno-missing-field-initializers)
+target_compile_options(posewarp_warnings INTERFACE -Wall -Wextra -Wpedantic -Wno-missing-field-initializers
+                                                   $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>)
 if(POSEWARP_WERROR)
   target_compile_options(posewarp_warnings INTERFACE -Werror)
 endif()

@@ -91,20 +91,24 @@ int64_t inflated_size(const std::string& path, int64_t offset, int64_t limit) {
   return status == Z_STREAM_END || total > limit ? total : -1;
 }
 
+// The 348-byte NIfTI-1 header of a .nii or .nii.gz.
+Status read_nifti_header(const std::string& path, unsigned char (&header)[348]) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (!file) return not_found_error("cannot open " + in_quotes(path));
+  const int n = gzread(file, header, sizeof(header));
+  gzclose(file);
+  if (n != static_cast<int>(sizeof(header))) {
+    return invalid_argument_error(in_quotes(path) + " is too short to hold a NIfTI header (" +
+                                  std::to_string(std::max(n, 0)) + " bytes); the file is truncated or not NIfTI");
+  }
+  return ok_status();
+}
+
 }  // namespace
 
 Status check_nifti_file(const std::string& path) {
   unsigned char header[348];
-  {
-    gzFile file = gzopen(path.c_str(), "rb");
-    if (!file) return not_found_error("cannot open " + in_quotes(path));
-    const int n = gzread(file, header, sizeof(header));
-    gzclose(file);
-    if (n != static_cast<int>(sizeof(header))) {
-      return invalid_argument_error(in_quotes(path) + " is too short to hold a NIfTI header (" +
-                                    std::to_string(std::max(n, 0)) + " bytes); the file is truncated or not NIfTI");
-    }
-  }
+  POSEWARP_RETURN_IF_ERROR(read_nifti_header(path, header));
   int32_t sizeof_hdr = read_field<int32_t>(header, 0, false);
   bool swap = false;
   if (sizeof_hdr != 348) {
@@ -159,16 +163,7 @@ Status check_nifti_file(const std::string& path) {
 
 Status check_nifti_geometry_fields(const std::string& path) {
   unsigned char header[348];
-  {
-    gzFile file = gzopen(path.c_str(), "rb");
-    if (!file) return not_found_error("cannot open " + in_quotes(path));
-    const int n = gzread(file, header, sizeof(header));
-    gzclose(file);
-    if (n != static_cast<int>(sizeof(header))) {
-      return invalid_argument_error(in_quotes(path) + " is too short to hold a NIfTI header (" +
-                                    std::to_string(std::max(n, 0)) + " bytes); the file is truncated or not NIfTI");
-    }
-  }
+  POSEWARP_RETURN_IF_ERROR(read_nifti_header(path, header));
   bool swap = false;
   if (read_field<int32_t>(header, 0, false) != 348) {
     swap = true;

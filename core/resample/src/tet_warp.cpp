@@ -673,7 +673,6 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
               row_bones.push_back({seg, std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(box[0]))),
                                    std::min<int64_t>(n[0] - 1, static_cast<int64_t>(fast_floor(box[3])))});
             }
-            const bool bones_here = bones && (!row_bones.empty() || segment_count > 0);
             const int64_t row_begin = output.offset(0, j, k);
             const int64_t local_begin = row_begin - slab_begin;
             double row[3];
@@ -700,7 +699,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 }
                 conflicted += conflict[static_cast<size_t>(local)];
                 if (guarded) guard_contact(o, i, j, k);
-                if (bones_here) claim_bone(o, i, j, k);
+                if (segment_count > 0) claim_bone(o, i, j, k);
                 continue;
               }
               const double di = double(i);
@@ -736,7 +735,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
               }
               conflicted += conflict[static_cast<size_t>(local)];
               if (guarded) guard_contact(o, i, j, k);
-              if (bones_here) claim_bone(o, i, j, k);
+              if (segment_count > 0) claim_bone(o, i, j, k);
             }
           }
         }

@@ -182,8 +182,6 @@ AxisScore score_axis(const std::vector<Vector3d>& points, const Vector3d& axis, 
   AxisScore result;
   result.circle = trimmed_fit<2>(projected, band_floor, 3);
   if (!result.circle.ok || result.circle.inliers.empty()) return result;
-  const double fraction = static_cast<double>(result.circle.inliers.size()) / static_cast<double>(points.size());
-  (void)fraction;
   result.score = result.circle.core_rms + result.circle.radius * (1.0 - std::abs(axis.dot(guess)));
   return result;
 }

@@ -30,10 +30,6 @@ inline constexpr int kMaxJsonDepth = 64;
 // a scan, no parse).
 Status check_json_depth(std::string_view json_text, const std::string& what, int max_depth = kMaxJsonDepth);
 
-}  // namespace posewarp
-
-namespace posewarp {
-
 // Partial files of the atomic writers: ".posewarp-partial-<pid>-<name>" beside the target, renamed over it once
 // complete. A process killed while writing leaves one behind; the pid says whether its writer is still alive.
 std::string partial_file_name(const std::string& target_name);
