@@ -24,6 +24,7 @@ struct OutputOptions {
   std::string grid = "input";
   std::string grid_like;
   bool nearest_ct = false;
+  int64_t max_output_mb = 0;  // 0 = half the machine's memory
 };
 
 struct PoseOptions {
@@ -67,6 +68,7 @@ Result<api::PoseRequest> make_request(const OutputOptions& o) {
     return invalid_argument_error("unknown --grid '" + o.grid + "'; use input or grow (or --grid-like IMAGE)");
   }
   request.resample.max_output_voxels = global_options().max_voxels;
+  request.resample.max_output_bytes = o.max_output_mb << 20;
   for (const std::string& path : o.extra_surfaces) {
     POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh mesh, api::read_surface(path));
     request.extra_surfaces.push_back(std::move(mesh));
@@ -168,6 +170,10 @@ int run_pose(const PoseOptions& o) {
   request->want_surfaces = !o.surfaces_out.empty();
   Result<api::PoseEngine> engine = load_engine(o.rig_path);
   if (!engine.ok()) return report(engine.status());
+  // Checked here too (pose() checks again) so that a pose that does not fit the rig names its file.
+  if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
+    return report(fits.with_context("pose file '" + o.pose_path + "'"));
+  }
   Result<api::PoseResult> result = engine->pose(*request, progress_bar());
   if (!result.ok()) return report(result.status());
   summarize(*result);
@@ -256,6 +262,10 @@ void add_output_options(CLI::App* cmd, OutputOptions& o) {
       ->capture_default_str();
   cmd->add_option("--grid-like", o.grid_like, "Output on the grid of this image instead");
   cmd->add_flag("--nearest-ct", o.nearest_ct, "Nearest-neighbour CT instead of trilinear");
+  cmd->add_option("--max-output-mb", o.max_output_mb,
+                  "Refuse a pose whose outputs would take more memory than this, in MB (0 = half the machine's memory)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   cmd->add_option("--surface-format", o.surface_format, "Format of written surfaces")
       ->check(CLI::IsMember({"vtp", "stl", "obj", "ply"}))
       ->capture_default_str();

@@ -1,7 +1,9 @@
 // posewarp: re-pose segmented CT/MRI volumes (command-line entry point).
 #include <CLI/CLI.hpp>
 
+#include <exception>
 #include <iostream>
+#include <new>
 
 #include "cli_support.h"
 #include "posewarp/common/parallel.h"
@@ -35,6 +37,13 @@ int main(int argc, char** argv) {
     const int code = app.exit(error);
     if (dynamic_cast<const CLI::RuntimeError*>(&error) != nullptr || code == 0) return code;
     return 2;
+  } catch (const std::bad_alloc&) {
+    // The stages turn their own allocation failures into statuses; this is the last wall, for the CLI's own code.
+    std::cerr << "error: out of memory; free memory, or use a smaller volume or coarser settings\n";
+    return 3;
+  } catch (const std::exception& error) {
+    std::cerr << "error: unexpected failure: " << error.what() << " (please report this as a bug)\n";
+    return 1;
   }
   return 0;
 }

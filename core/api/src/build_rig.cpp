@@ -6,6 +6,7 @@
 #include <new>
 
 #include "posewarp/api/rig.h"
+#include "posewarp/common/exception_wall.h"
 
 #ifndef POSEWARP_VERSION
 #define POSEWARP_VERSION "unknown"
@@ -30,27 +31,6 @@ class StageClock {
 
 }  // namespace
 
-std::string hash_bytes(const void* data, size_t size, uint64_t seed) {
-  // FNV-1a over 8-byte words, then the tail bytes; a final avalanche.
-  uint64_t h = 0xcbf29ce484222325ULL ^ seed;
-  const auto* bytes = static_cast<const unsigned char*>(data);
-  size_t i = 0;
-  for (; i + 8 <= size; i += 8) {
-    uint64_t word;
-    std::memcpy(&word, bytes + i, 8);
-    h = (h ^ word) * 0x100000001b3ULL;
-    h ^= h >> 29;
-  }
-  for (; i < size; ++i) h = (h ^ bytes[i]) * 0x100000001b3ULL;
-  h ^= size;
-  h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  h = (h ^ (h >> 27)) * 0x94d049bb133111ebULL;
-  h ^= h >> 31;
-  char hex[17];
-  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(h));
-  return hex;
-}
-
 std::string Rig::id() const {
   const std::string key = labels_hash + "|" + ct_hash + "|" + labels::label_map_to_json(label_map) + "|" +
                           params_json + "|" + std::to_string(source_geometry.voxel_count()) + "|" + POSEWARP_VERSION;
@@ -68,7 +48,7 @@ Status validate(const BuildParams& params) {
   return ok_status();
 }
 
-Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks) {
+static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks) {
   POSEWARP_RETURN_IF_ERROR(validate(params));
   if (inputs.labels.empty()) return invalid_argument_error("the label volume is empty");
   const ImageGeometry& grid = inputs.labels.geometry();
@@ -152,7 +132,8 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
                      {"body_components", health.body_components},
                      {"degenerate_tets", health.degenerate_tets},
                      {"min_tet_quality", health.min_tet_quality},
-                     {"sequential_fallback", health.sequential_fallback}};
+                     {"sequential_fallback", health.sequential_fallback},
+                     {"estimated_vertices", health.estimated_vertices}};
     clock.lap("mesh");
 
     weights::WeightStats weight_stats;
@@ -234,6 +215,10 @@ Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, cons
   rig.labels = inputs.labels;
   rig.ct = inputs.ct;
   return rig;
+}
+
+Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks) {
+  return guarded("building the rig", [&] { return build_rig_unguarded(inputs, params, hooks); });
 }
 
 }  // namespace posewarp::api

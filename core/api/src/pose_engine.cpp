@@ -8,6 +8,7 @@
 #include <chrono>
 #include <new>
 
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/pose/forward_kinematics.h"
 
@@ -31,6 +32,10 @@ class Clock {
 }  // namespace
 
 Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
+  return guarded("preparing the rig for posing", [&] { return create_unguarded(std::move(rig), hooks); });
+}
+
+Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& hooks) {
   if (rig.labels.empty()) {
     return failed_precondition_error("the rig holds no source volume to warp; rebuild it with this posewarp version");
   }
@@ -73,6 +78,10 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
 }
 
 Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
+  return guarded("posing", [&] { return pose_unguarded(request, hooks); });
+}
+
+Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const {
   PoseResult result;
   report::QualityReport& qr = result.report;
   Clock clock(qr.stage_seconds);

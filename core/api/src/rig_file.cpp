@@ -1,5 +1,6 @@
 // Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
 #include "posewarp/api/rig_file.h"
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 
 #include <fcntl.h>
@@ -8,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <zlib.h>
 
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -164,6 +166,11 @@ Status read_volume_section(const std::string& payload, const std::string& name, 
   POSEWARP_RETURN_IF_ERROR(r.get_string(packed));
   if (g.validate().ok() == false || raw != static_cast<uint64_t>(g.voxel_count()) * sizeof(T)) {
     return data_loss_error("rig section " + name + " describes an inconsistent volume");
+  }
+  // zlib cannot pack more than 1032:1, so a claim beyond that is damage, refused before the volume is allocated.
+  if (raw / 1032 > packed.size() + 64) {
+    return data_loss_error("rig section " + name + " claims " + std::to_string(raw) + " bytes from " +
+                           std::to_string(packed.size()) + " compressed bytes; the file is damaged");
   }
   volume = Volume<T>(g);
   volume.set_source_type(static_cast<PixelType>(type));
@@ -412,9 +419,20 @@ Status check_consistency(const Rig& rig) {
     if (e.tet.size() > 0 && (e.tet.minCoeff() < 0 || e.tet.maxCoeff() >= rig.mesh.tet_count())) {
       return data_loss_error("rig surface embedding refers to tets that do not exist");
     }
+    if (!e.barycentric.allFinite()) return data_loss_error("rig surface embedding has NaN or infinite coordinates");
   }
-  if (!rig.labels.empty() && !rig.labels.geometry().same_grid(rig.source_geometry, 1e-6)) {
+  for (const surface::SurfaceMesh& m : rig.surfaces) {
+    if (m.triangles.size() > 0 && (m.triangles.minCoeff() < 0 || m.triangles.maxCoeff() >= m.vertices.rows())) {
+      return data_loss_error("rig surface '" + m.name + "' has triangles on vertices that do not exist");
+    }
+    if (!m.vertices.allFinite()) return data_loss_error("rig surface '" + m.name + "' has NaN or infinite vertices");
+  }
+  if (rig.labels.empty()) return data_loss_error("rig has no label volume (section LVOL is missing)");
+  if (!rig.labels.geometry().same_grid(rig.source_geometry, 1e-6)) {
     return data_loss_error("rig label volume is not on the rig's source grid");
+  }
+  if (rig.ct && !rig.ct->geometry().same_grid(rig.source_geometry, 1e-6)) {
+    return data_loss_error("rig CT volume is not on the rig's source grid");
   }
   if (static_cast<int>(rig.skeleton.segments.size()) != rig.mesh.segment_count) {
     return data_loss_error("rig skeleton and mesh disagree on the number of segments");
@@ -447,9 +465,30 @@ Status check_consistency(const Rig& rig) {
 
 }  // namespace
 
+std::string hash_bytes(const void* data, size_t size, uint64_t seed) {
+  // FNV-1a over 8-byte words, then the tail bytes; a final avalanche.
+  uint64_t h = 0xcbf29ce484222325ULL ^ seed;
+  const auto* bytes = static_cast<const unsigned char*>(data);
+  size_t i = 0;
+  for (; i + 8 <= size; i += 8) {
+    uint64_t word;
+    std::memcpy(&word, bytes + i, 8);
+    h = (h ^ word) * 0x100000001b3ULL;
+    h ^= h >> 29;
+  }
+  for (; i < size; ++i) h = (h ^ bytes[i]) * 0x100000001b3ULL;
+  h ^= size;
+  h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  h = (h ^ (h >> 27)) * 0x94d049bb133111ebULL;
+  h ^= h >> 31;
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(h));
+  return hex;
+}
+
 std::string content_hash(const Rig& rig) { return hash_of_sections(sections_of(rig)); }
 
-Status save_rig(const Rig& rig, const std::string& path) {
+std::string rig_to_bytes(const Rig& rig) {
   const std::vector<std::pair<uint32_t, std::string>> sections = sections_of(rig);
   std::string file(kMagic, sizeof(kMagic));
   auto put32 = [&file](uint32_t value) { file.append(reinterpret_cast<const char*>(&value), 4); };
@@ -467,7 +506,11 @@ Status save_rig(const Rig& rig, const std::string& path) {
   put32(0);
   put64(0);
   put64(std::stoull(hash_of_sections(sections), nullptr, 16));
+  return file;
+}
 
+static Status save_rig_unguarded(const Rig& rig, const std::string& path) {
+  const std::string file = rig_to_bytes(rig);
   const fs::path target(path);
   // Partial files that a killed writer left here go first.
   remove_stale_partial_files(target.parent_path().string());
@@ -504,11 +547,18 @@ Status save_rig(const Rig& rig, const std::string& path) {
   return ok_status();
 }
 
+Status save_rig(const Rig& rig, const std::string& path) {
+  return guarded("writing rig file '" + path + "'", [&] { return save_rig_unguarded(rig, path); });
+}
+
 Result<Rig> load_rig(const std::string& path) {
   // A rig holds the source volumes: a 20M-voxel study is a few hundred MB; 8 GB is far beyond any.
   constexpr int64_t kMaxRigBytes = int64_t{8} << 30;
   POSEWARP_ASSIGN_OR_RETURN(const std::string file, read_text_input(path, "rig file", kMaxRigBytes));
-  const std::string where = "'" + path + "'";
+  return rig_from_bytes(file, "'" + path + "'");
+}
+
+static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::string& where) {
   if (file.size() < 16 || std::memcmp(file.data(), kMagic, sizeof(kMagic)) != 0) {
     return invalid_argument_error(where + " is not a posewarp rig file (build one with `posewarp rig build`)");
   }
@@ -539,7 +589,7 @@ Result<Rig> load_rig(const std::string& path) {
       break;
     }
     if (size > file.size() - offset) break;
-    std::string payload = file.substr(offset, size);
+    std::string payload(file.substr(offset, size));
     offset += size;
     if (checksum(payload) != sum) {
       return data_loss_error(where + ": section " + tag_name(t) + " fails its checksum; the file is damaged. Rebuild the rig");
@@ -559,6 +609,10 @@ Result<Rig> load_rig(const std::string& path) {
   Status consistent = check_consistency(rig);
   if (!consistent.ok()) return consistent.with_context(where);
   return rig;
+}
+
+Result<Rig> rig_from_bytes(std::string_view file, const std::string& where) {
+  return guarded("reading " + where, [&] { return rig_from_bytes_unguarded(file, where); });
 }
 
 }  // namespace posewarp::api

@@ -107,6 +107,14 @@ Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
         return data_loss_error("rig skeleton joint '" + joint.name + "' refers to a missing segment");
       }
     }
+    for (const rig::Segment& segment : skeleton.segments) {
+      if (segment.parent_joint < -1 || segment.parent_joint >= static_cast<int>(skeleton.joints.size())) {
+        return data_loss_error("rig skeleton segment '" + segment.name + "' refers to a missing joint");
+      }
+      if (!segment.centroid_mm.allFinite() || !segment.principal_axis.allFinite()) {
+        return data_loss_error("rig skeleton segment '" + segment.name + "' has a NaN or infinite centroid or axis");
+      }
+    }
     return skeleton;
   } catch (const json::exception& error) {
     return data_loss_error(std::string("rig skeleton section is malformed: ") + error.what());

@@ -104,6 +104,36 @@ Status read_nifti_header(const std::string& path, unsigned char (&header)[348]) 
   return ok_status();
 }
 
+// Float voxels must be finite: ITK's NIfTI reader turns a NaN into 0 without a word, which makes a NaN label
+// background and a NaN CT voxel water. Streams the data once (gzread reads plain and gzip files alike).
+Status check_nifti_finite(const std::string& path, int64_t offset, int64_t voxels, bool doubles, bool swap) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (!file) return not_found_error("cannot open " + in_quotes(path));
+  gzbuffer(file, 1 << 17);
+  const int bytes = doubles ? 8 : 4;
+  std::vector<unsigned char> chunk(size_t{1} << 20);
+  int64_t voxel = 0;
+  bool ok = gzseek(file, static_cast<z_off_t>(offset), SEEK_SET) == static_cast<z_off_t>(offset);
+  while (ok && voxel < voxels) {
+    const int64_t count = std::min<int64_t>(voxels - voxel, static_cast<int64_t>(chunk.size()) / bytes);
+    ok = gzread(file, chunk.data(), static_cast<unsigned>(count * bytes)) == count * bytes;
+    for (int64_t i = 0; ok && i < count; ++i) {
+      const double value = doubles ? read_field<double>(chunk.data(), static_cast<size_t>(i * 8), swap)
+                                   : read_field<float>(chunk.data(), static_cast<size_t>(i * 4), swap);
+      if (!std::isfinite(value)) {
+        gzclose(file);
+        return invalid_argument_error(in_quotes(path) + " holds a NaN or infinite value at voxel " +
+                                      std::to_string(voxel + i) +
+                                      "; a voxel must be a number (replace them, e.g. with the background value)");
+      }
+    }
+    voxel += count;
+  }
+  gzclose(file);
+  if (!ok) return data_loss_error("cannot read the voxels of " + in_quotes(path) + "; the file is damaged");
+  return ok_status();
+}
+
 }  // namespace
 
 Status check_nifti_file(const std::string& path) {
@@ -129,6 +159,9 @@ Status check_nifti_file(const std::string& path) {
                                     std::to_string(d - 1) + "; every dimension must be at least 1 (corrupt header)");
     }
     voxels *= size;
+    if (voxels > (int64_t{1} << 40)) {  // 32767^7 would overflow; no file holds a trillion voxels
+      return invalid_argument_error(in_quotes(path) + " declares more than 2^40 voxels; the header is corrupt");
+    }
   }
   for (int d = 1; d <= std::min<int>(ndim, 3); ++d) {
     const float spacing = read_field<float>(header, 76 + 4 * static_cast<size_t>(d), swap);
@@ -142,6 +175,10 @@ Status check_nifti_file(const std::string& path) {
   const int bits = nifti_bits(read_field<int16_t>(header, 70, swap));
   const float vox_offset = read_field<float>(header, 108, swap);
   if (bits == 0 || !(vox_offset >= 0.0f)) return ok_status();  // ITK reports unsupported types itself
+  if (vox_offset > 1e12f) {
+    return invalid_argument_error(in_quotes(path) + " has a vox_offset of " + std::to_string(vox_offset) +
+                                  " bytes in its NIfTI header, beyond any file; the header is corrupt");
+  }
   const int64_t needed = static_cast<int64_t>(vox_offset) + voxels * bits / 8;
   std::error_code ec;
   const bool compressed = path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0;
@@ -157,6 +194,10 @@ Status check_nifti_file(const std::string& path) {
   if (present < needed) {
     return data_loss_error(in_quotes(path) + " is truncated: its header promises " + std::to_string(needed) +
                            " bytes but it holds " + std::to_string(present) + "; copy the file again");
+  }
+  const int16_t datatype = read_field<int16_t>(header, 70, swap);
+  if (datatype == 16 || datatype == 64) {
+    return check_nifti_finite(path, static_cast<int64_t>(vox_offset), voxels, datatype == 64, swap);
   }
   return ok_status();
 }
@@ -227,7 +268,8 @@ Status check_nrrd_file(const std::string& path) {
   }
   const std::streamoff data_offset = in.tellg();
   const std::string encoding = fields["encoding"];
-  if (encoding != "gzip" && encoding != "gz") return ok_status();  // raw: ITK refuses a short file before allocating
+  const bool gzip = encoding == "gzip" || encoding == "gz";
+  if (!gzip && encoding != "raw") return ok_status();  // text, hex, bzip2: ITK reads and checks them
   static const std::map<std::string, int> kTypeBytes{
       {"uchar", 1},  {"unsigned char", 1}, {"uint8", 1},  {"uint8_t", 1}, {"signed char", 1}, {"int8", 1},
       {"int8_t", 1}, {"char", 1},          {"short", 2},  {"int16", 2},   {"int16_t", 2},     {"ushort", 2},
@@ -242,8 +284,8 @@ Status check_nrrd_file(const std::string& path) {
     int64_t size = 0;
     while (sizes >> size) {
       if (size < 1) return ok_status();  // the header check refuses it
+      if (size > (int64_t{1} << 40) / promised) return ok_status();  // the voxel limit refuses it (no overflow here)
       promised *= size;
-      if (promised > (int64_t{1} << 40)) return ok_status();  // the voxel limit refuses it
     }
   }
   std::string data_path = path;
@@ -253,6 +295,18 @@ Status check_nrrd_file(const std::string& path) {
     if (detached.find(' ') != std::string::npos || detached == "LIST") return ok_status();  // file lists: ITK checks
     data_path = (fs::path(path).parent_path() / detached).string();
     offset = 0;
+  }
+  if (!gzip) {
+    std::error_code ec;
+    const auto bytes = fs::file_size(data_path, ec);
+    const int64_t present = ec ? 0 : static_cast<int64_t>(bytes) - offset;
+    if (present < promised) {
+      return data_loss_error(in_quotes(path) + " is truncated: its header promises " + std::to_string(promised) +
+                             " bytes of voxels (sizes " + fields["sizes"] + ") but " +
+                             (ec ? "its data file cannot be read" : "it holds " + std::to_string(present)) +
+                             "; copy the file again");
+    }
+    return ok_status();
   }
   const int64_t inflated = inflated_size(data_path, offset, promised);
   if (inflated < 0) {
@@ -303,11 +357,17 @@ Status check_metaimage_file(const std::string& path) {
         return invalid_argument_error(in_quotes(path) + " declares DimSize " + fields["DimSize"] +
                                       "; every dimension must be at least 1 (corrupt header)");
       }
+      if (size > (int64_t{1} << 40) / voxels) {  // the product would overflow; no file holds a trillion voxels
+        return invalid_argument_error(in_quotes(path) + " declares DimSize " + fields["DimSize"] +
+                                      ", more than 2^40 voxels (corrupt header)");
+      }
       voxels *= size;
     }
   }
   int channels = 1;
-  if (fields.count("ElementNumberOfChannels")) channels = std::max(1, std::atoi(fields["ElementNumberOfChannels"].c_str()));
+  if (fields.count("ElementNumberOfChannels")) {
+    channels = std::clamp(std::atoi(fields["ElementNumberOfChannels"].c_str()), 1, 1024);
+  }
   if (fields.count("ElementSpacing")) {
     std::istringstream spacings(fields["ElementSpacing"]);
     double spacing = 0.0;

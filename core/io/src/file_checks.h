@@ -9,7 +9,7 @@ namespace posewarp::io::detail {
 
 // NIfTI-1 (.nii, .nii.gz): dimensions and spacings in the raw header must be positive (niftilib replaces bad ones
 // with 1), and the file must hold every voxel byte the header promises (a .nii.gz is decompressed once to count
-// them, which also catches a corrupt gzip stream).
+// them, which also catches a corrupt gzip stream). Float voxels must be finite: ITK's reader turns NaN into 0.
 Status check_nifti_file(const std::string& path);
 
 // NIfTI-1, before ITK reads the header: every geometry field finite (pixdim, quatern_*, qoffset_*, srow_*: a NaN

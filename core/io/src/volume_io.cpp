@@ -18,8 +18,10 @@
 #include <gdcmUIDGenerator.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <iomanip>
 #include <limits>
@@ -28,9 +30,12 @@
 #include <system_error>
 #include <vector>
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "file_checks.h"
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 #include "itk_geometry.h"
 
@@ -429,8 +434,21 @@ Status write_file(const typename Image3<Out>::Pointer& image, const std::string&
   const fs::path target(path);
   fs::path temporary = target;
   if (!detached) {
-    temporary = target.parent_path() /
-                (".posewarp-partial-" + std::to_string(::getpid()) + "-" + target.filename().string());
+    remove_stale_partial_files(target.has_parent_path() ? target.parent_path().string() : ".");
+    temporary = target.parent_path() / partial_file_name(target.filename().string());
+  }
+  // ITK does not always say when it cannot create a file (its NIfTI writer goes through znzlib), so the file is
+  // created here first: a missing or read-only directory is reported with the system's reason.
+  {
+    const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) {
+      const int error = errno;
+      const std::string directory = target.has_parent_path() ? target.parent_path().string() : ".";
+      return (error == EACCES || error == EPERM || error == EROFS ? permission_denied_error : invalid_argument_error)(
+          "cannot write " + in_quotes(path) + " in " + in_quotes(directory) + ": " + std::strerror(error) +
+          " (check that the directory exists and is writable)");
+    }
+    ::close(fd);
   }
   try {
     auto writer = itk::ImageFileWriter<Image3<Out>>::New();
@@ -444,6 +462,20 @@ Status write_file(const typename Image3<Out>::Pointer& image, const std::string&
     std::error_code ignored;
     if (!detached) fs::remove(temporary, ignored);
     return invalid_argument_error("writing " + in_quotes(path) + " failed: " + itk_reason(error));
+  }
+  // What ITK wrote must be there and reach the disk before it replaces the target.
+  {
+    const int fd = ::open(temporary.c_str(), O_RDONLY | O_CLOEXEC);
+    struct stat st {};
+    const bool written = fd >= 0 && ::fstat(fd, &st) == 0 && st.st_size > 0 && ::fsync(fd) == 0;
+    const int error = errno;
+    if (fd >= 0) ::close(fd);
+    if (!written) {
+      std::error_code ignored;
+      if (!detached) fs::remove(temporary, ignored);
+      return internal_error("writing " + in_quotes(path) + " failed: the file is empty or could not be flushed (" +
+                            std::strerror(error) + "; is the disk full?)");
+    }
   }
   if (!detached) {
     std::error_code ec;
@@ -541,12 +573,16 @@ Result<VolumeFormat> format_from_path(const std::string& path) {
                                 "directory (DICOM series)");
 }
 
-Result<VolumeHeader> read_header(const std::string& path, const ReadOptions& options) {
+static Result<VolumeHeader> read_header_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
   return opened.first;
 }
 
-Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions& options) {
+Result<VolumeHeader> read_header(const std::string& path, const ReadOptions& options) {
+  return guarded("reading " + in_quotes(path), [&] { return read_header_unguarded(path, options); });
+}
+
+static Result<LabelVolume> read_label_volume_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
   const auto& [header, series] = opened;
   const PixelType type = header.pixel_type;
@@ -583,7 +619,11 @@ Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions
   return labels;
 }
 
-Result<IntensityVolume> read_intensity_volume(const std::string& path, const ReadOptions& options) {
+Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions& options) {
+  return guarded("reading " + in_quotes(path), [&] { return read_label_volume_unguarded(path, options); });
+}
+
+static Result<IntensityVolume> read_intensity_volume_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
   const auto& [header, series] = opened;
   IntensityVolume intensities;
@@ -591,6 +631,14 @@ Result<IntensityVolume> read_intensity_volume(const std::string& path, const Rea
     POSEWARP_ASSIGN_OR_RETURN(auto image, read_itk_image<float>(path, header, series));
     intensities = IntensityVolume(geometry_from_image(*image));
     std::copy_n(image->GetBufferPointer(), intensities.voxel_count(), intensities.data());
+    // A NaN would spread through every interpolated voxel near it (NIfTI's are caught before ITK hides them).
+    const float* first = intensities.data();
+    const float* bad = std::find_if(first, first + intensities.voxel_count(), [](float v) { return !std::isfinite(v); });
+    if (bad != first + intensities.voxel_count()) {
+      return invalid_argument_error(in_quotes(path) + " holds a NaN or infinite value at voxel " +
+                                    std::to_string(bad - first) +
+                                    "; a voxel must be a number (replace them, e.g. with the background value)");
+    }
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory reading " + in_quotes(path) + " (" + header.geometry.describe() + ")");
   }
@@ -598,12 +646,16 @@ Result<IntensityVolume> read_intensity_volume(const std::string& path, const Rea
   return intensities;
 }
 
+Result<IntensityVolume> read_intensity_volume(const std::string& path, const ReadOptions& options) {
+  return guarded("reading " + in_quotes(path), [&] { return read_intensity_volume_unguarded(path, options); });
+}
+
 Status write_volume(const LabelVolume& volume, const std::string& path, const WriteOptions& options) {
-  return write_any(volume, path, options, "CT");
+  return guarded("writing " + in_quotes(path), [&] { return write_any(volume, path, options, "CT"); });
 }
 
 Status write_volume(const IntensityVolume& volume, const std::string& path, const WriteOptions& options) {
-  return write_any(volume, path, options, "CT");
+  return guarded("writing " + in_quotes(path), [&] { return write_any(volume, path, options, "CT"); });
 }
 
 }  // namespace posewarp::io

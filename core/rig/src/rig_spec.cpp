@@ -4,6 +4,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <sstream>
 
 #include "posewarp/common/input_file.h"
@@ -31,6 +32,7 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
       }
     }
     if (doc.contains("segments")) {
+      std::map<Label, std::string> owner;  // a label in two segments would silently belong to the last
       for (const auto& [name, labels] : doc["segments"].items()) {
         if (!labels.is_array() || labels.empty()) {
           return invalid_argument_error("rig spec " + source + ": segment \"" + name + "\" needs a list of labels");
@@ -46,6 +48,12 @@ Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& s
             return invalid_argument_error("rig spec " + source + ": segment \"" + name + "\" lists " + value.dump() +
                                           ", which is not a label value (a whole number from 0 to " +
                                           std::to_string(std::numeric_limits<Label>::max()) + ")");
+          }
+          const auto [listed, fresh] = owner.emplace(static_cast<Label>(v), name);
+          if (!fresh) {
+            return invalid_argument_error("rig spec " + source + ": label " + value.dump() + " is listed in segment \"" +
+                                          listed->second + "\" and in segment \"" + name +
+                                          "\"; a label belongs to one segment");
           }
           values.push_back(static_cast<Label>(v));
         }

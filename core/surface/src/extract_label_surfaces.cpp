@@ -23,6 +23,7 @@
 #include <string>
 #include <unordered_map>
 
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "vtk_support.h"
 
@@ -269,7 +270,7 @@ Status validate(const SurfaceParams& params) {
   return ok_status();
 }
 
-Result<std::vector<SurfaceMesh>> extract_label_surfaces(const LabelVolume& labels,
+static Result<std::vector<SurfaceMesh>> extract_label_surfaces_unguarded(const LabelVolume& labels,
                                                         const std::vector<std::pair<Label, std::string>>& wanted,
                                                         const SurfaceParams& params, const ProgressHooks& hooks) {
   POSEWARP_RETURN_IF_ERROR(validate(params));
@@ -319,6 +320,14 @@ Result<std::vector<SurfaceMesh>> extract_label_surfaces(const LabelVolume& label
   }
   progress.finish();
   return surfaces;
+}
+
+Result<std::vector<SurfaceMesh>> extract_label_surfaces(const LabelVolume& labels,
+                                                        const std::vector<std::pair<Label, std::string>>& wanted,
+                                                        const SurfaceParams& params, const ProgressHooks& hooks) {
+  return guarded("extracting label surfaces", [&] {
+    return extract_label_surfaces_unguarded(labels, wanted, params, hooks);
+  });
 }
 
 }  // namespace posewarp::surface

@@ -1,6 +1,7 @@
 // read_surface and write_surface: STL, OBJ, PLY and VTP through VTK's readers and writers, with VTK's silent
 // failures (warnings and empty outputs) turned into Status errors that name the file.
 #include "posewarp/surface/surface_mesh.h"
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 
 #include <vtkNew.h>
@@ -135,7 +136,7 @@ Status check_mesh(const SurfaceMesh& mesh, const std::string& path) {
 
 }  // namespace
 
-Result<SurfaceMesh> read_surface(const std::string& path) {
+static Result<SurfaceMesh> read_surface_unguarded(const std::string& path) {
   const MeshFormat format = format_of(path);
   if (format == MeshFormat::kUnknown) return unknown_format(path);
   POSEWARP_RETURN_IF_ERROR(check_input_file(path, "mesh"));
@@ -169,7 +170,11 @@ Result<SurfaceMesh> read_surface(const std::string& path) {
   return mesh;
 }
 
-Status write_surface(const SurfaceMesh& mesh, const std::string& path) {
+Result<SurfaceMesh> read_surface(const std::string& path) {
+  return guarded("reading mesh " + quoted(path), [&] { return read_surface_unguarded(path); });
+}
+
+static Status write_surface_unguarded(const SurfaceMesh& mesh, const std::string& path) {
   const MeshFormat format = format_of(path);
   if (format == MeshFormat::kUnknown) return unknown_format(path);
   POSEWARP_RETURN_IF_ERROR(check_mesh(mesh, path));
@@ -243,6 +248,10 @@ Status write_surface(const SurfaceMesh& mesh, const std::string& path) {
     return internal_error("could not move the finished mesh into place at " + quoted(path) + ": " + ec.message());
   }
   return ok_status();
+}
+
+Status write_surface(const SurfaceMesh& mesh, const std::string& path) {
+  return guarded("writing mesh " + quoted(path), [&] { return write_surface_unguarded(mesh, path); });
 }
 
 }  // namespace posewarp::surface

@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "posewarp/api/vtk_export.h"
+#include "rig_bytes_support.h"
 #include "rig_test_support.h"
 #include "test_support.h"
 
@@ -145,6 +146,53 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
     rig.skeleton.joints[0].centre_mm.x() = std::numeric_limits<double>::infinity();  // JSON writes null
     refused(std::move(rig), "skeleton");
   }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    ASSERT_FALSE(rig.surfaces.empty());
+    rig.surfaces[0].triangles(0, 1) = static_cast<int32_t>(rig.surfaces[0].vertices.rows());
+    refused(std::move(rig), "vertices that do not exist");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.skeleton.segments[0].parent_joint = 42;
+    refused(std::move(rig), "missing joint");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.labels = LabelVolume();
+    refused(std::move(rig), "no label volume");
+  }
+}
+
+// A label volume section whose geometry claims far more voxels than its compressed bytes can hold (zlib packs at
+// most 1032:1) is refused before the volume is allocated, even with its checksums recomputed: a few KB cannot cost
+// 32 GB.
+TEST(RigFile, AVolumeSectionClaimingAHugeGridIsRefusedBeforeAllocating) {
+  std::string bytes = rig_to_bytes(shared_bar_rig());
+  const size_t at = bytes.find("LVOL");
+  ASSERT_NE(at, std::string::npos);
+  const size_t payload = at + 24;
+  const int64_t big = 2000;
+  for (size_t a = 0; a < 3; ++a) std::memcpy(bytes.data() + payload + 8 * a, &big, 8);
+  const uint64_t raw = uint64_t{2000} * 2000 * 2000 * sizeof(Label);
+  std::memcpy(bytes.data() + payload + 148, &raw, 8);  // after size, spacing, origin, direction and the type
+  const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(bytes), "crafted rig").status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("compressed bytes"), std::string::npos) << status.to_string();
+}
+
+TEST(RigFile, BytesRoundTripEqualsTheFile) {
+  ScratchDir dir;
+  const Rig& rig = shared_bar_rig();
+  ASSERT_TRUE(save_rig(rig, dir.file("bar.rig")).ok());
+  const std::string bytes = rig_to_bytes(rig);
+  EXPECT_EQ(bytes, read_bytes(dir.file("bar.rig")));
+  Result<Rig> back = rig_from_bytes(bytes, "uploaded rig");
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  EXPECT_EQ(content_hash(*back), content_hash(rig));
+  const Status refused = rig_from_bytes(bytes.substr(0, 100), "uploaded rig").status();
+  EXPECT_EQ(refused.code(), StatusCode::kDataLoss);
+  EXPECT_NE(refused.message().find("uploaded rig"), std::string::npos) << refused.to_string();
 }
 
 TEST(RigFile, TwoRigsJoinedAreRefused) {

@@ -152,6 +152,25 @@ TEST(BadInput, FloatLabelsWithFractionsAreNotLabels) {
   EXPECT_NE(status.message().find("not an integer label"), std::string::npos);
 }
 
+// A NaN among float voxels was read as 0 from NIfTI (label 0, or water in a CT, silently).
+TEST(BadInput, NanAmongFloatVoxelsIsRefused) {
+  ScratchDir dir;
+  IntensityVolume ct = patterned_intensities(small_oblique_grid(), 0.0f, 3.0f, false);
+  for (int64_t v = 0; v < ct.voxel_count(); ++v) ct.data()[v] = std::round(ct.data()[v]);
+  ct.data()[7] = std::nanf("");
+  ct.set_source_type(PixelType::kFloat32);
+  for (const char* name : {"nan.nii", "nan.nrrd", "nan.mha"}) {
+    ASSERT_TRUE(write_volume(ct, dir.file(name)).ok());
+    const Status status = read_label_volume(dir.file(name)).status();
+    expect_error_naming(status, name, StatusCode::kInvalidArgument);
+    EXPECT_NE(status.message().find("at voxel 7"), std::string::npos) << status.to_string();
+    const Status intensities = read_intensity_volume(dir.file(name)).status();
+    expect_error_naming(intensities, name, StatusCode::kInvalidArgument);
+    EXPECT_NE(intensities.message().find("NaN or infinite value at voxel 7"), std::string::npos)
+        << intensities.to_string();
+  }
+}
+
 TEST(BadInput, FourDimensionalSeriesAndVectorImagesAreRefused) {
   ScratchDir dir;
   const std::string frames =
@@ -224,7 +243,9 @@ TEST(BadInput, NonFiniteOrEmptySformAndNegativeOffsetAreRefusedBeforeItk) {
   const std::vector<Case> cases{{"nan_sform.nii", kSrowX, std::nanf(""), "srow_x"},
                                 {"inf_qoffset.nii", 268, INFINITY, "qoffset"},
                                 {"nan_pixdim.nii", kPixdimOffset + 4, std::nanf(""), "pixdim"},
-                                {"negative_offset.nii", kVoxOffset, -352.0f, "vox_offset"}};
+                                {"negative_offset.nii", kVoxOffset, -352.0f, "vox_offset"},
+                                // found by fuzzing: converting 3e38 to an integer is undefined behaviour
+                                {"huge_offset.nii", kVoxOffset, 3e38f, "vox_offset"}};
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
     std::string bytes = good;

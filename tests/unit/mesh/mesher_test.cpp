@@ -92,11 +92,19 @@ TEST(CgalMesher, AMeshThatWouldGrowPastItsVertexCapStopsWithResourceExhausted) {
     SCOPED_TRACE(parallel ? "parallel" : "sequential");
     MeshParams params = small_sizes();
     params.parallel = parallel;
-    params.max_vertices = 1000;  // the bar needs several thousand at these sizes
+    params.max_vertices = 2500;  // over the estimate (about 1900), under what the bar really needs at these sizes
     Result<TetMesh> mesh = make_cgal_mesher()->mesh(bar.classes, 3, params, {}, nullptr);
     EXPECT_EQ(mesh.status().code(), StatusCode::kResourceExhausted) << mesh.status().to_string();
-    EXPECT_NE(mesh.status().message().find("1000 vertices"), std::string::npos) << mesh.status().to_string();
+    EXPECT_NE(mesh.status().message().find("2500 vertices"), std::string::npos) << mesh.status().to_string();
   }
+  // Sizes whose estimate alone is over the cap are refused before refinement starts.
+  MeshParams fine = small_sizes();
+  fine.max_vertices = 1000;
+  MeshHealth health;
+  const Status refused = make_cgal_mesher()->mesh(bar.classes, 3, fine, {}, &health).status();
+  EXPECT_EQ(refused.code(), StatusCode::kResourceExhausted) << refused.to_string();
+  EXPECT_NE(refused.message().find("would make at least"), std::string::npos) << refused.to_string();
+  EXPECT_GT(health.estimated_vertices, 1000);
   MeshParams tiny;
   tiny.bone_cell_size_mm = 0.05;
   EXPECT_EQ(validate(tiny).code(), StatusCode::kInvalidArgument);

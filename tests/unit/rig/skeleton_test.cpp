@@ -164,6 +164,15 @@ TEST(Skeleton, SpecNamingAbsentLabelsOrSegmentsIsAnError) {
   EXPECT_EQ(rig_spec_from_json(R"({"jionts": []})", "typo.json").status().code(), StatusCode::kInvalidArgument);
 }
 
+// A label in two segments silently belonged to the last one.
+TEST(Skeleton, SpecListingALabelInTwoSegmentsIsRefused) {
+  const Status twice = rig_spec_from_json(R"({"segments": {"a": [1, 2], "b": [2]}})", "'twice.json'").status();
+  EXPECT_EQ(twice.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(twice.message().find("label 2 is listed in segment \"a\" and in segment \"b\""), std::string::npos)
+      << twice.to_string();
+  EXPECT_NE(twice.message().find("twice.json"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace posewarp::rig
 

@@ -52,6 +52,9 @@ class PoseEngine {
   Result<PoseResult> pose(const PoseRequest& request, const ProgressHooks& hooks = {}) const;
 
  private:
+  // The bodies of create() and pose(), which run them behind the exception wall.
+  static Result<PoseEngine> create_unguarded(Rig rig, const ProgressHooks& hooks);
+  Result<PoseResult> pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const;
   PoseEngine() = default;
   Rig rig_;
   skinning::RestTetFrames frames_;

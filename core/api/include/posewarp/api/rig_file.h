@@ -9,6 +9,7 @@
 #pragma once
 
 #include <string>
+#include <string_view>
 
 #include "posewarp/api/rig.h"
 
@@ -22,6 +23,11 @@ Status save_rig(const Rig& rig, const std::string& path);
 // Reads and verifies every section's checksum. DATA_LOSS for a truncated or corrupt file, FAILED_PRECONDITION for
 // a file from a newer format, INVALID_ARGUMENT for a file that is not a rig.
 Result<Rig> load_rig(const std::string& path);
+
+// The same artifact in memory: what save_rig writes and load_rig reads, for a store or a network stream that
+// holds rigs without files. `where` names the source in messages (a quoted path, "uploaded rig 3f2a...").
+std::string rig_to_bytes(const Rig& rig);
+Result<Rig> rig_from_bytes(std::string_view bytes, const std::string& where);
 
 // Hash of the rig's content sections (geometry, label map, skeleton, mesh, weights, centres, parameters); excludes
 // provenance (timings), so two builds of the same inputs with the same parameters in the mesher's sequential mode

@@ -53,6 +53,7 @@ struct MeshHealth {
   double min_tet_quality = 1.0;
   std::vector<std::string> lost_segments;       // bone segments without a single tet
   bool sequential_fallback = false;             // the watchdog stopped the parallel mesher
+  int64_t estimated_vertices = 0;               // the estimate checked against max_vertices before refining
   std::vector<std::string> warnings;            // what a user should know about how the mesh was made
 };
 

@@ -1,0 +1,32 @@
+// The exception wall: every public entry point of a stage that calls third-party code (ITK, VTK, CGAL, CHOLMOD,
+// nlohmann, the standard library's allocator) runs its body through guarded(), so an exception becomes a Status
+// with context and nothing reaches std::terminate. posewarp's own code reports errors as Status; exceptions here
+// are always someone else's.
+#pragma once
+
+#include <exception>
+#include <new>
+#include <string>
+#include <string_view>
+
+#include "posewarp/common/result.h"
+
+namespace posewarp {
+
+// Runs `body` (returning Status or Result<T>). std::bad_alloc becomes RESOURCE_EXHAUSTED, any other exception
+// INTERNAL; both messages start with `doing` ("reading 'ct.nii.gz'") so the user knows which step failed.
+template <typename Body>
+auto guarded(std::string_view doing, Body&& body) -> decltype(body()) {
+  try {
+    return body();
+  } catch (const std::bad_alloc&) {
+    return resource_exhausted_error("out of memory " + std::string(doing) +
+                                    "; free memory, or use a smaller volume or coarser settings");
+  } catch (const std::exception& error) {
+    return internal_error("unexpected failure " + std::string(doing) + ": " + error.what());
+  } catch (...) {
+    return internal_error("unexpected failure " + std::string(doing) + " (an exception of unknown type)");
+  }
+}
+
+}  // namespace posewarp
