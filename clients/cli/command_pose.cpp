@@ -11,6 +11,7 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/files.h"
+#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::cli {
 namespace {
@@ -105,9 +106,7 @@ Status write_outputs(const api::PoseResult& result, const std::string& labels_ou
     say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
   }
   if (!report_out.empty()) {
-    std::ofstream out(report_out);
-    out << report::to_json(result.report);
-    if (!out) return internal_error("cannot write report '" + report_out + "'");
+    POSEWARP_RETURN_IF_ERROR(write_file_atomically(report_out, report::to_json(result.report), "report"));
     say("wrote " + report_out);
   }
   return ok_status();

@@ -12,6 +12,7 @@
 
 #include "cli_support.h"
 #include "posewarp/api/study.h"
+#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::cli {
 namespace {
@@ -189,7 +190,8 @@ int run_inspect(const InspectOptions& options) {
     const std::string classes_path = (fs::path(options.out_dir) / "segment_classes.nii.gz").string();
     if (Status s = api::write_volume(study->body, body_path); !s.ok()) return report(s);
     if (Status s = api::write_volume(study->classes, classes_path); !s.ok()) return report(s);
-    std::ofstream((fs::path(options.out_dir) / "inspect.json").string()) << doc.dump(2) << '\n';
+    const std::string json_path = (fs::path(options.out_dir) / "inspect.json").string();
+    if (Status s = write_file_atomically(json_path, doc.dump(2) + "\n", "inspection"); !s.ok()) return report(s);
     doc["written"] = {body_path, classes_path, (fs::path(options.out_dir) / "inspect.json").string()};
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -7,6 +7,7 @@
 
 #include "posewarp/api/rig.h"
 #include "posewarp/common/exception_wall.h"
+#include "posewarp/common/parallel.h"
 
 #ifndef POSEWARP_VERSION
 #define POSEWARP_VERSION "unknown"
@@ -218,7 +219,8 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
 }
 
 Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks) {
-  return guarded("building the rig", [&] { return build_rig_unguarded(inputs, params, hooks); });
+  return guarded("building the rig",
+                 [&] { return in_arena(hooks.threads, [&] { return build_rig_unguarded(inputs, params, hooks); }); });
 }
 
 }  // namespace posewarp::api

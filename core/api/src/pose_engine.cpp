@@ -32,7 +32,8 @@ class Clock {
 }  // namespace
 
 Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
-  return guarded("preparing the rig for posing", [&] { return create_unguarded(std::move(rig), hooks); });
+  return guarded("preparing the rig for posing",
+                 [&] { return in_arena(hooks.threads, [&] { return create_unguarded(std::move(rig), hooks); }); });
 }
 
 Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& hooks) {
@@ -78,7 +79,7 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
 }
 
 Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
-  return guarded("posing", [&] { return pose_unguarded(request, hooks); });
+  return guarded("posing", [&] { return in_arena(hooks.threads, [&] { return pose_unguarded(request, hooks); }); });
 }
 
 Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const {

@@ -1,10 +1,8 @@
 // Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
 #include "posewarp/api/rig_file.h"
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
-
-#include <fcntl.h>
-#include <unistd.h>
 
 #include <nlohmann/json.hpp>
 #include <zlib.h>
@@ -509,46 +507,9 @@ std::string rig_to_bytes(const Rig& rig) {
   return file;
 }
 
-static Status save_rig_unguarded(const Rig& rig, const std::string& path) {
-  const std::string file = rig_to_bytes(rig);
-  const fs::path target(path);
-  // Partial files that a killed writer left here go first.
-  remove_stale_partial_files(target.parent_path().string());
-  const fs::path temporary = target.parent_path() / partial_file_name(target.filename().string());
-  const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  if (fd < 0) {
-    const int error = errno;
-    return invalid_argument_error("cannot write rig file '" + path + "' in '" + target.parent_path().string() +
-                                  "': " + std::strerror(error) + " (check that the directory exists and is writable)");
-  }
-  size_t written = 0;
-  while (written < file.size()) {
-    const ssize_t n = ::write(fd, file.data() + written, file.size() - written);
-    if (n <= 0) {
-      ::close(fd);
-      std::error_code ignored;
-      fs::remove(temporary, ignored);
-      return internal_error("writing rig file '" + path + "' failed (disk full?)");
-    }
-    written += static_cast<size_t>(n);
-  }
-  const bool synced = ::fsync(fd) == 0;
-  ::close(fd);
-  std::error_code ec;
-  if (!synced) {
-    fs::remove(temporary, ec);
-    return internal_error("could not flush rig file '" + path + "' to disk");
-  }
-  fs::rename(temporary, target, ec);
-  if (ec) {
-    fs::remove(temporary, ec);
-    return internal_error("could not move the rig file into place at '" + path + "': " + ec.message());
-  }
-  return ok_status();
-}
-
 Status save_rig(const Rig& rig, const std::string& path) {
-  return guarded("writing rig file '" + path + "'", [&] { return save_rig_unguarded(rig, path); });
+  return guarded("writing rig file '" + path + "'",
+                 [&] { return write_file_atomically(path, rig_to_bytes(rig), "rig file"); });
 }
 
 Result<Rig> load_rig(const std::string& path) {

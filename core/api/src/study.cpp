@@ -5,6 +5,7 @@
 #include <fstream>
 
 #include "posewarp/api/files.h"
+#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::api {
 
@@ -61,9 +62,7 @@ Result<std::vector<std::string>> write_phantom(const Phantom& phantom, const std
   POSEWARP_RETURN_IF_ERROR(io::write_volume(phantom.labels, written[0]));
   POSEWARP_RETURN_IF_ERROR(io::write_volume(phantom.ct, written[1]));
   POSEWARP_RETURN_IF_ERROR(labels::write_label_map(phantom.label_map, written[2]));
-  std::ofstream out(written[3]);
-  out << phantom::joints_to_json(phantom);
-  if (!out) return internal_error("cannot write " + written[3]);
+  POSEWARP_RETURN_IF_ERROR(write_file_atomically(written[3], phantom::joints_to_json(phantom), "joint truth"));
   return written;
 }
 

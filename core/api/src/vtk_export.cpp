@@ -2,8 +2,9 @@
 #include "posewarp/api/vtk_export.h"
 
 #include <cstring>
-#include <fstream>
 #include <vector>
+
+#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::api {
 namespace {
@@ -47,11 +48,7 @@ std::string data_array(const char* type, const std::string& name, int components
 }
 
 Status write_text(const std::string& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) return invalid_argument_error("cannot write '" + path + "'");
-  out << text;
-  if (!out.flush()) return internal_error("writing '" + path + "' failed (disk full?)");
-  return ok_status();
+  return write_file_atomically(path, text, "VTK file");
 }
 
 const char* kHeader =

@@ -25,10 +25,17 @@ void StageProgress::advance(int64_t units, int64_t total) {
   if (total > 0) update(static_cast<double>(done) / static_cast<double>(total));
 }
 
-bool StageProgress::cancel_requested() const { return hooks_.cancel_requested && hooks_.cancel_requested(); }
+bool StageProgress::cancel_requested() const {
+  return (hooks_.cancel_requested && hooks_.cancel_requested()) || hooks_.past_deadline();
+}
 
 Status StageProgress::check_cancel() const {
-  if (cancel_requested()) return cancelled_error("cancelled during stage '" + stage_ + "' at the caller's request");
+  if (hooks_.cancel_requested && hooks_.cancel_requested()) {
+    return cancelled_error("cancelled during stage '" + stage_ + "' at the caller's request");
+  }
+  if (hooks_.past_deadline()) {
+    return deadline_exceeded_error("stage '" + stage_ + "' did not finish before the call's deadline");
+  }
   return ok_status();
 }
 

@@ -10,8 +10,6 @@
 #include <cmath>
 #include <cstdint>
 #include <exception>
-#include <functional>
-#include <mutex>
 #include <new>
 #include <string>
 #include <utility>
@@ -107,26 +105,6 @@ TetGeometry tet_geometry(const TetMesh& mesh, int64_t t, const Eigen::Vector3d& 
 Eigen::Vector3d bounding_box_centre(const TetMesh& mesh) {
   if (mesh.vertex_count() == 0) return Eigen::Vector3d::Zero();
   return 0.5 * (mesh.vertices.colwise().minCoeff() + mesh.vertices.colwise().maxCoeff()).transpose();
-}
-
-// parallel_for whose body may throw (std::bad_alloc): the first exception stops the remaining chunks and is
-// rethrown on the calling thread, where the stage boundary turns it into a Status.
-void parallel_for_checked(int64_t begin, int64_t end, int64_t grain,
-                          const std::function<void(int64_t, int64_t)>& body) {
-  std::atomic<bool> failed{false};
-  std::exception_ptr first;
-  std::mutex mutex;
-  parallel_for(begin, end, grain, [&](int64_t chunk_begin, int64_t chunk_end) {
-    if (failed.load()) return;
-    try {
-      body(chunk_begin, chunk_end);
-    } catch (...) {
-      std::lock_guard<std::mutex> lock(mutex);
-      if (!first) first = std::current_exception();
-      failed.store(true);
-    }
-  });
-  if (first) std::rethrow_exception(first);
 }
 
 // Numbers the unordered bone pairs (i < j) that blended vertices use, in (i, j) order. Dense table for the
@@ -342,7 +320,7 @@ TetBuckets bucket_tets(const TetMesh& mesh, const SkinWeights& weights, const Pa
   const int64_t tet_chunks = (tet_count + kTetChunk - 1) / kTetChunk;
   std::vector<int64_t> chunk_counts(static_cast<size_t>(tet_chunks * bucket_count), 0);
   std::vector<double> chunk_volume(static_cast<size_t>(tet_chunks), 0.0);
-  parallel_for_checked(0, tet_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
+  parallel_for(0, tet_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
     std::vector<SegmentWeight> support;
     for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
       int64_t* counts = chunk_counts.data() + chunk * bucket_count;
@@ -373,7 +351,7 @@ TetBuckets bucket_tets(const TetMesh& mesh, const SkinWeights& weights, const Pa
   auto cell_of = [quantization](double w) {
     return static_cast<uint64_t>(std::clamp<long>(std::lround(w * quantization), 0L, static_cast<long>(quantization)));
   };
-  parallel_for_checked(0, tet_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
+  parallel_for(0, tet_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
     std::vector<SegmentWeight> support;
     for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
       int64_t* at = write_at.data() + chunk * bucket_count;
@@ -385,7 +363,7 @@ TetBuckets bucket_tets(const TetMesh& mesh, const SkinWeights& weights, const Pa
       }
     }
   });
-  parallel_for_checked(0, bucket_count, 1, [&](int64_t b_begin, int64_t b_end) {
+  parallel_for(0, bucket_count, 1, [&](int64_t b_begin, int64_t b_end) {
     for (int64_t b = b_begin; b < b_end; ++b) {
       std::sort(buckets.entries.begin() + buckets.offset[static_cast<size_t>(b)],
                 buckets.entries.begin() + buckets.offset[static_cast<size_t>(b + 1)]);
@@ -418,7 +396,7 @@ PairClusters cluster_tets(const TetMesh& mesh, const SkinWeights& weights, const
     column->assign(cluster_total, 0.0);
   }
 
-  parallel_for_checked(0, bucket_count, 1, [&](int64_t b_begin, int64_t b_end) {
+  parallel_for(0, bucket_count, 1, [&](int64_t b_begin, int64_t b_end) {
     std::vector<SegmentWeight> support;
     for (int64_t b = b_begin; b < b_end; ++b) {
       const auto [segment_i, segment_j] = pairs.segments(static_cast<int32_t>(b));
@@ -484,7 +462,7 @@ Result<RotationCentres> compute_clustered(const TetMesh& mesh, const SkinWeights
   const int64_t vertex_chunks = (vertex_count + kVertexChunk - 1) / kVertexChunk;
   std::atomic<bool> cancelled{false};
   std::atomic<int64_t> chunks_done{0};
-  parallel_for_checked(0, vertex_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
+  parallel_for(0, vertex_chunks, 1, [&](int64_t chunk_begin, int64_t chunk_end) {
     std::vector<SegmentWeight> support;
     for (int64_t chunk = chunk_begin; chunk < chunk_end; ++chunk) {
       if (cancelled.load() || progress.cancel_requested()) {
@@ -555,7 +533,7 @@ Result<RotationCentres> compute_brute_force(const TetMesh& mesh, const SkinWeigh
   out.rigid.assign(static_cast<size_t>(vertex_count), 1);
   const double inv_sigma2 = 1.0 / (params.sigma * params.sigma);
   const double unsupported_below = kUnsupportedFraction * total_volume;
-  parallel_for_checked(0, vertex_count, 16, [&](int64_t v_begin, int64_t v_end) {
+  parallel_for(0, vertex_count, 16, [&](int64_t v_begin, int64_t v_end) {
     std::vector<SegmentWeight> wp;
     std::vector<double> wt;
     for (int64_t v = v_begin; v < v_end; ++v) {

@@ -18,7 +18,6 @@
 #include <gdcmUIDGenerator.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -30,11 +29,10 @@
 #include <system_error>
 #include <vector>
 
-#include <fcntl.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include "file_checks.h"
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 #include "itk_geometry.h"
@@ -429,63 +427,27 @@ Status write_dicom_series(const typename Image3<Out>::Pointer& image, const Imag
 template <typename Out>
 Status write_file(const typename Image3<Out>::Pointer& image, const std::string& path, VolumeFormat format,
                   bool compress) {
+  auto run_writer = [&](const std::string& file_name) -> Status {
+    try {
+      auto writer = itk::ImageFileWriter<Image3<Out>>::New();
+      itk::ImageIOBase::Pointer io = make_file_io(format);
+      writer->SetImageIO(io);
+      writer->SetInput(image);
+      writer->SetFileName(file_name);
+      writer->SetUseCompression(format == VolumeFormat::kNifti ? ends_with(path, ".gz") : compress);
+      writer->Update();
+    } catch (const itk::ExceptionObject& error) {
+      return invalid_argument_error("writing " + in_quotes(path) + " failed: " + itk_reason(error));
+    }
+    return ok_status();
+  };
   // Detached-header formats name their data file inside the header, so they cannot be renamed afterwards.
-  const bool detached = ends_with(path, ".nhdr") || ends_with(path, ".mhd");
-  const fs::path target(path);
-  fs::path temporary = target;
-  if (!detached) {
-    remove_stale_partial_files(target.has_parent_path() ? target.parent_path().string() : ".");
-    temporary = target.parent_path() / partial_file_name(target.filename().string());
-  }
-  // ITK does not always say when it cannot create a file (its NIfTI writer goes through znzlib), so the file is
-  // created here first: a missing or read-only directory is reported with the system's reason.
-  {
-    const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) {
-      const int error = errno;
-      const std::string directory = target.has_parent_path() ? target.parent_path().string() : ".";
-      return (error == EACCES || error == EPERM || error == EROFS ? permission_denied_error : invalid_argument_error)(
-          "cannot write " + in_quotes(path) + " in " + in_quotes(directory) + ": " + std::strerror(error) +
-          " (check that the directory exists and is writable)");
-    }
-    ::close(fd);
-  }
-  try {
-    auto writer = itk::ImageFileWriter<Image3<Out>>::New();
-    itk::ImageIOBase::Pointer io = make_file_io(format);
-    writer->SetImageIO(io);
-    writer->SetInput(image);
-    writer->SetFileName(temporary.string());
-    writer->SetUseCompression(format == VolumeFormat::kNifti ? ends_with(path, ".gz") : compress);
-    writer->Update();
-  } catch (const itk::ExceptionObject& error) {
-    std::error_code ignored;
-    if (!detached) fs::remove(temporary, ignored);
-    return invalid_argument_error("writing " + in_quotes(path) + " failed: " + itk_reason(error));
-  }
-  // What ITK wrote must be there and reach the disk before it replaces the target.
-  {
-    const int fd = ::open(temporary.c_str(), O_RDONLY | O_CLOEXEC);
-    struct stat st {};
-    const bool written = fd >= 0 && ::fstat(fd, &st) == 0 && st.st_size > 0 && ::fsync(fd) == 0;
-    const int error = errno;
-    if (fd >= 0) ::close(fd);
-    if (!written) {
-      std::error_code ignored;
-      if (!detached) fs::remove(temporary, ignored);
-      return internal_error("writing " + in_quotes(path) + " failed: the file is empty or could not be flushed (" +
-                            std::strerror(error) + "; is the disk full?)");
-    }
-  }
-  if (!detached) {
-    std::error_code ec;
-    fs::rename(temporary, target, ec);
-    if (ec) {
-      fs::remove(temporary, ec);
-      return internal_error("could not move the finished file into place at " + in_quotes(path) + ": " + ec.message());
-    }
-  }
-  return ok_status();
+  if (ends_with(path, ".nhdr") || ends_with(path, ".mhd")) return run_writer(path);
+  // The partial file is created before ITK runs: ITK does not always say when it cannot create a file (its NIfTI
+  // writer goes through znzlib), and commit() notices a file ITK left empty.
+  POSEWARP_ASSIGN_OR_RETURN(AtomicFile file, AtomicFile::create(path, "volume"));
+  POSEWARP_RETURN_IF_ERROR(run_writer(file.partial_path()));
+  return file.commit();
 }
 
 template <typename Out, typename In>

@@ -1,5 +1,6 @@
 // LabelMap validation, JSON form and census against a label volume.
 #include "posewarp/labels/label_map.h"
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
 
 #include <nlohmann/json.hpp>
@@ -291,18 +292,7 @@ Result<LabelMap> read_label_map(const std::string& path) {
 }
 
 Status write_label_map(const LabelMap& map, const std::string& path) {
-  const std::filesystem::path target(path);
-  const std::filesystem::path temporary = target.string() + ".partial";
-  {
-    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-    if (!out) return invalid_argument_error("cannot write label map '" + path + "'");
-    out << label_map_to_json(map);
-    if (!out.flush()) return internal_error("writing label map '" + path + "' failed (disk full?)");
-  }
-  std::error_code ec;
-  std::filesystem::rename(temporary, target, ec);
-  if (ec) return internal_error("cannot move label map into place at '" + path + "': " + ec.message());
-  return ok_status();
+  return write_file_atomically(path, label_map_to_json(map), "label map");
 }
 
 LabelCensus census(const LabelMap& map, const LabelVolume& volume) {

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstring>
 #include <iostream>
+#include <mutex>
 #include <sstream>
 #include <unordered_map>
 #include <vector>
@@ -93,11 +94,16 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
   // small bones entirely), then refine.
   C3t3 c3t3;
   {
-    // CGAL 5.5's initializer narrates to std::cout; posewarp's stdout belongs to its own reports.
+    // CGAL 5.5's initializer narrates to std::cout; posewarp's stdout belongs to its own reports. The swap is one
+    // process-wide state, so builds running at once (a server) take turns here; the initializer is the quick part.
+    static std::mutex cout_swap;
+    const std::lock_guard<std::mutex> turn(cout_swap);
     std::ostringstream narration;
-    std::streambuf* saved = std::cout.rdbuf(narration.rdbuf());
+    struct Swap {  // restored even when the initializer throws
+      std::streambuf* saved;
+      ~Swap() { std::cout.rdbuf(saved); }
+    } swap{std::cout.rdbuf(narration.rdbuf())};
     initialize_triangulation_from_labeled_image(c3t3, domain, image, criteria, static_cast<unsigned char>(0));
-    std::cout.rdbuf(saved);
   }
   progress.update(0.1);
   CGAL::parameters::internal::Mesh_3_options options;

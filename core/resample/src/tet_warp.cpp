@@ -447,6 +447,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     };
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
+        if (progress.cancel_requested()) return;  // per slab: a cancelled or expired call ends within one slab
         int64_t kb = 0, ke = 0;
         if (!slab_range(s, kb, ke)) continue;
         const int64_t slab_begin = kb * n[0] * n[1], slab_voxels = (ke - kb) * n[0] * n[1];
@@ -550,6 +551,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     std::vector<std::vector<std::pair<int64_t, int32_t>>> shells(static_cast<size_t>(slab_count));  // (slab voxel, owner)
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
+        if (progress.cancel_requested()) return;  // per slab: a cancelled or expired call ends within one slab
         int64_t kb = 0, ke = 0;
         if (!slab_range(s, kb, ke) || offsets.empty()) continue;
         const int64_t slab_begin = kb * n[0] * n[1];
@@ -603,6 +605,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     };
     parallel_for(0, slab_count, 1, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
+        if (progress.cancel_requested()) return;  // per slab: a cancelled or expired call ends within one slab
         int64_t kb = 0, ke = 0;
         if (!slab_range(s, kb, ke)) continue;
         const int64_t slab_begin = kb * n[0] * n[1];

@@ -1,6 +1,7 @@
 // read_surface and write_surface: STL, OBJ, PLY and VTP through VTK's readers and writers, with VTK's silent
 // failures (warnings and empty outputs) turned into Status errors that name the file.
 #include "posewarp/surface/surface_mesh.h"
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 
@@ -12,10 +13,8 @@
 #include <vtkXMLPolyDataReader.h>
 #include <vtkXMLPolyDataWriter.h>
 
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cctype>
 #include <exception>
 #include <filesystem>
@@ -188,9 +187,8 @@ static Status write_surface_unguarded(const SurfaceMesh& mesh, const std::string
   if (fs::is_directory(target, ec)) {
     return invalid_argument_error("cannot write mesh " + quoted(path) + ": a directory has that name");
   }
-  static std::atomic<uint64_t> serial{0};
-  const fs::path temporary = directory / (".posewarp-partial-" + std::to_string(::getpid()) + "-" +
-                                          std::to_string(serial++) + "-" + target.filename().string());
+  POSEWARP_ASSIGN_OR_RETURN(AtomicFile file, AtomicFile::create(path, "mesh"));
+  const std::string temporary = file.partial_path();
   detail::install_quiet_vtk_output();
   int written = 0;
   std::string errors;
@@ -236,18 +234,11 @@ static Status write_surface_unguarded(const SurfaceMesh& mesh, const std::string
     errors = error.what();
     written = 0;
   }
-  if (!written || !errors.empty() || !fs::is_regular_file(temporary, ec)) {
-    fs::remove(temporary, ec);
+  if (!written || !errors.empty()) {
     return invalid_argument_error("writing mesh " + quoted(path) + " failed (disk full or directory not writable?)" +
                                   (errors.empty() ? "" : ": " + errors));
   }
-  fs::rename(temporary, target, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(temporary, ignored);
-    return internal_error("could not move the finished mesh into place at " + quoted(path) + ": " + ec.message());
-  }
-  return ok_status();
+  return file.commit();
 }
 
 Status write_surface(const SurfaceMesh& mesh, const std::string& path) {

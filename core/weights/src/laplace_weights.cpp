@@ -6,7 +6,6 @@
 #include <Eigen/SparseCholesky>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -16,7 +15,6 @@
 #include <mutex>
 #include <new>
 #include <numeric>
-#include <stdexcept>
 #include <utility>
 #include <vector>
 
@@ -48,23 +46,6 @@ std::string format_mm(const Eigen::Vector3d& p) {
   char text[96];
   std::snprintf(text, sizeof(text), "(%.1f, %.1f, %.1f) mm", p.x(), p.y(), p.z());
   return text;
-}
-
-// parallel_for whose body may throw: the first failure is re-thrown on the calling thread after the loop.
-void parallel_for_rethrow(int64_t begin, int64_t end, int64_t grain,
-                          const std::function<void(int64_t, int64_t)>& body) {
-  std::atomic<int> failure{0};  // 1 out of memory, 2 anything else
-  parallel_for(begin, end, grain, [&](int64_t b, int64_t e) {
-    try {
-      body(b, e);
-    } catch (const std::bad_alloc&) {
-      failure = 1;
-    } catch (...) {
-      failure = 2;
-    }
-  });
-  if (failure == 1) throw std::bad_alloc();
-  if (failure == 2) throw std::runtime_error("a parallel worker failed");
 }
 
 // Keeps the largest of values reported by parallel chunks.
@@ -533,7 +514,7 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
     row_scale = std::max(row_scale, sum);
   }
   MaxReduction residual, partition_raw, above_one, below_zero;
-  parallel_for_rethrow(0, free_count, 2048, [&](int64_t begin, int64_t end) {
+  parallel_for(0, free_count, 2048, [&](int64_t begin, int64_t end) {
     Eigen::VectorXd row(segment_count);
     double chunk_residual = 0.0, chunk_partition = 0.0, chunk_max = -std::numeric_limits<double>::infinity();
     double chunk_min = std::numeric_limits<double>::infinity();
@@ -611,7 +592,7 @@ Result<SkinWeights> laplace_weights(const TetMesh& mesh, const WeightsParams& pa
     result.segment.setConstant(vertex_count, influences, -1);
     result.weight.setZero(vertex_count, influences);
     MaxReduction partition, partition_float;
-    parallel_for_rethrow(0, vertex_count, 2048, [&](int64_t begin, int64_t end) {
+    parallel_for(0, vertex_count, 2048, [&](int64_t begin, int64_t end) {
       std::vector<std::pair<double, int>> kept;  // (weight, segment)
       kept.reserve(static_cast<size_t>(segment_count));
       double chunk_partition = 0.0, chunk_partition_float = 0.0;

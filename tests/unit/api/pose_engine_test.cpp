@@ -4,8 +4,12 @@
 
 #include <Eigen/Geometry>
 
+#include <atomic>
+#include <chrono>
 #include <map>
 #include <set>
+#include <thread>
+#include <vector>
 
 #include "posewarp/io/itk_reference.h"
 #include "rig_test_support.h"
@@ -294,6 +298,68 @@ TEST(Posing, CorKeepsTheBarsSoftTissueVolumeWhereLbsLosesIt) {
       EXPECT_NEAR(change["cor"], change["dqs"], 1e-4);
     }
   }
+}
+
+}  // namespace
+}  // namespace posewarp::api
+
+namespace posewarp::api {
+namespace {
+
+// A cancel that arrives in the middle of the warp ends the call within one slab, well under a second; a deadline
+// that has passed ends it with DEADLINE_EXCEEDED; the engine poses normally afterwards.
+TEST(Posing, CancellationAndDeadlinesEndAPoseMidWarp) {
+  const PoseEngine& engine = bar_engine();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 60.0, 0.0);
+  request.grid = resample::GridPolicy::kGrow;
+  CancelFlag flag;
+  std::chrono::steady_clock::time_point cancelled_at;
+  ProgressHooks hooks;
+  hooks.cancel_requested = flag.as_hook();
+  hooks.on_progress = [&](std::string_view stage, double fraction) {
+    if (stage == "warp-prepare" && fraction > 0.3 && !flag.cancelled()) {
+      cancelled_at = std::chrono::steady_clock::now();
+      flag.cancel();
+    }
+  };
+  const Status cancelled = engine.pose(request, hooks).status();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - cancelled_at).count();
+  EXPECT_EQ(cancelled.code(), StatusCode::kCancelled) << cancelled.to_string();
+  EXPECT_NE(cancelled.message().find("warp"), std::string::npos) << cancelled.to_string();
+  EXPECT_LT(seconds, 1.0);
+
+  ProgressHooks expired;
+  expired.deadline = std::chrono::steady_clock::now();
+  EXPECT_EQ(engine.pose(request, expired).status().code(), StatusCode::kDeadlineExceeded);
+
+  ProgressHooks two_threads;
+  two_threads.threads = 2;
+  EXPECT_TRUE(engine.pose(request, two_threads).ok());
+}
+
+// Sixteen threads posing one engine at once get byte-identical outputs (the engine is immutable after create()).
+TEST(Posing, SixteenThreadsPosingOneEngineGetIdenticalResults) {
+  const PoseEngine& engine = bar_engine();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 45.0, 10.0);
+  request.grid = resample::GridPolicy::kGrow;
+  request.want_ct = true;
+  Result<PoseResult> reference = engine.pose(request);
+  ASSERT_TRUE(reference.ok()) << reference.status().to_string();
+  std::vector<std::thread> threads;
+  std::atomic<int> identical{0};
+  for (int t = 0; t < 16; ++t) {
+    threads.emplace_back([&] {
+      Result<PoseResult> result = engine.pose(request);
+      if (result.ok() && result->labels && result->ct && result->labels->voxels() == reference->labels->voxels() &&
+          result->ct->voxels() == reference->ct->voxels()) {
+        identical.fetch_add(1);
+      }
+    });
+  }
+  for (std::thread& thread : threads) thread.join();
+  EXPECT_EQ(identical.load(), 16);
 }
 
 }  // namespace

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
+
 #include <nlohmann/json.hpp>
 
 #include "posewarp/api/rig_file.h"
@@ -72,15 +74,28 @@ TEST(BuildRig, AnEmptyVolumeIsAClearError) {
   EXPECT_NE(rig.status().message().find("no bone labels"), std::string::npos);
 }
 
-TEST(BuildRig, CancellationStopsTheBuild) {
-  ProgressHooks hooks;
-  CancelFlag flag;
-  hooks.cancel_requested = flag.as_hook();
-  hooks.on_progress = [&flag](std::string_view stage, double) {
-    if (stage == "mesh") flag.cancel();
-  };
-  Result<Rig> rig = build_rig(bar_inputs(), small_bar_params(), hooks);
-  EXPECT_EQ(rig.status().code(), StatusCode::kCancelled);
+// A cancel in the middle of meshing (CGAL's stop flag), of the weights (between solves) or of the centres of
+// rotation ends the build within a second.
+TEST(BuildRig, CancellationStopsTheBuildWithinASecond) {
+  for (const char* when : {"mesh", "weights", "cor"}) {
+    SCOPED_TRACE(when);
+    ProgressHooks hooks;
+    CancelFlag flag;
+    std::chrono::steady_clock::time_point cancelled_at;
+    hooks.cancel_requested = flag.as_hook();
+    hooks.on_progress = [&](std::string_view stage, double fraction) {
+      if (stage == when && fraction > 0.0 && !flag.cancelled()) {
+        cancelled_at = std::chrono::steady_clock::now();
+        flag.cancel();
+      }
+    };
+    const Status status = build_rig(bar_inputs(), small_bar_params(), hooks).status();
+    EXPECT_EQ(status.code(), StatusCode::kCancelled) << status.to_string();
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - cancelled_at).count(), 1.0);
+  }
+  ProgressHooks expired;
+  expired.deadline = std::chrono::steady_clock::now();
+  EXPECT_EQ(build_rig(bar_inputs(), small_bar_params(), expired).status().code(), StatusCode::kDeadlineExceeded);
 }
 
 }  // namespace

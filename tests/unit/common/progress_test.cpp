@@ -37,6 +37,19 @@ TEST(StageProgress, CancelFlagTurnsIntoCancelledStatus) {
   EXPECT_NE(status.message().find("weights"), std::string::npos);
 }
 
+TEST(StageProgress, APassedDeadlineTurnsIntoDeadlineExceeded) {
+  ProgressHooks hooks;
+  hooks.deadline = std::chrono::steady_clock::now() + std::chrono::hours(1);
+  StageProgress progress(hooks, "warp");
+  EXPECT_TRUE(progress.check_cancel().ok());
+  EXPECT_FALSE(progress.cancel_requested());
+  hooks.deadline = std::chrono::steady_clock::now() - std::chrono::milliseconds(1);
+  const Status status = progress.check_cancel();
+  EXPECT_EQ(status.code(), StatusCode::kDeadlineExceeded);
+  EXPECT_NE(status.message().find("warp"), std::string::npos);
+  EXPECT_TRUE(progress.cancel_requested());  // long loops stop on either
+}
+
 TEST(StageProgress, EmptyHooksAreAllowed) {
   ProgressHooks hooks;
   StageProgress progress(hooks, "quiet");

@@ -2,9 +2,11 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -12,13 +14,21 @@
 
 namespace posewarp {
 
-// What the caller (CLI, server job) hands to a long stage. Both hooks may be empty.
+// What the caller (CLI, server job) hands to each long call, as TF Serving's RunOptions: progress, cancellation, a
+// deadline and the threads the call may use. Every field may be left empty.
 struct ProgressHooks {
   // Called with the stage name and its completed fraction in [0, 1]; may be called from any thread, but never
   // concurrently (the reporter serializes calls).
   std::function<void(std::string_view stage, double fraction)> on_progress;
   // Polled from inside long loops; returning true makes the stage stop with CANCELLED.
   std::function<bool()> cancel_requested;
+  // Polled where cancellation is: work still running at this instant stops with DEADLINE_EXCEEDED.
+  std::optional<std::chrono::steady_clock::time_point> deadline;
+  // Worker threads of the call, in a task arena of its own (build_rig, PoseEngine::create and pose run their work
+  // in one); 0 = the arena of the caller.
+  int threads = 0;
+
+  bool past_deadline() const { return deadline && std::chrono::steady_clock::now() >= *deadline; }
 };
 
 // A flag a caller can set from another thread to cancel work; hooks() wires it into ProgressHooks.
@@ -45,8 +55,10 @@ class StageProgress {
   void update(double fraction);
   // Adds `units` of `total` (call from parallel workers as they finish chunks).
   void advance(int64_t units, int64_t total);
-  // CANCELLED naming the stage once cancellation was requested, else OK.
+  // CANCELLED naming the stage once cancellation was requested, DEADLINE_EXCEEDED once the deadline has passed,
+  // else OK.
   Status check_cancel() const;
+  // True once either has happened: the work should stop.
   bool cancel_requested() const;
   // Reports 100%.
   void finish();

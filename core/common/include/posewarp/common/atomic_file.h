@@ -1,0 +1,49 @@
+// Files appear whole or not at all. Every writer in posewarp goes through AtomicFile: it writes a partial file beside
+// the target (".posewarp-partial-<pid>-<n>-<name>", unique per process and call), flushes it to disk, renames it
+// over the target and flushes the directory, so a crash, a kill -9 or a full disk never leaves a truncated file
+// under the requested name. Partial files of dead writers are removed by the next write into the same directory.
+#pragma once
+
+#include <string>
+#include <string_view>
+
+#include "posewarp/common/result.h"
+
+namespace posewarp {
+
+class AtomicFile {
+ public:
+  // Creates the partial file. Errors name the file, its directory and the system's reason: NOT_FOUND for a missing
+  // directory, PERMISSION_DENIED for one that cannot be written, INVALID_ARGUMENT otherwise. `kind` names what is
+  // written in messages ("rig file", "report").
+  static Result<AtomicFile> create(const std::string& path, std::string_view kind);
+
+  AtomicFile(AtomicFile&& other) noexcept;
+  AtomicFile& operator=(AtomicFile&& other) = delete;
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+  // Removes the partial file unless commit() succeeded.
+  ~AtomicFile();
+
+  // Appends bytes.
+  Status write(std::string_view bytes);
+  // The partial file's path, for a library that writes by name (ITK, VTK); commit() then finds what it wrote.
+  const std::string& partial_path() const { return partial_; }
+  // Flushes the partial file to disk, renames it over the target and flushes the directory. An empty partial file
+  // is an error (a library that failed without saying so).
+  Status commit();
+
+ private:
+  AtomicFile(std::string path, std::string partial, std::string kind, int fd);
+
+  std::string path_;
+  std::string partial_;
+  std::string kind_;
+  int fd_ = -1;
+  bool committed_ = false;
+};
+
+// The whole of `bytes` into `path`, atomically.
+Status write_file_atomically(const std::string& path, std::string_view bytes, std::string_view kind);
+
+}  // namespace posewarp

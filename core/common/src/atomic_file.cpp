@@ -1,0 +1,121 @@
+// AtomicFile: partial file, fsync, rename, fsync of the directory.
+#include "posewarp/common/atomic_file.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <utility>
+
+#include "posewarp/common/input_file.h"
+
+namespace posewarp {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string directory_of(const std::string& path) {
+  const fs::path parent = fs::path(path).parent_path();
+  return parent.empty() ? "." : parent.string();
+}
+
+std::string in_quotes(const std::string& text) { return "'" + text + "'"; }
+
+}  // namespace
+
+AtomicFile::AtomicFile(std::string path, std::string partial, std::string kind, int fd)
+    : path_(std::move(path)), partial_(std::move(partial)), kind_(std::move(kind)), fd_(fd) {}
+
+AtomicFile::AtomicFile(AtomicFile&& other) noexcept
+    : path_(std::move(other.path_)),
+      partial_(std::move(other.partial_)),
+      kind_(std::move(other.kind_)),
+      fd_(std::exchange(other.fd_, -1)),
+      committed_(std::exchange(other.committed_, true)) {}
+
+AtomicFile::~AtomicFile() {
+  if (fd_ >= 0) ::close(fd_);
+  if (!committed_) ::unlink(partial_.c_str());
+}
+
+Result<AtomicFile> AtomicFile::create(const std::string& path, std::string_view kind) {
+  static std::atomic<unsigned> counter{0};
+  const std::string directory = directory_of(path);
+  remove_stale_partial_files(directory);
+  // The counter keeps two threads of one process (a server writing the same target twice) apart.
+  const std::string partial =
+      (fs::path(directory) / partial_file_name(std::to_string(counter.fetch_add(1)) + "-" +
+                                               fs::path(path).filename().string()))
+          .string();
+  const int fd = ::open(partial.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    const int error = errno;
+    const std::string message = "cannot write " + std::string(kind) + " " + in_quotes(path) + " in " +
+                                in_quotes(directory) + ": " + std::strerror(error);
+    if (error == ENOENT || error == ENOTDIR) return not_found_error(message + " (create the directory first)");
+    if (error == EACCES || error == EPERM || error == EROFS) {
+      return permission_denied_error(message + " (choose a directory you can write to)");
+    }
+    return invalid_argument_error(message);
+  }
+  return AtomicFile(path, partial, std::string(kind), fd);
+}
+
+Status AtomicFile::write(std::string_view bytes) {
+  size_t written = 0;
+  while (written < bytes.size()) {
+    const ssize_t n = ::write(fd_, bytes.data() + written, bytes.size() - written);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int error = errno;
+      return resource_exhausted_error("writing " + kind_ + " " + in_quotes(path_) + " failed: " + std::strerror(error) +
+                                      " (is the disk full?)");
+    }
+    written += static_cast<size_t>(n);
+  }
+  return ok_status();
+}
+
+Status AtomicFile::commit() {
+  if (fd_ >= 0) {
+    ::close(fd_);
+    fd_ = -1;
+  }
+  // Reopened: a library may have replaced the partial file by name.
+  const int fd = ::open(partial_.c_str(), O_RDONLY | O_CLOEXEC);
+  struct stat st {};
+  const bool flushed = fd >= 0 && ::fstat(fd, &st) == 0 && st.st_size > 0 && ::fsync(fd) == 0;
+  const int error = errno;
+  if (fd >= 0) ::close(fd);
+  if (!flushed) {
+    return internal_error("writing " + kind_ + " " + in_quotes(path_) + " failed: " +
+                          (st.st_size == 0 && fd >= 0 ? std::string("nothing was written")
+                                                      : std::string(std::strerror(error))) +
+                          " (is the disk full?)");
+  }
+  if (::rename(partial_.c_str(), path_.c_str()) != 0) {
+    const int rename_error = errno;
+    return internal_error("could not move " + kind_ + " " + in_quotes(path_) + " into place: " +
+                          std::strerror(rename_error));
+  }
+  committed_ = true;
+  // The rename itself reaches the disk with the directory.
+  const int dir = ::open(directory_of(path_).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir >= 0) {
+    ::fsync(dir);
+    ::close(dir);
+  }
+  return ok_status();
+}
+
+Status write_file_atomically(const std::string& path, std::string_view bytes, std::string_view kind) {
+  POSEWARP_ASSIGN_OR_RETURN(AtomicFile file, AtomicFile::create(path, kind));
+  POSEWARP_RETURN_IF_ERROR(file.write(bytes));
+  return file.commit();
+}
+
+}  // namespace posewarp
