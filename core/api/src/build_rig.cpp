@@ -8,6 +8,7 @@
 #include "posewarp/api/rig.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/sha256.h"
 
 #ifndef POSEWARP_VERSION
 #define POSEWARP_VERSION "unknown"
@@ -33,10 +34,57 @@ class StageClock {
 }  // namespace
 
 std::string Rig::id() const {
-  const std::string key = labels_hash + "|" + ct_hash + "|" + labels::label_map_to_json(label_map) + "|" +
-                          params_json + "|" + std::to_string(source_geometry.voxel_count()) + "|" + POSEWARP_VERSION;
-  return hash_bytes(key.data(), key.size());
+  return Sha256()
+      .update(labels_hash + "|" + ct_hash + "|" + labels::label_map_to_json(label_map) + "|" + params_json + "|" +
+              POSEWARP_VERSION)
+      .hex_digest();
 }
+
+int64_t Rig::footprint_bytes() const {
+  auto bytes = [](const auto& matrix) { return static_cast<int64_t>(matrix.size() * sizeof(*matrix.data())); };
+  int64_t total = labels.voxel_count() * static_cast<int64_t>(sizeof(Label)) +
+                  (ct ? ct->voxel_count() * static_cast<int64_t>(sizeof(float)) : 0);
+  total += bytes(mesh.vertices) + bytes(mesh.tets) + bytes(mesh.tet_class);
+  total += bytes(weights.segment) + bytes(weights.weight) + bytes(centres.centre) +
+           static_cast<int64_t>(centres.rigid.size());
+  for (const surface::SurfaceMesh& m : surfaces) total += bytes(m.vertices) + bytes(m.triangles);
+  for (const mapping::Embedding& e : embeddings) total += bytes(e.tet) + bytes(e.barycentric);
+  return total;
+}
+
+namespace {
+
+// SHA-256 of a volume's grid and voxels: the same voxels on another grid are another input.
+template <typename T>
+std::string volume_sha256(const Volume<T>& volume) {
+  const ImageGeometry& g = volume.geometry();
+  Sha256 hash;
+  hash.update(g.size.data(), sizeof(g.size)).update(g.spacing.data(), sizeof(g.spacing));
+  hash.update(g.origin.data(), sizeof(g.origin)).update(g.direction.data(), sizeof(g.direction));
+  hash.update(volume.data(), static_cast<size_t>(volume.voxel_count()) * sizeof(T));
+  return hash.hex_digest();
+}
+
+// The build parameters with every other input that shapes the rig besides the volumes: the rig spec and the body
+// mask. Canonical (nlohmann sorts keys), so the same inputs give the same rig id.
+std::string canonical_params(const BuildInputs& inputs, const BuildParams& params) {
+  nlohmann::json doc = nlohmann::json::parse(params_to_json(params));
+  nlohmann::json spec;
+  for (const auto& [name, labels] : inputs.spec.segments) spec["segments"].push_back({name, labels});
+  spec["root"] = inputs.spec.root;
+  if (inputs.spec.contact_distance_mm) spec["contact_distance_mm"] = *inputs.spec.contact_distance_mm;
+  for (const rig::JointSpec& joint : inputs.spec.joints) {
+    nlohmann::json j = {{"child", joint.child}, {"parent", joint.parent}, {"name", joint.name}};
+    if (joint.centre_mm) j["centre_mm"] = {joint.centre_mm->x(), joint.centre_mm->y(), joint.centre_mm->z()};
+    spec["joints"].push_back(j);
+  }
+  for (const auto& [a, b] : inputs.spec.remove_joints) spec["remove_joints"].push_back({a, b});
+  doc["rig_spec"] = spec;
+  doc["body_mask_sha256"] = inputs.body ? volume_sha256(*inputs.body) : "";
+  return doc.dump();
+}
+
+}  // namespace
 
 Status validate(const BuildParams& params) {
   POSEWARP_RETURN_IF_ERROR(rig::validate(params.skeleton));
@@ -63,12 +111,12 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
   Rig rig;
   rig.source_geometry = grid;
   rig.label_map = inputs.label_map;
-  rig.params_json = params_to_json(params);
+  rig.params_json = canonical_params(inputs, params);
   rig.provenance.software_version = POSEWARP_VERSION;
   rig.provenance.labels_source = inputs.labels_source;
   rig.provenance.ct_source = inputs.ct_source;
-  rig.labels_hash = hash_bytes(inputs.labels.data(), static_cast<size_t>(inputs.labels.voxel_count()) * sizeof(Label));
-  if (inputs.ct) rig.ct_hash = hash_bytes(inputs.ct->data(), static_cast<size_t>(inputs.ct->voxel_count()) * sizeof(float));
+  rig.labels_hash = volume_sha256(inputs.labels);
+  if (inputs.ct) rig.ct_hash = volume_sha256(*inputs.ct);
   nlohmann::json stats;
   StageClock clock(rig.provenance);
 

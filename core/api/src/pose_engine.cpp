@@ -78,6 +78,52 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
   return engine;
 }
 
+Result<PosePlan> PoseEngine::check_output_budget(const PoseRequest& request, const ImageGeometry& grid) const {
+  // Per output voxel the warp's owner code, labels (stored as 32-bit), CT and the inverse field; the forward field
+  // per source voxel.
+  PosePlan plan;
+  plan.output_grid = grid;
+  const int64_t per_voxel = 4 + (request.want_labels ? 4 : 0) + (request.want_ct && rig_.ct ? 4 : 0) +
+                            (request.want_fields ? 12 : 0);
+  plan.output_bytes = grid.voxel_count() * per_voxel + (request.want_fields ? rig_.labels.voxel_count() * 12 : 0);
+  plan.budget_bytes = request.resample.max_output_bytes;
+  if (plan.budget_bytes <= 0) {
+    plan.budget_bytes = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) / 2;
+  }
+  if (plan.output_bytes > plan.budget_bytes) {
+    return resource_exhausted_error("this pose's output (" + grid.describe() + ") would take " +
+                                    std::to_string(plan.output_bytes >> 20) + " MB, over the budget of " +
+                                    std::to_string(plan.budget_bytes >> 20) +
+                                    " MB; use a coarser or smaller grid, or leave out the fields or the CT");
+  }
+  return plan;
+}
+
+Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
+  return guarded("planning the pose", [&]() -> Result<PosePlan> {
+    if (!(request.want_labels || request.want_ct || request.want_fields)) return PosePlan{};
+    const rig::Skeleton& skeleton = rig_.skeleton;
+    POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
+    Eigen::MatrixXd posed;
+    if (request.grid == resample::GridPolicy::kGrow) {  // the grown grid holds the posed body
+      POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
+                                pose::forward_kinematics(skeleton, request.pose));
+      skinning::SegmentTransforms segments;
+      for (const pose::RigidTransform& t : transforms) {
+        segments.rotation.push_back(t.rotation);
+        segments.translation.push_back(t.translation);
+      }
+      POSEWARP_ASSIGN_OR_RETURN(posed, skinning::skin(request.method, rig_.mesh.vertices, rig_.weights, rig_.centres,
+                                                      segments));
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry grid,
+                              resample::output_geometry(request.grid, rig_.labels.geometry(), posed,
+                                                        request.given_grid ? &*request.given_grid : nullptr,
+                                                        request.resample));
+    return check_output_budget(request, grid);
+  });
+}
+
 Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
   return guarded("posing", [&] { return in_arena(hooks.threads, [&] { return pose_unguarded(request, hooks); }); });
 }
@@ -152,22 +198,7 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
                               resample::output_geometry(request.grid, source, result.posed_vertices,
                                                         request.given_grid ? &*request.given_grid : nullptr,
                                                         request.resample));
-    // What the output will cost, before any of it is allocated: per output voxel the warp's owner code, labels
-    // (stored as 32-bit), CT and the inverse field; the forward field per source voxel.
-    {
-      const int64_t per_voxel = 4 + (request.want_labels ? 4 : 0) + (request.want_ct && rig_.ct ? 4 : 0) +
-                                (request.want_fields ? 12 : 0);
-      const int64_t bytes = result.output_grid.voxel_count() * per_voxel +
-                            (request.want_fields ? source.voxel_count() * 12 : 0);
-      int64_t budget = request.resample.max_output_bytes;
-      if (budget <= 0) budget = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) / 2;
-      if (budget > 0 && bytes > budget) {
-        return resource_exhausted_error("this pose's output (" + result.output_grid.describe() + ") would take " +
-                                        std::to_string(bytes >> 20) + " MB, over the budget of " +
-                                        std::to_string(budget >> 20) + " MB; use a coarser or smaller grid, or leave "
-                                        "out the fields or the CT");
-      }
-    }
+    POSEWARP_RETURN_IF_ERROR(check_output_budget(request, result.output_grid).status());
     resample::ResampleParams params = request.resample;
     if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
     resample::RigidBones bones;

@@ -364,3 +364,31 @@ TEST(Posing, SixteenThreadsPosingOneEngineGetIdenticalResults) {
 
 }  // namespace
 }  // namespace posewarp::api
+
+namespace posewarp::api {
+namespace {
+
+// plan() names the grid pose() will use and what its outputs cost (the returned volumes plus the warp's 4-byte
+// owner map: 1.5x the labels and CT), and refuses a request over its budget before anything is allocated.
+TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
+  const PoseEngine& engine = bar_engine();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 60.0, 0.0);
+  request.grid = resample::GridPolicy::kGrow;
+  Result<PosePlan> plan = engine.plan(request);
+  ASSERT_TRUE(plan.ok()) << plan.status().to_string();
+  Result<PoseResult> result = engine.pose(request);
+  ASSERT_TRUE(result.ok()) << result.status().to_string();
+  EXPECT_TRUE(plan->output_grid.same_grid(result->output_grid, 0.0));
+  const int64_t returned = result->labels->voxel_count() * 4 + result->ct->voxel_count() * 4;
+  EXPECT_EQ(plan->output_bytes, returned * 3 / 2);
+  request.resample.max_output_bytes = plan->output_bytes - 1;
+  const Status refused = engine.plan(request).status();
+  EXPECT_EQ(refused.code(), StatusCode::kResourceExhausted);
+  EXPECT_EQ(engine.pose(request).status().code(), StatusCode::kResourceExhausted);
+  request.pose = joint_pose("no_such_joint", 10.0, 0.0);
+  EXPECT_EQ(engine.plan(request).status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::api

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "posewarp/api/rig_file.h"
+#include "posewarp/common/sha256.h"
 #include "rig_test_support.h"
 
 namespace posewarp::api {
@@ -96,6 +97,24 @@ TEST(BuildRig, CancellationStopsTheBuildWithinASecond) {
   ProgressHooks expired;
   expired.deadline = std::chrono::steady_clock::now();
   EXPECT_EQ(build_rig(bar_inputs(), small_bar_params(), expired).status().code(), StatusCode::kDeadlineExceeded);
+}
+
+// The rig id is a SHA-256 of everything that shapes the rig: the same inputs give the same id, a changed rig spec
+// or body mask another.
+TEST(BuildRig, TheIdIsDerivedFromEveryInput) {
+  const Rig& rig = shared_bar_rig();
+  EXPECT_TRUE(is_hex_id(rig.id()));
+  EXPECT_TRUE(is_hex_id(rig.labels_hash));
+  EXPECT_GT(rig.footprint_bytes(), rig.labels.voxel_count() * static_cast<int64_t>(sizeof(Label)));
+  BuildParams params = small_bar_params();
+  BuildInputs inputs = bar_inputs();
+  Result<Rig> again = build_rig(inputs, params, {});
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->id(), rig.id());
+  inputs.spec.root = "bar_bone_2";
+  Result<Rig> rerooted = build_rig(inputs, params, {});
+  ASSERT_TRUE(rerooted.ok()) << rerooted.status().to_string();
+  EXPECT_NE(rerooted->id(), rig.id());
 }
 
 }  // namespace

@@ -43,6 +43,13 @@ struct PoseResult {
   report::QualityReport report;
 };
 
+// What a pose will produce and cost, known before anything large is allocated.
+struct PosePlan {
+  ImageGeometry output_grid;    // empty when no volume is wanted
+  int64_t output_bytes = 0;     // the warp's owner map, labels, CT and fields (the bulk of a pose's memory)
+  int64_t budget_bytes = 0;     // the request's max_output_bytes, or half the machine's memory
+};
+
 class PoseEngine {
  public:
   // Precomputes the rest tet frames, the rest ownership of the source grid and the rest label counts.
@@ -50,11 +57,17 @@ class PoseEngine {
 
   const Rig& rig() const { return rig_; }
   Result<PoseResult> pose(const PoseRequest& request, const ProgressHooks& hooks = {}) const;
+  // The output grid and the bytes pose() will allocate for it: the pose is validated and, for a grown grid, the
+  // tet mesh skinned (milliseconds). RESOURCE_EXHAUSTED when the bytes are over the budget, so a server refuses
+  // such a request before it queues; pose() makes the same check.
+  Result<PosePlan> plan(const PoseRequest& request) const;
 
  private:
   // The bodies of create() and pose(), which run them behind the exception wall.
   static Result<PoseEngine> create_unguarded(Rig rig, const ProgressHooks& hooks);
   Result<PoseResult> pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const;
+  // The plan for an output grid; RESOURCE_EXHAUSTED over the budget.
+  Result<PosePlan> check_output_budget(const PoseRequest& request, const ImageGeometry& grid) const;
   PoseEngine() = default;
   Rig rig_;
   skinning::RestTetFrames frames_;

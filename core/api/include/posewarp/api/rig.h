@@ -80,8 +80,12 @@ struct Rig {
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 
-  // Deterministic id of the inputs and parameters: the same study built with the same parameters gets the same id.
+  // Content-derived id, 64 hex digits: SHA-256 of the input volumes' grids and voxels (labels_hash, ct_hash), the
+  // label map, the build parameters with the rig spec and the body mask (params_json) and the software version. The
+  // same study built with the same inputs gets the same id, so a store can answer a second build without building.
   std::string id() const;
+  // Bytes the rig holds in memory (volumes, mesh, weights, centres, surfaces), for a cache's byte budget.
+  int64_t footprint_bytes() const;
 };
 
 // Builds a rig: body mask, skeleton, classes, mesh (with health checks), weights and centres of rotation.
