@@ -139,6 +139,23 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   row["whole_pose_ms"] = 1000.0 * whole_s;
   for (const auto& [stage, seconds] : stages) row["stages_ms"][stage] = 1000.0 * seconds;
 
+  // The preview (posed rest surfaces only): what a slider waits for. 200 calls each, p50 and p99.
+  int64_t surface_vertices = 0;
+  for (const surface::SurfaceMesh& m : engine->rig().surfaces) surface_vertices += m.vertices.rows();
+  for (const skinning::Method method : {skinning::Method::kCor, skinning::Method::kDqs, skinning::Method::kLbs}) {
+    std::vector<double> ms;
+    for (int i = 0; i < 200; ++i) {
+      const auto start = std::chrono::steady_clock::now();
+      (void)engine->preview(pose, method);
+      ms.push_back(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    }
+    std::sort(ms.begin(), ms.end());
+    const std::string method_name(skinning::method_name(method));
+    row["preview_ms"][method_name] = {{"p50", ms[100]}, {"p99", ms[197]}};
+    std::printf("%-14s preview %-4s (%lld surface vertices): p50 %.2f ms, p99 %.2f ms\n", name.c_str(),
+                method_name.c_str(), static_cast<long long>(surface_vertices), ms[100], ms[197]);
+  }
+
   // The warp alone (prepare + labels + CT) against ITK on the same grid with our inverse field.
   api::PoseRequest fields = whole;
   fields.want_fields = true;

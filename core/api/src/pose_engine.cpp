@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <new>
+#include <unordered_map>
 
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
@@ -34,6 +35,72 @@ class Clock {
 Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
   return guarded("preparing the rig for posing",
                  [&] { return in_arena(hooks.threads, [&] { return create_unguarded(std::move(rig), hooks); }); });
+}
+
+namespace {
+
+// Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
+template <typename Preview>
+void prepare_preview(const Rig& rig, Preview& preview) {
+  std::unordered_map<int32_t, int32_t> tet_index, vertex_index;
+  std::vector<int32_t> tets, vertices;
+  for (const mapping::Embedding& e : rig.embeddings) {
+    mapping::Embedding sub = e;
+    for (int64_t p = 0; p < e.tet.size(); ++p) {
+      const auto [it, fresh] = tet_index.emplace(e.tet(p), static_cast<int32_t>(tets.size()));
+      if (fresh) tets.push_back(e.tet(p));
+      sub.tet(p) = it->second;
+    }
+    preview.embeddings.push_back(std::move(sub));
+  }
+  preview.mesh.tets.resize(static_cast<Eigen::Index>(tets.size()), 4);
+  for (size_t t = 0; t < tets.size(); ++t) {
+    for (int c = 0; c < 4; ++c) {
+      const int32_t v = rig.mesh.tets(tets[t], c);
+      const auto [it, fresh] = vertex_index.emplace(v, static_cast<int32_t>(vertices.size()));
+      if (fresh) vertices.push_back(v);
+      preview.mesh.tets(static_cast<Eigen::Index>(t), c) = it->second;
+    }
+  }
+  const auto n = static_cast<Eigen::Index>(vertices.size());
+  preview.mesh.vertices.resize(n, 3);
+  preview.weights.influences = rig.weights.influences;
+  preview.weights.segment_count = rig.weights.segment_count;
+  preview.weights.segment.resize(n, rig.weights.influences);
+  preview.weights.weight.resize(n, rig.weights.influences);
+  preview.centres.centre.resize(n, 3);
+  preview.centres.rigid.resize(static_cast<size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const int32_t v = vertices[static_cast<size_t>(i)];
+    preview.mesh.vertices.row(i) = rig.mesh.vertices.row(v);
+    preview.weights.segment.row(i) = rig.weights.segment.row(v);
+    preview.weights.weight.row(i) = rig.weights.weight.row(v);
+    preview.centres.centre.row(i) = rig.centres.centre.row(v);
+    preview.centres.rigid[static_cast<size_t>(i)] = rig.centres.rigid[static_cast<size_t>(v)];
+  }
+  preview.mesh.segment_count = rig.mesh.segment_count;
+}
+
+}  // namespace
+
+Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Method method) const {
+  return guarded("previewing the pose", [&]() -> Result<PreviewResult> {
+    POSEWARP_RETURN_IF_ERROR(pose::validate_pose(pose, rig_.skeleton));
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
+                              pose::forward_kinematics(rig_.skeleton, pose));
+    skinning::SegmentTransforms segments;
+    for (const pose::RigidTransform& t : transforms) {
+      segments.rotation.push_back(t.rotation);
+      segments.translation.push_back(t.translation);
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, skinning::skin(method, preview_.mesh.vertices,
+                                                                          preview_.weights, preview_.centres, segments));
+    PreviewResult result;
+    for (const mapping::Embedding& e : preview_.embeddings) {
+      result.surface_vertices.push_back(mapping::deform_points(e, preview_.mesh, posed));
+    }
+    return result;
+  });
 }
 
 Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& hooks) {
@@ -74,6 +141,7 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
   } catch (const std::bad_alloc&) {
     return resource_exhausted_error("out of memory preparing the rig for posing");
   }
+  prepare_preview(rig, engine.preview_);
   engine.rig_ = std::move(rig);
   return engine;
 }

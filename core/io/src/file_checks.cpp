@@ -1,6 +1,8 @@
 // NIfTI and MetaImage header and completeness checks (no ITK here).
 #include "file_checks.h"
 
+#include "posewarp/common/result.h"
+
 #include <zlib.h>
 
 #include <algorithm>
@@ -10,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <vector>
 
@@ -134,18 +137,28 @@ Status check_nifti_finite(const std::string& path, int64_t offset, int64_t voxel
   return ok_status();
 }
 
+// The byte order of a NIfTI-1 header (true: swapped), nullopt for another format (NIfTI-2: ITK decides). A header
+// with NIfTI-1's magic but a wrong sizeof_hdr is corrupt: niftilib reads it anyway, and a fuzzed one carried a NaN
+// past these checks into ITK's SVD, which aborts.
+Result<std::optional<bool>> nifti1_byte_order(const unsigned char (&header)[348], const std::string& path) {
+  if (read_field<int32_t>(header, 0, false) == 348) return std::optional<bool>(false);
+  if (read_field<int32_t>(header, 0, true) == 348) return std::optional<bool>(true);
+  if (std::memcmp(header + 344, "n+1", 4) == 0 || std::memcmp(header + 344, "ni1", 4) == 0) {
+    return invalid_argument_error(in_quotes(path) + " has NIfTI-1's magic but a sizeof_hdr of " +
+                                  std::to_string(read_field<int32_t>(header, 0, false)) +
+                                  " (not 348); the header is corrupt");
+  }
+  return std::optional<bool>();
+}
+
 }  // namespace
 
 Status check_nifti_file(const std::string& path) {
   unsigned char header[348];
   POSEWARP_RETURN_IF_ERROR(read_nifti_header(path, header));
-  int32_t sizeof_hdr = read_field<int32_t>(header, 0, false);
-  bool swap = false;
-  if (sizeof_hdr != 348) {
-    swap = true;
-    sizeof_hdr = read_field<int32_t>(header, 0, true);
-  }
-  if (sizeof_hdr != 348) return ok_status();  // NIfTI-2 or not NIfTI at all: ITK decides and reports
+  POSEWARP_ASSIGN_OR_RETURN(const std::optional<bool> order, nifti1_byte_order(header, path));
+  if (!order) return ok_status();  // NIfTI-2 or not NIfTI at all: ITK decides and reports
+  const bool swap = *order;
   const int16_t ndim = read_field<int16_t>(header, 40, swap);
   if (ndim < 1 || ndim > 7) {
     return invalid_argument_error(in_quotes(path) + " declares " + std::to_string(ndim) +
@@ -205,11 +218,9 @@ Status check_nifti_file(const std::string& path) {
 Status check_nifti_geometry_fields(const std::string& path) {
   unsigned char header[348];
   POSEWARP_RETURN_IF_ERROR(read_nifti_header(path, header));
-  bool swap = false;
-  if (read_field<int32_t>(header, 0, false) != 348) {
-    swap = true;
-    if (read_field<int32_t>(header, 0, true) != 348) return ok_status();  // NIfTI-2 or not NIfTI: ITK decides
-  }
+  POSEWARP_ASSIGN_OR_RETURN(const std::optional<bool> order, nifti1_byte_order(header, path));
+  if (!order) return ok_status();  // NIfTI-2 or not NIfTI: ITK decides
+  const bool swap = *order;
   struct Field {
     size_t offset;
     int count;
@@ -224,6 +235,13 @@ Status check_nifti_geometry_fields(const std::string& path) {
       if (!std::isfinite(value)) {
         return invalid_argument_error(in_quotes(path) + " has a NaN or infinite " + field.name +
                                       " in its NIfTI header; the header is corrupt (fix or regenerate the file)");
+      }
+      // Finite but absurd values overflow inside ITK's orientation code (and its SVD aborts on the result): no
+      // scanner is 10 km wide, and a quaternion's b, c, d lie within [-1, 1].
+      const bool quaternion = field.offset == 256;
+      if (std::abs(value) > (quaternion ? 1.0001f : 1e7f)) {
+        return invalid_argument_error(in_quotes(path) + " has " + field.name + " = " + std::to_string(value) +
+                                      " in its NIfTI header, beyond any real geometry; the header is corrupt");
       }
     }
   }
@@ -292,7 +310,10 @@ Status check_nrrd_file(const std::string& path) {
   int64_t offset = static_cast<int64_t>(data_offset);
   const std::string detached = fields.count("data file") ? fields["data file"] : fields["datafile"];
   if (!detached.empty()) {
-    if (detached.find(' ') != std::string::npos || detached == "LIST") return ok_status();  // file lists: ITK checks
+    if (detached.find(' ') != std::string::npos || detached == "LIST" || detached.find('%') != std::string::npos) {
+      return invalid_argument_error(in_quotes(path) + " names its voxel data as a list of files (data file); posewarp " +
+                                    "reads NRRD with its data inline (.nrrd) or in one file beside the header (.nhdr)");
+    }
     data_path = (fs::path(path).parent_path() / detached).string();
     offset = 0;
   }
@@ -337,11 +358,14 @@ Status check_metaimage_file(const std::string& path) {
     const std::string key = trim(line.substr(0, eq));
     fields[key] = trim(line.substr(eq + 1));
     if (key == "ElementDataFile") {
-      data_offset = in.tellg();
+      data_offset = in.eof() ? -1 : static_cast<std::streamoff>(in.tellg());  // no newline: the header never ends
       break;
     }
   }
-  if (data_offset < 0 || !fields.count("DimSize") || !fields.count("ElementType")) return ok_status();  // ITK reports
+  if (data_offset < 0 || !fields.count("DimSize") || !fields.count("ElementType")) {
+    return invalid_argument_error(in_quotes(path) + " is not a complete MetaImage header (it needs DimSize, " +
+                                  "ElementType and an ElementDataFile line ending the header); the file is damaged");
+  }
   static const std::map<std::string, int> kElementBytes{
       {"MET_UCHAR", 1}, {"MET_CHAR", 1},   {"MET_USHORT", 2}, {"MET_SHORT", 2},  {"MET_UINT", 4},
       {"MET_INT", 4},   {"MET_FLOAT", 4},  {"MET_ULONG", 8},  {"MET_LONG", 8},   {"MET_DOUBLE", 8},
@@ -379,8 +403,16 @@ Status check_metaimage_file(const std::string& path) {
     }
   }
   const std::string data_file = fields["ElementDataFile"];
-  if (data_file != "LOCAL" && data_file.find('%') != std::string::npos) return ok_status();  // file lists: ITK checks
-  if (data_file == "LIST") return ok_status();
+  // One data file only: a file list ("LIST", or a printf pattern with a range) goes through MetaIO code that
+  // overflows a buffer on a crafted header (found by fuzzing), and no study needs it.
+  const bool printable = std::all_of(data_file.begin(), data_file.end(),
+                                     [](char c) { return static_cast<unsigned char>(c) >= 0x20 && c != 0x7f; });
+  if (data_file.empty() || data_file == "LIST" || data_file.find('%') != std::string::npos ||
+      data_file.find(' ') != std::string::npos || !printable) {
+    return invalid_argument_error(in_quotes(path) + " names its voxel data as a list of files or an unusual name (" +
+                                  "ElementDataFile); posewarp reads MetaImage with its data inline (LOCAL, .mha) or " +
+                                  "in one file beside the header (.mhd + .raw/.zraw)");
+  }
   int64_t available = 0;
   std::error_code ec;
   if (data_file == "LOCAL") {

@@ -168,6 +168,11 @@ TEST_F(Catalogue, Volumes) {
   check({"short_raw.nrrd",
          "NRRD0004\ntype: int16\ndimension: 3\nsizes: 512 512 900\nspacings: 1 1 1\nencoding: raw\nendian: little\n\n" +
              std::string(4096, '\0'), build, kBadInput, "truncated"});
+  // Crash: a file list (a printf pattern) made ITK's MetaIO overflow a buffer (found by fuzzing).
+  check({"file_list.mha",
+         "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
+         "ElementDataFile = slice%03d.raw 1 4 1\n",
+         build, kBadInput, "list of files"});
   // Not a volume at all.
   check({"not_a_volume.nii.gz", "this is text, not a gzip stream", info, kBadInput, "not_a_volume.nii.gz"});
 }

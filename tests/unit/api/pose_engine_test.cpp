@@ -392,3 +392,31 @@ TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
 
 }  // namespace
 }  // namespace posewarp::api
+
+namespace posewarp::api {
+namespace {
+
+// The preview skins only the tet vertices its surfaces need and gives the same posed surfaces as a full pose.
+TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
+  const PoseEngine& engine = bar_engine();
+  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+    PoseRequest request;
+    request.pose = joint_pose("joint_2_3", 50.0, 20.0);
+    request.method = method;
+    request.want_labels = request.want_ct = false;
+    Result<PoseResult> full = engine.pose(request);
+    ASSERT_TRUE(full.ok()) << full.status().to_string();
+    Result<PreviewResult> preview = engine.preview(request.pose, method);
+    ASSERT_TRUE(preview.ok()) << preview.status().to_string();
+    ASSERT_EQ(preview->surface_vertices.size(), engine.rig().surfaces.size());
+    for (size_t i = 0; i < preview->surface_vertices.size(); ++i) {
+      EXPECT_LT((preview->surface_vertices[i] - full->surfaces[i].vertices).cwiseAbs().maxCoeff(), 1e-9)
+          << engine.rig().surfaces[i].name;
+    }
+  }
+  EXPECT_EQ(engine.preview(joint_pose("nowhere", 1.0, 0.0), skinning::Method::kCor).status().code(),
+            StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace posewarp::api

@@ -50,6 +50,12 @@ struct PosePlan {
   int64_t budget_bytes = 0;     // the request's max_output_bytes, or half the machine's memory
 };
 
+// The posed rest surfaces of a preview, in the rig's surface order (vertex positions only: the topology is the
+// rig's, rig().surfaces[i].triangles).
+struct PreviewResult {
+  std::vector<Eigen::MatrixXd> surface_vertices;  // #P_i x 3, LPS mm
+};
+
 class PoseEngine {
  public:
   // Precomputes the rest tet frames, the rest ownership of the source grid and the rest label counts.
@@ -61,6 +67,9 @@ class PoseEngine {
   // tet mesh skinned (milliseconds). RESOURCE_EXHAUSTED when the bytes are over the budget, so a server refuses
   // such a request before it queues; pose() makes the same check.
   Result<PosePlan> plan(const PoseRequest& request) const;
+  // The fast path for sliders: the rig's surfaces posed, nothing else. Only the tet vertices that hold a surface
+  // vertex are skinned (prepared once in create()); no volume, no report.
+  Result<PreviewResult> preview(const pose::Pose& pose, skinning::Method method) const;
 
  private:
   // The bodies of create() and pose(), which run them behind the exception wall.
@@ -78,6 +87,15 @@ class PoseEngine {
   std::vector<int16_t> tet_region_;   // per tet: the region at its rest centroid
   std::vector<uint8_t> separated_;    // regions that must not show each other's tissue
   float ct_minimum_ = 0.0f;          // the CT's lowest value: the warp's background is never below it
+  // The preview's share of the rig: the tets holding a surface vertex, on their own vertices, with those vertices'
+  // weights and centres, and the surfaces embedded in them.
+  struct PreviewRig {
+    TetMesh mesh;
+    SkinWeights weights;
+    RotationCentres centres;
+    std::vector<mapping::Embedding> embeddings;
+  };
+  PreviewRig preview_;
 };
 
 }  // namespace posewarp::api
