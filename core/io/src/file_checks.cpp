@@ -6,8 +6,10 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -337,6 +339,80 @@ Status check_nrrd_file(const std::string& path) {
     return data_loss_error("the gzip data of " + in_quotes(path) + " holds " + std::to_string(inflated) +
                            " bytes, but its header promises " + std::to_string(promised) + " (sizes " +
                            fields["sizes"] + "); the file is damaged or not what it claims");
+  }
+  return ok_status();
+}
+
+Status check_metaimage_header(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open " + in_quotes(path));
+  auto corrupt = [&path](const std::string& what) {
+    return invalid_argument_error(in_quotes(path) + " has a MetaImage header that " + what +
+                                  "; the file is damaged or not MetaImage");
+  };
+  std::map<std::string, std::string> fields;
+  std::string line;
+  int64_t header_bytes = 0;
+  bool ended = false;
+  while (std::getline(in, line)) {
+    header_bytes += static_cast<int64_t>(line.size()) + 1;
+    if (header_bytes > (int64_t{1} << 20)) return corrupt("runs past 1 MB without its ElementDataFile line");
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.find_first_not_of(" \t") == std::string::npos) continue;
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) return corrupt("has a line without '=' before its data");
+    std::string key = line.substr(0, eq);
+    key.erase(key.find_last_not_of(" \t") + 1);
+    key.erase(0, key.find_first_not_of(" \t"));
+    if (key.empty() || !std::all_of(key.begin(), key.end(), [](char c) {
+          return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
+        })) {
+      return corrupt("has a malformed key");
+    }
+    std::string value = line.substr(eq + 1);
+    value.erase(0, value.find_first_not_of(" \t"));
+    value.erase(value.find_last_not_of(" \t") + 1);
+    fields[key] = value;
+    if (key == "ElementDataFile") {
+      ended = true;
+      break;
+    }
+  }
+  if (!ended) return corrupt("does not end with an ElementDataFile line");
+  // NDims and the counted fields are what MetaIO loops over; a negative or absurd count made it spin forever
+  // (found by fuzzing).
+  const std::string& ndims_text = fields["NDims"];
+  if (ndims_text.size() != 1 || ndims_text[0] < '1' || ndims_text[0] > '4') {
+    return corrupt("declares NDims '" + ndims_text + "' (posewarp reads 3-dimensional images)");
+  }
+  const int ndims = ndims_text[0] - '0';
+  auto numbers = [](const std::string& text, int expected, bool whole) {
+    std::istringstream stream(text);
+    std::string token;
+    int count = 0;
+    while (stream >> token) {
+      char* end = nullptr;
+      const double v = std::strtod(token.c_str(), &end);
+      if (end == token.c_str() || *end != '\0' || !std::isfinite(v) || std::abs(v) > 1e9 ||
+          (whole && v != std::floor(v))) {
+        return false;
+      }
+      ++count;
+    }
+    return count == expected;
+  };
+  if (!numbers(fields["DimSize"], ndims, true)) return corrupt("needs DimSize as " + ndims_text + " whole numbers");
+  const std::pair<const char*, int> counted[] = {
+      {"ElementSpacing", ndims}, {"ElementSize", ndims},  {"Offset", ndims},        {"Position", ndims},
+      {"Origin", ndims},         {"CenterOfRotation", ndims}, {"TransformMatrix", ndims * ndims},
+      {"Rotation", ndims * ndims}, {"Orientation", ndims * ndims}};
+  for (const auto& [key, count] : counted) {
+    if (fields.count(key) && !numbers(fields[key], count, false)) {
+      return corrupt("needs " + std::string(key) + " as " + std::to_string(count) + " finite numbers");
+    }
+  }
+  for (const char* key : {"HeaderSize", "CompressedDataSize", "ElementNumberOfChannels"}) {
+    if (fields.count(key) && !numbers(fields[key], 1, true)) return corrupt("needs " + std::string(key) + " as a number");
   }
   return ok_status();
 }

@@ -21,6 +21,10 @@ Status check_nifti_geometry_fields(const std::string& path);
 // header promises, checked before anything is allocated (ITK allocates the grid, then fails).
 Status check_nrrd_file(const std::string& path);
 
+// MetaImage (.mha, .mhd), before ITK reads the header: "Key = Value" lines up to ElementDataFile, NDims 1..4 and
+// every counted field (DimSize, spacing, offset, matrix) with that many finite numbers. ITK's MetaIO spins forever on
+// a negative NDims and overflows buffers on other damage.
+Status check_metaimage_header(const std::string& path);
 // MetaImage (.mha, .mhd): the data (inline or in the named file) must hold every byte the header promises,
 // compressed or not (ITK's reader only prints a warning when it reads short).
 Status check_metaimage_file(const std::string& path);

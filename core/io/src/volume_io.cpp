@@ -233,6 +233,7 @@ Result<VolumeHeader> read_file_header(const std::string& path, VolumeFormat form
   }
   // Fields ITK would choke on (a NaN in the sform aborts inside its SVD) are refused before ITK sees them.
   if (format == VolumeFormat::kNifti) POSEWARP_RETURN_IF_ERROR(detail::check_nifti_geometry_fields(path));
+  if (format == VolumeFormat::kMetaImage) POSEWARP_RETURN_IF_ERROR(detail::check_metaimage_header(path));
   itk::ImageIOBase::Pointer io = make_file_io(format);
   try {
     if (!io->CanReadFile(path.c_str())) {

@@ -173,6 +173,11 @@ TEST_F(Catalogue, Volumes) {
          "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
          "ElementDataFile = slice%03d.raw 1 4 1\n",
          build, kBadInput, "list of files"});
+  // Hang: ITK's MetaIO looped forever on a negative NDims (found by fuzzing).
+  check({"negative_ndims.mha",
+         "ObjectType = Image\nNDims = -3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
+         "ElementDataFile = LOCAL\n" + std::string(120, '\0'),
+         info, kBadInput, "NDims"});
   // Not a volume at all.
   check({"not_a_volume.nii.gz", "this is text, not a gzip stream", info, kBadInput, "not_a_volume.nii.gz"});
 }
