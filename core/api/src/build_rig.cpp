@@ -86,6 +86,15 @@ std::string canonical_params(const BuildInputs& inputs, const BuildParams& param
 
 }  // namespace
 
+std::string rig_id_of(const BuildInputs& inputs, const BuildParams& params) {
+  Rig rig;
+  rig.labels_hash = volume_sha256(inputs.labels);
+  if (inputs.ct) rig.ct_hash = volume_sha256(*inputs.ct);
+  rig.label_map = inputs.label_map;
+  rig.params_json = canonical_params(inputs, params);
+  return rig.id();
+}
+
 Status validate(const BuildParams& params) {
   POSEWARP_RETURN_IF_ERROR(rig::validate(params.skeleton));
   POSEWARP_RETURN_IF_ERROR(labels::validate(params.body));

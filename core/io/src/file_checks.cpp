@@ -139,18 +139,20 @@ Status check_nifti_finite(const std::string& path, int64_t offset, int64_t voxel
   return ok_status();
 }
 
-// The byte order of a NIfTI-1 header (true: swapped), nullopt for another format (NIfTI-2: ITK decides). A header
-// with NIfTI-1's magic but a wrong sizeof_hdr is corrupt: niftilib reads it anyway, and a fuzzed one carried a NaN
-// past these checks into ITK's SVD, which aborts.
+// The byte order of a NIfTI-1 header (true: swapped). Anything else is refused: niftilib reads a header with a
+// wrong sizeof_hdr anyway, and fuzzed ones carried a NaN past these checks into ITK's SVD, which aborts.
 Result<std::optional<bool>> nifti1_byte_order(const unsigned char (&header)[348], const std::string& path) {
   if (read_field<int32_t>(header, 0, false) == 348) return std::optional<bool>(false);
   if (read_field<int32_t>(header, 0, true) == 348) return std::optional<bool>(true);
-  if (std::memcmp(header + 344, "n+1", 4) == 0 || std::memcmp(header + 344, "ni1", 4) == 0) {
-    return invalid_argument_error(in_quotes(path) + " has NIfTI-1's magic but a sizeof_hdr of " +
-                                  std::to_string(read_field<int32_t>(header, 0, false)) +
-                                  " (not 348); the header is corrupt");
+  // niftilib reads whatever it is handed; ITK then aborts on the NaN it finds in the orientation. Only NIfTI-1's
+  // 348-byte header is checked here, so only it is read.
+  if (read_field<int32_t>(header, 0, false) == 540 || read_field<int32_t>(header, 0, true) == 540) {
+    return invalid_argument_error(in_quotes(path) + " is NIfTI-2, which posewarp does not read; save it as NIfTI-1 "
+                                  "(.nii or .nii.gz)");
   }
-  return std::optional<bool>();
+  return invalid_argument_error(in_quotes(path) + " has a sizeof_hdr of " +
+                                std::to_string(read_field<int32_t>(header, 0, false)) +
+                                " (NIfTI-1's is 348); the header is corrupt or the file is not NIfTI");
 }
 
 }  // namespace

@@ -88,6 +88,10 @@ struct Rig {
   int64_t footprint_bytes() const;
 };
 
+// The id build_rig() would give these inputs, without building (hashing the volumes: milliseconds), so a store can
+// answer a build it already has.
+std::string rig_id_of(const BuildInputs& inputs, const BuildParams& params);
+
 // Builds a rig: body mask, skeleton, classes, mesh (with health checks), weights and centres of rotation.
 Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks);
 

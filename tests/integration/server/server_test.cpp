@@ -1,0 +1,294 @@
+// The real posewarp-server process on a loopback port, driven through the generated gRPC client: upload a bar
+// phantom's volumes, build its rig as an operation, pose it, and compare with the same rig posed in this process;
+// bad requests get their canonical codes and the server keeps serving; SIGTERM ends it with exit 0.
+#include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "posewarp/api/files.h"
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/common/sha256.h"
+#include "posewarp/v1/posewarp.grpc.pb.h"
+
+namespace posewarp {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string file_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+int run(const std::vector<std::string>& args) {
+  std::string command;
+  for (const std::string& a : args) command += "'" + a + "' ";
+  return std::system((command + ">/dev/null 2>&1").c_str());
+}
+
+// The server process: started on port 0, its chosen port read from its first line of output.
+class ServerProcess {
+ public:
+  explicit ServerProcess(const fs::path& store) {
+    int out[2];
+    if (::pipe(out) != 0) return;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::dup2(out[1], 1);
+      ::close(out[0]);
+      ::execl(POSEWARP_SERVER, POSEWARP_SERVER, "--listen", "127.0.0.1:0", "--store", store.c_str(), "--pose-slots",
+              "2", static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    ::close(out[1]);
+    std::string line;
+    char c = 0;
+    while (::read(out[0], &c, 1) == 1 && c != '\n') line += c;
+    ::close(out[0]);
+    const size_t colon = line.rfind(':', line.find(", store"));
+    if (colon != std::string::npos) port_ = std::atoi(line.c_str() + colon + 1);
+  }
+  ~ServerProcess() {
+    if (pid_ > 0 && !stopped_) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+  }
+  int port() const { return port_; }
+  // SIGTERM, then the exit code (or -1 after 30 s).
+  int stop() {
+    ::kill(pid_, SIGTERM);
+    for (int i = 0; i < 300; ++i) {
+      int status = 0;
+      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
+        stopped_ = true;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    return -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  int port_ = 0;
+  bool stopped_ = false;
+};
+
+class Server : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / ("posewarp-server-test-" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    ASSERT_EQ(run({POSEWARP_CLI, "--quiet", "phantom", "bar", "-o", (dir_ / "bar").string()}), 0);
+    server_ = new ServerProcess(dir_ / "store");
+    ASSERT_GT(server_->port(), 0);
+    channel_ = grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()), grpc::InsecureChannelCredentials());
+    ASSERT_TRUE(channel_->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(10)));
+    stub_ = v1::Posewarp::NewStub(channel_);
+  }
+  static void TearDownTestSuite() {
+    stub_.reset();
+    channel_.reset();
+    delete server_;
+    fs::remove_all(dir_);
+  }
+
+  static grpc::Status upload(const fs::path& path, v1::VolumeKind kind, v1::Volume* volume,
+                             const std::string& claimed_sha = "") {
+    const std::string bytes = file_text(path);
+    grpc::ClientContext context;
+    auto writer = stub_->UploadVolume(&context, volume);
+    v1::UploadVolumeRequest header;
+    header.mutable_header()->set_kind(kind);
+    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
+    header.mutable_header()->set_size_bytes(bytes.size());
+    header.mutable_header()->set_sha256(claimed_sha.empty() ? sha256_hex(bytes) : claimed_sha);
+    writer->Write(header);
+    for (size_t offset = 0; offset < bytes.size(); offset += 4096) {
+      v1::UploadVolumeRequest chunk;
+      chunk.set_chunk(bytes.substr(offset, 4096));
+      writer->Write(chunk);
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  // Uploads the bar, builds its rig and returns the rig id (once per test binary).
+  static std::string bar_rig_id() {
+    static std::string id;
+    if (!id.empty()) return id;
+    v1::Volume labels, ct;
+    EXPECT_TRUE(upload(dir_ / "bar" / "labels.nii.gz", v1::VOLUME_KIND_LABELS, &labels).ok());
+    EXPECT_TRUE(upload(dir_ / "bar" / "ct.nii.gz", v1::VOLUME_KIND_INTENSITY, &ct).ok());
+    v1::BuildRigRequest build;
+    build.set_labels_volume_id(labels.id());
+    build.set_ct_volume_id(ct.id());
+    build.set_label_map_json(file_text(dir_ / "bar" / "label_map.json"));
+    build.set_name("bar phantom");
+    v1::Operation operation;
+    {
+      grpc::ClientContext context;
+      EXPECT_TRUE(stub_->BuildRig(&context, build, &operation).ok());
+    }
+    grpc::ClientContext context;
+    v1::GetOperationRequest watch;
+    watch.set_operation_id(operation.id());
+    auto reader = stub_->WatchOperation(&context, watch);
+    v1::Operation state;
+    while (reader->Read(&state)) operation = state;
+    EXPECT_TRUE(reader->Finish().ok());
+    EXPECT_EQ(operation.state(), v1::Operation::SUCCEEDED) << operation.error_message();
+    id = operation.rig_id();
+    return id;
+  }
+
+  static inline fs::path dir_;
+  static inline ServerProcess* server_ = nullptr;
+  static inline std::shared_ptr<grpc::Channel> channel_;
+  static inline std::unique_ptr<v1::Posewarp::Stub> stub_;
+};
+
+TEST_F(Server, UploadBuildAndPoseGiveWhatTheEnginePosesLocally) {
+  const std::string rig_id = bar_rig_id();
+  ASSERT_TRUE(is_hex_id(rig_id));
+  v1::PoseRequest request;
+  request.set_rig_id(rig_id);
+  request.set_pose_json(file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json"));
+  request.set_want_labels(true);
+  request.set_want_ct(true);
+  request.set_want_surfaces(true);
+  request.set_chunk_bytes(65536);
+  grpc::ClientContext context;
+  auto reader = stub_->Pose(&context, request);
+  v1::PoseResponse part;
+  v1::PoseHeader header;
+  std::string labels, ct, report;
+  int surfaces = 0;
+  while (reader->Read(&part)) {
+    if (part.has_header()) header = part.header();
+    if (part.has_labels()) {
+      EXPECT_EQ(part.labels().offset(), labels.size());
+      labels += part.labels().data();
+    }
+    if (part.has_ct()) ct += part.ct().data();
+    if (part.has_surface()) ++surfaces;
+    if (part.has_report()) report = part.report().json();
+  }
+  const grpc::Status status = reader->Finish();
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  EXPECT_EQ(labels.size(), header.label_bytes());
+  EXPECT_EQ(ct.size(), header.ct_bytes());
+  EXPECT_FALSE(report.empty());
+
+  // The same rig, read from the store and posed in this process.
+  Result<api::Rig> rig = api::load_rig((dir_ / "store" / "rigs" / (rig_id + ".rig")).string());
+  ASSERT_TRUE(rig.ok()) << rig.status().to_string();
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig).value());
+  ASSERT_TRUE(engine.ok());
+  api::PoseRequest local;
+  local.pose = *api::read_pose((fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string());
+  Result<api::PoseResult> result = engine->pose(local);
+  ASSERT_TRUE(result.ok()) << result.status().to_string();
+  ASSERT_EQ(labels.size(), result->labels->voxel_count() * sizeof(Label));
+  EXPECT_EQ(std::memcmp(labels.data(), result->labels->data(), labels.size()), 0);  // byte for byte
+  ASSERT_EQ(ct.size(), result->ct->voxel_count() * sizeof(float));
+  EXPECT_EQ(std::memcmp(ct.data(), result->ct->data(), ct.size()), 0);
+  EXPECT_EQ(surfaces, static_cast<int>(result->surfaces.size()));
+  EXPECT_EQ(header.grid().size(0), result->output_grid.size[0]);
+
+  // The same build again is answered from the store.
+  v1::GetRigRequest get;
+  get.set_rig_id(rig_id);
+  v1::Rig info;
+  grpc::ClientContext get_context;
+  ASSERT_TRUE(stub_->GetRig(&get_context, get, &info).ok());
+  EXPECT_EQ(info.name(), "bar phantom");
+  EXPECT_EQ(info.joints_size(), static_cast<int>(engine->rig().skeleton.joints.size()));
+  v1::ListRigsResponse listed;
+  grpc::ClientContext list_context;
+  ASSERT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());
+  ASSERT_EQ(listed.rigs_size(), 1);
+  EXPECT_EQ(listed.rigs(0).id(), rig_id);
+}
+
+TEST_F(Server, BadRequestsGetTheirCanonicalCodesAndTheServerKeepsServing) {
+  v1::Volume volume;
+  EXPECT_EQ(upload(dir_ / "bar" / "labels.nii.gz", v1::VOLUME_KIND_LABELS, &volume, std::string(64, 'a')).error_code(),
+            grpc::StatusCode::DATA_LOSS);
+  // Bytes that are not a volume (a pose file uploaded as labels): refused, named as the upload, no server path.
+  {
+    std::ofstream(dir_ / "not_a_volume.nii.gz") << "{\"joints\": {}}";
+    const grpc::Status refused = upload(dir_ / "not_a_volume.nii.gz", v1::VOLUME_KIND_LABELS, &volume);
+    EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << refused.error_message();
+    EXPECT_EQ(refused.error_message().find(dir_.string()), std::string::npos) << refused.error_message();
+  }
+  for (const std::string& id : {std::string("../../etc/passwd"), std::string(64, '0'), std::string("abc/def")}) {
+    v1::PoseRequest request;
+    request.set_rig_id(id);
+    request.set_pose_json("{}");
+    grpc::ClientContext context;
+    auto reader = stub_->Pose(&context, request);
+    v1::PoseResponse part;
+    while (reader->Read(&part)) {
+    }
+    const grpc::Status status = reader->Finish();
+    EXPECT_EQ(status.error_code(), id.size() == 64 ? grpc::StatusCode::NOT_FOUND : grpc::StatusCode::INVALID_ARGUMENT)
+        << id << ": " << status.error_message();
+  }
+  {
+    v1::PoseRequest request;
+    request.set_rig_id(bar_rig_id());
+    request.set_pose_json("{\"joints\": {\"joint_2_3\": {\"axis_angle\": {\"axis\": [1, 0, 0]}}}}");
+    grpc::ClientContext context;
+    auto reader = stub_->Pose(&context, request);
+    v1::PoseResponse part;
+    while (reader->Read(&part)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  }
+  {
+    v1::PoseRequest request;  // over its own output budget: refused before the warp allocates
+    request.set_rig_id(bar_rig_id());
+    request.set_pose_json(file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json"));
+    request.set_want_labels(true);
+    request.set_max_output_bytes(1000);
+    grpc::ClientContext context;
+    auto reader = stub_->Pose(&context, request);
+    v1::PoseResponse part;
+    while (reader->Read(&part)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  }
+  v1::BuildRigRequest build;
+  build.set_labels_volume_id(std::string(64, 'f'));
+  v1::Operation operation;
+  grpc::ClientContext context;
+  EXPECT_EQ(stub_->BuildRig(&context, build, &operation).error_code(), grpc::StatusCode::NOT_FOUND);
+  // Still serving.
+  v1::ListRigsResponse listed;
+  grpc::ClientContext list_context;
+  EXPECT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());
+}
+
+// Runs last in this binary (gtest runs tests in order): SIGTERM stops the server with exit 0.
+TEST_F(Server, ZzSigtermStopsTheServerCleanly) {
+  EXPECT_EQ(server_->stop(), 0);
+}
+
+}  // namespace
+}  // namespace posewarp
