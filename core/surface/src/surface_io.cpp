@@ -8,7 +8,6 @@
 #include <vtkNew.h>
 #include <vtkOBJWriter.h>
 #include <vtkPLYWriter.h>
-#include <vtkSTLReader.h>
 #include <vtkSTLWriter.h>
 #include <vtkXMLPolyDataReader.h>
 #include <vtkXMLPolyDataWriter.h>
@@ -25,6 +24,7 @@
 
 #include "obj_reader.h"
 #include "ply_reader.h"
+#include "stl_reader.h"
 #include "vtk_support.h"
 
 namespace posewarp::surface {
@@ -92,15 +92,13 @@ Result<std::string> file_bytes(const std::string& path) {
   return read_text_input(path, "mesh", kMaxMeshBytes);
 }
 
-// STL and VTP go through VTK's readers, which survive damaged files; OBJ and PLY through posewarp's own, because
-// VTK 9.1's crash on some damaged files (see obj_reader.h, ply_reader.h).
+// VTP goes through VTK's reader, which survives damaged files; OBJ, PLY and STL through posewarp's own, because
+// VTK 9.1's crash or allocate without bound on some damaged files (see obj_reader.h, ply_reader.h, stl_reader.h).
 Result<SurfaceMesh> read_by_format(const std::string& path, MeshFormat format) {
   switch (format) {
     case MeshFormat::kStl: {
-      detail::install_quiet_vtk_output();
-      vtkNew<vtkSTLReader> reader;
-      reader->MergingOn();
-      return run_reader(reader.GetPointer(), path, format);
+      POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, file_bytes(path));
+      return detail::parse_stl(bytes, path);
     }
     case MeshFormat::kObj: {
       POSEWARP_ASSIGN_OR_RETURN(const std::string text, file_bytes(path));
