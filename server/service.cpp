@@ -490,6 +490,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   header->set_label_bytes(label_bytes);
   header->set_ct_bytes(ct_bytes);
   header->set_surface_count(static_cast<int32_t>(result->surfaces.size()));
+  if (result->labels) header->set_label_pixel_type(std::string(pixel_type_name(result->labels->source_type())));
+  if (result->ct) header->set_ct_pixel_type(std::string(pixel_type_name(result->ct->source_type())));
   if (!writer->Write(message)) return {grpc::StatusCode::CANCELLED, "the client went away"};
   const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
   if (result->labels) {

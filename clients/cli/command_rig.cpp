@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "cli_support.h"
+#include "remote.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
@@ -26,6 +27,8 @@ struct BuildOptions {
   std::string preset;
   std::string spec_path;
   std::string out;
+  std::string server;  // remote build on posewarp-server
+  std::string name;
   bool sequential = false;
   bool islands_fail = false;
   api::BuildParams params;
@@ -230,7 +233,11 @@ void add_rig_commands(CLI::App& app) {
     cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
         ->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("--rig-spec", o->spec_path, "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
-    cmd->add_option("-o,--out", o->out, "Rig file to write")->required();
+    cmd->add_option("-o,--out", o->out, "Rig file to write (local builds)");
+    cmd->add_option("--server", o->server,
+                    "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
+                    "prints the rig id (default parameters; the mesh options here apply to local builds)");
+    cmd->add_option("--name", o->name, "Name of the rig on the server (default: the labels' file name)");
     auto& p = o->params;
     cmd->add_option("--contact-distance", p.skeleton.contact_distance_mm, "Bone contact distance, mm (0 = 3.5 voxels)")
         ->capture_default_str();
@@ -246,7 +253,27 @@ void add_rig_commands(CLI::App& app) {
     cmd->add_flag("--fail-on-islands", o->islands_fail, "Fail on soft tissue without bone instead of attaching it");
     cmd->add_option("--sigma", p.cor.sigma, "CoR similarity width (paper: < 0.1)")->capture_default_str();
     cmd->callback([o] {
-      if (int code = run_build(*o); code != 0) throw CLI::RuntimeError(code);
+      int code = 0;
+      if (!o->server.empty()) {
+        if (!o->out.empty() || !o->body_path.empty()) {
+          throw CLI::ValidationError("--server", "a remote build keeps its rig on the server (no -o) and takes no "
+                                                 "--body mask yet");
+        }
+        code = run_build_remote({o->server, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path,
+                                 o->name});
+      } else {
+        if (o->out.empty()) throw CLI::RequiredError("-o,--out (or --server)");
+        code = run_build(*o);
+      }
+      if (code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto server = std::make_shared<std::string>();
+    CLI::App* cmd = group->add_subcommand("list", "The rigs a posewarp-server holds: id, name, size, created");
+    cmd->add_option("--server", *server, "posewarp-server at HOST:PORT")->required();
+    cmd->callback([server] {
+      if (int code = run_list_remote(*server); code != 0) throw CLI::RuntimeError(code);
     });
   }
   {

@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -37,6 +38,20 @@ int run(const std::vector<std::string>& args) {
   std::string command;
   for (const std::string& a : args) command += "'" + a + "' ";
   return std::system((command + ">/dev/null 2>&1").c_str());
+}
+
+// What a command prints on stdout.
+std::string output_of(const std::vector<std::string>& args) {
+  std::ostringstream command;
+  for (const std::string& a : args) command << "'" << a << "' ";
+  command << "2>/dev/null";
+  std::string out;
+  if (FILE* pipe = ::popen(command.str().c_str(), "r")) {
+    char buffer[4096];
+    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
+    ::pclose(pipe);
+  }
+  return out;
 }
 
 // The server process: started on port 0, its chosen port read from its first line of output.
@@ -283,6 +298,43 @@ TEST_F(Server, BadRequestsGetTheirCanonicalCodesAndTheServerKeepsServing) {
   v1::ListRigsResponse listed;
   grpc::ClientContext list_context;
   EXPECT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());
+}
+
+// The CLI's remote mode writes the same files as its local mode on the same rig (reports equal but for timings).
+TEST_F(Server, RemoteAndLocalCommandsWriteTheSameFiles) {
+  const std::string server = "127.0.0.1:" + std::to_string(server_->port());
+  const fs::path out = dir_ / "remote";
+  fs::create_directories(out);
+  const std::string bar = (dir_ / "bar").string();
+  std::string id = output_of({POSEWARP_CLI, "-q", "rig", "build", "--server", server, "--labels", bar + "/labels.nii.gz",
+                              "--ct", bar + "/ct.nii.gz", "--label-map", bar + "/label_map.json"});
+  if (!id.empty() && id.back() == '\n') id.pop_back();
+  ASSERT_TRUE(is_hex_id(id)) << id;
+  const std::string pose = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
+  for (const std::string mode : {"remote", "local"}) {
+    const fs::path at = out / mode;
+    std::vector<std::string> args{POSEWARP_CLI, "-q", "pose"};
+    if (mode == "remote") {
+      args.insert(args.end(), {"--server", server, id});
+    } else {
+      args.push_back((dir_ / "store" / "rigs" / (id + ".rig")).string());
+    }
+    args.insert(args.end(), {"--pose", pose, "--method", "dqs", "--labels-out", (at / "labels.nii.gz").string(),
+                             "--ct-out", (at / "ct.nii.gz").string(), "--surfaces-out", (at / "surfaces").string()});
+    fs::create_directories(at);
+    ASSERT_EQ(run(args), 0) << mode;
+  }
+  EXPECT_EQ(file_text(out / "remote" / "labels.nii.gz"), file_text(out / "local" / "labels.nii.gz"));
+  EXPECT_EQ(file_text(out / "remote" / "ct.nii.gz"), file_text(out / "local" / "ct.nii.gz"));
+  int surfaces = 0;
+  for (const auto& entry : fs::directory_iterator(out / "local" / "surfaces")) {
+    EXPECT_EQ(file_text(entry.path()), file_text(out / "remote" / "surfaces" / entry.path().filename()));
+    ++surfaces;
+  }
+  EXPECT_GT(surfaces, 0);
+  // A rig path where an id belongs, and an unreachable server, are clear errors with the documented codes.
+  EXPECT_EQ(run({POSEWARP_CLI, "pose", "--server", server, "bar.rig", "--pose", pose}) >> 8, 2);
+  EXPECT_EQ(run({POSEWARP_CLI, "rig", "list", "--server", "127.0.0.1:1"}) >> 8, 1);
 }
 
 // Runs last in this binary (gtest runs tests in order): SIGTERM stops the server with exit 0.

@@ -38,6 +38,7 @@ using labels::write_label_map;
 using pose::read_animation;
 using pose::read_bvh;
 using pose::read_bvh_map;
+using pose::pose_from_json;
 using pose::read_pose;
 
 // Surface meshes (STL, OBJ, PLY, VTP).

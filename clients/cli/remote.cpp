@@ -1,0 +1,263 @@
+// Remote commands over the generated gRPC client.
+#include "remote.h"
+
+#include <grpcpp/grpcpp.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+
+#include "cli_support.h"
+#include "posewarp/api/files.h"
+#include "posewarp/common/atomic_file.h"
+#include "posewarp/common/input_file.h"
+#include "posewarp/common/sha256.h"
+#include "posewarp/v1/posewarp.grpc.pb.h"
+
+namespace posewarp::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A failed call as the local commands report it: the server's code is the core's, so the exit code table holds.
+int report_rpc(const grpc::Status& status, const std::string& server) {
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+    return report(unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message() +
+                                    " (is it running, and is the address right?)"));
+  }
+  return report(Status(static_cast<StatusCode>(status.error_code()), status.error_message()));
+}
+
+std::unique_ptr<v1::Posewarp::Stub> connect(const std::string& server) {
+  grpc::ChannelArguments arguments;
+  arguments.SetMaxReceiveMessageSize(64 << 20);
+  return v1::Posewarp::NewStub(grpc::CreateCustomChannel(server, grpc::InsecureChannelCredentials(), arguments));
+}
+
+v1::FileFormat format_of(const std::string& path) {
+  auto ends = [&path](const char* suffix) {
+    const std::string s(suffix);
+    return path.size() >= s.size() && path.compare(path.size() - s.size(), s.size(), s) == 0;
+  };
+  if (ends(".nii.gz")) return v1::FILE_FORMAT_NIFTI_GZ;
+  if (ends(".nii")) return v1::FILE_FORMAT_NIFTI;
+  if (ends(".nrrd")) return v1::FILE_FORMAT_NRRD;
+  if (ends(".mha")) return v1::FILE_FORMAT_MHA;
+  return v1::FILE_FORMAT_UNSPECIFIED;
+}
+
+Result<std::string> upload(v1::Posewarp::Stub& stub, const std::string& path, v1::VolumeKind kind,
+                           const std::string& server) {
+  const v1::FileFormat format = format_of(path);
+  if (format == v1::FILE_FORMAT_UNSPECIFIED) {
+    return invalid_argument_error("'" + path + "': the server takes .nii.gz, .nii, .nrrd or .mha files (convert "
+                                  "others with `posewarp convert`)");
+  }
+  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, read_text_input(path, "volume", int64_t{8} << 30));
+  grpc::ClientContext context;
+  v1::Volume volume;
+  auto writer = stub.UploadVolume(&context, &volume);
+  v1::UploadVolumeRequest part;
+  part.mutable_header()->set_kind(kind);
+  part.mutable_header()->set_format(format);
+  part.mutable_header()->set_size_bytes(bytes.size());
+  part.mutable_header()->set_sha256(sha256_hex(bytes));
+  bool open = writer->Write(part);
+  for (size_t offset = 0; open && offset < bytes.size(); offset += size_t{1} << 20) {
+    v1::UploadVolumeRequest chunk;
+    chunk.set_chunk(bytes.substr(offset, size_t{1} << 20));
+    open = writer->Write(chunk);
+  }
+  writer->WritesDone();
+  const grpc::Status status = writer->Finish();
+  if (!status.ok()) {
+    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+      return unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message());
+    }
+    return Status(static_cast<StatusCode>(status.error_code()), "'" + path + "': " + status.error_message());
+  }
+  say("uploaded " + path + " as volume " + volume.id().substr(0, 12));
+  return volume.id();
+}
+
+ImageGeometry grid_of(const v1::Grid& grid) {
+  ImageGeometry g;
+  for (int a = 0; a < 3 && a < grid.size_size(); ++a) {
+    g.size[static_cast<size_t>(a)] = grid.size(a);
+    g.spacing[static_cast<size_t>(a)] = grid.spacing(a);
+    g.origin[static_cast<size_t>(a)] = grid.origin(a);
+  }
+  for (int e = 0; e < 9 && e < grid.direction_size(); ++e) g.direction[static_cast<size_t>(e)] = grid.direction(e);
+  return g;
+}
+
+PixelType pixel_type_named(const std::string& name, PixelType fallback) {
+  for (int t = 0; t <= static_cast<int>(PixelType::kFloat64); ++t) {
+    if (pixel_type_name(static_cast<PixelType>(t)) == name) return static_cast<PixelType>(t);
+  }
+  return fallback;
+}
+
+}  // namespace
+
+int run_build_remote(const RemoteBuild& o) {
+  auto stub = connect(o.server);
+  v1::BuildRigRequest request;
+  Result<std::string> labels = upload(*stub, o.labels_path, v1::VOLUME_KIND_LABELS, o.server);
+  if (!labels.ok()) return report(labels.status());
+  request.set_labels_volume_id(*labels);
+  if (!o.ct_path.empty()) {
+    Result<std::string> ct = upload(*stub, o.ct_path, v1::VOLUME_KIND_INTENSITY, o.server);
+    if (!ct.ok()) return report(ct.status());
+    request.set_ct_volume_id(*ct);
+  }
+  if (!o.label_map_path.empty()) {
+    Result<std::string> map = read_text_input(o.label_map_path, "label map");
+    if (!map.ok()) return report(map.status());
+    request.set_label_map_json(*map);
+  }
+  request.set_preset(o.preset);
+  if (!o.spec_path.empty()) {
+    Result<std::string> spec = read_text_input(o.spec_path, "rig spec");
+    if (!spec.ok()) return report(spec.status());
+    request.set_rig_spec_json(*spec);
+  }
+  request.set_name(o.name.empty() ? fs::path(o.labels_path).filename().string() : o.name);
+  v1::Operation operation;
+  {
+    grpc::ClientContext context;
+    if (grpc::Status s = stub->BuildRig(&context, request, &operation); !s.ok()) return report_rpc(s, o.server);
+  }
+  // Progress as the local build shows it, from the operation's stream.
+  const ProgressHooks bar = progress_bar();
+  grpc::ClientContext context;
+  v1::GetOperationRequest watch;
+  watch.set_operation_id(operation.id());
+  auto reader = stub->WatchOperation(&context, watch);
+  v1::Operation state;
+  while (reader->Read(&state)) {
+    operation = state;
+    if (bar.on_progress && !state.stage().empty()) bar.on_progress(state.stage(), state.stage_fraction());
+  }
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.server);
+  if (operation.state() != v1::Operation::SUCCEEDED) {
+    return report(Status(static_cast<StatusCode>(operation.error_code() == 0 ? 2 : operation.error_code()),
+                         "the build failed on the server: " + operation.error_message()));
+  }
+  say("rig " + operation.rig_id() + " built on " + o.server + " in " + std::to_string(operation.elapsed_s()) + " s");
+  std::printf("%s\n", operation.rig_id().c_str());
+  return 0;
+}
+
+int run_list_remote(const std::string& server) {
+  auto stub = connect(server);
+  v1::ListRigsRequest request;
+  request.set_page_size(1000);
+  for (;;) {
+    grpc::ClientContext context;
+    v1::ListRigsResponse page;
+    if (grpc::Status s = stub->ListRigs(&context, request, &page); !s.ok()) return report_rpc(s, server);
+    for (const v1::Rig& rig : page.rigs()) {
+      std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
+                  static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
+    }
+    if (page.next_page_token().empty()) return 0;
+    request.set_page_token(page.next_page_token());
+  }
+}
+
+int run_pose_remote(const RemotePose& o) {
+  if (!is_hex_id(o.rig_id)) {
+    return report(invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
+                                         "--server` or `posewarp rig list --server`), not '" + o.rig_id + "'"));
+  }
+  if (Status s = refuse_overwriting_inputs({o.labels_out, o.ct_out, o.report_out}, {o.pose_path}); !s.ok()) {
+    return report(s);
+  }
+  if (Status s = check_output_files({o.labels_out, o.ct_out, o.report_out}); !s.ok()) return report(s);
+  Result<std::string> pose = read_text_input(o.pose_path, "pose");
+  if (!pose.ok()) return report(pose.status());
+  if (Result<pose::Pose> parsed = api::pose_from_json(*pose, "'" + o.pose_path + "'"); !parsed.ok()) {
+    return report(parsed.status());
+  }
+  v1::PoseRequest request;
+  request.set_rig_id(o.rig_id);
+  request.set_pose_json(*pose);
+  request.set_method(o.method == "dqs" ? v1::METHOD_DQS : o.method == "lbs" ? v1::METHOD_LBS : v1::METHOD_COR);
+  request.set_grid(o.grid == "grow" ? v1::GRID_POLICY_GROW : v1::GRID_POLICY_INPUT);
+  request.set_want_labels(!o.labels_out.empty() || !o.report_out.empty());
+  request.set_want_ct(!o.ct_out.empty());
+  request.set_want_surfaces(!o.surfaces_out.empty());
+  request.set_max_output_bytes(static_cast<uint64_t>(o.max_output_mb) << 20);
+  auto stub = connect(o.server);
+  grpc::ClientContext context;
+  auto reader = stub->Pose(&context, request);
+  v1::PoseResponse part;
+  ImageGeometry grid;
+  v1::PoseHeader header;
+  std::string labels, ct, report_json;
+  std::vector<surface::SurfaceMesh> surfaces;
+  while (reader->Read(&part)) {
+    if (part.has_header()) {
+      header = part.header();
+      grid = grid_of(header.grid());
+      labels.reserve(header.label_bytes());
+      ct.reserve(header.ct_bytes());
+    } else if (part.has_labels()) {
+      labels += part.labels().data();
+    } else if (part.has_ct()) {
+      ct += part.ct().data();
+    } else if (part.has_surface()) {
+      const v1::Surface& s = part.surface();
+      surface::SurfaceMesh mesh;
+      mesh.name = s.name();
+      mesh.label = s.label();
+      mesh.vertices.resize(s.vertices_size() / 3, 3);
+      for (int i = 0; i < s.vertices_size(); ++i) mesh.vertices(i / 3, i % 3) = s.vertices(i);
+      mesh.triangles.resize(s.triangles_size() / 3, 3);
+      for (int i = 0; i < s.triangles_size(); ++i) mesh.triangles(i / 3, i % 3) = s.triangles(i);
+      surfaces.push_back(std::move(mesh));
+    } else if (part.has_report()) {
+      report_json = part.report().json();
+      for (const std::string& warning : part.report().warnings()) say("warning: " + warning);
+    }
+  }
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.server);
+  if (labels.size() != header.label_bytes() || ct.size() != header.ct_bytes()) {
+    return report(data_loss_error("the server's answer ended early (labels " + std::to_string(labels.size()) + " of " +
+                                  std::to_string(header.label_bytes()) + " bytes); run the pose again"));
+  }
+  if (!o.labels_out.empty()) {
+    LabelVolume volume(grid);
+    std::memcpy(volume.data(), labels.data(), labels.size());
+    volume.set_source_type(pixel_type_named(header.label_pixel_type(), PixelType::kInt32));
+    if (Status s = api::write_volume(volume, o.labels_out); !s.ok()) return report(s);
+    say("wrote " + o.labels_out);
+  }
+  if (!o.ct_out.empty() && !ct.empty()) {
+    IntensityVolume volume(grid);
+    std::memcpy(volume.data(), ct.data(), ct.size());
+    volume.set_source_type(pixel_type_named(header.ct_pixel_type(), PixelType::kFloat32));
+    if (Status s = api::write_volume(volume, o.ct_out); !s.ok()) return report(s);
+    say("wrote " + o.ct_out);
+  }
+  if (!o.report_out.empty()) {
+    if (Status s = write_file_atomically(o.report_out, report_json, "report"); !s.ok()) return report(s);
+    say("wrote " + o.report_out);
+  }
+  if (!o.surfaces_out.empty()) {
+    std::error_code ec;
+    fs::create_directories(o.surfaces_out, ec);
+    for (const surface::SurfaceMesh& s : surfaces) {
+      if (Status w = api::write_surface(s, (fs::path(o.surfaces_out) / (s.name + "." + o.surface_format)).string());
+          !w.ok()) {
+        return report(w);
+      }
+    }
+    say("wrote " + std::to_string(surfaces.size()) + " surfaces to " + o.surfaces_out);
+  }
+  return 0;
+}
+
+}  // namespace posewarp::cli
