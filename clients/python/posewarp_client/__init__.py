@@ -1,0 +1,180 @@
+"""posewarp_client: upload a study, build its rig and pose it on a posewarp-server, with numpy arrays back.
+
+    from posewarp_client import Client
+    client = Client("127.0.0.1:50051")
+    labels = client.upload("seg.nii.gz", kind="labels")
+    ct = client.upload("ct.nii.gz", kind="intensity")
+    rig = client.build_rig(labels, ct, preset="totalsegmentator", progress=print)
+    posed = client.pose(rig, {"joints": {"hip_left": {"angles_deg": [30, 0, 0]}}}, method="cor")
+    posed.labels, posed.ct, posed.affine, posed.report      # numpy (x, y, z) arrays, RAS affine, dict
+
+Stubs come from the build (build/clients/python/generated on PYTHONPATH); runtime: Debian's python3-grpcio,
+python3-protobuf and python3-numpy (python3-nibabel to upload arrays).
+"""
+import hashlib
+import json
+import os
+
+import grpc
+import numpy as np
+
+from posewarp.v1 import posewarp_pb2 as pb
+from posewarp.v1 import posewarp_pb2_grpc as rpc
+
+__all__ = ["Client", "PoseResult", "PosewarpError"]
+
+_CHUNK = 1 << 20
+_FORMATS = {".nii.gz": pb.FILE_FORMAT_NIFTI_GZ, ".nii": pb.FILE_FORMAT_NIFTI, ".nrrd": pb.FILE_FORMAT_NRRD,
+            ".mha": pb.FILE_FORMAT_MHA}
+_METHODS = {"cor": pb.METHOD_COR, "dqs": pb.METHOD_DQS, "lbs": pb.METHOD_LBS}
+_DTYPES = {"uint8": np.uint8, "int8": np.int8, "uint16": np.uint16, "int16": np.int16, "uint32": np.uint32,
+           "int32": np.int32, "float32": np.float32, "float64": np.float64}
+
+
+class PosewarpError(RuntimeError):
+    """A call the server refused: .code is the gRPC status code, the message says what to fix."""
+
+    def __init__(self, code, message):
+        super().__init__(f"{code.name}: {message}")
+        self.code = code
+
+
+class PoseResult:
+    """A posed study: labels and ct as (x, y, z) numpy arrays (None when not asked for), the RAS affine of their
+    grid (as nibabel uses it), the posed surfaces as {name: (vertices, triangles)} in LPS mm, and the report."""
+
+    def __init__(self, labels, ct, affine, surfaces, report):
+        self.labels, self.ct, self.affine, self.surfaces, self.report = labels, ct, affine, surfaces, report
+
+
+def _affine(grid):
+    """The NIfTI (RAS) affine of a grid in LPS millimetres."""
+    direction = np.array(grid.direction, dtype=float).reshape(3, 3)
+    lps = np.eye(4)
+    lps[:3, :3] = direction @ np.diag(np.array(grid.spacing, dtype=float))
+    lps[:3, 3] = np.array(grid.origin, dtype=float)
+    return np.diag([-1.0, -1.0, 1.0, 1.0]) @ lps
+
+
+def _volume(data, grid, stored, as_type=None):
+    """Voxels sent x fastest as an (x, y, z) array, optionally in the study's own type (labels: exact)."""
+    size = tuple(grid.size)
+    array = np.frombuffer(data, dtype=stored).reshape(size[2], size[1], size[0]).transpose(2, 1, 0)
+    return array.astype(_DTYPES[as_type]) if as_type in _DTYPES else array
+
+
+class Client:
+    def __init__(self, address, timeout_s=600.0):
+        self._channel = grpc.insecure_channel(address, options=[("grpc.max_receive_message_length", 64 << 20)])
+        self._stub = rpc.PosewarpStub(self._channel)
+        self._timeout = timeout_s
+
+    def close(self):
+        self._channel.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _call(self, method, request):
+        try:
+            return method(request, timeout=self._timeout)
+        except grpc.RpcError as error:
+            raise PosewarpError(error.code(), error.details()) from None
+
+    def upload(self, path=None, kind="labels", array=None, affine=None):
+        """Uploads a volume file (.nii.gz, .nii, .nrrd, .mha), or a numpy array with its RAS affine (written as
+        NIfTI with nibabel); returns the volume id."""
+        if array is not None:
+            import nibabel  # only needed for arrays
+            image = nibabel.Nifti1Image(np.asarray(array), affine if affine is not None else np.eye(4))
+            data, fmt = image.to_bytes(), pb.FILE_FORMAT_NIFTI
+        else:
+            fmt = next((f for ext, f in _FORMATS.items() if str(path).endswith(ext)), None)
+            if fmt is None:
+                raise ValueError(f"{path}: the server takes .nii.gz, .nii, .nrrd or .mha files")
+            with open(path, "rb") as f:
+                data = f.read()
+        header = pb.UploadVolumeHeader(
+            kind=pb.VOLUME_KIND_LABELS if kind == "labels" else pb.VOLUME_KIND_INTENSITY, format=fmt,
+            size_bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+
+        def parts():
+            yield pb.UploadVolumeRequest(header=header)
+            for offset in range(0, len(data), _CHUNK):
+                yield pb.UploadVolumeRequest(chunk=data[offset:offset + _CHUNK])
+
+        return self._call(self._stub.UploadVolume, parts()).id
+
+    def build_rig(self, labels_id, ct_id="", preset="", label_map=None, rig_spec=None, name="", progress=None):
+        """Builds (or finds) the rig of uploaded volumes; progress(stage, fraction) is called as it runs. Returns
+        the rig id; raises PosewarpError when the build fails."""
+        request = pb.BuildRigRequest(labels_volume_id=labels_id, ct_volume_id=ct_id or "", preset=preset, name=name,
+                                     label_map_json=_json_text(label_map), rig_spec_json=_json_text(rig_spec))
+        operation = self._call(self._stub.BuildRig, request)
+        try:
+            for state in self._stub.WatchOperation(pb.GetOperationRequest(operation_id=operation.id),
+                                                   timeout=self._timeout):
+                operation = state
+                if progress and state.stage:
+                    progress(state.stage, state.stage_fraction)
+        except grpc.RpcError as error:
+            raise PosewarpError(error.code(), error.details()) from None
+        if operation.state != pb.Operation.SUCCEEDED:
+            raise PosewarpError(grpc.StatusCode.UNKNOWN if not operation.error_code else
+                                _code(operation.error_code), operation.error_message or "the build did not succeed")
+        return operation.rig_id
+
+    def rigs(self):
+        """[(id, name, size_bytes, created)] of the rigs the server holds."""
+        found, token = [], ""
+        while True:
+            page = self._call(self._stub.ListRigs, pb.ListRigsRequest(page_size=1000, page_token=token))
+            found += [(r.id, r.name, r.size_bytes, r.created) for r in page.rigs]
+            token = page.next_page_token
+            if not token:
+                return found
+
+    def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False):
+        """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one)."""
+        if isinstance(pose, (str, os.PathLike)) and os.path.exists(pose):
+            with open(pose) as f:
+                pose = json.load(f)
+        request = pb.PoseRequest(rig_id=rig_id, pose_json=_json_text(pose), method=_METHODS[method],
+                                 grid=pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
+                                 want_labels=labels, want_ct=ct, want_surfaces=surfaces)
+        header, label_bytes, ct_bytes, meshes, report = None, bytearray(), bytearray(), {}, {}
+        try:
+            for part in self._stub.Pose(request, timeout=self._timeout):
+                kind = part.WhichOneof("part")
+                if kind == "header":
+                    header = part.header
+                elif kind == "labels":
+                    label_bytes += part.labels.data
+                elif kind == "ct":
+                    ct_bytes += part.ct.data
+                elif kind == "surface":
+                    meshes[part.surface.name] = (np.array(part.surface.vertices).reshape(-1, 3),
+                                                 np.array(part.surface.triangles, dtype=np.int32).reshape(-1, 3))
+                elif kind == "report":
+                    report = json.loads(part.report.json)
+        except grpc.RpcError as error:
+            raise PosewarpError(error.code(), error.details()) from None
+        if header is None or len(label_bytes) != header.label_bytes or len(ct_bytes) != header.ct_bytes:
+            raise PosewarpError(grpc.StatusCode.DATA_LOSS, "the server's answer ended early; pose again")
+        return PoseResult(
+            _volume(bytes(label_bytes), header.grid, np.int32, header.label_pixel_type) if label_bytes else None,
+            _volume(bytes(ct_bytes), header.grid, np.float32) if ct_bytes else None,
+            _affine(header.grid), meshes, report)
+
+
+def _json_text(value):
+    if value is None:
+        return ""
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def _code(number):
+    return next((c for c in grpc.StatusCode if c.value[0] == number), grpc.StatusCode.UNKNOWN)

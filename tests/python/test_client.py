@@ -1,0 +1,77 @@
+"""posewarp_client against the real posewarp-server: upload, build and pose the bar phantom and compare with the
+CLI's local pose of the same stored rig. Paths come from the environment (set by CTest): POSEWARP_SERVER,
+POSEWARP_CLI, POSEWARP_SOURCE_DIR."""
+import json
+import os
+import re
+import subprocess
+
+import grpc
+import nibabel
+import numpy as np
+import pytest
+
+from posewarp_client import Client, PosewarpError
+
+SERVER = os.environ["POSEWARP_SERVER"]
+CLI = os.environ["POSEWARP_CLI"]
+POSE = os.path.join(os.environ["POSEWARP_SOURCE_DIR"], "data", "poses", "bar_bend_90.json")
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    work = tmp_path_factory.mktemp("posewarp")
+    subprocess.run([CLI, "--quiet", "phantom", "bar", "-o", str(work / "bar")], check=True)
+    server = subprocess.Popen([SERVER, "--listen", "127.0.0.1:0", "--store", str(work / "store")],
+                              stdout=subprocess.PIPE, text=True)
+    port = re.search(r":(\d+), store", server.stdout.readline()).group(1)
+    with Client(f"127.0.0.1:{port}") as client:
+        yield work, client
+    server.terminate()
+    assert server.wait(timeout=60) == 0
+
+
+def test_upload_build_and_pose_give_what_the_cli_writes(study):
+    work, client = study
+    labels = client.upload(work / "bar" / "labels.nii.gz", kind="labels")
+    ct = client.upload(work / "bar" / "ct.nii.gz", kind="intensity")
+    assert re.fullmatch(r"[0-9a-f]{64}", labels)
+    stages = []
+    with open(work / "bar" / "label_map.json") as f:
+        label_map = json.load(f)
+    rig = client.build_rig(labels, ct, label_map=label_map, name="bar", progress=lambda s, f: stages.append(s))
+    assert {"skeleton", "mesh", "weights"} <= set(stages)
+    assert (rig, "bar") in [(r[0], r[1]) for r in client.rigs()]
+
+    posed = client.pose(rig, POSE, method="dqs", surfaces=True)
+    subprocess.run([CLI, "--quiet", "pose", str(work / "store" / "rigs" / f"{rig}.rig"), "--pose", POSE, "--method",
+                    "dqs", "--labels-out", str(work / "cli_labels.nii.gz"), "--ct-out", str(work / "cli_ct.nii.gz")],
+                   check=True)
+    cli_labels = nibabel.load(str(work / "cli_labels.nii.gz"))
+    assert posed.labels.dtype == cli_labels.get_data_dtype()
+    np.testing.assert_array_equal(posed.labels, np.asarray(cli_labels.dataobj))
+    np.testing.assert_allclose(posed.affine, cli_labels.affine, atol=1e-4)
+    cli_ct = np.asarray(nibabel.load(str(work / "cli_ct.nii.gz")).dataobj, dtype=np.float32)
+    np.testing.assert_allclose(posed.ct, cli_ct, atol=0.51)  # the file rounds to the study's integer type
+    assert posed.report["method"] == "dqs"
+    assert len(posed.surfaces) > 0
+
+
+def test_refusals_carry_their_codes(study):
+    _, client = study
+    with pytest.raises(PosewarpError) as unknown:
+        client.pose("0" * 64, {"joints": {}})
+    assert unknown.value.code == grpc.StatusCode.NOT_FOUND
+    with pytest.raises(PosewarpError) as bad_id:
+        client.pose("../etc/passwd", {"joints": {}})
+    assert bad_id.value.code == grpc.StatusCode.INVALID_ARGUMENT
+
+
+def test_an_array_uploads_with_its_affine(study):
+    _, client = study
+    array = np.zeros((8, 7, 6), dtype=np.uint8)
+    array[2:5, 2:5, 2:4] = 1
+    affine = np.diag([1.5, 1.5, 2.5, 1.0])
+    volume_id = client.upload(array=array, affine=affine, kind="labels")
+    assert re.fullmatch(r"[0-9a-f]{64}", volume_id)
+    assert client.upload(array=array, affine=affine, kind="labels") == volume_id  # stored once
