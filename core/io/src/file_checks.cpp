@@ -374,7 +374,8 @@ Status check_metaimage_header(const std::string& path) {
     std::string value = line.substr(eq + 1);
     value.erase(0, value.find_first_not_of(" \t"));
     value.erase(value.find_last_not_of(" \t") + 1);
-    fields[key] = value;
+    // MetaIO acts on the first of two equal keys, a map on the last: one of each only (found by fuzzing).
+    if (!fields.emplace(key, value).second) return corrupt("has the key " + key + " twice");
     if (key == "ElementDataFile") {
       ended = true;
       break;
@@ -415,6 +416,9 @@ Status check_metaimage_header(const std::string& path) {
   }
   for (const char* key : {"HeaderSize", "CompressedDataSize", "ElementNumberOfChannels"}) {
     if (fields.count(key) && !numbers(fields[key], 1, true)) return corrupt("needs " + std::string(key) + " as a number");
+  }
+  if (fields.count("ElementNumberOfChannels") && std::abs(std::atof(fields["ElementNumberOfChannels"].c_str())) > 16) {
+    return corrupt("declares more than 16 channels per voxel");
   }
   return ok_status();
 }
