@@ -4,6 +4,9 @@
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
+#include <optional>
+#include <thread>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 
@@ -535,6 +538,116 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   for (const std::string& w : result->report.warnings) report->add_warnings(w);
   writer->Write(last);
   return grpc::Status::OK;
+}
+
+grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
+                                      grpc::ServerReaderWriter<v1::PreviewResponse, v1::PreviewRequest>* stream) {
+  // A reader thread keeps only the newest update; this thread answers whatever is newest when it is free.
+  std::mutex mutex;
+  std::condition_variable arrived;
+  std::optional<v1::PreviewRequest> latest;
+  uint64_t skipped = 0;
+  bool closed = false;
+  std::string rig_id;
+  std::thread reader([&] {
+    v1::PreviewRequest update;
+    while (stream->Read(&update)) {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (rig_id.empty()) rig_id = update.rig_id();
+      if (latest) ++skipped;
+      latest = std::move(update);
+      arrived.notify_one();
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    closed = true;
+    arrived.notify_one();
+  });
+  // On an early return (an error) the client may still be sending: cancel the call so the reader's Read ends.
+  struct Join {
+    std::thread& thread;
+    grpc::ServerContext* context;
+    std::mutex& mutex;
+    bool& closed;
+    ~Join() {
+      bool reading = false;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        reading = !closed;
+      }
+      if (reading) context->TryCancel();
+      thread.join();
+    }
+  } join{reader, context, mutex, closed};
+
+  std::shared_ptr<const api::PoseEngine> engine;
+  bool topology_sent = false;
+  for (;;) {
+    v1::PreviewRequest update;
+    uint64_t dropped = 0;
+    {
+      std::unique_lock<std::mutex> lock(mutex);
+      arrived.wait(lock, [&] { return latest.has_value() || closed; });
+      if (!latest) return grpc::Status::OK;  // the client closed and everything was answered
+      update = std::move(*latest);
+      latest.reset();
+      dropped = std::exchange(skipped, 0);
+      if (update.rig_id().empty()) update.set_rig_id(rig_id);
+    }
+    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the preview"};
+    // A refused update is answered with its code; the stream goes on (a slider's next move may be fine).
+    auto refuse = [&](const grpc::Status& status) {
+      v1::PreviewResponse answer;
+      answer.set_sequence(update.sequence());
+      answer.set_dropped(dropped);
+      answer.set_error_code(static_cast<int32_t>(status.error_code()));
+      answer.set_error_message(status.error_message());
+      return stream->Write(answer);
+    };
+    if (!engine) {
+      Result<std::shared_ptr<const api::PoseEngine>> loaded =
+          is_hex_id(update.rig_id()) ? this->engine(update.rig_id())
+                                     : Result<std::shared_ptr<const api::PoseEngine>>(invalid_argument_error(
+                                           "the first preview update names the rig (64 hex digits)"));
+      if (!loaded.ok()) {
+        if (!refuse(to_grpc(loaded.status()))) return {grpc::StatusCode::CANCELLED, "the client went away"};
+        continue;
+      }
+      engine = *loaded;
+    }
+    const auto start = std::chrono::steady_clock::now();
+    Result<pose::Pose> pose = pose::pose_from_json(update.pose_json(), "in preview update " +
+                                                                          std::to_string(update.sequence()));
+    Result<api::PreviewResult> preview =
+        pose.ok() ? engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());
+    if (!preview.ok()) {
+      if (!refuse(to_grpc(preview.status()))) return {grpc::StatusCode::CANCELLED, "the client went away"};
+      continue;
+    }
+    v1::PreviewResponse answer;
+    answer.set_sequence(update.sequence());
+    answer.set_dropped(dropped);
+    const std::vector<surface::SurfaceMesh>& rest = engine->rig().surfaces;
+    for (size_t i = 0; i < preview->surface_vertices.size(); ++i) {
+      v1::SurfacePositions* positions = answer.add_surfaces();
+      positions->set_name(rest[i].name);
+      const Eigen::MatrixXd& v = preview->surface_vertices[i];
+      positions->mutable_vertices()->Reserve(static_cast<int>(v.size()));
+      for (Eigen::Index r = 0; r < v.rows(); ++r) {
+        for (int a = 0; a < 3; ++a) positions->add_vertices(static_cast<float>(v(r, a)));
+      }
+      if (!topology_sent) {
+        v1::Surface* topology = answer.add_topology();
+        topology->set_name(rest[i].name);
+        topology->set_label(rest[i].label);
+        for (Eigen::Index t = 0; t < rest[i].triangles.rows(); ++t) {
+          for (int a = 0; a < 3; ++a) topology->add_triangles(rest[i].triangles(t, a));
+        }
+      }
+    }
+    topology_sent = true;
+    answer.set_server_ms(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    if (!stream->Write(answer)) return {grpc::StatusCode::CANCELLED, "the client went away"};
+  }
 }
 
 }  // namespace posewarp::server

@@ -52,6 +52,8 @@ class PosewarpService final : public v1::Posewarp::Service {
                         v1::ListRigsResponse* response) override;
   grpc::Status Pose(grpc::ServerContext* context, const v1::PoseRequest* request,
                     grpc::ServerWriter<v1::PoseResponse>* writer) override;
+  grpc::Status Preview(grpc::ServerContext* context,
+                       grpc::ServerReaderWriter<v1::PreviewResponse, v1::PreviewRequest>* stream) override;
 
   // Cancels queued and running builds (marked CANCELLED) and stops the build worker; poses in flight finish.
   void shutdown();

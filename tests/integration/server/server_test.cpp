@@ -337,6 +337,70 @@ TEST_F(Server, RemoteAndLocalCommandsWriteTheSameFiles) {
   EXPECT_EQ(run({POSEWARP_CLI, "rig", "list", "--server", "127.0.0.1:1"}) >> 8, 1);
 }
 
+// The preview stream flooded with 10,000 updates: the latest wins (the last update is answered, the skipped ones
+// are counted), the topology comes once, and the server keeps serving.
+TEST_F(Server, APreviewFloodedWithUpdatesAnswersTheLatest) {
+  const std::string rig_id = bar_rig_id();
+  grpc::ClientContext context;
+  auto stream = stub_->Preview(&context);
+  constexpr uint64_t kUpdates = 10000;
+  std::thread writer([&] {
+    for (uint64_t i = 1; i <= kUpdates; ++i) {
+      v1::PreviewRequest update;
+      if (i == 1) update.set_rig_id(rig_id);
+      update.set_sequence(i);
+      update.set_pose_json("{\"joints\": {\"joint_2_3\": {\"axis_angle\": {\"axis\": [1, 0, 0], \"degrees\": " +
+                           std::to_string(static_cast<double>(i % 90)) + "}}}}");
+      if (!stream->Write(update)) break;
+    }
+    stream->WritesDone();
+  });
+  v1::PreviewResponse answer;
+  uint64_t answers = 0, dropped = 0, last = 0;
+  int topology = 0;
+  size_t surfaces = 0;
+  while (stream->Read(&answer)) {
+    ++answers;
+    dropped += answer.dropped();
+    EXPECT_GT(answer.sequence(), last);
+    last = answer.sequence();
+    topology += answer.topology_size();
+    surfaces = static_cast<size_t>(answer.surfaces_size());
+  }
+  writer.join();
+  const grpc::Status status = stream->Finish();
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  EXPECT_EQ(last, kUpdates);                 // the newest update is always answered
+  EXPECT_EQ(answers + dropped, kUpdates);    // every update answered or counted as skipped
+  EXPECT_GT(dropped, 0u);                    // the flood outran the server
+  EXPECT_EQ(topology, static_cast<int>(surfaces));  // topology once per surface
+  EXPECT_GT(surfaces, 0u);
+  // A bad update is answered with its code and the stream goes on; the server still serves.
+  grpc::ClientContext bad_context;
+  auto bad = stub_->Preview(&bad_context);
+  v1::PreviewRequest update;
+  update.set_rig_id(rig_id);
+  update.set_sequence(1);
+  update.set_pose_json("{\"joints\": {\"nobody\": {\"axis_angle\": {\"axis\": [1, 0, 0], \"degrees\": 5}}}}");
+  ASSERT_TRUE(bad->Write(update));
+  ASSERT_TRUE(bad->Read(&answer));
+  EXPECT_EQ(answer.error_code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT));
+  EXPECT_NE(answer.error_message().find("nobody"), std::string::npos) << answer.error_message();
+  update.set_sequence(2);
+  update.set_pose_json("{\"joints\": {}}");
+  ASSERT_TRUE(bad->Write(update));
+  ASSERT_TRUE(bad->Read(&answer));
+  EXPECT_EQ(answer.error_code(), 0);
+  EXPECT_EQ(answer.sequence(), 2u);
+  bad->WritesDone();
+  while (bad->Read(&answer)) {
+  }
+  EXPECT_TRUE(bad->Finish().ok());
+  v1::ListRigsResponse listed;
+  grpc::ClientContext list_context;
+  EXPECT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());
+}
+
 // Runs last in this binary (gtest runs tests in order): SIGTERM stops the server with exit 0.
 TEST_F(Server, ZzSigtermStopsTheServerCleanly) {
   EXPECT_EQ(server_->stop(), 0);
