@@ -155,6 +155,22 @@ Result<std::optional<bool>> nifti1_byte_order(const unsigned char (&header)[348]
                                 " (NIfTI-1's is 348); the header is corrupt or the file is not NIfTI");
 }
 
+// A detached data file named in a header: `inline_word` (LOCAL) or a plain file name (no directory part, not "." or
+// "..") of a regular file beside the header.
+Status check_data_file_name(const std::string& path, const std::string& name, const char* field,
+                            const char* inline_word) {
+  if (name == inline_word) return ok_status();
+  const bool plain = !name.empty() && name != "." && name != ".." && name.find('/') == std::string::npos &&
+                     name.find('\\') == std::string::npos;
+  std::error_code ec;
+  if (!plain || !fs::is_regular_file(fs::path(path).parent_path() / name, ec)) {
+    return invalid_argument_error(in_quotes(path) + " names its voxel data '" + name.substr(0, 80) + "' (" + field +
+                                  "); posewarp reads the data inline or from one file beside the header, named "
+                                  "without a directory");
+  }
+  return ok_status();
+}
+
 }  // namespace
 
 Status check_nifti_file(const std::string& path) {
@@ -318,6 +334,7 @@ Status check_nrrd_file(const std::string& path) {
       return invalid_argument_error(in_quotes(path) + " names its voxel data as a list of files (data file); posewarp " +
                                     "reads NRRD with its data inline (.nrrd) or in one file beside the header (.nhdr)");
     }
+    POSEWARP_RETURN_IF_ERROR(check_data_file_name(path, detached, "data file", ""));
     data_path = (fs::path(path).parent_path() / detached).string();
     offset = 0;
   }
@@ -420,6 +437,10 @@ Status check_metaimage_header(const std::string& path) {
   if (fields.count("ElementNumberOfChannels") && std::abs(std::atof(fields["ElementNumberOfChannels"].c_str())) > 16) {
     return corrupt("declares more than 16 channels per voxel");
   }
+  // The data is inline (.mha) or one plain file beside the header (.mhd): never a path elsewhere, which MetaIO
+  // would read as voxels (a directory made it allocate without bound; an uploaded header could name any file on the
+  // server).
+  POSEWARP_RETURN_IF_ERROR(check_data_file_name(path, fields["ElementDataFile"], "ElementDataFile", "LOCAL"));
   return ok_status();
 }
 

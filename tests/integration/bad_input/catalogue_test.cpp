@@ -172,12 +172,26 @@ TEST_F(Catalogue, Volumes) {
   check({"file_list.mha",
          "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
          "ElementDataFile = slice%03d.raw 1 4 1\n",
-         build, kBadInput, "list of files"});
+         build, kBadInput, "names its voxel data"});
   // Hang: ITK's MetaIO looped forever on a negative NDims (found by fuzzing).
   check({"negative_ndims.mha",
          "ObjectType = Image\nNDims = -3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
          "ElementDataFile = LOCAL\n" + std::string(120, '\0'),
          info, kBadInput, "NDims"});
+  // A header naming a file elsewhere as its voxels (an upload could read any file on a server as a volume), and a
+  // directory as its data (MetaIO allocated without bound: found by fuzzing).
+  check({"elsewhere.mha",
+         "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
+         "ElementDataFile = /etc/passwd\n",
+         build, kBadInput, "without a directory"});
+  check({"directory.mhd",
+         "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = 6 5 4\nElementType = MET_UCHAR\n"
+         "ElementDataFile = ..\n",
+         build, kBadInput, "without a directory"});
+  check({"elsewhere.nhdr",
+         "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 6 5 4\nspacings: 1 1 1\nencoding: raw\n"
+         "data file: /etc/passwd\n",
+         build, kBadInput, "without a directory"});
   // Not a volume at all.
   check({"not_a_volume.nii.gz", "this is text, not a gzip stream", info, kBadInput, "not_a_volume.nii.gz"});
 }
