@@ -92,6 +92,28 @@ Result<std::string> file_bytes(const std::string& path) {
   return read_text_input(path, "mesh", kMaxMeshBytes);
 }
 
+// The counts a VTP file declares (NumberOfPoints, NumberOfComponents, NumberOfPolys, ...) must be plain whole numbers
+// of sane size before VTK's XML reader sees them: it looped without end on NumberOfComponents="\n" (found by
+// fuzzing) and allocates whatever a count says.
+Status check_vtp_counts(const std::string& bytes, const std::string& path) {
+  for (size_t at = bytes.find("NumberOf"); at != std::string::npos; at = bytes.find("NumberOf", at + 8)) {
+    const size_t eq = bytes.find('=', at);
+    const size_t open = eq == std::string::npos ? eq : bytes.find_first_not_of(" \t", eq + 1);
+    if (open == std::string::npos || (bytes[open] != '"' && bytes[open] != '\'')) continue;  // text, not an attribute
+    const size_t close = bytes.find(bytes[open], open + 1);
+    const std::string value = bytes.substr(open + 1, close == std::string::npos ? 0 : close - open - 1);
+    const bool components = bytes.compare(at, 18, "NumberOfComponents") == 0;
+    const bool whole = !value.empty() && value.size() <= 10 &&
+                       std::all_of(value.begin(), value.end(), [](char c) { return c >= '0' && c <= '9'; });
+    if (!whole || std::stoll(value) > (components ? 16LL : 100'000'000LL)) {
+      return invalid_argument_error("cannot read mesh " + quoted(path) + ": it declares " +
+                                    bytes.substr(at, std::min<size_t>(eq - at, 40)) + "=\"" + value.substr(0, 20) +
+                                    "\", which is not a whole number of sane size (the file is damaged)");
+    }
+  }
+  return ok_status();
+}
+
 // VTP goes through VTK's reader, which survives damaged files; OBJ, PLY and STL through posewarp's own, because
 // VTK 9.1's crash or allocate without bound on some damaged files (see obj_reader.h, ply_reader.h, stl_reader.h).
 Result<SurfaceMesh> read_by_format(const std::string& path, MeshFormat format) {
@@ -109,6 +131,8 @@ Result<SurfaceMesh> read_by_format(const std::string& path, MeshFormat format) {
       return detail::parse_ply(bytes, path);
     }
     case MeshFormat::kVtp: {
+      POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, file_bytes(path));
+      POSEWARP_RETURN_IF_ERROR(check_vtp_counts(bytes, path));
       detail::install_quiet_vtk_output();
       vtkNew<vtkXMLPolyDataReader> reader;
       return run_reader(reader.GetPointer(), path, format);
