@@ -84,6 +84,7 @@ class Reader {
     if (offset_ + size > bytes_.size()) {
       return data_loss_error("rig section " + section_ + " ends early; the file is damaged");
     }
+    if (size == 0) return ok_status();  // an empty array has no storage: memcpy(nullptr, ..., 0) is undefined
     std::memcpy(out, bytes_.data() + offset_, size);
     offset_ += size;
     return ok_status();
