@@ -131,5 +131,7 @@ int main(int argc, char** argv) {
   service.shutdown();  // builds are cancelled and marked; new requests are refused
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(grace_s * 1000.0)));
+  server->Wait();
+  std::fprintf(stderr, "posewarp-server: stopped\n");
   return 0;
 }
