@@ -104,6 +104,12 @@ class Reader {
     POSEWARP_RETURN_IF_ERROR(get(rows));
     POSEWARP_RETURN_IF_ERROR(get(cols));
     // rows * cols * size can overflow for crafted counts: bound each factor by what is left before multiplying.
+    // A matrix with a fixed column count takes exactly that many: Eigen would size the storage by its own count
+    // and the read by the file's (a heap overflow found by fuzzing).
+    if (Matrix::ColsAtCompileTime != Eigen::Dynamic && cols != static_cast<uint64_t>(Matrix::ColsAtCompileTime)) {
+      return data_loss_error("rig section " + section_ + " declares an array of " + std::to_string(cols) +
+                             " columns where " + std::to_string(Matrix::ColsAtCompileTime) + " belong");
+    }
     const uint64_t left = bytes_.size() - offset_;
     const uint64_t element = sizeof(typename Matrix::Scalar);
     const bool fits = cols <= 64 && (cols == 0 || rows <= left / element / cols);

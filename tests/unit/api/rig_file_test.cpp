@@ -181,6 +181,19 @@ TEST(RigFile, AVolumeSectionClaimingAHugeGridIsRefusedBeforeAllocating) {
   EXPECT_NE(status.message().find("compressed bytes"), std::string::npos) << status.to_string();
 }
 
+// A fixed-width array (tets: 4 columns) whose section declares another column count, checksums recomputed: Eigen
+// sized the storage by 4 and the read by the file (a heap overflow found by fuzzing).
+TEST(RigFile, AnArrayDeclaringTheWrongColumnCountIsRefused) {
+  std::string bytes = rig_to_bytes(shared_bar_rig());
+  const size_t at = bytes.find("TETS");
+  ASSERT_NE(at, std::string::npos);
+  const uint64_t cols = 5;
+  std::memcpy(bytes.data() + at + 24 + 8, &cols, 8);  // after the row count
+  const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(bytes), "crafted rig").status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("5 columns where 4 belong"), std::string::npos) << status.to_string();
+}
+
 TEST(RigFile, BytesRoundTripEqualsTheFile) {
   ScratchDir dir;
   const Rig& rig = shared_bar_rig();
