@@ -101,3 +101,20 @@ TEST(PixelType, RangesMatchTheCTypes) {
 
 }  // namespace
 }  // namespace posewarp
+
+namespace posewarp {
+namespace {
+
+// A size whose product overflows int64 (a crafted rig's grid, found by fuzzing) is refused, not multiplied.
+TEST(ImageGeometry, SizesBeyondAnyImageAreRefusedBeforeTheyOverflow) {
+  ImageGeometry g;
+  g.size = {441, int64_t{2089670227099910195}, 3};
+  const Status status = g.validate();
+  EXPECT_EQ(status.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(status.message().find("2^40"), std::string::npos) << status.to_string();
+  g.size = {512, 512, 4000};  // a billion voxels: large, but an image
+  EXPECT_TRUE(g.validate().ok());
+}
+
+}  // namespace
+}  // namespace posewarp
