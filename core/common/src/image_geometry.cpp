@@ -73,12 +73,13 @@ Status ImageGeometry::validate() const {
     }
     if (!std::isfinite(origin[a])) return invalid_argument_error("image origin is not finite (fix the image header)");
   }
-  // voxel_count() multiplies the sizes: a crafted size overflows it (found by fuzzing the rig reader). No image has
-  // 2^40 voxels.
-  constexpr int64_t kMaxVoxels = int64_t{1} << 40;
+  // voxel_count() multiplies the sizes, and callers multiply it by up to 8 bytes: a crafted size overflowed it
+  // (found by fuzzing the rig reader). Below 2^60 voxels every product fits; real limits (a voxel budget, RESOURCE_
+  // EXHAUSTED) are the callers'.
+  constexpr int64_t kMaxVoxels = int64_t{1} << 60;
   if (size[0] > kMaxVoxels / size[1] || size[0] * size[1] > kMaxVoxels / size[2]) {
     return invalid_argument_error("image size " + std::to_string(size[0]) + " x " + std::to_string(size[1]) + " x " +
-                                  std::to_string(size[2]) + " is beyond any image (over 2^40 voxels)");
+                                  std::to_string(size[2]) + " is beyond any image (over 2^60 voxels)");
   }
   // Columns must be orthonormal: D^T D = I.
   for (int c1 = 0; c1 < 3; ++c1) {
