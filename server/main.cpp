@@ -14,7 +14,7 @@
 #include <thread>
 #include <vector>
 
-#include "posewarp/common/input_file.h"
+#include "posewarp/api/files.h"
 #include "service.h"
 
 namespace {
@@ -60,7 +60,7 @@ int main(int argc, char** argv) {
     if (arg == "--config" && i + 1 < argc) path = argv[i + 1];
     if (arg.rfind("--config=", 0) == 0) path = arg.substr(9);
     if (path.empty()) continue;
-    Result<std::string> text = read_text_input(path, "server config");
+    Result<std::string> text = api::read_text_input(path, "server config");
     if (!text.ok()) {
       std::fprintf(stderr, "error: %s\n", text.status().to_string().c_str());
       return 2;

@@ -12,10 +12,6 @@
 
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
-#include "posewarp/common/atomic_file.h"
-#include "posewarp/common/sha256.h"
-#include "posewarp/labels/presets.h"
-#include "posewarp/rig/anatomical_frame.h"
 
 namespace posewarp::server {
 namespace {
@@ -110,7 +106,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   if (header.kind() != v1::VOLUME_KIND_LABELS && header.kind() != v1::VOLUME_KIND_INTENSITY) {
     return {grpc::StatusCode::INVALID_ARGUMENT, "upload kind must be LABELS or INTENSITY"};
   }
-  if (!is_hex_id(header.sha256())) {
+  if (!api::is_hex_id(header.sha256())) {
     return {grpc::StatusCode::INVALID_ARGUMENT, "upload sha256 must be 64 lowercase hex digits"};
   }
   if (header.size_bytes() == 0 || header.size_bytes() > static_cast<uint64_t>(options_.max_upload_bytes)) {
@@ -119,10 +115,10 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   }
   std::string bytes;
   bytes.reserve(header.size_bytes());
-  Sha256 hash;
+  api::Sha256 hash;
   while (reader->Read(&part)) {
     if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the upload"};
-    if (!part.has_chunk() && part.part_case() != v1::UploadVolumeRequest::kChunk) {
+    if (part.part_case() != v1::UploadVolumeRequest::kChunk) {
       return {grpc::StatusCode::INVALID_ARGUMENT, "an upload has one header, then chunks"};
     }
     if (bytes.size() + part.chunk().size() > header.size_bytes()) {
@@ -141,7 +137,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   // The volume is read as posing will read it before it gets its name in the store.
   const std::string kind = header.kind() == v1::VOLUME_KIND_LABELS ? "labels" : "intensity";
   const fs::path staging = fs::path(store_.directory()) / "volumes" / (".staging-" + header.sha256() + extension);
-  if (Status s = write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return to_grpc(s);
+  if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return to_grpc(s);
   Result<ImageGeometry> grid = [&]() -> Result<ImageGeometry> {
     if (kind == "labels") {
       POSEWARP_ASSIGN_OR_RETURN(const LabelVolume labels, api::read_label_volume(staging.string()));
@@ -170,8 +166,8 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
 
 grpc::Status PosewarpService::BuildRig(grpc::ServerContext*, const v1::BuildRigRequest* request,
                                        v1::Operation* response) {
-  if (!is_hex_id(request->labels_volume_id()) ||
-      (!request->ct_volume_id().empty() && !is_hex_id(request->ct_volume_id()))) {
+  if (!api::is_hex_id(request->labels_volume_id()) ||
+      (!request->ct_volume_id().empty() && !api::is_hex_id(request->ct_volume_id()))) {
     return {grpc::StatusCode::INVALID_ARGUMENT, "volume ids are 64 lowercase hex digits (from UploadVolume)"};
   }
   if (Result<StoredVolume> v = store_.volume(request->labels_volume_id()); !v.ok()) return to_grpc(v.status());
@@ -180,7 +176,7 @@ grpc::Status PosewarpService::BuildRig(grpc::ServerContext*, const v1::BuildRigR
   }
   auto job = std::make_shared<Job>();
   job->request = *request;
-  job->operation.set_id(sha256_hex(request->SerializeAsString() +
+  job->operation.set_id(api::sha256_hex(request->SerializeAsString() +
                                    std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()))
                             .substr(0, 32));
   job->operation.set_state(v1::Operation::QUEUED);
@@ -252,13 +248,13 @@ void PosewarpService::run_build(const std::shared_ptr<Job>& job) {
     inputs.ct = std::move(volume).value();
   }
   Result<labels::LabelMap> map = request.label_map_json().empty()
-                                     ? labels::preset_by_name(request.preset().empty() ? "totalsegmentator"
+                                     ? api::preset_by_name(request.preset().empty() ? "totalsegmentator"
                                                                                         : request.preset())
-                                     : labels::label_map_from_json(request.label_map_json(), "in the request");
+                                     : api::label_map_from_json(request.label_map_json(), "in the request");
   if (!map.ok()) return fail(map.status());
   inputs.label_map = std::move(map).value();
   if (!request.rig_spec_json().empty()) {
-    Result<rig::RigSpec> spec = rig::rig_spec_from_json(request.rig_spec_json(), "in the request");
+    Result<rig::RigSpec> spec = api::rig_spec_from_json(request.rig_spec_json(), "in the request");
     if (!spec.ok()) return fail(spec.status());
     inputs.spec = std::move(spec).value();
   }
@@ -357,7 +353,7 @@ grpc::Status PosewarpService::GetRig(grpc::ServerContext*, const v1::GetRigReque
     joint->set_parent(rig.skeleton.segments[static_cast<size_t>(j.parent)].name);
     joint->set_child(rig.skeleton.segments[static_cast<size_t>(j.child)].name);
     for (int a = 0; a < 3; ++a) joint->add_centre_mm(j.centre_mm[a]);
-    joint->set_kind(std::string(labels::joint_kind_name(j.kind)));
+    joint->set_kind(std::string(api::joint_kind_name(j.kind)));
     for (int a = 0; a < 3; ++a) {
       joint->add_flexion_axis(j.frame(a, 0));
       joint->add_abduction_axis(j.frame(a, 1));
@@ -436,8 +432,8 @@ Result<std::shared_ptr<const api::PoseEngine>> PosewarpService::engine(const std
 
 grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseRequest* request,
                                    grpc::ServerWriter<v1::PoseResponse>* writer) {
-  if (!is_hex_id(request->rig_id())) return {grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"};
-  Result<pose::Pose> pose = pose::pose_from_json(request->pose_json(), "in the request");
+  if (!api::is_hex_id(request->rig_id())) return {grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"};
+  Result<pose::Pose> pose = api::pose_from_json(request->pose_json(), "in the request");
   if (!pose.ok()) return to_grpc(pose.status());
   // A slot, or a place in the bounded queue, or RESOURCE_EXHAUSTED at once.
   {
@@ -497,25 +493,22 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   if (result->ct) header->set_ct_pixel_type(std::string(pixel_type_name(result->ct->source_type())));
   if (!writer->Write(message)) return {grpc::StatusCode::CANCELLED, "the client went away"};
   const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
-  if (result->labels) {
-    const bool sent = stream_chunks(reinterpret_cast<const char*>(result->labels->data()), label_bytes, chunk,
-                                    [&](uint64_t offset, std::string data) {
-                                      v1::PoseResponse m;
-                                      m.mutable_labels()->set_offset(offset);
-                                      m.mutable_labels()->set_data(std::move(data));
-                                      return writer->Write(m);
-                                    });
-    if (!sent) return {grpc::StatusCode::CANCELLED, "the client went away"};
+  // Label and CT voxels as chunks, each message's chunk in `field` (labels or ct).
+  auto send_voxels = [&](const char* data, uint64_t size, v1::VolumeChunk* (v1::PoseResponse::*field)()) {
+    return stream_chunks(data, size, chunk, [&](uint64_t offset, std::string bytes) {
+      v1::PoseResponse m;
+      (m.*field)()->set_offset(offset);
+      (m.*field)()->set_data(std::move(bytes));
+      return writer->Write(m);
+    });
+  };
+  if (result->labels && !send_voxels(reinterpret_cast<const char*>(result->labels->data()), label_bytes,
+                                     &v1::PoseResponse::mutable_labels)) {
+    return {grpc::StatusCode::CANCELLED, "the client went away"};
   }
-  if (result->ct) {
-    const bool sent = stream_chunks(reinterpret_cast<const char*>(result->ct->data()), ct_bytes, chunk,
-                                    [&](uint64_t offset, std::string data) {
-                                      v1::PoseResponse m;
-                                      m.mutable_ct()->set_offset(offset);
-                                      m.mutable_ct()->set_data(std::move(data));
-                                      return writer->Write(m);
-                                    });
-    if (!sent) return {grpc::StatusCode::CANCELLED, "the client went away"};
+  if (result->ct && !send_voxels(reinterpret_cast<const char*>(result->ct->data()), ct_bytes,
+                                 &v1::PoseResponse::mutable_ct)) {
+    return {grpc::StatusCode::CANCELLED, "the client went away"};
   }
   for (const surface::SurfaceMesh& s : result->surfaces) {
     v1::PoseResponse m;
@@ -605,7 +598,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
     };
     if (!engine) {
       Result<std::shared_ptr<const api::PoseEngine>> loaded =
-          is_hex_id(update.rig_id()) ? this->engine(update.rig_id())
+          api::is_hex_id(update.rig_id()) ? this->engine(update.rig_id())
                                      : Result<std::shared_ptr<const api::PoseEngine>>(invalid_argument_error(
                                            "the first preview update names the rig (64 hex digits)"));
       if (!loaded.ok()) {
@@ -615,7 +608,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       engine = *loaded;
     }
     const auto start = std::chrono::steady_clock::now();
-    Result<pose::Pose> pose = pose::pose_from_json(update.pose_json(), "in preview update " +
+    Result<pose::Pose> pose = api::pose_from_json(update.pose_json(), "in preview update " +
                                                                           std::to_string(update.sequence()));
     Result<api::PreviewResult> preview =
         pose.ok() ? engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());

@@ -15,7 +15,6 @@
 #include <thread>
 
 #include "posewarp/api/pose_engine.h"
-#include "posewarp/common/progress.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 #include "store.h"
 

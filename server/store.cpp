@@ -10,9 +10,7 @@
 #include <fstream>
 #include <iterator>
 
-#include "posewarp/common/atomic_file.h"
-#include "posewarp/common/input_file.h"
-#include "posewarp/common/sha256.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::server {
 namespace {
@@ -42,26 +40,26 @@ Result<RigStore> RigStore::open(const std::string& directory) {
   for (const char* sub : {"volumes", "rigs"}) {
     fs::create_directories(fs::path(directory) / sub, ec);
     if (ec) return invalid_argument_error("cannot create the store at '" + directory + "': " + ec.message());
-    remove_stale_partial_files((fs::path(directory) / sub).string());
+    api::remove_stale_partial_files((fs::path(directory) / sub).string());
   }
   return RigStore(directory);
 }
 
 Result<StoredVolume> RigStore::put_volume(const std::string& id, const std::string& extension, const std::string& kind,
                                           std::string_view bytes) {
-  if (!is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
+  if (!api::is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
   const fs::path base = fs::path(directory_) / "volumes" / id;
   const fs::path file = base.string() + extension;
   std::error_code ec;
   if (!fs::exists(file, ec)) {
-    POSEWARP_RETURN_IF_ERROR(write_file_atomically(file.string(), bytes, "volume"));
+    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(file.string(), bytes, "volume"));
   }
-  POSEWARP_RETURN_IF_ERROR(write_file_atomically(base.string() + ".kind", kind, "volume kind"));
+  POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".kind", kind, "volume kind"));
   return volume(id);
 }
 
 Result<StoredVolume> RigStore::volume(const std::string& id) const {
-  if (!is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
+  if (!api::is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
   const fs::path base = fs::path(directory_) / "volumes" / id;
   for (const char* extension : {".nii.gz", ".nii", ".nrrd", ".mha"}) {
     const fs::path file = base.string() + extension;
@@ -75,15 +73,15 @@ Result<StoredVolume> RigStore::volume(const std::string& id) const {
 }
 
 Status RigStore::put_rig(const std::string& id, const std::string& name, std::string_view bytes) {
-  if (!is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  if (!api::is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
   const fs::path base = fs::path(directory_) / "rigs" / id;
-  POSEWARP_RETURN_IF_ERROR(write_file_atomically(base.string() + ".rig", bytes, "rig file"));
-  if (!name.empty()) POSEWARP_RETURN_IF_ERROR(write_file_atomically(base.string() + ".name", name, "rig name"));
+  POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".rig", bytes, "rig file"));
+  if (!name.empty()) POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".name", name, "rig name"));
   return ok_status();
 }
 
 Result<StoredRig> RigStore::rig(const std::string& id) const {
-  if (!is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  if (!api::is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
   const fs::path base = fs::path(directory_) / "rigs" / id;
   const fs::path file = base.string() + ".rig";
   std::error_code ec;
@@ -97,7 +95,7 @@ std::vector<StoredRig> RigStore::rigs() const {
   std::error_code ec;
   for (fs::directory_iterator it(fs::path(directory_) / "rigs", ec), end; !ec && it != end; it.increment(ec)) {
     const fs::path& p = it->path();
-    if (p.extension() != ".rig" || !is_hex_id(p.stem().string())) continue;
+    if (p.extension() != ".rig" || !api::is_hex_id(p.stem().string())) continue;
     Result<StoredRig> r = rig(p.stem().string());
     if (r.ok()) found.push_back(*r);
   }

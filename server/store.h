@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/common/result.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::server {
 

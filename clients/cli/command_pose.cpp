@@ -12,7 +12,6 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/files.h"
-#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::cli {
 namespace {
@@ -108,7 +107,7 @@ Status write_outputs(const api::PoseResult& result, const std::string& labels_ou
     say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
   }
   if (!report_out.empty()) {
-    POSEWARP_RETURN_IF_ERROR(write_file_atomically(report_out, report::to_json(result.report), "report"));
+    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(report_out, report::to_json(result.report), "report"));
     say("wrote " + report_out);
   }
   return ok_status();

@@ -11,8 +11,8 @@
 #include <sstream>
 
 #include "cli_support.h"
+#include "posewarp/api/files.h"
 #include "posewarp/api/study.h"
-#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::cli {
 namespace {
@@ -191,7 +191,7 @@ int run_inspect(const InspectOptions& options) {
     if (Status s = api::write_volume(study->body, body_path); !s.ok()) return report(s);
     if (Status s = api::write_volume(study->classes, classes_path); !s.ok()) return report(s);
     const std::string json_path = (fs::path(options.out_dir) / "inspect.json").string();
-    if (Status s = write_file_atomically(json_path, doc.dump(2) + "\n", "inspection"); !s.ok()) return report(s);
+    if (Status s = api::write_file_atomically(json_path, doc.dump(2) + "\n", "inspection"); !s.ok()) return report(s);
     doc["written"] = {body_path, classes_path, (fs::path(options.out_dir) / "inspect.json").string()};
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

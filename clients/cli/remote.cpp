@@ -10,9 +10,6 @@
 
 #include "cli_support.h"
 #include "posewarp/api/files.h"
-#include "posewarp/common/atomic_file.h"
-#include "posewarp/common/input_file.h"
-#include "posewarp/common/sha256.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 namespace posewarp::cli {
@@ -54,7 +51,7 @@ Result<std::string> upload(v1::Posewarp::Stub& stub, const std::string& path, v1
     return invalid_argument_error("'" + path + "': the server takes .nii.gz, .nii, .nrrd or .mha files (convert "
                                   "others with `posewarp convert`)");
   }
-  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, read_text_input(path, "volume", int64_t{8} << 30));
+  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, api::read_text_input(path, "volume", int64_t{8} << 30));
   grpc::ClientContext context;
   v1::Volume volume;
   auto writer = stub.UploadVolume(&context, &volume);
@@ -62,7 +59,7 @@ Result<std::string> upload(v1::Posewarp::Stub& stub, const std::string& path, v1
   part.mutable_header()->set_kind(kind);
   part.mutable_header()->set_format(format);
   part.mutable_header()->set_size_bytes(bytes.size());
-  part.mutable_header()->set_sha256(sha256_hex(bytes));
+  part.mutable_header()->set_sha256(api::sha256_hex(bytes));
   bool open = writer->Write(part);
   for (size_t offset = 0; open && offset < bytes.size(); offset += size_t{1} << 20) {
     v1::UploadVolumeRequest chunk;
@@ -113,13 +110,13 @@ int run_build_remote(const RemoteBuild& o) {
     request.set_ct_volume_id(*ct);
   }
   if (!o.label_map_path.empty()) {
-    Result<std::string> map = read_text_input(o.label_map_path, "label map");
+    Result<std::string> map = api::read_text_input(o.label_map_path, "label map");
     if (!map.ok()) return report(map.status());
     request.set_label_map_json(*map);
   }
   request.set_preset(o.preset);
   if (!o.spec_path.empty()) {
-    Result<std::string> spec = read_text_input(o.spec_path, "rig spec");
+    Result<std::string> spec = api::read_text_input(o.spec_path, "rig spec");
     if (!spec.ok()) return report(spec.status());
     request.set_rig_spec_json(*spec);
   }
@@ -168,7 +165,7 @@ int run_list_remote(const std::string& server) {
 }
 
 int run_pose_remote(const RemotePose& o) {
-  if (!is_hex_id(o.rig_id)) {
+  if (!api::is_hex_id(o.rig_id)) {
     return report(invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
                                          "--server` or `posewarp rig list --server`), not '" + o.rig_id + "'"));
   }
@@ -176,7 +173,7 @@ int run_pose_remote(const RemotePose& o) {
     return report(s);
   }
   if (Status s = check_output_files({o.labels_out, o.ct_out, o.report_out}); !s.ok()) return report(s);
-  Result<std::string> pose = read_text_input(o.pose_path, "pose");
+  Result<std::string> pose = api::read_text_input(o.pose_path, "pose");
   if (!pose.ok()) return report(pose.status());
   if (Result<pose::Pose> parsed = api::pose_from_json(*pose, "'" + o.pose_path + "'"); !parsed.ok()) {
     return report(parsed.status());
@@ -243,7 +240,7 @@ int run_pose_remote(const RemotePose& o) {
     say("wrote " + o.ct_out);
   }
   if (!o.report_out.empty()) {
-    if (Status s = write_file_atomically(o.report_out, report_json, "report"); !s.ok()) return report(s);
+    if (Status s = api::write_file_atomically(o.report_out, report_json, "report"); !s.ok()) return report(s);
     say("wrote " + o.report_out);
   }
   if (!o.surfaces_out.empty()) {

@@ -39,6 +39,16 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
 
 namespace {
 
+// The segments' rigid transforms as the skinning takes them.
+skinning::SegmentTransforms segment_transforms(const std::vector<pose::RigidTransform>& transforms) {
+  skinning::SegmentTransforms segments;
+  for (const pose::RigidTransform& t : transforms) {
+    segments.rotation.push_back(t.rotation);
+    segments.translation.push_back(t.translation);
+  }
+  return segments;
+}
+
 // Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
 template <typename Preview>
 void prepare_preview(const Rig& rig, Preview& preview) {
@@ -88,11 +98,7 @@ Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Meth
     POSEWARP_RETURN_IF_ERROR(pose::validate_pose(pose, rig_.skeleton));
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                               pose::forward_kinematics(rig_.skeleton, pose));
-    skinning::SegmentTransforms segments;
-    for (const pose::RigidTransform& t : transforms) {
-      segments.rotation.push_back(t.rotation);
-      segments.translation.push_back(t.translation);
-    }
+    const skinning::SegmentTransforms segments = segment_transforms(transforms);
     POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, skinning::skin(method, preview_.mesh.vertices,
                                                                           preview_.weights, preview_.centres, segments));
     PreviewResult result;
@@ -176,11 +182,7 @@ Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
     if (request.grid == resample::GridPolicy::kGrow) {  // the grown grid holds the posed body
       POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                                 pose::forward_kinematics(skeleton, request.pose));
-      skinning::SegmentTransforms segments;
-      for (const pose::RigidTransform& t : transforms) {
-        segments.rotation.push_back(t.rotation);
-        segments.translation.push_back(t.translation);
-      }
+      const skinning::SegmentTransforms segments = segment_transforms(transforms);
       POSEWARP_ASSIGN_OR_RETURN(posed, skinning::skin(request.method, rig_.mesh.vertices, rig_.weights, rig_.centres,
                                                       segments));
     }
@@ -209,11 +211,7 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
   POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                             pose::forward_kinematics(skeleton, request.pose));
-  skinning::SegmentTransforms segments;
-  for (const pose::RigidTransform& t : transforms) {
-    segments.rotation.push_back(t.rotation);
-    segments.translation.push_back(t.translation);
-  }
+  const skinning::SegmentTransforms segments = segment_transforms(transforms);
   result.segment_rotation = segments.rotation;
   result.segment_translation = segments.translation;
   clock.lap("kinematics");

@@ -3,7 +3,9 @@
 
 #include <string>
 
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
+#include "posewarp/common/sha256.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
 #include "posewarp/labels/label_map.h"
@@ -12,12 +14,21 @@
 #include "posewarp/pose/bvh.h"
 #include "posewarp/pose/bvh_map.h"
 #include "posewarp/pose/pose.h"
+#include "posewarp/rig/skeleton.h"
 #include "posewarp/surface/surface_mesh.h"
 
 namespace posewarp::api {
 
-// Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
+// Files in general: inputs read whole within a limit, outputs written atomically, content ids.
+using posewarp::AtomicFile;
+using posewarp::is_hex_id;
+using posewarp::read_text_input;
 using posewarp::remove_stale_partial_files;
+using posewarp::Sha256;
+using posewarp::sha256_hex;
+using posewarp::write_file_atomically;
+
+// Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
 using io::format_name;
 using io::read_header;
 using io::read_intensity_volume;
@@ -29,7 +40,10 @@ using io::write_volume;
 using io::WriteOptions;
 
 // Label maps and presets.
+using labels::joint_kind_name;
+using labels::label_map_from_json;
 using labels::label_map_to_json;
+using labels::preset_by_name;
 using labels::preset_names;
 using labels::read_label_map;
 using labels::write_label_map;
@@ -40,6 +54,9 @@ using pose::read_bvh;
 using pose::read_bvh_map;
 using pose::pose_from_json;
 using pose::read_pose;
+
+// Rig specs.
+using rig::rig_spec_from_json;
 
 // Surface meshes (STL, OBJ, PLY, VTP).
 using surface::read_surface;
