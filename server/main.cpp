@@ -4,16 +4,18 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <nlohmann/json.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
 
 #include <csignal>
 #include <cstdio>
-#include <fstream>
-#include <iterator>
 #include <memory>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "auth.h"
+#include "metrics.h"
 #include "posewarp/api/files.h"
 #include "service.h"
 
@@ -23,36 +25,10 @@ bool loopback(const std::string& address) {
   return address.rfind("127.", 0) == 0 || address.rfind("localhost:", 0) == 0 || address.rfind("[::1]:", 0) == 0;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+// The config file's entries as command-line arguments ("--key value"), placed before the real command line so that
+// the command line wins.
+posewarp::Result<std::vector<std::string>> config_arguments(int argc, char** argv) {
   using namespace posewarp;
-  CLI::App app{"posewarp-server: uploads, rig builds and poses over gRPC (package posewarp.v1, proto/).\n"
-               "Every option can also be given in a JSON config file (--config) under the same name without dashes.",
-               "posewarp-server"};
-  std::string listen = "127.0.0.1:50051";
-  std::string store_dir;
-  std::string config;
-  server::ServiceOptions options;
-  int64_t cache_mb = options.cache_bytes >> 20;
-  int64_t max_upload_mb = options.max_upload_bytes >> 20;
-  int64_t max_output_mb = 0;
-  double grace_s = 30.0;
-  app.option_defaults()->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);  // the command line wins
-  app.add_option("--config", config, "JSON config file: {\"store\": \"/srv/posewarp\", \"pose-slots\": 4, ...}");
-  app.add_option("--listen", listen, "Address to listen on (HOST:PORT; port 0 picks a free one)")->capture_default_str();
-  app.add_option("--store", store_dir, "Store directory (uploaded volumes and rigs)")->required();
-  app.add_option("--build-queue", options.build_queue, "Builds that may wait behind the running one")
-      ->capture_default_str()->check(CLI::Range(0, 1000));
-  app.add_option("--build-threads", options.build_threads, "Threads of a build (0 = all cores)")->capture_default_str();
-  app.add_option("--pose-slots", options.pose_slots, "Poses running at once")->capture_default_str()->check(CLI::Range(1, 256));
-  app.add_option("--pose-queue", options.pose_queue, "Poses that may wait for a slot")->capture_default_str()->check(CLI::Range(0, 10000));
-  app.add_option("--pose-threads", options.pose_threads, "Threads of one pose (0 = all cores)")->capture_default_str();
-  app.add_option("--cache-mb", cache_mb, "Loaded rigs kept in memory, MB")->capture_default_str()->check(CLI::PositiveNumber);
-  app.add_option("--max-upload-mb", max_upload_mb, "Largest uploaded file, MB")->capture_default_str()->check(CLI::PositiveNumber);
-  app.add_option("--max-output-mb", max_output_mb, "Largest pose output, MB (0 = half the machine's memory)")->capture_default_str();
-  app.add_option("--shutdown-grace-s", grace_s, "On SIGTERM, seconds running poses get to finish")->capture_default_str();
-  // The config file's entries go first, as if typed before the command line's own.
   std::vector<std::string> args;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
@@ -60,25 +36,97 @@ int main(int argc, char** argv) {
     if (arg == "--config" && i + 1 < argc) path = argv[i + 1];
     if (arg.rfind("--config=", 0) == 0) path = arg.substr(9);
     if (path.empty()) continue;
-    Result<std::string> text = api::read_text_input(path, "server config");
-    if (!text.ok()) {
-      std::fprintf(stderr, "error: %s\n", text.status().to_string().c_str());
-      return 2;
-    }
+    POSEWARP_ASSIGN_OR_RETURN(const std::string text, api::read_text_input(path, "server config"));
     try {
-      for (const auto& [key, value] : nlohmann::json::parse(*text).items()) {
+      const nlohmann::json config = nlohmann::json::parse(text);
+      if (!config.is_object()) throw nlohmann::json::type_error::create(302, "not an object", nullptr);
+      for (const auto& [key, value] : config.items()) {
+        if (value.is_boolean()) {
+          if (value.get<bool>()) args.push_back("--" + key);
+          continue;
+        }
         args.push_back("--" + key);
         args.push_back(value.is_string() ? value.get<std::string>() : value.dump());
       }
     } catch (const nlohmann::json::exception& error) {
-      std::fprintf(stderr, "error: server config '%s' is not a JSON object of options: %s\n", path.c_str(),
-                   error.what());
-      return 2;
+      return invalid_argument_error("server config '" + path + "' is not a JSON object of options (" +
+                                    error.what() + "); see --help for their names");
     }
   }
-  for (int i = 1; i < argc; ++i) args.push_back(argv[i]);
+  return args;
+}
+
+std::string read_pem(const std::string& path, const char* what) {
+  posewarp::Result<std::string> text = posewarp::api::read_text_input(path, what, int64_t{1} << 20);
+  if (!text.ok()) {
+    std::fprintf(stderr, "error: %s\n", text.status().to_string().c_str());
+    std::exit(2);
+  }
+  return *text;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace posewarp;
+  CLI::App app{"posewarp-server: uploads, rig builds and poses over gRPC (package posewarp.v1, proto/).\n"
+               "Every option can also be given in a JSON config file (--config) under the same name without dashes,\n"
+               "e.g. {\"store\": \"/srv/posewarp\", \"pose-slots\": 4, \"token-file\": \"/etc/posewarp/tokens\"};\n"
+               "the command line wins over the file. Signals: SIGTERM/SIGINT stop gracefully, SIGHUP re-reads the\n"
+               "token file.",
+               "posewarp-server"};
+  std::string listen = "127.0.0.1:50051";
+  std::string store_dir, config, token_file, tls_cert, tls_key, tls_client_ca, metrics_listen, log_level = "info";
+  server::ServiceOptions options;
+  server::StoreOptions store_options;
+  int64_t cache_mb = options.cache_bytes >> 20;
+  int64_t max_upload_mb = options.max_upload_bytes >> 20;
+  int64_t max_output_mb = 0;
+  int64_t quota_gb = 0;
+  int max_message_mb = 8;
+  int max_streams = 100;
+  double grace_s = 30.0;
+  app.option_defaults()->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);  // the command line wins
+  app.add_option("--config", config, "JSON config file of these options");
+  app.add_option("--listen", listen, "Address to listen on (HOST:PORT; port 0 picks a free one)")->capture_default_str();
+  app.add_option("--store", store_dir, "Store directory (uploaded volumes, rigs, index.sqlite)")->required();
+  app.add_option("--store-quota-gb", quota_gb, "Largest store (volumes and rigs), GB; 0 = no quota")->capture_default_str();
+  app.add_option("--build-workers", options.build_workers, "Builds running at once")->capture_default_str()->check(CLI::Range(1, 64));
+  app.add_option("--build-queue", options.build_queue, "Builds that may wait for a worker")
+      ->capture_default_str()->check(CLI::Range(0, 1000));
+  app.add_option("--build-threads", options.build_threads, "Threads of a build (0 = all cores)")->capture_default_str();
+  app.add_option("--pose-slots", options.pose_slots, "Poses running at once (0 = as many as cores)")
+      ->capture_default_str()->check(CLI::Range(0, 256));
+  app.add_option("--pose-queue", options.pose_queue, "Poses that may wait for a slot")->capture_default_str()->check(CLI::Range(0, 10000));
+  app.add_option("--pose-threads", options.pose_threads, "Threads of one pose (0 = all cores)")->capture_default_str();
+  app.add_option("--cache-mb", cache_mb, "Loaded rigs kept in memory, MB")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--max-upload-mb", max_upload_mb, "Largest uploaded file, MB")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--max-volume-voxels", options.max_volume_voxels, "Largest uploaded volume, voxels")->capture_default_str();
+  app.add_option("--max-output-voxels", options.max_output_voxels, "Largest pose output grid, voxels")->capture_default_str();
+  app.add_option("--max-output-mb", max_output_mb, "Largest pose output, MB (0 = half the machine's memory)")->capture_default_str();
+  app.add_option("--max-message-mb", max_message_mb, "Largest gRPC message received, MB")->capture_default_str()->check(CLI::Range(1, 1024));
+  app.add_option("--max-streams", max_streams, "Concurrent streams per client connection")->capture_default_str()->check(CLI::Range(1, 10000));
+  app.add_option("--preview-streams-per-client", options.preview_streams_per_client,
+                 "Open preview streams per client address")->capture_default_str()->check(CLI::Range(1, 1000));
+  app.add_option("--token-file", token_file, "Bearer tokens, one per line: calls without one get UNAUTHENTICATED "
+                                             "(health stays open); re-read on SIGHUP");
+  app.add_option("--tls-cert", tls_cert, "TLS certificate chain (PEM); with --tls-key the server speaks TLS only");
+  app.add_option("--tls-key", tls_key, "TLS private key (PEM)");
+  app.add_option("--tls-client-ca", tls_client_ca, "CA (PEM) that client certificates must chain to: mutual TLS");
+  app.add_option("--metrics-listen", metrics_listen, "HOST:PORT for Prometheus metrics at /metrics (off when empty)");
+  app.add_option("--shutdown-grace-s", grace_s, "On SIGTERM, seconds running poses get to finish")->capture_default_str();
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
+  store_options.pause_in_rig_write_s = std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S") != nullptr
+                                           ? std::atof(std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S"))
+                                           : 0.0;
+  Result<std::vector<std::string>> args = config_arguments(argc, argv);
+  if (!args.ok()) {
+    std::fprintf(stderr, "error: %s\n", args.status().message().c_str());
+    return 2;
+  }
+  for (int i = 1; i < argc; ++i) args->push_back(argv[i]);
   try {
-    std::vector<std::string> reversed(args.rbegin(), args.rend());  // CLI11 takes a vector in reverse order
+    std::vector<std::string> reversed(args->rbegin(), args->rend());  // CLI11 takes a vector in reverse order
     app.parse(reversed);
   } catch (const CLI::ParseError& error) {
     const int code = app.exit(error);
@@ -87,32 +135,71 @@ int main(int argc, char** argv) {
   options.cache_bytes = cache_mb << 20;
   options.max_upload_bytes = max_upload_mb << 20;
   options.max_output_bytes = max_output_mb << 20;
+  store_options.quota_bytes = static_cast<uint64_t>(quota_gb) << 30;
+  if (tls_cert.empty() != tls_key.empty()) {
+    std::fprintf(stderr, "error: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  if (!tls_client_ca.empty() && tls_cert.empty()) {
+    std::fprintf(stderr, "error: --tls-client-ca needs --tls-cert and --tls-key (mutual TLS is TLS first)\n");
+    return 2;
+  }
 
-  Result<server::RigStore> store = server::RigStore::open(store_dir);
+  // Logs go to stderr (a service manager or container collects them): one line per call, no patient data.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("posewarp-server"));
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+  spdlog::set_level(spdlog::level::from_str(log_level));
+
+  server::Tokens tokens;
+  if (Status s = tokens.load(token_file); !s.ok()) {
+    std::fprintf(stderr, "error: %s\n", s.to_string().c_str());
+    return 2;
+  }
+  Result<std::unique_ptr<server::RigStore>> store =
+      server::RigStore::open(store_dir, store_options, [](const std::string& line) { spdlog::warn("{}", line); });
   if (!store.ok()) {
     std::fprintf(stderr, "error: %s\n", store.status().to_string().c_str());
     return 2;
   }
-  if (!loopback(listen)) {
-    std::fprintf(stderr, "warning: listening on %s without TLS: anyone who can reach it can upload and pose "
-                         "(TLS and tokens are not built yet; keep the server on loopback or behind a TLS proxy)\n",
-                 listen.c_str());
+  if (!loopback(listen) && tls_cert.empty()) {
+    spdlog::warn("listening on {} without TLS: tokens and studies cross the network in clear; give --tls-cert and "
+                 "--tls-key, or keep the server on loopback behind a TLS proxy", listen);
   }
-  // SIGTERM and SIGINT go to a waiting thread, not to whichever thread runs when they arrive.
+  // SIGTERM, SIGINT and SIGHUP go to a waiting thread, not to whichever thread runs when they arrive.
   sigset_t signals;
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
-  server::PosewarpService service(std::move(store).value(), options);
+  server::Metrics metrics;
+  server::MetricsServer metrics_server;
+  if (!metrics_listen.empty()) {
+    if (const std::string error = metrics_server.start(metrics_listen, &metrics); !error.empty()) {
+      std::fprintf(stderr, "error: %s\n", error.c_str());
+      return 2;
+    }
+  }
+  server::PosewarpService service(std::move(store).value(), options, tokens, metrics);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  std::shared_ptr<grpc::ServerCredentials> credentials = grpc::InsecureServerCredentials();
+  if (!tls_cert.empty()) {
+    grpc::SslServerCredentialsOptions ssl;
+    ssl.pem_key_cert_pairs.push_back({read_pem(tls_key, "TLS key"), read_pem(tls_cert, "TLS certificate")});
+    if (!tls_client_ca.empty()) {
+      ssl.pem_root_certs = read_pem(tls_client_ca, "client CA");
+      ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+    }
+    credentials = grpc::SslServerCredentials(ssl);
+  }
   grpc::ServerBuilder builder;
   int port = 0;
-  builder.AddListeningPort(listen, grpc::InsecureServerCredentials(), &port);
+  builder.AddListeningPort(listen, credentials, &port);
   builder.RegisterService(&service);
-  builder.SetMaxReceiveMessageSize(8 << 20);
+  builder.SetMaxReceiveMessageSize(max_message_mb << 20);
+  builder.AddChannelArgument(GRPC_ARG_MAX_CONCURRENT_STREAMS, max_streams);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (!server || port == 0) {
     std::fprintf(stderr, "error: cannot listen on %s (in use, or not an address of this machine)\n", listen.c_str());
@@ -122,16 +209,28 @@ int main(int argc, char** argv) {
   std::printf("posewarp-server listening on %s:%d, store %s\n", listen.substr(0, listen.rfind(':')).c_str(), port,
               store_dir.c_str());
   std::fflush(stdout);
+  spdlog::info("serving on port {} ({}{}{})", port, tls_cert.empty() ? "plaintext" : "TLS",
+               tls_client_ca.empty() ? "" : ", client certificates required",
+               tokens.enabled() ? ", bearer tokens required" : "");
 
   int received = 0;
-  sigwait(&signals, &received);
-  std::fprintf(stderr, "posewarp-server: %s, stopping (running poses get %.0f s)\n",
-               received == SIGTERM ? "SIGTERM" : "SIGINT", grace_s);
+  for (;;) {
+    sigwait(&signals, &received);
+    if (received != SIGHUP) break;
+    if (token_file.empty()) {
+      spdlog::info("SIGHUP: no --token-file to re-read");
+    } else if (Status s = tokens.reload(); s.ok()) {
+      spdlog::info("SIGHUP: token file re-read, {} token(s)", tokens.size());
+    } else {
+      spdlog::error("SIGHUP: {}; the tokens in force stay", s.message());
+    }
+  }
+  spdlog::info("{}: stopping (running poses get {:.0f} s)", received == SIGTERM ? "SIGTERM" : "SIGINT", grace_s);
   server->GetHealthCheckService()->SetServingStatus(false);
   service.shutdown();  // builds are cancelled and marked; new requests are refused
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(grace_s * 1000.0)));
   server->Wait();
-  std::fprintf(stderr, "posewarp-server: stopped\n");
+  spdlog::info("stopped");
   return 0;
 }

@@ -1,5 +1,7 @@
-// PosewarpService: proto <-> core conversion, the build queue, pose slots and the engine cache.
+// PosewarpService: the handlers, the build queue, pose slots and the engine cache.
 #include "service.h"
+
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cstring>
@@ -8,44 +10,19 @@
 #include <thread>
 #include <utility>
 
-#include <nlohmann/json.hpp>
-
+#include "convert.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
+#include "status_map.h"
 
 namespace posewarp::server {
 namespace {
 
 namespace fs = std::filesystem;
 
-void put_grid(const ImageGeometry& g, v1::Grid* grid) {
-  for (int a = 0; a < 3; ++a) {
-    grid->add_size(g.size[static_cast<size_t>(a)]);
-    grid->add_spacing(g.spacing[static_cast<size_t>(a)]);
-    grid->add_origin(g.origin[static_cast<size_t>(a)]);
-  }
-  for (int e = 0; e < 9; ++e) grid->add_direction(g.direction[static_cast<size_t>(e)]);
-}
+const grpc::Status kClientGone{grpc::StatusCode::CANCELLED, "the client went away"};
 
-const char* extension_of(v1::FileFormat format) {
-  switch (format) {
-    case v1::FILE_FORMAT_NIFTI_GZ: return ".nii.gz";
-    case v1::FILE_FORMAT_NIFTI: return ".nii";
-    case v1::FILE_FORMAT_NRRD: return ".nrrd";
-    case v1::FILE_FORMAT_MHA: return ".mha";
-    default: return nullptr;
-  }
-}
-
-skinning::Method method_of(v1::Method method) {
-  switch (method) {
-    case v1::METHOD_DQS: return skinning::Method::kDqs;
-    case v1::METHOD_LBS: return skinning::Method::kLbs;
-    default: return skinning::Method::kCor;
-  }
-}
-
-// Streams `bytes` as chunks of at most `chunk` bytes through `put`.
+// Streams `size` bytes from `data` as chunks of at most `chunk` bytes through `put(offset, bytes)`.
 template <typename Put>
 bool stream_chunks(const char* data, uint64_t size, uint64_t chunk, Put&& put) {
   for (uint64_t offset = 0; offset < size; offset += chunk) {
@@ -54,12 +31,109 @@ bool stream_chunks(const char* data, uint64_t size, uint64_t chunk, Put&& put) {
   return true;
 }
 
+// A request id from the client's "x-request-id" metadata when it is a plain token, else one of ours.
+std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) {
+  const auto& metadata = context->client_metadata();
+  const auto it = metadata.find("x-request-id");
+  if (it != metadata.end() && it->second.size() <= 64 && !it->second.empty()) {
+    const std::string id(it->second.data(), it->second.size());
+    if (std::all_of(id.begin(), id.end(), [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_'; })) {
+      return id;
+    }
+  }
+  char text[32];
+  std::snprintf(text, sizeof text, "s%06llx", static_cast<unsigned long long>(counter));
+  return text;
+}
+
+// The client's host from gRPC's peer string ("ipv4:127.0.0.1:5432", "ipv6:[::1]:5432").
+std::string peer_host(const std::string& peer) {
+  const size_t colon = peer.rfind(':');
+  return colon == std::string::npos ? peer : peer.substr(0, colon);
+}
+
 }  // namespace
 
-PosewarpService::PosewarpService(RigStore store, ServiceOptions options)
-    : store_(std::move(store)), options_(options), build_thread_([this] { build_worker(); }) {}
+// One call's frame: the token check, then at the end the log line and the metrics.
+class PosewarpService::Call {
+ public:
+  Call(PosewarpService& service, grpc::ServerContext* context, const char* method, std::string rig_id = "")
+      : service_(service), context_(context), method_(method), rig_id_(std::move(rig_id)),
+        request_id_(request_id_of(context, service.next_request_++)), start_(std::chrono::steady_clock::now()) {
+    if (service_.tokens_.enabled()) {
+      const auto& metadata = context->client_metadata();
+      const auto it = metadata.find("authorization");
+      const std::string value = it == metadata.end() ? "" : std::string(it->second.data(), it->second.size());
+      if (!service_.tokens_.allows(value)) {
+        refusal_ = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                                value.empty() ? "this server needs a bearer token: send 'authorization: Bearer "
+                                                "<token>' (the CLI's --token-file)"
+                                              : "the bearer token is not one this server accepts; check your token "
+                                                "file (tokens are re-read by the server on SIGHUP)");
+      }
+    }
+  }
+  bool refused() const { return !refusal_.ok(); }
+  grpc::Status refusal() { return done(refusal_); }
+  void set_rig(const std::string& rig_id) { rig_id_ = rig_id; }
 
-PosewarpService::~PosewarpService() { shutdown(); }
+  grpc::Status done(const grpc::Status& status) {
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    const std::string code = status_code_name(static_cast<StatusCode>(status.error_code())).data();
+    service_.metrics_.observe(method_, code, seconds);
+    // Ids are hashes and the code is canonical: nothing here names a patient or a client's file.
+    const std::string rig = api::is_hex_id(rig_id_) ? " rig=" + rig_id_.substr(0, 16) : "";
+    if (status.ok() || status.error_code() == grpc::StatusCode::CANCELLED) {
+      spdlog::info("request={} method={}{} status={} ms={:.1f}", request_id_, method_, rig, code, seconds * 1e3);
+    } else {
+      spdlog::warn("request={} method={}{} status={} ms={:.1f} message=\"{}\"", request_id_, method_, rig, code,
+                   seconds * 1e3, status.error_message());
+    }
+    return status;
+  }
+
+ private:
+  PosewarpService& service_;
+  grpc::ServerContext* context_;
+  const char* method_;
+  std::string rig_id_;
+  std::string request_id_;
+  std::chrono::steady_clock::time_point start_;
+  grpc::Status refusal_;
+};
+
+PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions options, const Tokens& tokens,
+                                 Metrics& metrics)
+    : store_(std::move(store)), options_(options), tokens_(tokens), metrics_(metrics) {
+  if (options_.pose_slots <= 0) options_.pose_slots = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  metrics_.set_gauges([this] { return gauges(); });
+  for (int i = 0; i < std::max(1, options_.build_workers); ++i) build_threads_.emplace_back([this] { build_worker(); });
+}
+
+PosewarpService::~PosewarpService() {
+  shutdown();
+  metrics_.set_gauges(nullptr);
+}
+
+std::vector<std::pair<std::string, double>> PosewarpService::gauges() {
+  std::vector<std::pair<std::string, double>> values;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    values.emplace_back("builds_running", builds_running_);
+    values.emplace_back("build_queue_depth", static_cast<double>(build_queue_.size()));
+    values.emplace_back("poses_running", poses_running_);
+    values.emplace_back("pose_queue_depth", poses_waiting_);
+    int previews = 0;
+    for (const auto& [client, n] : previews_by_client_) previews += n;
+    values.emplace_back("preview_streams", previews);
+  }
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  int64_t bytes = 0;
+  for (const auto& [id, entry] : cache_) bytes += entry.bytes;
+  values.emplace_back("cache_bytes", static_cast<double>(bytes));
+  values.emplace_back("cache_rigs", static_cast<double>(cache_.size()));
+  return values;
+}
 
 void PosewarpService::shutdown() {
   {
@@ -70,129 +144,209 @@ void PosewarpService::shutdown() {
       job->cancel.cancel();
       if (job->operation.state() == v1::Operation::QUEUED) {
         job->operation.set_state(v1::Operation::CANCELLED);
-        job->operation.set_error_message("the server stopped before the build started");
+        job->operation.set_error_code(static_cast<int32_t>(grpc::StatusCode::CANCELLED));
+        job->operation.set_error_message("the server stopped before the build started; build again");
+        (void)store_->index().put_operation(record_from(job->operation, job->request));
       }
     }
     build_queue_.clear();
   }
   changed_.notify_all();
-  if (build_thread_.joinable()) build_thread_.join();
+  for (std::thread& t : build_threads_) {
+    if (t.joinable()) t.join();
+  }
 }
 
-// The core's codes are gRPC's. Messages name store files by id only: no server path reaches a client.
-grpc::Status PosewarpService::to_grpc(const Status& status) const {
-  if (status.ok()) return grpc::Status::OK;
-  std::string message = status.message();
-  for (const char* sub : {"/volumes/", "/rigs/"}) {
-    const std::string prefix = store_.directory() + sub;
-    for (size_t at = message.find(prefix); at != std::string::npos; at = message.find(prefix)) {
-      message.replace(at, prefix.size(), std::strcmp(sub, "/rigs/") == 0 ? "rig " : "volume ");
-    }
+grpc::Status PosewarpService::to_grpc(const Status& status) const { return server::to_grpc(status, store_->directory()); }
+
+ProgressHooks PosewarpService::call_hooks(grpc::ServerContext* context) const {
+  ProgressHooks hooks;
+  hooks.threads = options_.pose_threads;
+  hooks.cancel_requested = [context] { return context->IsCancelled(); };
+  if (context->deadline() != std::chrono::system_clock::time_point::max()) {
+    hooks.deadline = std::chrono::steady_clock::now() + (context->deadline() - std::chrono::system_clock::now());
   }
-  return {static_cast<grpc::StatusCode>(status.code()), message};
+  return hooks;
 }
 
 grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
                                            grpc::ServerReader<v1::UploadVolumeRequest>* reader, v1::Volume* response) {
+  Call call(*this, context, "UploadVolume");
+  if (call.refused()) return call.refusal();
   v1::UploadVolumeRequest part;
   if (!reader->Read(&part) || !part.has_header()) {
-    return {grpc::StatusCode::INVALID_ARGUMENT, "an upload starts with its header (kind, format, size, sha256)"};
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload starts with its header (kind, format, size, sha256)"});
   }
   const v1::UploadVolumeHeader header = part.header();
-  const char* extension = extension_of(header.format());
+  const bool raw = header.format() == v1::FILE_FORMAT_RAW;
+  const char* extension = raw ? ".nii.gz" : extension_of(header.format());
   if (extension == nullptr) {
-    return {grpc::StatusCode::INVALID_ARGUMENT, "upload format must be NIFTI_GZ, NIFTI, NRRD or MHA"};
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload format must be NIFTI_GZ, NIFTI, NRRD, MHA or RAW"});
   }
   if (header.kind() != v1::VOLUME_KIND_LABELS && header.kind() != v1::VOLUME_KIND_INTENSITY) {
-    return {grpc::StatusCode::INVALID_ARGUMENT, "upload kind must be LABELS or INTENSITY"};
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload kind must be LABELS or INTENSITY"});
   }
   if (!api::is_hex_id(header.sha256())) {
-    return {grpc::StatusCode::INVALID_ARGUMENT, "upload sha256 must be 64 lowercase hex digits"};
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload sha256 must be 64 lowercase hex digits"});
   }
   if (header.size_bytes() == 0 || header.size_bytes() > static_cast<uint64_t>(options_.max_upload_bytes)) {
-    return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-            "upload size must be 1 to " + std::to_string(options_.max_upload_bytes) + " bytes (the server's limit)"};
+    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "upload size must be 1 to " +
+                                                                std::to_string(options_.max_upload_bytes) +
+                                                                " bytes (the server's --max-upload-mb)"});
+  }
+  std::optional<ImageGeometry> raw_grid;
+  std::optional<PixelType> raw_type;
+  if (raw) {
+    Result<ImageGeometry> grid = grid_from(header.raw_grid());
+    if (!grid.ok()) return call.done(to_grpc(grid.status().with_context("raw upload")));
+    raw_type = pixel_type_of(header.raw_pixel_type());
+    if (!raw_type) return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a raw upload names its raw_pixel_type"});
+    raw_grid = *grid;
   }
   std::string bytes;
   bytes.reserve(header.size_bytes());
   api::Sha256 hash;
   while (reader->Read(&part)) {
-    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the upload"};
+    if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the upload"});
     if (part.part_case() != v1::UploadVolumeRequest::kChunk) {
-      return {grpc::StatusCode::INVALID_ARGUMENT, "an upload has one header, then chunks"};
+      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload has one header, then chunks"});
     }
     if (bytes.size() + part.chunk().size() > header.size_bytes()) {
-      return {grpc::StatusCode::INVALID_ARGUMENT, "the upload sent more bytes than its header's size_bytes"};
+      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "the upload sent more bytes than its header's size_bytes"});
     }
     hash.update(part.chunk());
     bytes += part.chunk();
   }
   if (bytes.size() != header.size_bytes()) {
-    return {grpc::StatusCode::DATA_LOSS, "the upload ended after " + std::to_string(bytes.size()) + " of " +
-                                             std::to_string(header.size_bytes()) + " bytes; send it again"};
+    return call.done({grpc::StatusCode::DATA_LOSS, "the upload ended after " + std::to_string(bytes.size()) + " of " +
+                                                       std::to_string(header.size_bytes()) + " bytes; send it again"});
   }
   if (hash.hex_digest() != header.sha256()) {
-    return {grpc::StatusCode::DATA_LOSS, "the upload's bytes do not match its sha256; send it again"};
+    return call.done({grpc::StatusCode::DATA_LOSS, "the upload's bytes do not match its sha256; send it again"});
   }
-  // The volume is read as posing will read it before it gets its name in the store.
   const std::string kind = header.kind() == v1::VOLUME_KIND_LABELS ? "labels" : "intensity";
-  const fs::path staging = fs::path(store_.directory()) / "volumes" / (".staging-" + header.sha256() + extension);
-  if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return to_grpc(s);
-  Result<ImageGeometry> grid = [&]() -> Result<ImageGeometry> {
-    if (kind == "labels") {
-      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume labels, api::read_label_volume(staging.string()));
-      return labels.geometry();
+  const bool labels = kind == "labels";
+  if (raw) {
+    // Raw samples become a NIfTI file in the store; the id covers the samples and their geometry.
+    if (raw_grid->voxel_count() > options_.max_volume_voxels) {
+      return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "the volume has " + std::to_string(raw_grid->voxel_count()) +
+                                                                  " voxels; this server takes at most " +
+                                                                  std::to_string(options_.max_volume_voxels)});
     }
-    POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume ct, api::read_intensity_volume(staging.string()));
-    return ct.geometry();
+    const std::string id = api::sha256_hex(header.sha256() + header.raw_grid().SerializeAsString() +
+                                           std::to_string(header.raw_pixel_type()) + kind);
+    if (Result<VolumeRecord> existing = store_->volume(id); existing.ok()) {
+      response->set_id(id);
+      response->set_kind(header.kind());
+      put_grid(*raw_grid, response->mutable_grid());
+      response->set_size_bytes(existing->size_bytes);
+      return call.done(grpc::Status::OK);
+    }
+    const fs::path staging = fs::path(store_->directory()) / "volumes" / (".staging-" + id + extension);
+    Status written = labels ? [&]() -> Status {
+      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, labels_from_raw(bytes, *raw_type, *raw_grid));
+      return api::write_volume(v, staging.string());
+    }()
+                            : [&]() -> Status {
+      POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, intensity_from_raw(bytes, *raw_type, *raw_grid));
+      return api::write_volume(v, staging.string());
+    }();
+    if (!written.ok()) {
+      std::error_code ec;
+      fs::remove(staging, ec);
+      return call.done(to_grpc(written));
+    }
+    Result<std::string> encoded = api::read_text_input(staging.string(), "volume", options_.max_upload_bytes * 2);
+    std::error_code ec;
+    fs::remove(staging, ec);
+    if (!encoded.ok()) return call.done(to_grpc(encoded.status()));
+    Result<VolumeRecord> stored = store_->put_volume(id, extension, kind, *encoded);
+    if (!stored.ok()) return call.done(to_grpc(stored.status()));
+    response->set_id(id);
+    response->set_kind(header.kind());
+    put_grid(*raw_grid, response->mutable_grid());
+    response->set_size_bytes(stored->size_bytes);
+    return call.done(grpc::Status::OK);
+  }
+  // A file is read as posing will read it before it gets its name in the store.
+  const fs::path staging = fs::path(store_->directory()) / "volumes" / (".staging-" + header.sha256() + extension);
+  if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return call.done(to_grpc(s));
+  Result<ImageGeometry> grid = [&]() -> Result<ImageGeometry> {
+    POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staging.string()));
+    if (h.geometry.voxel_count() > options_.max_volume_voxels) {
+      return resource_exhausted_error("the volume has " + std::to_string(h.geometry.voxel_count()) +
+                                      " voxels; this server takes at most " +
+                                      std::to_string(options_.max_volume_voxels) + " (--max-volume-voxels)");
+    }
+    if (labels) {
+      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, api::read_label_volume(staging.string()));
+      return v.geometry();
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, api::read_intensity_volume(staging.string()));
+    return v.geometry();
   }();
   std::error_code ec;
   fs::remove(staging, ec);
   if (!grid.ok()) {
-    std::string message = grid.status().message();
-    for (size_t at = message.find(staging.string()); at != std::string::npos; at = message.find(staging.string())) {
-      message.replace(at, staging.string().size(), "uploaded volume");
-    }
-    return {static_cast<grpc::StatusCode>(grid.status().code()), message};
+    return call.done({static_cast<grpc::StatusCode>(grid.status().code()),
+                      without_path(grid.status().message(), staging.string(), "uploaded volume")});
   }
-  Result<StoredVolume> stored = store_.put_volume(header.sha256(), extension, kind, bytes);
-  if (!stored.ok()) return to_grpc(stored.status());
+  Result<VolumeRecord> stored = store_->put_volume(header.sha256(), extension, kind, bytes);
+  if (!stored.ok()) return call.done(to_grpc(stored.status()));
   response->set_id(stored->id);
   response->set_kind(header.kind());
   put_grid(*grid, response->mutable_grid());
   response->set_size_bytes(stored->size_bytes);
-  return grpc::Status::OK;
+  return call.done(grpc::Status::OK);
 }
 
-grpc::Status PosewarpService::BuildRig(grpc::ServerContext*, const v1::BuildRigRequest* request,
+grpc::Status PosewarpService::BuildRig(grpc::ServerContext* context, const v1::BuildRigRequest* request,
                                        v1::Operation* response) {
+  Call call(*this, context, "BuildRig");
+  if (call.refused()) return call.refusal();
   if (!api::is_hex_id(request->labels_volume_id()) ||
       (!request->ct_volume_id().empty() && !api::is_hex_id(request->ct_volume_id()))) {
-    return {grpc::StatusCode::INVALID_ARGUMENT, "volume ids are 64 lowercase hex digits (from UploadVolume)"};
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "volume ids are 64 lowercase hex digits (from UploadVolume)"});
   }
-  if (Result<StoredVolume> v = store_.volume(request->labels_volume_id()); !v.ok()) return to_grpc(v.status());
+  if (Result<VolumeRecord> v = store_->volume(request->labels_volume_id()); !v.ok()) return call.done(to_grpc(v.status()));
   if (!request->ct_volume_id().empty()) {
-    if (Result<StoredVolume> v = store_.volume(request->ct_volume_id()); !v.ok()) return to_grpc(v.status());
+    if (Result<VolumeRecord> v = store_->volume(request->ct_volume_id()); !v.ok()) return call.done(to_grpc(v.status()));
   }
+  v1::BuildRigRequest unnamed = *request;
+  unnamed.clear_name();
+  const std::string key = api::sha256_hex(unnamed.SerializeAsString());
   auto job = std::make_shared<Job>();
   job->request = *request;
-  job->operation.set_id(api::sha256_hex(request->SerializeAsString() +
-                                   std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()))
+  job->key = key;
+  job->operation.set_id(api::sha256_hex(key + std::to_string(std::chrono::system_clock::now().time_since_epoch().count()) +
+                                        std::to_string(next_request_++))
                             .substr(0, 32));
   job->operation.set_state(v1::Operation::QUEUED);
+  job->operation.set_name(request->name());
+  job->operation.set_created(iso_now());
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (stopping_) return {grpc::StatusCode::UNAVAILABLE, "the server is shutting down; try another replica"};
+    if (stopping_) return call.done({grpc::StatusCode::UNAVAILABLE, "the server is shutting down; try again shortly"});
+    // The same build already queued or running: its operation, not a second build.
+    if (const auto live = live_by_key_.find(key); live != live_by_key_.end()) {
+      *response = live->second->operation;
+      return call.done(grpc::Status::OK);
+    }
     if (static_cast<int>(build_queue_.size()) >= options_.build_queue) {
-      return {grpc::StatusCode::RESOURCE_EXHAUSTED,
-              "the build queue is full (" + std::to_string(options_.build_queue) + " waiting); try again later"};
+      return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "the build queue is full (" +
+                                                                  std::to_string(options_.build_queue) +
+                                                                  " waiting); try again when a build has finished"});
+    }
+    if (Status s = store_->index().put_operation(record_from(job->operation, job->request)); !s.ok()) {
+      return call.done(to_grpc(s));
     }
     operations_[job->operation.id()] = job;
+    live_by_key_[key] = job;
     build_queue_.push_back(job);
     *response = job->operation;
   }
   changed_.notify_all();
-  return grpc::Status::OK;
+  return call.done(grpc::Status::OK);
 }
 
 void PosewarpService::build_worker() {
@@ -206,181 +360,204 @@ void PosewarpService::build_worker() {
       build_queue_.pop_front();
       job->operation.set_state(v1::Operation::RUNNING);
       job->started = std::chrono::steady_clock::now();
+      ++builds_running_;
+      (void)store_->index().put_operation(record_from(job->operation, job->request));
     }
     changed_.notify_all();
     run_build(job);
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      --builds_running_;
+      live_by_key_.erase(job->key);
+    }
+    changed_.notify_all();
   }
 }
 
-void PosewarpService::set_operation(const std::shared_ptr<Job>& job,
-                                    const std::function<void(v1::Operation&)>& change) {
+void PosewarpService::set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
+                                    bool persist) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     change(job->operation);
     job->operation.set_elapsed_s(std::chrono::duration<double>(std::chrono::steady_clock::now() - job->started).count());
+    if (persist) {
+      if (Status s = store_->index().put_operation(record_from(job->operation, job->request)); !s.ok()) {
+        spdlog::error("operation {}: {}", job->operation.id(), s.message());
+      }
+    }
   }
   changed_.notify_all();
 }
 
 void PosewarpService::run_build(const std::shared_ptr<Job>& job) {
-  auto fail = [&](const Status& status) {
+  const auto started = std::chrono::steady_clock::now();
+  auto finish = [&](const Status& status) {
     const grpc::Status g = to_grpc(status);
+    const std::string code = status_code_name(status.code()).data();
+    metrics_.observe("build", code, std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
+    spdlog::info("operation={} build status={} s={:.1f}", job->operation.id(), code,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
     set_operation(job, [&](v1::Operation& op) {
+      if (status.ok()) return;
       op.set_state(status.code() == StatusCode::kCancelled ? v1::Operation::CANCELLED : v1::Operation::FAILED);
       op.set_error_code(static_cast<int32_t>(g.error_code()));
       op.set_error_message(g.error_message());
-    });
+    }, true);
   };
-  const v1::BuildRigRequest& request = job->request;
-  api::BuildInputs inputs;
-  {
-    Result<StoredVolume> labels = store_.volume(request.labels_volume_id());
-    if (!labels.ok()) return fail(labels.status());
-    Result<LabelVolume> volume = api::read_label_volume(labels->path);
-    if (!volume.ok()) return fail(volume.status());
-    inputs.labels = std::move(volume).value();
-  }
-  if (!request.ct_volume_id().empty()) {
-    Result<StoredVolume> ct = store_.volume(request.ct_volume_id());
-    if (!ct.ok()) return fail(ct.status());
-    Result<IntensityVolume> volume = api::read_intensity_volume(ct->path);
-    if (!volume.ok()) return fail(volume.status());
-    inputs.ct = std::move(volume).value();
-  }
-  Result<labels::LabelMap> map = request.label_map_json().empty()
-                                     ? api::preset_by_name(request.preset().empty() ? "totalsegmentator"
-                                                                                        : request.preset())
-                                     : api::label_map_from_json(request.label_map_json(), "in the request");
-  if (!map.ok()) return fail(map.status());
-  inputs.label_map = std::move(map).value();
-  if (!request.rig_spec_json().empty()) {
-    Result<rig::RigSpec> spec = api::rig_spec_from_json(request.rig_spec_json(), "in the request");
-    if (!spec.ok()) return fail(spec.status());
-    inputs.spec = std::move(spec).value();
-  }
-  inputs.labels_source = "volume " + request.labels_volume_id();
-  const api::BuildParams params;
-  const std::string id = api::rig_id_of(inputs, params);
-  if (store_.rig(id).ok()) {  // built before from the same inputs
-    return set_operation(job, [&](v1::Operation& op) {
-      op.set_state(v1::Operation::SUCCEEDED);
-      op.set_rig_id(id);
-    });
-  }
-  ProgressHooks hooks;
-  hooks.threads = options_.build_threads;
-  hooks.cancel_requested = job->cancel.as_hook();
-  hooks.on_progress = [&](std::string_view stage, double fraction) {
+  Status status = [&]() -> Status {
+    const v1::BuildRigRequest& request = job->request;
+    api::BuildInputs inputs;
+    POSEWARP_ASSIGN_OR_RETURN(const VolumeRecord labels, store_->volume(request.labels_volume_id()));
+    POSEWARP_ASSIGN_OR_RETURN(inputs.labels, api::read_label_volume(labels.path));
+    if (!request.ct_volume_id().empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(const VolumeRecord ct, store_->volume(request.ct_volume_id()));
+      POSEWARP_ASSIGN_OR_RETURN(inputs.ct, api::read_intensity_volume(ct.path));
+    }
+    POSEWARP_ASSIGN_OR_RETURN(inputs.label_map,
+                              request.label_map_json().empty()
+                                  ? api::preset_by_name(request.preset().empty() ? "totalsegmentator" : request.preset())
+                                  : api::label_map_from_json(request.label_map_json(), "in the request"));
+    if (!request.rig_spec_json().empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(inputs.spec, api::rig_spec_from_json(request.rig_spec_json(), "in the request"));
+    }
+    inputs.labels_source = "volume " + request.labels_volume_id();
+    if (!request.ct_volume_id().empty()) inputs.ct_source = "volume " + request.ct_volume_id();
+    const api::BuildParams params;
+    const std::string id = api::rig_id_of(inputs, params);
+    if (store_->rig(id).ok()) {  // built before from the same inputs: no second build
+      set_operation(job, [&](v1::Operation& op) {
+        op.set_state(v1::Operation::SUCCEEDED);
+        op.set_rig_id(id);
+      }, true);
+      return ok_status();
+    }
+    ProgressHooks hooks;
+    hooks.threads = options_.build_threads;
+    hooks.cancel_requested = job->cancel.as_hook();
+    hooks.on_progress = [&](std::string_view stage, double fraction) {
+      set_operation(job, [&](v1::Operation& op) {
+        op.set_stage(std::string(stage));
+        op.set_stage_fraction(fraction);
+      }, false);
+    };
+    POSEWARP_ASSIGN_OR_RETURN(const api::Rig rig, api::build_rig(inputs, params, hooks));
+    if (job->cancel.cancelled()) return cancelled_error("the build was cancelled");
+    RigRecord record;
+    record.id = rig.id();
+    record.name = request.name();
+    record.labels_volume_id = request.labels_volume_id();
+    record.ct_volume_id = request.ct_volume_id();
+    for (const auto& [stage, seconds] : rig.provenance.stage_seconds) record.build_seconds += seconds;
+    POSEWARP_RETURN_IF_ERROR(store_->put_rig(record, api::rig_to_bytes(rig)));
     set_operation(job, [&](v1::Operation& op) {
-      op.set_stage(std::string(stage));
-      op.set_stage_fraction(fraction);
-    });
-  };
-  Result<api::Rig> rig = api::build_rig(inputs, params, hooks);
-  if (!rig.ok()) return fail(rig.status());
-  if (Status s = store_.put_rig(rig->id(), request.name(), api::rig_to_bytes(*rig)); !s.ok()) return fail(s);
-  set_operation(job, [&](v1::Operation& op) {
-    op.set_state(v1::Operation::SUCCEEDED);
-    op.set_rig_id(rig->id());
-  });
+      op.set_state(v1::Operation::SUCCEEDED);
+      op.set_rig_id(record.id);
+    }, true);
+    return ok_status();
+  }();
+  finish(status);
 }
 
-grpc::Status PosewarpService::GetOperation(grpc::ServerContext*, const v1::GetOperationRequest* request,
+Result<v1::Operation> PosewarpService::find_operation(const std::string& id) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (const auto it = operations_.find(id); it != operations_.end()) return it->second->operation;
+  }
+  if (id.empty() || id.size() > 64) return invalid_argument_error("an operation id is 32 hex digits (from BuildRig)");
+  POSEWARP_ASSIGN_OR_RETURN(const std::optional<OperationRecord> row, store_->index().operation(id));
+  if (!row) return not_found_error("no operation " + id + " on this server (ListOperations shows them)");
+  return operation_from(*row);
+}
+
+grpc::Status PosewarpService::GetOperation(grpc::ServerContext* context, const v1::GetOperationRequest* request,
                                            v1::Operation* response) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  const auto it = operations_.find(request->operation_id());
-  if (it == operations_.end()) return {grpc::StatusCode::NOT_FOUND, "no such operation on this server"};
-  *response = it->second->operation;
-  return grpc::Status::OK;
+  Call call(*this, context, "GetOperation");
+  if (call.refused()) return call.refusal();
+  Result<v1::Operation> operation = find_operation(request->operation_id());
+  if (!operation.ok()) return call.done(to_grpc(operation.status()));
+  *response = *operation;
+  return call.done(grpc::Status::OK);
 }
 
 grpc::Status PosewarpService::WatchOperation(grpc::ServerContext* context, const v1::GetOperationRequest* request,
                                              grpc::ServerWriter<v1::Operation>* writer) {
+  Call call(*this, context, "WatchOperation");
+  if (call.refused()) return call.refusal();
+  std::shared_ptr<Job> job;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (const auto it = operations_.find(request->operation_id()); it != operations_.end()) job = it->second;
+  }
+  if (!job) {  // an operation of an earlier run: final already
+    Result<v1::Operation> operation = find_operation(request->operation_id());
+    if (!operation.ok()) return call.done(to_grpc(operation.status()));
+    writer->Write(*operation);
+    return call.done(grpc::Status::OK);
+  }
   std::unique_lock<std::mutex> lock(mutex_);
-  const auto it = operations_.find(request->operation_id());
-  if (it == operations_.end()) return {grpc::StatusCode::NOT_FOUND, "no such operation on this server"};
-  const std::shared_ptr<Job> job = it->second;
   std::string last;
   for (;;) {
     const v1::Operation now = job->operation;
     const std::string serialized = now.SerializeAsString();
-    const bool final = now.state() == v1::Operation::SUCCEEDED || now.state() == v1::Operation::FAILED ||
-                       now.state() == v1::Operation::CANCELLED;
     if (serialized != last) {
       last = serialized;
       lock.unlock();
       const bool written = writer->Write(now);
       lock.lock();
-      if (!written) return {grpc::StatusCode::CANCELLED, "the client went away"};
+      if (!written) return call.done(kClientGone);
     }
-    if (final) return grpc::Status::OK;
-    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the watch"};
+    if (is_final(now.state())) return call.done(grpc::Status::OK);
+    if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the watch"});
     changed_.wait_for(lock, std::chrono::milliseconds(200));
   }
 }
 
-grpc::Status PosewarpService::CancelOperation(grpc::ServerContext*, const v1::GetOperationRequest* request,
+grpc::Status PosewarpService::CancelOperation(grpc::ServerContext* context, const v1::GetOperationRequest* request,
                                               v1::Operation* response) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  const auto it = operations_.find(request->operation_id());
-  if (it == operations_.end()) return {grpc::StatusCode::NOT_FOUND, "no such operation on this server"};
-  const std::shared_ptr<Job>& job = it->second;
-  job->cancel.cancel();
-  if (job->operation.state() == v1::Operation::QUEUED) {
-    build_queue_.erase(std::remove(build_queue_.begin(), build_queue_.end(), job), build_queue_.end());
-    job->operation.set_state(v1::Operation::CANCELLED);
-  }
-  *response = job->operation;
-  changed_.notify_all();
-  return grpc::Status::OK;
-}
-
-grpc::Status PosewarpService::GetRig(grpc::ServerContext*, const v1::GetRigRequest* request, v1::Rig* response) {
-  Result<StoredRig> stored = store_.rig(request->rig_id());
-  if (!stored.ok()) return to_grpc(stored.status());
-  Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
-  if (!engine.ok()) return to_grpc(engine.status());
-  const api::Rig& rig = (*engine)->rig();
-  response->set_id(stored->id);
-  response->set_name(stored->name);
-  response->set_size_bytes(stored->size_bytes);
-  response->set_created(stored->created);
-  put_grid(rig.source_geometry, response->mutable_grid());
-  for (const rig::Segment& s : rig.skeleton.segments) response->add_segments(s.name);
-  for (const rig::Joint& j : rig.skeleton.joints) {
-    v1::Joint* joint = response->add_joints();
-    joint->set_name(j.name);
-    joint->set_parent(rig.skeleton.segments[static_cast<size_t>(j.parent)].name);
-    joint->set_child(rig.skeleton.segments[static_cast<size_t>(j.child)].name);
-    for (int a = 0; a < 3; ++a) joint->add_centre_mm(j.centre_mm[a]);
-    joint->set_kind(std::string(api::joint_kind_name(j.kind)));
-    for (int a = 0; a < 3; ++a) {
-      joint->add_flexion_axis(j.frame(a, 0));
-      joint->add_abduction_axis(j.frame(a, 1));
-      joint->add_rotation_axis(j.frame(a, 2));
+  Call call(*this, context, "CancelOperation");
+  if (call.refused()) return call.refusal();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const auto it = operations_.find(request->operation_id());
+    if (it != operations_.end()) {
+      const std::shared_ptr<Job>& job = it->second;
+      job->cancel.cancel();
+      if (job->operation.state() == v1::Operation::QUEUED) {
+        build_queue_.erase(std::remove(build_queue_.begin(), build_queue_.end(), job), build_queue_.end());
+        live_by_key_.erase(job->key);
+        job->operation.set_state(v1::Operation::CANCELLED);
+        job->operation.set_error_code(static_cast<int32_t>(grpc::StatusCode::CANCELLED));
+        job->operation.set_error_message("cancelled before it started");
+        (void)store_->index().put_operation(record_from(job->operation, job->request));
+      }
+      *response = job->operation;
+      changed_.notify_all();
+      return call.done(grpc::Status::OK);
     }
   }
-  response->set_tet_vertices(rig.mesh.vertex_count());
-  response->set_tets(rig.mesh.tet_count());
-  return grpc::Status::OK;
+  Result<v1::Operation> operation = find_operation(request->operation_id());  // finished in an earlier run
+  if (!operation.ok()) return call.done(to_grpc(operation.status()));
+  *response = *operation;
+  return call.done(grpc::Status::OK);
 }
 
-grpc::Status PosewarpService::ListRigs(grpc::ServerContext*, const v1::ListRigsRequest* request,
-                                       v1::ListRigsResponse* response) {
+grpc::Status PosewarpService::ListOperations(grpc::ServerContext* context, const v1::ListOperationsRequest* request,
+                                             v1::ListOperationsResponse* response) {
+  Call call(*this, context, "ListOperations");
+  if (call.refused()) return call.refusal();
   const int page = request->page_size() <= 0 ? 50 : std::min(request->page_size(), 1000);
-  for (const StoredRig& r : store_.rigs()) {
-    if (!request->page_token().empty() && r.id <= request->page_token()) continue;
-    if (response->rigs_size() == page) {
-      response->set_next_page_token(response->rigs(page - 1).id());
+  Result<std::vector<OperationRecord>> rows = store_->index().operations(request->page_token(), page + 1);
+  if (!rows.ok()) return call.done(to_grpc(rows.status()));
+  for (const OperationRecord& row : *rows) {
+    if (response->operations_size() == page) {
+      response->set_next_page_token(response->operations(page - 1).id());
       break;
     }
-    v1::Rig* rig = response->add_rigs();
-    rig->set_id(r.id);
-    rig->set_name(r.name);
-    rig->set_size_bytes(r.size_bytes);
-    rig->set_created(r.created);
+    // A live build shows its progress; the index has its state transitions.
+    Result<v1::Operation> live = find_operation(row.id);
+    *response->add_operations() = live.ok() ? *live : operation_from(row);
   }
-  return grpc::Status::OK;
+  return call.done(grpc::Status::OK);
 }
 
 Result<std::shared_ptr<const api::PoseEngine>> PosewarpService::engine(const std::string& rig_id) {
@@ -397,13 +574,25 @@ Result<std::shared_ptr<const api::PoseEngine>> PosewarpService::engine(const std
       cache_[rig_id] = {loading.get_future().share(), 0, std::chrono::steady_clock::now()};
     }
   }
-  if (waiting.valid()) return *waiting.get();
+  if (waiting.valid()) {
+    metrics_.count("cache_hits");
+    return *waiting.get();
+  }
+  metrics_.count("cache_misses");
   auto result = std::make_shared<EngineResult>([&]() -> EngineResult {
-    POSEWARP_ASSIGN_OR_RETURN(const StoredRig stored, store_.rig(rig_id));
-    POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::load_rig(stored.path));
+    POSEWARP_ASSIGN_OR_RETURN(const RigRecord stored, store_->rig(rig_id));
+    Result<api::Rig> rig = api::load_rig(stored.path);
+    if (!rig.ok() && rig.status().code() == StatusCode::kDataLoss) {
+      // Never served: moved aside for a person to look at, and the client told to rebuild.
+      if (Status q = store_->quarantine_rig(rig_id, rig.status().message()); !q.ok()) spdlog::error("{}", q.message());
+      spdlog::error("rig={} failed its checks on load and was quarantined", rig_id.substr(0, 16));
+      return data_loss_error("rig " + rig_id + " failed its checksums in the store and was quarantined; build it "
+                             "again (or upload a good copy with UploadRig)");
+    }
+    if (!rig.ok()) return rig.status();
     ProgressHooks hooks;
     hooks.threads = options_.pose_threads;
-    POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, api::PoseEngine::create(std::move(rig), hooks));
+    POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, api::PoseEngine::create(std::move(rig).value(), hooks));
     return std::make_shared<const api::PoseEngine>(std::move(engine));
   }());
   loading.set_value(result);
@@ -426,27 +615,185 @@ Result<std::shared_ptr<const api::PoseEngine>> PosewarpService::engine(const std
     }
     if (total <= options_.cache_bytes || oldest == cache_.end()) break;
     cache_.erase(oldest);
+    metrics_.count("cache_evictions");
   }
   return *result;
 }
 
+void PosewarpService::evict(const std::string& rig_id) {
+  std::lock_guard<std::mutex> lock(cache_mutex_);
+  cache_.erase(rig_id);
+}
+
+grpc::Status PosewarpService::GetRig(grpc::ServerContext* context, const v1::GetRigRequest* request,
+                                     v1::Rig* response) {
+  Call call(*this, context, "GetRig", request->rig_id());
+  if (call.refused()) return call.refusal();
+  Result<RigRecord> stored = store_->rig(request->rig_id());
+  if (!stored.ok()) return call.done(to_grpc(stored.status()));
+  Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
+  if (!engine.ok()) return call.done(to_grpc(engine.status()));
+  put_rig(*stored, (*engine)->rig(), response);
+  return call.done(grpc::Status::OK);
+}
+
+grpc::Status PosewarpService::ListRigs(grpc::ServerContext* context, const v1::ListRigsRequest* request,
+                                       v1::ListRigsResponse* response) {
+  Call call(*this, context, "ListRigs");
+  if (call.refused()) return call.refusal();
+  const int page = request->page_size() <= 0 ? 50 : std::min(request->page_size(), 1000);
+  if (!request->page_token().empty() && !api::is_hex_id(request->page_token())) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "page_token is the next_page_token of a previous answer"});
+  }
+  Result<std::vector<RigRecord>> rows = store_->rigs(request->page_token(), page + 1);
+  if (!rows.ok()) return call.done(to_grpc(rows.status()));
+  for (const RigRecord& row : *rows) {
+    if (response->rigs_size() == page) {
+      response->set_next_page_token(response->rigs(page - 1).id());
+      break;
+    }
+    put_rig_row(row, response->add_rigs());
+  }
+  return call.done(grpc::Status::OK);
+}
+
+grpc::Status PosewarpService::DeleteRig(grpc::ServerContext* context, const v1::GetRigRequest* request,
+                                        v1::DeleteRigResponse*) {
+  Call call(*this, context, "DeleteRig", request->rig_id());
+  if (call.refused()) return call.refusal();
+  evict(request->rig_id());  // poses holding the engine finish with it; new ones find no rig
+  return call.done(to_grpc(store_->delete_rig(request->rig_id())));
+}
+
+grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v1::GetRigAssetsRequest* request,
+                                           grpc::ServerWriter<v1::RigAsset>* writer) {
+  Call call(*this, context, "GetRigAssets", request->rig_id());
+  if (call.refused()) return call.refusal();
+  if (!api::is_hex_id(request->rig_id())) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"});
+  }
+  Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
+  if (!engine.ok()) return call.done(to_grpc(engine.status()));
+  const api::Rig& rig = (*engine)->rig();
+  v1::RigAsset asset;
+  put_skeleton(rig, asset.mutable_skeleton());
+  if (!writer->Write(asset)) return call.done(kClientGone);
+  for (const surface::SurfaceMesh& mesh : rig.surfaces) {
+    v1::RigAsset part;
+    if (request->format() == v1::ASSET_FORMAT_VTP) {
+      Result<std::string> vtp = api::surface_to_vtp_bytes(mesh);
+      if (!vtp.ok()) return call.done(to_grpc(vtp.status()));
+      part.mutable_vtp()->set_name(mesh.name);
+      part.mutable_vtp()->set_label(mesh.label);
+      part.mutable_vtp()->set_data(std::move(vtp).value());
+    } else {
+      put_surface(mesh, true, part.mutable_surface());
+    }
+    if (!writer->Write(part)) return call.done(kClientGone);
+  }
+  return call.done(grpc::Status::OK);
+}
+
+grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1::GetRigRequest* request,
+                                          grpc::ServerWriter<v1::RigChunk>* writer) {
+  Call call(*this, context, "DownloadRig", request->rig_id());
+  if (call.refused()) return call.refusal();
+  Result<RigRecord> stored = store_->rig(request->rig_id());
+  if (!stored.ok()) return call.done(to_grpc(stored.status()));
+  Result<std::string> bytes = api::read_text_input(stored->path, "rig file", int64_t{1} << 40);
+  if (!bytes.ok()) return call.done(to_grpc(bytes.status()));
+  // The file as stored, checked first: a damaged rig is quarantined, never sent.
+  if (Result<api::Rig> check = api::rig_from_bytes(*bytes, "rig " + stored->id); !check.ok()) {
+    evict(stored->id);
+    (void)store_->quarantine_rig(stored->id, check.status().message());
+    return call.done({grpc::StatusCode::DATA_LOSS, "rig " + stored->id + " failed its checksums in the store and "
+                                                   "was quarantined; build it again"});
+  }
+  const std::string sha = api::sha256_hex(*bytes);
+  const bool sent = stream_chunks(bytes->data(), bytes->size(), uint64_t{1} << 20, [&](uint64_t offset, std::string data) {
+    v1::RigChunk chunk;
+    chunk.set_offset(offset);
+    chunk.set_data(std::move(data));
+    if (offset == 0) {
+      chunk.set_size_bytes(bytes->size());
+      chunk.set_sha256(sha);
+    }
+    return writer->Write(chunk);
+  });
+  return call.done(sent ? grpc::Status::OK : kClientGone);
+}
+
+grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::ServerReader<v1::UploadRigRequest>* reader,
+                                        v1::Rig* response) {
+  Call call(*this, context, "UploadRig");
+  if (call.refused()) return call.refusal();
+  v1::UploadRigRequest part;
+  if (!reader->Read(&part) || !part.has_header()) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig upload starts with its header (size, sha256)"});
+  }
+  const v1::UploadRigHeader header = part.header();
+  if (!api::is_hex_id(header.sha256())) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "the rig upload's sha256 must be 64 lowercase hex digits"});
+  }
+  if (header.size_bytes() == 0 || header.size_bytes() > static_cast<uint64_t>(options_.max_upload_bytes)) {
+    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "a rig upload must be 1 to " +
+                                                                std::to_string(options_.max_upload_bytes) +
+                                                                " bytes (the server's --max-upload-mb)"});
+  }
+  std::string bytes;
+  bytes.reserve(header.size_bytes());
+  while (reader->Read(&part)) {
+    if (part.part_case() != v1::UploadRigRequest::kChunk || bytes.size() + part.chunk().size() > header.size_bytes()) {
+      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig upload has one header, then at most size_bytes "
+                                                            "bytes of chunks"});
+    }
+    bytes += part.chunk();
+  }
+  if (bytes.size() != header.size_bytes() || api::sha256_hex(bytes) != header.sha256()) {
+    return call.done({grpc::StatusCode::DATA_LOSS, "the rig upload arrived incomplete or altered (size or sha256 "
+                                                   "differ); send it again"});
+  }
+  Result<api::Rig> rig = api::rig_from_bytes(bytes, "uploaded rig");
+  if (!rig.ok()) return call.done(to_grpc(rig.status()));
+  RigRecord record;
+  record.id = rig->id();
+  call.set_rig(record.id);
+  record.name = header.name();
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) record.build_seconds += seconds;
+  if (!store_->rig(record.id).ok()) {
+    if (Status s = store_->put_rig(record, bytes); !s.ok()) return call.done(to_grpc(s));
+  }
+  Result<RigRecord> stored = store_->rig(record.id);
+  if (!stored.ok()) return call.done(to_grpc(stored.status()));
+  put_rig(*stored, *rig, response);
+  return call.done(grpc::Status::OK);
+}
+
 grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseRequest* request,
                                    grpc::ServerWriter<v1::PoseResponse>* writer) {
-  if (!api::is_hex_id(request->rig_id())) return {grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"};
+  Call call(*this, context, "Pose", request->rig_id());
+  if (call.refused()) return call.refusal();
+  if (!api::is_hex_id(request->rig_id())) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"});
+  }
   Result<pose::Pose> pose = api::pose_from_json(request->pose_json(), "in the request");
-  if (!pose.ok()) return to_grpc(pose.status());
+  if (!pose.ok()) return call.done(to_grpc(pose.status()));
   // A slot, or a place in the bounded queue, or RESOURCE_EXHAUSTED at once.
   {
     std::unique_lock<std::mutex> lock(mutex_);
-    if (stopping_) return {grpc::StatusCode::UNAVAILABLE, "the server is shutting down; try another replica"};
+    if (stopping_) return call.done({grpc::StatusCode::UNAVAILABLE, "the server is shutting down; try again shortly"});
     if (poses_running_ >= options_.pose_slots && poses_waiting_ >= options_.pose_queue) {
-      return {grpc::StatusCode::RESOURCE_EXHAUSTED, "the server is busy (" + std::to_string(options_.pose_queue) +
-                                                        " poses waiting); try again later"};
+      return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "the server is busy (" +
+                                                                  std::to_string(options_.pose_queue) +
+                                                                  " poses waiting); try again later"});
     }
     ++poses_waiting_;
-    changed_.wait(lock, [&] { return poses_running_ < options_.pose_slots || context->IsCancelled(); });
+    // Woken by a freed slot; the timeout notices a client that cancelled while waiting.
+    while (poses_running_ >= options_.pose_slots && !context->IsCancelled()) {
+      changed_.wait_for(lock, std::chrono::milliseconds(100));
+    }
     --poses_waiting_;
-    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the pose"};
+    if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the pose"});
     ++poses_running_;
   }
   struct Slot {
@@ -461,7 +808,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   } slot{this};
 
   Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
-  if (!engine.ok()) return to_grpc(engine.status());
+  if (!engine.ok()) return call.done(to_grpc(engine.status()));
+  store_->touch_rig(request->rig_id());
   api::PoseRequest core;
   core.pose = std::move(pose).value();
   core.method = method_of(request->method());
@@ -471,15 +819,16 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   core.want_surfaces = request->want_surfaces();
   core.resample.max_output_bytes =
       request->max_output_bytes() > 0 ? static_cast<int64_t>(request->max_output_bytes()) : options_.max_output_bytes;
-  if (Result<api::PosePlan> plan = (*engine)->plan(core); !plan.ok()) return to_grpc(plan.status());
-  ProgressHooks hooks;
-  hooks.threads = options_.pose_threads;
-  hooks.cancel_requested = [context] { return context->IsCancelled(); };
-  if (context->deadline() != std::chrono::system_clock::time_point::max()) {
-    hooks.deadline = std::chrono::steady_clock::now() + (context->deadline() - std::chrono::system_clock::now());
+  Result<api::PosePlan> plan = (*engine)->plan(core);
+  if (!plan.ok()) return call.done(to_grpc(plan.status()));
+  if ((core.want_labels || core.want_ct) && plan->output_grid.voxel_count() > options_.max_output_voxels) {
+    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED,
+                      "the pose's output grid has " + std::to_string(plan->output_grid.voxel_count()) +
+                          " voxels; this server makes at most " + std::to_string(options_.max_output_voxels) +
+                          " (ask for the input grid, or ask the operator)"});
   }
-  Result<api::PoseResult> result = (*engine)->pose(core, hooks);
-  if (!result.ok()) return to_grpc(result.status());
+  Result<api::PoseResult> result = (*engine)->pose(core, call_hooks(context));
+  if (!result.ok()) return call.done(to_grpc(result.status()));
 
   v1::PoseResponse message;
   v1::PoseHeader* header = message.mutable_header();
@@ -491,7 +840,7 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   header->set_surface_count(static_cast<int32_t>(result->surfaces.size()));
   if (result->labels) header->set_label_pixel_type(std::string(pixel_type_name(result->labels->source_type())));
   if (result->ct) header->set_ct_pixel_type(std::string(pixel_type_name(result->ct->source_type())));
-  if (!writer->Write(message)) return {grpc::StatusCode::CANCELLED, "the client went away"};
+  if (!writer->Write(message)) return call.done(kClientGone);
   const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
   // Label and CT voxels as chunks, each message's chunk in `field` (labels or ct).
   auto send_voxels = [&](const char* data, uint64_t size, v1::VolumeChunk* (v1::PoseResponse::*field)()) {
@@ -504,37 +853,45 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   };
   if (result->labels && !send_voxels(reinterpret_cast<const char*>(result->labels->data()), label_bytes,
                                      &v1::PoseResponse::mutable_labels)) {
-    return {grpc::StatusCode::CANCELLED, "the client went away"};
+    return call.done(kClientGone);
   }
   if (result->ct && !send_voxels(reinterpret_cast<const char*>(result->ct->data()), ct_bytes,
                                  &v1::PoseResponse::mutable_ct)) {
-    return {grpc::StatusCode::CANCELLED, "the client went away"};
+    return call.done(kClientGone);
   }
   for (const surface::SurfaceMesh& s : result->surfaces) {
     v1::PoseResponse m;
-    v1::Surface* surface = m.mutable_surface();
-    surface->set_name(s.name);
-    surface->set_label(s.label);
-    for (Eigen::Index v = 0; v < s.vertices.rows(); ++v) {
-      for (int a = 0; a < 3; ++a) surface->add_vertices(s.vertices(v, a));
-    }
-    for (Eigen::Index t = 0; t < s.triangles.rows(); ++t) {
-      for (int a = 0; a < 3; ++a) surface->add_triangles(s.triangles(t, a));
-    }
-    if (!writer->Write(m)) return {grpc::StatusCode::CANCELLED, "the client went away"};
+    put_surface(s, true, m.mutable_surface());
+    if (!writer->Write(m)) return call.done(kClientGone);
   }
   v1::PoseResponse last;
-  v1::QualityReport* report = last.mutable_report();
-  report->set_json(report::to_json(result->report));
-  report->set_inverted_tets(result->report.mesh.inverted_tets);
-  report->set_bone_rigidity_error_mm(result->report.bone_rigidity_error_mm);
-  for (const std::string& w : result->report.warnings) report->add_warnings(w);
+  put_report(result->report, last.mutable_report());
   writer->Write(last);
-  return grpc::Status::OK;
+  return call.done(grpc::Status::OK);
 }
 
 grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
                                       grpc::ServerReaderWriter<v1::PreviewResponse, v1::PreviewRequest>* stream) {
+  Call call(*this, context, "Preview");
+  if (call.refused()) return call.refusal();
+  const std::string client = peer_host(context->peer());
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (previews_by_client_[client] >= options_.preview_streams_per_client) {
+      return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED,
+                        "this client has " + std::to_string(options_.preview_streams_per_client) +
+                            " preview streams open already (the server's --preview-streams-per-client); close one"});
+    }
+    ++previews_by_client_[client];
+  }
+  struct Open {
+    PosewarpService* service;
+    std::string client;
+    ~Open() {
+      std::lock_guard<std::mutex> lock(service->mutex_);
+      if (--service->previews_by_client_[client] <= 0) service->previews_by_client_.erase(client);
+    }
+  } open{this, client};
   // A reader thread keeps only the newest update; this thread answers whatever is newest when it is free.
   std::mutex mutex;
   std::condition_variable arrived;
@@ -580,13 +937,15 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
     {
       std::unique_lock<std::mutex> lock(mutex);
       arrived.wait(lock, [&] { return latest.has_value() || closed; });
-      if (!latest) return grpc::Status::OK;  // the client closed and everything was answered
+      if (!latest) return call.done(grpc::Status::OK);  // the client closed and everything was answered
       update = std::move(*latest);
       latest.reset();
       dropped = std::exchange(skipped, 0);
       if (update.rig_id().empty()) update.set_rig_id(rig_id);
     }
-    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "the client cancelled the preview"};
+    metrics_.count("preview_updates");
+    if (dropped > 0) metrics_.count("preview_updates_dropped", static_cast<int64_t>(dropped));
+    if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the preview"});
     // A refused update is answered with its code; the stream goes on (a slider's next move may be fine).
     auto refuse = [&](const grpc::Status& status) {
       v1::PreviewResponse answer;
@@ -597,23 +956,25 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       return stream->Write(answer);
     };
     if (!engine) {
+      call.set_rig(update.rig_id());
       Result<std::shared_ptr<const api::PoseEngine>> loaded =
-          api::is_hex_id(update.rig_id()) ? this->engine(update.rig_id())
-                                     : Result<std::shared_ptr<const api::PoseEngine>>(invalid_argument_error(
-                                           "the first preview update names the rig (64 hex digits)"));
+          api::is_hex_id(update.rig_id())
+              ? this->engine(update.rig_id())
+              : Result<std::shared_ptr<const api::PoseEngine>>(
+                    invalid_argument_error("the first preview update names the rig (64 hex digits)"));
       if (!loaded.ok()) {
-        if (!refuse(to_grpc(loaded.status()))) return {grpc::StatusCode::CANCELLED, "the client went away"};
+        if (!refuse(to_grpc(loaded.status()))) return call.done(kClientGone);
         continue;
       }
       engine = *loaded;
     }
     const auto start = std::chrono::steady_clock::now();
-    Result<pose::Pose> pose = api::pose_from_json(update.pose_json(), "in preview update " +
-                                                                          std::to_string(update.sequence()));
+    Result<pose::Pose> pose =
+        api::pose_from_json(update.pose_json(), "in preview update " + std::to_string(update.sequence()));
     Result<api::PreviewResult> preview =
         pose.ok() ? engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());
     if (!preview.ok()) {
-      if (!refuse(to_grpc(preview.status()))) return {grpc::StatusCode::CANCELLED, "the client went away"};
+      if (!refuse(to_grpc(preview.status()))) return call.done(kClientGone);
       continue;
     }
     v1::PreviewResponse answer;
@@ -628,18 +989,11 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       for (Eigen::Index r = 0; r < v.rows(); ++r) {
         for (int a = 0; a < 3; ++a) positions->add_vertices(static_cast<float>(v(r, a)));
       }
-      if (!topology_sent) {
-        v1::Surface* topology = answer.add_topology();
-        topology->set_name(rest[i].name);
-        topology->set_label(rest[i].label);
-        for (Eigen::Index t = 0; t < rest[i].triangles.rows(); ++t) {
-          for (int a = 0; a < 3; ++a) topology->add_triangles(rest[i].triangles(t, a));
-        }
-      }
+      if (!topology_sent) put_surface(rest[i], false, answer.add_topology());
     }
     topology_sent = true;
     answer.set_server_ms(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-    if (!stream->Write(answer)) return {grpc::StatusCode::CANCELLED, "the client went away"};
+    if (!stream->Write(answer)) return call.done(kClientGone);
   }
 }
 

@@ -1,5 +1,7 @@
 // The gRPC service: a thin adapter between posewarp.v1 and the core's api (no pipeline logic here). Builds run on a
-// bounded build queue, poses on a bounded number of slots; loaded engines stay in a cache under a byte budget.
+// bounded build queue, poses on a bounded number of slots; loaded engines stay in a cache under a byte budget. Every
+// call passes one Call scope: token check, a log line (request id, method, rig id, code, duration; never patient
+// data) and the metrics.
 #pragma once
 
 #include <atomic>
@@ -7,13 +9,17 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <future>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
+#include "auth.h"
+#include "metrics.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 #include "store.h"
@@ -21,19 +27,23 @@
 namespace posewarp::server {
 
 struct ServiceOptions {
-  int build_queue = 4;                         // builds waiting behind the one running; past it RESOURCE_EXHAUSTED
+  int build_workers = 1;                       // builds running at once
+  int build_queue = 4;                         // builds waiting for a worker; past it RESOURCE_EXHAUSTED
   int build_threads = 0;                       // threads of a build (0: all cores)
-  int pose_slots = 2;                          // poses running at once
+  int pose_slots = 0;                          // poses running at once (0: as many as cores)
   int pose_queue = 32;                         // poses waiting for a slot; past it RESOURCE_EXHAUSTED
   int pose_threads = 0;                        // threads of one pose (0: all cores)
   int64_t cache_bytes = int64_t{8} << 30;      // loaded engines kept, by Rig::footprint_bytes()
   int64_t max_upload_bytes = int64_t{4} << 30; // one uploaded file
+  int64_t max_volume_voxels = int64_t{1} << 30;  // one uploaded volume
+  int64_t max_output_voxels = int64_t{1} << 30;  // one pose's output grid
   int64_t max_output_bytes = 0;                // one pose's outputs (0: half the machine's memory)
+  int preview_streams_per_client = 4;          // open preview streams per client address
 };
 
 class PosewarpService final : public v1::Posewarp::Service {
  public:
-  PosewarpService(RigStore store, ServiceOptions options);
+  PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions options, const Tokens& tokens, Metrics& metrics);
   ~PosewarpService() override;
 
   grpc::Status UploadVolume(grpc::ServerContext* context, grpc::ServerReader<v1::UploadVolumeRequest>* reader,
@@ -46,21 +56,34 @@ class PosewarpService final : public v1::Posewarp::Service {
                               grpc::ServerWriter<v1::Operation>* writer) override;
   grpc::Status CancelOperation(grpc::ServerContext* context, const v1::GetOperationRequest* request,
                                v1::Operation* response) override;
+  grpc::Status ListOperations(grpc::ServerContext* context, const v1::ListOperationsRequest* request,
+                              v1::ListOperationsResponse* response) override;
   grpc::Status GetRig(grpc::ServerContext* context, const v1::GetRigRequest* request, v1::Rig* response) override;
   grpc::Status ListRigs(grpc::ServerContext* context, const v1::ListRigsRequest* request,
                         v1::ListRigsResponse* response) override;
+  grpc::Status DeleteRig(grpc::ServerContext* context, const v1::GetRigRequest* request,
+                         v1::DeleteRigResponse* response) override;
+  grpc::Status GetRigAssets(grpc::ServerContext* context, const v1::GetRigAssetsRequest* request,
+                            grpc::ServerWriter<v1::RigAsset>* writer) override;
+  grpc::Status DownloadRig(grpc::ServerContext* context, const v1::GetRigRequest* request,
+                           grpc::ServerWriter<v1::RigChunk>* writer) override;
+  grpc::Status UploadRig(grpc::ServerContext* context, grpc::ServerReader<v1::UploadRigRequest>* reader,
+                         v1::Rig* response) override;
   grpc::Status Pose(grpc::ServerContext* context, const v1::PoseRequest* request,
                     grpc::ServerWriter<v1::PoseResponse>* writer) override;
   grpc::Status Preview(grpc::ServerContext* context,
                        grpc::ServerReaderWriter<v1::PreviewResponse, v1::PreviewRequest>* stream) override;
 
-  // Cancels queued and running builds (marked CANCELLED) and stops the build worker; poses in flight finish.
+  // Refuses new work, cancels queued and running builds (marked CANCELLED) and waits for the build workers; poses
+  // in flight finish.
   void shutdown();
 
  private:
+  class Call;
   struct Job {
     v1::Operation operation;  // guarded by mutex_
     v1::BuildRigRequest request;
+    std::string key;          // the request without its name: identical builds share one operation
     CancelFlag cancel;
     std::chrono::steady_clock::time_point started;
   };
@@ -73,21 +96,34 @@ class PosewarpService final : public v1::Posewarp::Service {
 
   void build_worker();
   void run_build(const std::shared_ptr<Job>& job);
-  void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change);
+  void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
+                     bool persist);
   grpc::Status to_grpc(const Status& status) const;
+  Result<v1::Operation> find_operation(const std::string& id);
+  // The loaded engine of a rig, from the cache or the store (once, however many ask at the same time). A rig file
+  // that fails its checks is quarantined.
   Result<std::shared_ptr<const api::PoseEngine>> engine(const std::string& rig_id);
+  void evict(const std::string& rig_id);
+  ProgressHooks call_hooks(grpc::ServerContext* context) const;
+  std::vector<std::pair<std::string, double>> gauges();
 
-  RigStore store_;
+  std::unique_ptr<RigStore> store_;
   ServiceOptions options_;
+  const Tokens& tokens_;
+  Metrics& metrics_;
+  std::atomic<uint64_t> next_request_{1};
 
-  std::mutex mutex_;  // operations, the build queue, pose slots
+  std::mutex mutex_;  // operations, the build queue, pose slots, preview streams
   std::condition_variable changed_;
-  std::map<std::string, std::shared_ptr<Job>> operations_;
+  std::map<std::string, std::shared_ptr<Job>> operations_;  // this run's builds
+  std::map<std::string, std::shared_ptr<Job>> live_by_key_;  // queued or running
   std::deque<std::shared_ptr<Job>> build_queue_;
+  int builds_running_ = 0;
   bool stopping_ = false;
   int poses_running_ = 0;
   int poses_waiting_ = 0;
-  std::thread build_thread_;
+  std::map<std::string, int> previews_by_client_;
+  std::vector<std::thread> build_threads_;
 
   std::mutex cache_mutex_;
   std::map<std::string, CacheEntry> cache_;

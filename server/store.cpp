@@ -1,7 +1,6 @@
-// RigStore on the file system: volumes/<sha256>.<ext> (+ .kind), rigs/<id>.rig (+ .name).
+// RigStore: volumes/<sha256><ext> and rigs/<id>.rig under one directory, index.sqlite beside them, quarantine/ for
+// rig files that failed their checks.
 #include "store.h"
-
-#include <sys/stat.h>
 
 #include <algorithm>
 #include <chrono>
@@ -9,23 +8,40 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <set>
+#include <thread>
 
 #include "posewarp/api/files.h"
+#include "posewarp/api/rig_file.h"
 
 namespace posewarp::server {
 namespace {
 
 namespace fs = std::filesystem;
 
-std::string read_small(const fs::path& path) {
+constexpr const char* kExtensions[] = {".nii.gz", ".nii", ".nrrd", ".mha"};
+
+Result<std::string> read_whole(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  if (!in) return not_found_error("cannot read " + path.filename().string());
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
-std::string iso_time(fs::file_time_type when) {
-  const auto system = std::chrono::time_point_cast<std::chrono::seconds>(
-      when - fs::file_time_type::clock::now() + std::chrono::system_clock::now());
-  const std::time_t t = std::chrono::system_clock::to_time_t(system);
+// "<id><ext>" -> {id, ext} for a volume file name, or nullopt.
+std::optional<std::pair<std::string, std::string>> volume_file_name(const std::string& name) {
+  for (const char* extension : kExtensions) {
+    const std::string ext(extension);
+    if (name.size() == 64 + ext.size() && name.compare(64, ext.size(), ext) == 0 && is_hex_id(name.substr(0, 64))) {
+      return std::make_pair(name.substr(0, 64), ext);
+    }
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::string iso_now() {
+  const std::time_t t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
   std::tm utc{};
   gmtime_r(&t, &utc);
   char text[32];
@@ -33,74 +49,201 @@ std::string iso_time(fs::file_time_type when) {
   return text;
 }
 
-}  // namespace
-
-Result<RigStore> RigStore::open(const std::string& directory) {
+Result<std::unique_ptr<RigStore>> RigStore::open(const std::string& directory, const StoreOptions& options,
+                                                 const std::function<void(const std::string&)>& log) {
   std::error_code ec;
-  for (const char* sub : {"volumes", "rigs"}) {
+  for (const char* sub : {"volumes", "rigs", "quarantine"}) {
     fs::create_directories(fs::path(directory) / sub, ec);
-    if (ec) return invalid_argument_error("cannot create the store at '" + directory + "': " + ec.message());
-    api::remove_stale_partial_files((fs::path(directory) / sub).string());
-  }
-  return RigStore(directory);
-}
-
-Result<StoredVolume> RigStore::put_volume(const std::string& id, const std::string& extension, const std::string& kind,
-                                          std::string_view bytes) {
-  if (!api::is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
-  const fs::path base = fs::path(directory_) / "volumes" / id;
-  const fs::path file = base.string() + extension;
-  std::error_code ec;
-  if (!fs::exists(file, ec)) {
-    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(file.string(), bytes, "volume"));
-  }
-  POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".kind", kind, "volume kind"));
-  return volume(id);
-}
-
-Result<StoredVolume> RigStore::volume(const std::string& id) const {
-  if (!api::is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
-  const fs::path base = fs::path(directory_) / "volumes" / id;
-  for (const char* extension : {".nii.gz", ".nii", ".nrrd", ".mha"}) {
-    const fs::path file = base.string() + extension;
-    std::error_code ec;
-    if (fs::is_regular_file(file, ec)) {
-      return StoredVolume{id, file.string(), read_small(base.string() + ".kind"),
-                          static_cast<uint64_t>(fs::file_size(file, ec))};
+    if (ec) {
+      return failed_precondition_error("cannot create the store at '" + directory + "': " + ec.message() +
+                                       " (give --store a directory the server may write)");
     }
   }
-  return not_found_error("no volume " + id + " in the store; upload it first");
+  POSEWARP_ASSIGN_OR_RETURN(std::unique_ptr<StoreIndex> index,
+                            open_sqlite_index((fs::path(directory) / "index.sqlite").string()));
+  std::unique_ptr<RigStore> store(new RigStore(directory, options, std::move(index)));
+  POSEWARP_RETURN_IF_ERROR(store->reconcile(log));
+  return store;
 }
 
-Status RigStore::put_rig(const std::string& id, const std::string& name, std::string_view bytes) {
-  if (!api::is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
-  const fs::path base = fs::path(directory_) / "rigs" / id;
-  POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".rig", bytes, "rig file"));
-  if (!name.empty()) POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(base.string() + ".name", name, "rig name"));
+Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
+  const fs::path root(directory_);
+  for (const char* sub : {"volumes", "rigs"}) {
+    if (const int removed = remove_stale_partial_files((root / sub).string()); removed > 0) {
+      log("store: removed " + std::to_string(removed) + " partial file(s) of a writer that died in " + sub + "/");
+    }
+  }
+  POSEWARP_ASSIGN_OR_RETURN(const int interrupted,
+                            index_->fail_unfinished_operations(10, "the server stopped during the build; build again"));
+  if (interrupted > 0) log("store: " + std::to_string(interrupted) + " build(s) left running were marked failed");
+
+  // Rigs: rows without a file are dropped; files without a row are checked and adopted, or quarantined.
+  std::set<std::string> indexed;
+  for (std::string after;;) {
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigRecord> page, index_->rigs(after, 1000));
+    for (const RigRecord& r : page) {
+      std::error_code ec;
+      if (!fs::is_regular_file(root / "rigs" / (r.id + ".rig"), ec)) {
+        POSEWARP_RETURN_IF_ERROR(index_->delete_rig(r.id));
+        log("store: rig " + r.id + " was in the index without its file; its row was dropped");
+      } else {
+        indexed.insert(r.id);
+      }
+    }
+    if (page.size() < 1000) break;
+    after = page.back().id;
+  }
+  std::error_code ec;
+  for (fs::directory_iterator it(root / "rigs", ec), end; !ec && it != end; it.increment(ec)) {
+    const fs::path& p = it->path();
+    const std::string id = p.stem().string();
+    if (p.extension() != ".rig" || !is_hex_id(id)) {
+      log("store: unexpected file rigs/" + p.filename().string() + " left alone");
+      continue;
+    }
+    if (indexed.count(id) != 0) continue;
+    Result<std::string> bytes = read_whole(p);
+    Result<api::Rig> rig = bytes.ok() ? api::rig_from_bytes(*bytes, "rig " + id) : Result<api::Rig>(bytes.status());
+    if (!rig.ok() || rig->id() != id) {
+      POSEWARP_RETURN_IF_ERROR(quarantine_rig(id, rig.ok() ? "its content is not rig " + id : rig.status().message()));
+      log("store: rig file " + id + " had no row and failed its checks; moved to quarantine/");
+      continue;
+    }
+    RigRecord record;
+    record.id = id;
+    record.size_bytes = bytes->size();
+    for (const auto& [stage, seconds] : rig->provenance.stage_seconds) record.build_seconds += seconds;
+    record.created = record.last_used = iso_now();
+    POSEWARP_RETURN_IF_ERROR(index_->put_rig(record));
+    log("store: rig file " + id + " had no row (a crash after its write); checked and adopted");
+  }
+
+  // Volumes: rows without a file are dropped; a file without a row is adopted when its bytes hash to its name.
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<VolumeRecord> volumes, index_->volumes());
+  std::set<std::string> volume_ids;
+  for (const VolumeRecord& v : volumes) {
+    if (!fs::is_regular_file(root / "volumes" / (v.id + v.extension), ec)) {
+      POSEWARP_RETURN_IF_ERROR(index_->delete_volume(v.id));
+      log("store: volume " + v.id + " was in the index without its file; its row was dropped");
+    } else {
+      volume_ids.insert(v.id);
+    }
+  }
+  for (fs::directory_iterator it(root / "volumes", ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    const auto parsed = volume_file_name(name);
+    if (!parsed) {
+      if (name.rfind(".staging-", 0) == 0) {
+        fs::remove(it->path(), ec);  // an upload being checked when the server stopped
+      } else {
+        log("store: unexpected file volumes/" + name + " left alone");
+      }
+      continue;
+    }
+    if (volume_ids.count(parsed->first) != 0) continue;
+    Result<std::string> bytes = read_whole(it->path());
+    if (bytes.ok() && sha256_hex(*bytes) == parsed->first) {
+      POSEWARP_RETURN_IF_ERROR(
+          index_->put_volume({parsed->first, "unknown", parsed->second, bytes->size(), iso_now(), ""}));
+      log("store: volume file " + parsed->first + " had no row; its bytes match its id, adopted");
+    } else {
+      fs::remove(it->path(), ec);
+      log("store: volume file " + parsed->first + " had no row and does not match its id; removed");
+    }
+  }
   return ok_status();
 }
 
-Result<StoredRig> RigStore::rig(const std::string& id) const {
-  if (!api::is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
-  const fs::path base = fs::path(directory_) / "rigs" / id;
-  const fs::path file = base.string() + ".rig";
-  std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) return not_found_error("no rig " + id + " in the store; build it first");
-  return StoredRig{id, file.string(), read_small(base.string() + ".name"),
-                   static_cast<uint64_t>(fs::file_size(file, ec)), iso_time(fs::last_write_time(file, ec))};
+Status RigStore::check_quota(uint64_t more_bytes) {
+  if (options_.quota_bytes == 0) return ok_status();
+  POSEWARP_ASSIGN_OR_RETURN(const uint64_t used, index_->total_bytes());
+  if (used + more_bytes > options_.quota_bytes) {
+    return resource_exhausted_error("the store is full (" + std::to_string(used >> 20) + " of " +
+                                    std::to_string(options_.quota_bytes >> 20) + " MB used; this needs " +
+                                    std::to_string((more_bytes + (1 << 20) - 1) >> 20) +
+                                    " MB): delete rigs you no longer need, or ask the operator for a larger quota");
+  }
+  return ok_status();
 }
 
-std::vector<StoredRig> RigStore::rigs() const {
-  std::vector<StoredRig> found;
-  std::error_code ec;
-  for (fs::directory_iterator it(fs::path(directory_) / "rigs", ec), end; !ec && it != end; it.increment(ec)) {
-    const fs::path& p = it->path();
-    if (p.extension() != ".rig" || !api::is_hex_id(p.stem().string())) continue;
-    Result<StoredRig> r = rig(p.stem().string());
-    if (r.ok()) found.push_back(*r);
+Result<VolumeRecord> RigStore::put_volume(const std::string& id, const std::string& extension,
+                                          const std::string& kind, std::string_view bytes) {
+  if (!is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
+  std::lock_guard<std::mutex> lock(write_mutex_);
+  POSEWARP_ASSIGN_OR_RETURN(const std::optional<VolumeRecord> existing, index_->volume(id));
+  if (existing) return volume(id);  // the same bytes, stored once
+  POSEWARP_RETURN_IF_ERROR(check_quota(bytes.size()));
+  const fs::path file = fs::path(directory_) / "volumes" / (id + extension);
+  POSEWARP_RETURN_IF_ERROR(write_file_atomically(file.string(), bytes, "volume"));
+  POSEWARP_RETURN_IF_ERROR(index_->put_volume({id, kind, extension, bytes.size(), iso_now(), ""}));
+  return volume(id);
+}
+
+Result<VolumeRecord> RigStore::volume(const std::string& id) {
+  if (!is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
+  POSEWARP_ASSIGN_OR_RETURN(std::optional<VolumeRecord> row, index_->volume(id));
+  if (!row) return not_found_error("no volume " + id + " in the store; upload it first");
+  row->path = (fs::path(directory_) / "volumes" / (id + row->extension)).string();
+  return *row;
+}
+
+Status RigStore::put_rig(RigRecord record, std::string_view bytes) {
+  if (!is_hex_id(record.id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  std::lock_guard<std::mutex> lock(write_mutex_);
+  POSEWARP_RETURN_IF_ERROR(check_quota(bytes.size()));
+  const fs::path file = fs::path(directory_) / "rigs" / (record.id + ".rig");
+  POSEWARP_ASSIGN_OR_RETURN(AtomicFile out, AtomicFile::create(file.string(), "rig file"));
+  if (options_.pause_in_rig_write_s > 0.0) {
+    const size_t half = bytes.size() / 2;
+    POSEWARP_RETURN_IF_ERROR(out.write(bytes.substr(0, half)));
+    std::fprintf(stderr, "posewarp-server: test hook: pausing %.1f s inside a rig write\n",
+                 options_.pause_in_rig_write_s);
+    std::fflush(stderr);
+    std::this_thread::sleep_for(std::chrono::duration<double>(options_.pause_in_rig_write_s));
+    POSEWARP_RETURN_IF_ERROR(out.write(bytes.substr(half)));
+  } else {
+    POSEWARP_RETURN_IF_ERROR(out.write(bytes));
   }
-  std::sort(found.begin(), found.end(), [](const StoredRig& a, const StoredRig& b) { return a.id < b.id; });
-  return found;
+  POSEWARP_RETURN_IF_ERROR(out.commit());  // durable before the row names it
+  record.size_bytes = bytes.size();
+  record.created = record.last_used = iso_now();
+  return index_->put_rig(record);
+}
+
+Result<RigRecord> RigStore::rig(const std::string& id) {
+  if (!is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  POSEWARP_ASSIGN_OR_RETURN(std::optional<RigRecord> row, index_->rig(id));
+  if (!row) return not_found_error("no rig " + id + " in the store; build or upload it first (ListRigs shows them)");
+  row->path = (fs::path(directory_) / "rigs" / (id + ".rig")).string();
+  return *row;
+}
+
+Result<std::vector<RigRecord>> RigStore::rigs(const std::string& after, int limit) {
+  POSEWARP_ASSIGN_OR_RETURN(std::vector<RigRecord> rows, index_->rigs(after, limit));
+  for (RigRecord& r : rows) r.path = (fs::path(directory_) / "rigs" / (r.id + ".rig")).string();
+  return rows;
+}
+
+void RigStore::touch_rig(const std::string& id) { (void)index_->touch_rig(id, iso_now()); }
+
+Status RigStore::delete_rig(const std::string& id) {
+  POSEWARP_ASSIGN_OR_RETURN(const RigRecord row, rig(id));
+  std::lock_guard<std::mutex> lock(write_mutex_);
+  std::error_code ec;
+  fs::remove(row.path, ec);
+  if (ec) return internal_error("cannot remove rig " + id + " from the store: " + ec.message());
+  return index_->delete_rig(id);
+}
+
+Status RigStore::quarantine_rig(const std::string& id, const std::string& reason) {
+  if (!is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  const fs::path from = fs::path(directory_) / "rigs" / (id + ".rig");
+  const fs::path to = fs::path(directory_) / "quarantine" / (id + ".rig");
+  std::error_code ec;
+  fs::rename(from, to, ec);
+  if (ec) return internal_error("cannot quarantine rig " + id + ": " + ec.message());
+  (void)write_file_atomically(to.string() + ".why", reason + "\n", "quarantine note");
+  return index_->delete_rig(id);
 }
 
 }  // namespace posewarp::server

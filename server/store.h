@@ -1,9 +1,13 @@
-// The store: uploaded volumes and built rigs as content-addressed files under one directory. Every file is written
-// through AtomicFile, so a crash leaves either the whole file or none; ids are checked to be hex of the expected
-// length before they name a file, so no path ever comes from a client.
+// The store: uploaded volumes and built rigs as content-addressed files under one directory, and an index of them
+// (and of build operations) behind StoreIndex: SQLite for one machine; a shared database can replace it. Every file
+// is written through AtomicFile and its index row commits only after the file is durable, so a crash leaves either a
+// whole file with or without its row (reconciled at the next open) or nothing. Ids are checked to be hex of the
+// expected length before they name a file: no path ever comes from a client.
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -13,40 +17,119 @@
 
 namespace posewarp::server {
 
-struct StoredVolume {
+struct VolumeRecord {
   std::string id;         // SHA-256 of the file
-  std::string path;       // in the store
   std::string kind;       // "labels" or "intensity"
+  std::string extension;  // ".nii.gz", ".nii", ".nrrd", ".mha"
   uint64_t size_bytes = 0;
+  std::string created;    // ISO 8601, UTC
+  std::string path;       // in the store (filled by RigStore, not kept in the index)
 };
 
-struct StoredRig {
+struct RigRecord {
   std::string id;
-  std::string path;
   std::string name;
+  std::string labels_volume_id;  // empty for an uploaded rig
+  std::string ct_volume_id;
   uint64_t size_bytes = 0;
-  std::string created;  // ISO 8601, UTC
+  double build_seconds = 0.0;
+  std::string created;
+  std::string last_used;
+  std::string path;
+};
+
+// A build as the index keeps it: enough to answer GetOperation after a restart. Progress within a stage lives in the
+// server's memory only.
+struct OperationRecord {
+  std::string id;
+  std::string state;  // QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED
+  std::string name;
+  std::string labels_volume_id;
+  std::string ct_volume_id;
+  std::string rig_id;
+  int error_code = 0;  // a gRPC status code
+  std::string error_message;
+  double elapsed_s = 0.0;
+  std::string created;
+};
+
+// The index: rows of volumes, rigs and operations. Implementations serialize their own access (thread-safe).
+class StoreIndex {
+ public:
+  virtual ~StoreIndex() = default;
+  virtual Status put_volume(const VolumeRecord& volume) = 0;
+  virtual Result<std::optional<VolumeRecord>> volume(const std::string& id) = 0;
+  virtual Result<std::vector<VolumeRecord>> volumes() = 0;
+  virtual Status delete_volume(const std::string& id) = 0;
+
+  virtual Status put_rig(const RigRecord& rig) = 0;
+  virtual Result<std::optional<RigRecord>> rig(const std::string& id) = 0;
+  // Rigs with ids after `after`, in id order, at most `limit`.
+  virtual Result<std::vector<RigRecord>> rigs(const std::string& after, int limit) = 0;
+  virtual Status touch_rig(const std::string& id, const std::string& when) = 0;
+  virtual Status delete_rig(const std::string& id) = 0;
+
+  virtual Status put_operation(const OperationRecord& operation) = 0;
+  virtual Result<std::optional<OperationRecord>> operation(const std::string& id) = 0;
+  // Newest first, created before `before` (empty: all), at most `limit`.
+  virtual Result<std::vector<OperationRecord>> operations(const std::string& before_id, int limit) = 0;
+  // Operations left QUEUED or RUNNING by a server that stopped: marked FAILED with `message`; returns how many.
+  virtual Result<int> fail_unfinished_operations(int error_code, const std::string& message) = 0;
+
+  // Bytes of every volume and rig file the index holds (for the store's quota).
+  virtual Result<uint64_t> total_bytes() = 0;
+};
+
+// SQLite (WAL, synchronous=FULL) at `path`, created with its schema when missing.
+Result<std::unique_ptr<StoreIndex>> open_sqlite_index(const std::string& path);
+
+struct StoreOptions {
+  uint64_t quota_bytes = 0;  // volumes and rigs together; 0: no quota
+  // Test hook: seconds to pause half-way through writing a rig file (a crash test kills the server there).
+  double pause_in_rig_write_s = 0.0;
 };
 
 class RigStore {
  public:
-  // Opens (creating) the store's directories and removes partial files of writers that died.
-  static Result<RigStore> open(const std::string& directory);
+  // Opens (creating) the store's directories and index, then reconciles them: partial files of dead writers are
+  // removed; builds left running are marked failed; rows whose file is gone are dropped; rig files without a row
+  // (a crash between the file and its row) are checked and adopted, or quarantined when they fail their checksums;
+  // volume files without a row (an upload whose client never got an answer) are removed. `log` gets a line for
+  // each repair.
+  static Result<std::unique_ptr<RigStore>> open(const std::string& directory, const StoreOptions& options,
+                                                const std::function<void(const std::string&)>& log);
 
-  // Stores an upload (already checked) under its id; the same bytes again are stored once.
-  Result<StoredVolume> put_volume(const std::string& id, const std::string& extension, const std::string& kind,
+  // Stores a checked upload under its id; the same bytes again are stored once. RESOURCE_EXHAUSTED over the quota.
+  Result<VolumeRecord> put_volume(const std::string& id, const std::string& extension, const std::string& kind,
                                   std::string_view bytes);
-  Result<StoredVolume> volume(const std::string& id) const;
+  Result<VolumeRecord> volume(const std::string& id);
 
-  Status put_rig(const std::string& id, const std::string& name, std::string_view bytes);
-  Result<StoredRig> rig(const std::string& id) const;
-  std::vector<StoredRig> rigs() const;
+  // The rig file, then its row. `record.id` names it; size and created are filled in.
+  Status put_rig(RigRecord record, std::string_view bytes);
+  Result<RigRecord> rig(const std::string& id);
+  Result<std::vector<RigRecord>> rigs(const std::string& after, int limit);
+  void touch_rig(const std::string& id);
+  // The file first, then the row (a crash between leaves a row without a file, which the next open drops).
+  Status delete_rig(const std::string& id);
+  // A rig file that failed its checks: moved to quarantine/ (kept for a person to look at), its row dropped.
+  Status quarantine_rig(const std::string& id, const std::string& reason);
 
+  StoreIndex& index() { return *index_; }
   const std::string& directory() const { return directory_; }
 
  private:
-  explicit RigStore(std::string directory) : directory_(std::move(directory)) {}
+  RigStore(std::string directory, StoreOptions options, std::unique_ptr<StoreIndex> index)
+      : directory_(std::move(directory)), options_(options), index_(std::move(index)) {}
+  Status reconcile(const std::function<void(const std::string&)>& log);
+  Status check_quota(uint64_t more_bytes);
+
   std::string directory_;
+  StoreOptions options_;
+  std::unique_ptr<StoreIndex> index_;
+  std::mutex write_mutex_;  // quota check and write of one upload or rig at a time
 };
+
+// Now, as ISO 8601 UTC ("2026-11-25T10:00:00Z").
+std::string iso_now();
 
 }  // namespace posewarp::server

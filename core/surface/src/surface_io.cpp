@@ -267,4 +267,24 @@ Status write_surface(const SurfaceMesh& mesh, const std::string& path) {
   return guarded("writing mesh " + quoted(path), [&] { return write_surface_unguarded(mesh, path); });
 }
 
+Result<std::string> surface_to_vtp_bytes(const SurfaceMesh& mesh) {
+  return guarded("encoding mesh '" + mesh.name + "' as VTP", [&]() -> Result<std::string> {
+    if (mesh.triangles.rows() == 0) return invalid_argument_error("mesh '" + mesh.name + "' has no triangles");
+    detail::install_quiet_vtk_output();
+    const vtkSmartPointer<vtkPolyData> poly = detail::to_polydata(mesh);
+    detail::clear_vtk_messages();
+    vtkNew<vtkXMLPolyDataWriter> writer;
+    writer->SetInputData(poly);
+    writer->SetDataModeToBinary();
+    writer->WriteToOutputStringOn();
+    const int written = writer->Write();
+    const std::string errors = detail::vtk_errors();
+    if (!written || !errors.empty()) {
+      return invalid_argument_error("encoding mesh '" + mesh.name + "' as VTP failed" +
+                                    (errors.empty() ? "" : ": " + errors));
+    }
+    return writer->GetOutputString();
+  });
+}
+
 }  // namespace posewarp::surface

@@ -60,6 +60,7 @@ using rig::rig_spec_from_json;
 
 // Surface meshes (STL, OBJ, PLY, VTP).
 using surface::read_surface;
+using surface::surface_to_vtp_bytes;
 using surface::write_surface;
 
 // A study's label map: the JSON file at `path`, else the preset named `preset` (default "totalsegmentator").

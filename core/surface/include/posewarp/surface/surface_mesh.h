@@ -53,4 +53,7 @@ Result<SurfaceMesh> read_surface(const std::string& path);
 // exist; INVALID_ARGUMENT naming the file when writing fails.
 Status write_surface(const SurfaceMesh& mesh, const std::string& path);
 
+// The same .vtp file's bytes in memory (XML, binary, float64), for a network stream. INVALID_ARGUMENT as above.
+Result<std::string> surface_to_vtp_bytes(const SurfaceMesh& mesh);
+
 }  // namespace posewarp::surface

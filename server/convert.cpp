@@ -1,0 +1,241 @@
+// proto <-> core conversions.
+#include "convert.h"
+
+#include <cmath>
+#include <cstring>
+
+namespace posewarp::server {
+
+void put_grid(const ImageGeometry& g, v1::Grid* grid) {
+  for (size_t a = 0; a < 3; ++a) {
+    grid->add_size(g.size[a]);
+    grid->add_spacing(g.spacing[a]);
+    grid->add_origin(g.origin[a]);
+  }
+  for (size_t e = 0; e < 9; ++e) grid->add_direction(g.direction[e]);
+}
+
+Result<ImageGeometry> grid_from(const v1::Grid& grid) {
+  if (grid.size_size() != 3 || grid.spacing_size() != 3 || grid.origin_size() != 3 || grid.direction_size() != 9) {
+    return invalid_argument_error("a grid has 3 sizes, 3 spacings, 3 origin coordinates and 9 direction entries "
+                                  "(row-major, LPS mm)");
+  }
+  ImageGeometry g;
+  for (int a = 0; a < 3; ++a) {
+    g.size[static_cast<size_t>(a)] = grid.size(a);
+    g.spacing[static_cast<size_t>(a)] = grid.spacing(a);
+    g.origin[static_cast<size_t>(a)] = grid.origin(a);
+  }
+  for (int e = 0; e < 9; ++e) g.direction[static_cast<size_t>(e)] = grid.direction(e);
+  POSEWARP_RETURN_IF_ERROR(g.validate());
+  return g;
+}
+
+skinning::Method method_of(v1::Method method) {
+  switch (method) {
+    case v1::METHOD_DQS: return skinning::Method::kDqs;
+    case v1::METHOD_LBS: return skinning::Method::kLbs;
+    default: return skinning::Method::kCor;
+  }
+}
+
+const char* extension_of(v1::FileFormat format) {
+  switch (format) {
+    case v1::FILE_FORMAT_NIFTI_GZ: return ".nii.gz";
+    case v1::FILE_FORMAT_NIFTI: return ".nii";
+    case v1::FILE_FORMAT_NRRD: return ".nrrd";
+    case v1::FILE_FORMAT_MHA: return ".mha";
+    default: return nullptr;
+  }
+}
+
+std::optional<PixelType> pixel_type_of(v1::PixelType type) {
+  switch (type) {
+    case v1::PIXEL_TYPE_UINT8: return PixelType::kUInt8;
+    case v1::PIXEL_TYPE_INT8: return PixelType::kInt8;
+    case v1::PIXEL_TYPE_UINT16: return PixelType::kUInt16;
+    case v1::PIXEL_TYPE_INT16: return PixelType::kInt16;
+    case v1::PIXEL_TYPE_UINT32: return PixelType::kUInt32;
+    case v1::PIXEL_TYPE_INT32: return PixelType::kInt32;
+    case v1::PIXEL_TYPE_FLOAT32: return PixelType::kFloat32;
+    case v1::PIXEL_TYPE_FLOAT64: return PixelType::kFloat64;
+    default: return std::nullopt;
+  }
+}
+
+void put_rig_row(const RigRecord& record, v1::Rig* message) {
+  message->set_id(record.id);
+  message->set_name(record.name);
+  message->set_size_bytes(record.size_bytes);
+  message->set_created(record.created);
+  message->set_last_used(record.last_used);
+  message->set_labels_volume_id(record.labels_volume_id);
+  message->set_ct_volume_id(record.ct_volume_id);
+}
+
+void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton) {
+  for (const rig::Segment& s : rig.skeleton.segments) skeleton->add_segments(s.name);
+  for (const rig::Joint& j : rig.skeleton.joints) {
+    v1::Joint* joint = skeleton->add_joints();
+    joint->set_name(j.name);
+    joint->set_parent(rig.skeleton.segments[static_cast<size_t>(j.parent)].name);
+    joint->set_child(rig.skeleton.segments[static_cast<size_t>(j.child)].name);
+    for (int a = 0; a < 3; ++a) joint->add_centre_mm(j.centre_mm[a]);
+    joint->set_kind(std::string(api::joint_kind_name(j.kind)));
+    for (int a = 0; a < 3; ++a) {
+      joint->add_flexion_axis(j.frame(a, 0));
+      joint->add_abduction_axis(j.frame(a, 1));
+      joint->add_rotation_axis(j.frame(a, 2));
+    }
+  }
+}
+
+void put_rig(const RigRecord& record, const api::Rig& rig, v1::Rig* message) {
+  put_rig_row(record, message);
+  put_grid(rig.source_geometry, message->mutable_grid());
+  v1::Skeleton skeleton;
+  put_skeleton(rig, &skeleton);
+  *message->mutable_joints() = skeleton.joints();
+  *message->mutable_segments() = skeleton.segments();
+  message->set_tet_vertices(rig.mesh.vertex_count());
+  message->set_tets(rig.mesh.tet_count());
+  message->set_software_version(rig.provenance.software_version);
+  for (const auto& [stage, seconds] : rig.provenance.stage_seconds) {
+    v1::StageTime* time = message->add_stage_seconds();
+    time->set_stage(stage);
+    time->set_seconds(seconds);
+  }
+  message->set_params_json(rig.params_json);
+  message->set_has_ct(rig.ct.has_value());
+}
+
+void put_surface(const surface::SurfaceMesh& mesh, bool with_vertices, v1::Surface* message) {
+  message->set_name(mesh.name);
+  message->set_label(mesh.label);
+  if (with_vertices) {
+    message->mutable_vertices()->Reserve(static_cast<int>(mesh.vertices.size()));
+    for (Eigen::Index v = 0; v < mesh.vertices.rows(); ++v) {
+      for (int a = 0; a < 3; ++a) message->add_vertices(mesh.vertices(v, a));
+    }
+  }
+  message->mutable_triangles()->Reserve(static_cast<int>(mesh.triangles.size()));
+  for (Eigen::Index t = 0; t < mesh.triangles.rows(); ++t) {
+    for (int a = 0; a < 3; ++a) message->add_triangles(mesh.triangles(t, a));
+  }
+}
+
+void put_report(const report::QualityReport& report, v1::QualityReport* message) {
+  message->set_json(report::to_json(report));
+  message->set_inverted_tets(report.mesh.inverted_tets);
+  message->set_bone_rigidity_error_mm(report.bone_rigidity_error_mm);
+  message->set_volume_change(report.mesh.body_volume_change);
+  for (const Label l : report.labels.appeared) message->add_new_labels(l);
+  for (const Label l : report.labels.vanished) message->add_lost_labels(l);
+  for (const std::string& w : report.warnings) message->add_warnings(w);
+}
+
+std::string state_name(v1::Operation::State state) { return v1::Operation::State_Name(state); }
+
+bool is_final(v1::Operation::State state) {
+  return state == v1::Operation::SUCCEEDED || state == v1::Operation::FAILED || state == v1::Operation::CANCELLED;
+}
+
+v1::Operation operation_from(const OperationRecord& record) {
+  v1::Operation operation;
+  operation.set_id(record.id);
+  v1::Operation::State state = v1::Operation::STATE_UNSPECIFIED;
+  v1::Operation::State_Parse(record.state, &state);
+  operation.set_state(state);
+  operation.set_rig_id(record.rig_id);
+  operation.set_error_code(record.error_code);
+  operation.set_error_message(record.error_message);
+  operation.set_elapsed_s(record.elapsed_s);
+  operation.set_name(record.name);
+  operation.set_created(record.created);
+  return operation;
+}
+
+OperationRecord record_from(const v1::Operation& operation, const v1::BuildRigRequest& request) {
+  OperationRecord record;
+  record.id = operation.id();
+  record.state = state_name(operation.state());
+  record.name = request.name();
+  record.labels_volume_id = request.labels_volume_id();
+  record.ct_volume_id = request.ct_volume_id();
+  record.rig_id = operation.rig_id();
+  record.error_code = operation.error_code();
+  record.error_message = operation.error_message();
+  record.elapsed_s = operation.elapsed_s();
+  record.created = operation.created();
+  return record;
+}
+
+namespace {
+
+template <typename Sample, typename Out>
+void convert_samples(std::string_view bytes, Out* out, int64_t count) {
+  for (int64_t i = 0; i < count; ++i) {
+    Sample value;
+    std::memcpy(&value, bytes.data() + i * static_cast<int64_t>(sizeof(Sample)), sizeof(Sample));
+    out[i] = static_cast<Out>(value);
+  }
+}
+
+size_t sample_bytes(PixelType type) {
+  switch (type) {
+    case PixelType::kUInt8: case PixelType::kInt8: return 1;
+    case PixelType::kUInt16: case PixelType::kInt16: return 2;
+    case PixelType::kUInt32: case PixelType::kInt32: case PixelType::kFloat32: return 4;
+    default: return 8;
+  }
+}
+
+template <typename Out>
+Status fill_from_raw(std::string_view bytes, PixelType type, Volume<Out>& volume) {
+  const int64_t count = volume.voxel_count();
+  if (static_cast<uint64_t>(bytes.size()) != static_cast<uint64_t>(count) * sample_bytes(type)) {
+    return invalid_argument_error("the raw upload has " + std::to_string(bytes.size()) + " bytes; its grid (" +
+                                  volume.geometry().describe() + ") of " + std::string(pixel_type_name(type)) +
+                                  " samples needs " + std::to_string(count * static_cast<int64_t>(sample_bytes(type))));
+  }
+  Out* out = volume.data();
+  switch (type) {
+    case PixelType::kUInt8: convert_samples<uint8_t>(bytes, out, count); break;
+    case PixelType::kInt8: convert_samples<int8_t>(bytes, out, count); break;
+    case PixelType::kUInt16: convert_samples<uint16_t>(bytes, out, count); break;
+    case PixelType::kInt16: convert_samples<int16_t>(bytes, out, count); break;
+    case PixelType::kUInt32: convert_samples<uint32_t>(bytes, out, count); break;
+    case PixelType::kInt32: convert_samples<int32_t>(bytes, out, count); break;
+    case PixelType::kFloat32: convert_samples<float>(bytes, out, count); break;
+    case PixelType::kFloat64: convert_samples<double>(bytes, out, count); break;
+    default: return invalid_argument_error("raw samples of 64-bit integers are not taken; send int32 or float");
+  }
+  volume.set_source_type(type);
+  return ok_status();
+}
+
+}  // namespace
+
+Result<LabelVolume> labels_from_raw(std::string_view bytes, PixelType type, const ImageGeometry& grid) {
+  if (is_floating(type) || type == PixelType::kUInt32) {
+    return invalid_argument_error("raw labels are uint8, int8, uint16, int16 or int32 samples, not " +
+                                  std::string(pixel_type_name(type)));
+  }
+  LabelVolume volume(grid);
+  POSEWARP_RETURN_IF_ERROR(fill_from_raw(bytes, type, volume));
+  return volume;
+}
+
+Result<IntensityVolume> intensity_from_raw(std::string_view bytes, PixelType type, const ImageGeometry& grid) {
+  IntensityVolume volume(grid);
+  POSEWARP_RETURN_IF_ERROR(fill_from_raw(bytes, type, volume));
+  for (int64_t i = 0; i < volume.voxel_count(); ++i) {
+    if (!std::isfinite(volume.data()[i])) {
+      return invalid_argument_error("the raw intensities hold a NaN or infinity at voxel " + std::to_string(i) +
+                                    "; replace it with a finite value before uploading");
+    }
+  }
+  return volume;
+}
+
+}  // namespace posewarp::server
