@@ -119,6 +119,8 @@ int main(int argc, char** argv) {
   store_options.pause_in_rig_write_s = std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S") != nullptr
                                            ? std::atof(std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S"))
                                            : 0.0;
+  // Test hooks (crash and shutdown tests): never set in production.
+  if (const char* pause = std::getenv("POSEWARP_TEST_PAUSE_IN_POSE_S")) options.test_pause_in_pose_s = std::atof(pause);
   Result<std::vector<std::string>> args = config_arguments(argc, argv);
   if (!args.ok()) {
     std::fprintf(stderr, "error: %s\n", args.status().message().c_str());

@@ -1,8 +1,15 @@
-// Metrics in Prometheus's text format, served by civetweb.
+// Metrics in Prometheus's text format, served over plain HTTP/1.1 on a loopback socket.
 #include "metrics.h"
 
-#include <civetweb.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <sys/time.h>
 #include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
 
 #include <cstdio>
 #include <fstream>
@@ -68,30 +75,65 @@ std::string Metrics::text() const {
 
 namespace {
 
-int serve_metrics(mg_connection* connection, void* data) {
-  const auto* metrics = static_cast<const Metrics*>(data);
-  const std::string body = metrics->text();
-  mg_printf(connection,
-            "HTTP/1.1 200 OK\r\nContent-Type: text/plain; version=0.0.4\r\nContent-Length: %zu\r\n"
-            "Connection: close\r\n\r\n",
-            body.size());
-  mg_write(connection, body.data(), body.size());
-  return 200;
+// One request per connection: read the request head, answer GET /metrics (anything else 404), close.
+void answer(int fd, const Metrics& metrics) {
+  timeval timeout{2, 0};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof timeout);
+  std::string head;
+  char buffer[1024];
+  while (head.find("\r\n\r\n") == std::string::npos && head.size() < 8192) {
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n <= 0) return;
+    head.append(buffer, static_cast<size_t>(n));
+  }
+  const bool wanted = head.rfind("GET /metrics ", 0) == 0 || head.rfind("GET /metrics?", 0) == 0;
+  const std::string body = wanted ? metrics.text() : "not found: metrics are at /metrics\n";
+  const std::string response = std::string(wanted ? "HTTP/1.1 200 OK\r\n" : "HTTP/1.1 404 Not Found\r\n") +
+                               "Content-Type: text/plain; version=0.0.4\r\nContent-Length: " +
+                               std::to_string(body.size()) + "\r\nConnection: close\r\n\r\n" + body;
+  for (size_t sent = 0; sent < response.size();) {
+    const ssize_t n = ::send(fd, response.data() + sent, response.size() - sent, MSG_NOSIGNAL);
+    if (n <= 0) return;
+    sent += static_cast<size_t>(n);
+  }
 }
 
 }  // namespace
 
 MetricsServer::~MetricsServer() {
-  if (context_ != nullptr) mg_stop(context_);
+  stopping_ = true;
+  if (thread_.joinable()) thread_.join();
+  if (listener_ >= 0) ::close(listener_);
 }
 
 std::string MetricsServer::start(const std::string& address, const Metrics* metrics) {
-  mg_init_library(0);
-  const char* options[] = {"listening_ports", address.c_str(), "num_threads", "2", nullptr};
-  mg_callbacks callbacks{};
-  context_ = mg_start(&callbacks, nullptr, options);
-  if (context_ == nullptr) return "cannot serve metrics on " + address + " (in use, or not an address of this machine)";
-  mg_set_request_handler(context_, "/metrics", serve_metrics, const_cast<Metrics*>(metrics));
+  const size_t colon = address.rfind(':');
+  const std::string host = colon == std::string::npos ? "" : address.substr(0, colon);
+  const int port = colon == std::string::npos ? -1 : std::atoi(address.c_str() + colon + 1);
+  sockaddr_in where{};
+  where.sin_family = AF_INET;
+  where.sin_port = htons(static_cast<uint16_t>(port));
+  if (port <= 0 || port > 65535 || ::inet_pton(AF_INET, host == "localhost" ? "127.0.0.1" : host.c_str(),
+                                                &where.sin_addr) != 1) {
+    return "--metrics-listen takes IPV4:PORT (e.g. 127.0.0.1:9464), not '" + address + "'";
+  }
+  listener_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  const int yes = 1;
+  ::setsockopt(listener_, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+  if (listener_ < 0 || ::bind(listener_, reinterpret_cast<sockaddr*>(&where), sizeof where) != 0 ||
+      ::listen(listener_, 16) != 0) {
+    return "cannot serve metrics on " + address + ": " + std::strerror(errno);
+  }
+  thread_ = std::thread([this, metrics] {
+    while (!stopping_) {
+      pollfd ready{listener_, POLLIN, 0};
+      if (::poll(&ready, 1, 200) <= 0) continue;
+      const int fd = ::accept4(listener_, nullptr, nullptr, SOCK_CLOEXEC);
+      if (fd < 0) continue;
+      answer(fd, *metrics);
+      ::close(fd);
+    }
+  });
   return "";
 }
 

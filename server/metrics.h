@@ -1,5 +1,6 @@
 // Prometheus metrics: request counts and errors by method and code, latency histograms, and gauges the service
-// reports at scrape time; served as text format 0.0.4 on a loopback HTTP port (civetweb).
+// reports at scrape time; served as text format 0.0.4 on a loopback HTTP port. The HTTP side is a small socket loop
+// of our own: Debian's civetweb 1.15 failed to start its first worker thread inside this process.
 #pragma once
 
 #include <array>
@@ -9,10 +10,10 @@
 #include <map>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
-struct mg_context;
 
 namespace posewarp::server {
 
@@ -51,7 +52,9 @@ class MetricsServer {
   std::string start(const std::string& address, const Metrics* metrics);
 
  private:
-  mg_context* context_ = nullptr;
+  int listener_ = -1;
+  std::atomic<bool> stopping_{false};
+  std::thread thread_;
 };
 
 // Resident memory of this process in bytes (/proc/self/statm).

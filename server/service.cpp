@@ -77,7 +77,11 @@ class PosewarpService::Call {
   grpc::Status refusal() { return done(refusal_); }
   void set_rig(const std::string& rig_id) { rig_id_ = rig_id; }
 
-  grpc::Status done(const grpc::Status& status) {
+  grpc::Status done(grpc::Status status) {
+    // gRPC cancels a call whose deadline passed: that is the client's deadline, not a cancel.
+    if (status.error_code() == grpc::StatusCode::CANCELLED && context_->deadline() <= std::chrono::system_clock::now()) {
+      status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the client's deadline passed before the call ended");
+    }
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
     const std::string code = status_code_name(static_cast<StatusCode>(status.error_code())).data();
     service_.metrics_.observe(method_, code, seconds);
@@ -806,6 +810,10 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
       service->changed_.notify_all();
     }
   } slot{this};
+  if (options_.test_pause_in_pose_s > 0.0) {
+    spdlog::info("test hook: pausing {:.1f} s inside a pose", options_.test_pause_in_pose_s);
+    std::this_thread::sleep_for(std::chrono::duration<double>(options_.test_pause_in_pose_s));
+  }
 
   Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
   if (!engine.ok()) return call.done(to_grpc(engine.status()));

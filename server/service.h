@@ -39,6 +39,7 @@ struct ServiceOptions {
   int64_t max_output_voxels = int64_t{1} << 30;  // one pose's output grid
   int64_t max_output_bytes = 0;                // one pose's outputs (0: half the machine's memory)
   int preview_streams_per_client = 4;          // open preview streams per client address
+  double test_pause_in_pose_s = 0.0;           // test hook: a pose holds its slot this long before posing
 };
 
 class PosewarpService final : public v1::Posewarp::Service {

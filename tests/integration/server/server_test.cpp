@@ -23,22 +23,12 @@
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/sha256.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
+#include "server_process.h"
 
 namespace posewarp {
 namespace {
 
-namespace fs = std::filesystem;
-
-std::string file_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-int run(const std::vector<std::string>& args) {
-  std::string command;
-  for (const std::string& a : args) command += "'" + a + "' ";
-  return std::system((command + ">/dev/null 2>&1").c_str());
-}
+using namespace testing_server;
 
 // What a command prints on stdout.
 std::string output_of(const std::vector<std::string>& args) {
@@ -54,55 +44,6 @@ std::string output_of(const std::vector<std::string>& args) {
   return out;
 }
 
-// The server process: started on port 0, its chosen port read from its first line of output.
-class ServerProcess {
- public:
-  explicit ServerProcess(const fs::path& store) {
-    int out[2];
-    if (::pipe(out) != 0) return;
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      ::dup2(out[1], 1);
-      ::close(out[0]);
-      ::execl(POSEWARP_SERVER, POSEWARP_SERVER, "--listen", "127.0.0.1:0", "--store", store.c_str(), "--pose-slots",
-              "2", static_cast<char*>(nullptr));
-      ::_exit(127);
-    }
-    ::close(out[1]);
-    std::string line;
-    char c = 0;
-    while (::read(out[0], &c, 1) == 1 && c != '\n') line += c;
-    ::close(out[0]);
-    const size_t colon = line.rfind(':', line.find(", store"));
-    if (colon != std::string::npos) port_ = std::atoi(line.c_str() + colon + 1);
-  }
-  ~ServerProcess() {
-    if (pid_ > 0 && !stopped_) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-    }
-  }
-  int port() const { return port_; }
-  // SIGTERM, then the exit code (or -1 after 60 s).
-  int stop() {
-    ::kill(pid_, SIGTERM);
-    for (int i = 0; i < 600; ++i) {
-      int status = 0;
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-        stopped_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
-    return -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-  int port_ = 0;
-  bool stopped_ = false;
-};
-
 class Server : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -110,7 +51,7 @@ class Server : public ::testing::Test {
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     ASSERT_EQ(run({POSEWARP_CLI, "--quiet", "phantom", "bar", "-o", (dir_ / "bar").string()}), 0);
-    server_ = new ServerProcess(dir_ / "store");
+    server_ = new ServerProcess(dir_ / "store", {"--pose-slots", "2"});
     ASSERT_GT(server_->port(), 0);
     channel_ = grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()), grpc::InsecureChannelCredentials());
     ASSERT_TRUE(channel_->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(60)));  // a loaded CI machine
