@@ -36,7 +36,7 @@ struct PoseOptions {
   std::string surfaces_out;
   std::string field_out;
   std::string report_out;
-  std::string server;  // pose on posewarp-server; rig_path is then a rig id
+  Connection connection;  // pose on posewarp-server; rig_path is then a rig id
   OutputOptions output;
 };
 
@@ -291,16 +291,17 @@ void add_pose_commands(CLI::App& app) {
                     "Inverse displacement field (output grid, for ITK/ANTs/elastix); the forward field goes beside it "
                     "as *_forward");
     cmd->add_option("--report", o->report_out, "Quality report JSON");
-    cmd->add_option("--server", o->server,
+    add_connection_options(cmd, o->connection);
+    cmd->add_option("--server", o->connection.server,
                     "Pose on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written here");
     add_output_options(cmd, o->output);
     cmd->callback([o] {
       int code = 0;
-      if (!o->server.empty()) {
+      if (!o->connection.server.empty()) {
         if (!o->field_out.empty() || !o->output.extra_surfaces.empty() || !o->output.grid_like.empty()) {
           throw CLI::ValidationError("--server", "--field-out, --surface and --grid-like are local only for now");
         }
-        code = run_pose_remote({o->server, o->rig_path, o->pose_path, o->output.method, o->output.grid, o->labels_out,
+        code = run_pose_remote({o->connection, o->rig_path, o->pose_path, o->output.method, o->output.grid, o->labels_out,
                                 o->ct_out, o->surfaces_out, o->output.surface_format, o->report_out,
                                 o->output.max_output_mb});
       } else {

@@ -27,7 +27,7 @@ struct BuildOptions {
   std::string preset;
   std::string spec_path;
   std::string out;
-  std::string server;  // remote build on posewarp-server
+  Connection connection;  // remote build on posewarp-server
   std::string name;
   bool sequential = false;
   bool islands_fail = false;
@@ -234,7 +234,8 @@ void add_rig_commands(CLI::App& app) {
         ->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("--rig-spec", o->spec_path, "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
     cmd->add_option("-o,--out", o->out, "Rig file to write (local builds)");
-    cmd->add_option("--server", o->server,
+    add_connection_options(cmd, o->connection);
+    cmd->add_option("--server", o->connection.server,
                     "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
                     "prints the rig id (default parameters; the mesh options here apply to local builds)");
     cmd->add_option("--name", o->name, "Name of the rig on the server (default: the labels' file name)");
@@ -254,12 +255,12 @@ void add_rig_commands(CLI::App& app) {
     cmd->add_option("--sigma", p.cor.sigma, "CoR similarity width (paper: < 0.1)")->capture_default_str();
     cmd->callback([o] {
       int code = 0;
-      if (!o->server.empty()) {
+      if (!o->connection.server.empty()) {
         if (!o->out.empty() || !o->body_path.empty()) {
           throw CLI::ValidationError("--server", "a remote build keeps its rig on the server (no -o) and takes no "
                                                  "--body mask yet");
         }
-        code = run_build_remote({o->server, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path,
+        code = run_build_remote({o->connection, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path,
                                  o->name});
       } else {
         if (o->out.empty()) throw CLI::RequiredError("-o,--out (or --server)");
@@ -269,33 +270,66 @@ void add_rig_commands(CLI::App& app) {
     });
   }
   {
-    auto server = std::make_shared<std::string>();
+    auto connection = std::make_shared<Connection>();
     CLI::App* cmd = group->add_subcommand("list", "The rigs a posewarp-server holds: id, name, size, created");
-    cmd->add_option("--server", *server, "posewarp-server at HOST:PORT")->required();
-    cmd->callback([server] {
-      if (int code = run_list_remote(*server); code != 0) throw CLI::RuntimeError(code);
+    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
+    add_connection_options(cmd, *connection);
+    cmd->callback([connection] {
+      if (int code = run_list_remote(*connection); code != 0) throw CLI::RuntimeError(code);
     });
   }
   {
     auto path = std::make_shared<std::string>();
     auto as_json = std::make_shared<bool>(false);
+    auto connection = std::make_shared<Connection>();
     CLI::App* cmd = group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
-    cmd->add_option("rig", *path, "Rig file")->required();
+    cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
     cmd->add_flag("--json", *as_json, "Machine-readable output");
-    cmd->callback([path, as_json] {
-      if (int code = run_info(*path, *as_json); code != 0) throw CLI::RuntimeError(code);
+    cmd->add_option("--server", connection->server, "Describe a rig that posewarp-server at HOST:PORT holds");
+    add_connection_options(cmd, *connection);
+    cmd->callback([path, as_json, connection] {
+      const int code = connection->server.empty() ? run_info(*path, *as_json)
+                                                  : run_info_remote(*connection, *path, *as_json);
+      if (code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto id = std::make_shared<std::string>();
+    auto connection = std::make_shared<Connection>();
+    CLI::App* cmd = group->add_subcommand("delete", "Delete a rig from posewarp-server (its file and index row)");
+    cmd->add_option("rig", *id, "Rig id (64 hex digits)")->required();
+    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
+    add_connection_options(cmd, *connection);
+    cmd->callback([id, connection] {
+      if (int code = run_delete_remote(*connection, *id); code != 0) throw CLI::RuntimeError(code);
     });
   }
   {
     auto path = std::make_shared<std::string>();
     auto mesh_out = std::make_shared<std::string>();
     auto skeleton_out = std::make_shared<std::string>();
-    CLI::App* cmd = group->add_subcommand("export", "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for ParaView");
-    cmd->add_option("rig", *path, "Rig file")->required();
+    auto rig_out = std::make_shared<std::string>();
+    auto connection = std::make_shared<Connection>();
+    CLI::App* cmd = group->add_subcommand("export", "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for "
+                                                    "ParaView; with --server, download the rig file (--rig-out)");
+    cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
     cmd->add_option("--mesh", *mesh_out, "Tet mesh with labels and per-bone weights (.vtu)");
     cmd->add_option("--skeleton", *skeleton_out, "Skeleton as lines (.vtp)");
-    cmd->callback([path, mesh_out, skeleton_out] {
-      if (int code = run_export(*path, *mesh_out, *skeleton_out); code != 0) throw CLI::RuntimeError(code);
+    cmd->add_option("--rig-out", *rig_out, "With --server: where to write the downloaded rig file");
+    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT holding the rig");
+    add_connection_options(cmd, *connection);
+    cmd->callback([path, mesh_out, skeleton_out, rig_out, connection] {
+      int code = 0;
+      if (!connection->server.empty()) {
+        if (rig_out->empty() || !mesh_out->empty() || !skeleton_out->empty()) {
+          throw CLI::ValidationError("--server", "a remote export downloads the rig file: give --rig-out F (then "
+                                                 "`posewarp rig export F --mesh ...` locally)");
+        }
+        code = run_export_remote(*connection, *path, *rig_out);
+      } else {
+        code = run_export(*path, *mesh_out, *skeleton_out);
+      }
+      if (code != 0) throw CLI::RuntimeError(code);
     });
   }
 }

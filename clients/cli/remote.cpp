@@ -12,6 +12,8 @@
 #include "posewarp/api/files.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
+#include <nlohmann/json.hpp>
+
 namespace posewarp::cli {
 namespace {
 
@@ -26,11 +28,46 @@ int report_rpc(const grpc::Status& status, const std::string& server) {
   return report(Status(static_cast<StatusCode>(status.error_code()), status.error_message()));
 }
 
-std::unique_ptr<v1::Posewarp::Stub> connect(const std::string& server) {
-  grpc::ChannelArguments arguments;
-  arguments.SetMaxReceiveMessageSize(64 << 20);
-  return v1::Posewarp::NewStub(grpc::CreateCustomChannel(server, grpc::InsecureChannelCredentials(), arguments));
-}
+// The channel and what every call carries: the bearer token, and the rig id (so a load balancer can keep each rig
+// on one replica).
+class Remote {
+ public:
+  static Result<Remote> open(const Connection& c) {
+    Remote remote;
+    remote.server_ = c.server;
+    std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
+    if (!c.tls_ca.empty()) {
+      grpc::SslCredentialsOptions ssl;
+      POSEWARP_ASSIGN_OR_RETURN(ssl.pem_root_certs, api::read_text_input(c.tls_ca, "TLS CA certificate"));
+      credentials = grpc::SslCredentials(ssl);
+    }
+    if (!c.token_file.empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(std::string token, api::read_text_input(c.token_file, "token file", 1 << 16));
+      const size_t first = token.find_first_not_of(" \t\r\n");
+      const size_t last = token.find_last_not_of(" \t\r\n");
+      if (first == std::string::npos) return invalid_argument_error("token file '" + c.token_file + "' is empty");
+      remote.token_ = token.substr(first, last - first + 1);
+    }
+    grpc::ChannelArguments arguments;
+    arguments.SetMaxReceiveMessageSize(64 << 20);
+    remote.stub_ = v1::Posewarp::NewStub(grpc::CreateCustomChannel(c.server, credentials, arguments));
+    return remote;
+  }
+  v1::Posewarp::Stub* operator->() const { return stub_.get(); }
+  v1::Posewarp::Stub& operator*() const { return *stub_; }
+  const std::string& server() const { return server_; }
+  // A call's context with the token and the rig id.
+  std::unique_ptr<grpc::ClientContext> context(const std::string& rig_id = "") const {
+    auto context = std::make_unique<grpc::ClientContext>();
+    if (!token_.empty()) context->AddMetadata("authorization", "Bearer " + token_);
+    if (!rig_id.empty()) context->AddMetadata("x-posewarp-rig", rig_id);
+    return context;
+  }
+
+ private:
+  std::string server_, token_;
+  std::unique_ptr<v1::Posewarp::Stub> stub_;
+};
 
 v1::FileFormat format_of(const std::string& path) {
   auto ends = [&path](const char* suffix) {
@@ -44,17 +81,17 @@ v1::FileFormat format_of(const std::string& path) {
   return v1::FILE_FORMAT_UNSPECIFIED;
 }
 
-Result<std::string> upload(v1::Posewarp::Stub& stub, const std::string& path, v1::VolumeKind kind,
-                           const std::string& server) {
+Result<std::string> upload(const Remote& stub, const std::string& path, v1::VolumeKind kind) {
+  const std::string& server = stub.server();
   const v1::FileFormat format = format_of(path);
   if (format == v1::FILE_FORMAT_UNSPECIFIED) {
     return invalid_argument_error("'" + path + "': the server takes .nii.gz, .nii, .nrrd or .mha files (convert "
                                   "others with `posewarp convert`)");
   }
   POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, api::read_text_input(path, "volume", int64_t{8} << 30));
-  grpc::ClientContext context;
+  const auto context = stub.context();
   v1::Volume volume;
-  auto writer = stub.UploadVolume(&context, &volume);
+  auto writer = stub->UploadVolume(context.get(), &volume);
   v1::UploadVolumeRequest part;
   part.mutable_header()->set_kind(kind);
   part.mutable_header()->set_format(format);
@@ -99,13 +136,16 @@ PixelType pixel_type_named(const std::string& name, PixelType fallback) {
 }  // namespace
 
 int run_build_remote(const RemoteBuild& o) {
-  auto stub = connect(o.server);
+  Result<Remote> remote = Remote::open(o.connection);
+  if (!remote.ok()) return report(remote.status());
+  const Remote& stub = *remote;
+  const std::string& server = o.connection.server;
   v1::BuildRigRequest request;
-  Result<std::string> labels = upload(*stub, o.labels_path, v1::VOLUME_KIND_LABELS, o.server);
+  Result<std::string> labels = upload(stub, o.labels_path, v1::VOLUME_KIND_LABELS);
   if (!labels.ok()) return report(labels.status());
   request.set_labels_volume_id(*labels);
   if (!o.ct_path.empty()) {
-    Result<std::string> ct = upload(*stub, o.ct_path, v1::VOLUME_KIND_INTENSITY, o.server);
+    Result<std::string> ct = upload(stub, o.ct_path, v1::VOLUME_KIND_INTENSITY);
     if (!ct.ok()) return report(ct.status());
     request.set_ct_volume_id(*ct);
   }
@@ -123,38 +163,40 @@ int run_build_remote(const RemoteBuild& o) {
   request.set_name(o.name.empty() ? fs::path(o.labels_path).filename().string() : o.name);
   v1::Operation operation;
   {
-    grpc::ClientContext context;
-    if (grpc::Status s = stub->BuildRig(&context, request, &operation); !s.ok()) return report_rpc(s, o.server);
+    const auto context = stub.context();
+    if (grpc::Status s = stub->BuildRig(context.get(), request, &operation); !s.ok()) return report_rpc(s, server);
   }
   // Progress as the local build shows it, from the operation's stream.
   const ProgressHooks bar = progress_bar();
-  grpc::ClientContext context;
+  const auto context = stub.context();
   v1::GetOperationRequest watch;
   watch.set_operation_id(operation.id());
-  auto reader = stub->WatchOperation(&context, watch);
+  auto reader = stub->WatchOperation(context.get(), watch);
   v1::Operation state;
   while (reader->Read(&state)) {
     operation = state;
     if (bar.on_progress && !state.stage().empty()) bar.on_progress(state.stage(), state.stage_fraction());
   }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.server);
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, server);
   if (operation.state() != v1::Operation::SUCCEEDED) {
     return report(Status(static_cast<StatusCode>(operation.error_code() == 0 ? 2 : operation.error_code()),
                          "the build failed on the server: " + operation.error_message()));
   }
-  say("rig " + operation.rig_id() + " built on " + o.server + " in " + std::to_string(operation.elapsed_s()) + " s");
+  say("rig " + operation.rig_id() + " built on " + server + " in " + std::to_string(operation.elapsed_s()) + " s");
   std::printf("%s\n", operation.rig_id().c_str());
   return 0;
 }
 
-int run_list_remote(const std::string& server) {
-  auto stub = connect(server);
+int run_list_remote(const Connection& connection) {
+  Result<Remote> remote = Remote::open(connection);
+  if (!remote.ok()) return report(remote.status());
+  const std::string& server = connection.server;
   v1::ListRigsRequest request;
   request.set_page_size(1000);
   for (;;) {
-    grpc::ClientContext context;
+    const auto context = remote->context();
     v1::ListRigsResponse page;
-    if (grpc::Status s = stub->ListRigs(&context, request, &page); !s.ok()) return report_rpc(s, server);
+    if (grpc::Status s = (*remote)->ListRigs(context.get(), request, &page); !s.ok()) return report_rpc(s, server);
     for (const v1::Rig& rig : page.rigs()) {
       std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
                   static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
@@ -187,9 +229,10 @@ int run_pose_remote(const RemotePose& o) {
   request.set_want_ct(!o.ct_out.empty());
   request.set_want_surfaces(!o.surfaces_out.empty());
   request.set_max_output_bytes(static_cast<uint64_t>(o.max_output_mb) << 20);
-  auto stub = connect(o.server);
-  grpc::ClientContext context;
-  auto reader = stub->Pose(&context, request);
+  Result<Remote> remote = Remote::open(o.connection);
+  if (!remote.ok()) return report(remote.status());
+  const auto context = remote->context(o.rig_id);
+  auto reader = (*remote)->Pose(context.get(), request);
   v1::PoseResponse part;
   ImageGeometry grid;
   v1::PoseHeader header;
@@ -220,7 +263,7 @@ int run_pose_remote(const RemotePose& o) {
       for (const std::string& warning : part.report().warnings()) say("warning: " + warning);
     }
   }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.server);
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.connection.server);
   if (labels.size() != header.label_bytes() || ct.size() != header.ct_bytes()) {
     return report(data_loss_error("the server's answer ended early (labels " + std::to_string(labels.size()) + " of " +
                                   std::to_string(header.label_bytes()) + " bytes); run the pose again"));
@@ -254,6 +297,97 @@ int run_pose_remote(const RemotePose& o) {
     }
     say("wrote " + std::to_string(surfaces.size()) + " surfaces to " + o.surfaces_out);
   }
+  return 0;
+}
+
+namespace {
+
+Status check_rig_id(const std::string& rig_id) {
+  if (api::is_hex_id(rig_id)) return ok_status();
+  return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig list --server`), "
+                                "not '" + rig_id + "'");
+}
+
+}  // namespace
+
+int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {
+  if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
+  Result<Remote> remote = Remote::open(connection);
+  if (!remote.ok()) return report(remote.status());
+  v1::GetRigRequest request;
+  request.set_rig_id(rig_id);
+  v1::Rig rig;
+  const auto context = remote->context(rig_id);
+  if (grpc::Status s = (*remote)->GetRig(context.get(), request, &rig); !s.ok()) return report_rpc(s, connection.server);
+  if (as_json) {
+    nlohmann::json out = {{"id", rig.id()}, {"name", rig.name()}, {"size_bytes", rig.size_bytes()},
+                          {"created", rig.created()}, {"last_used", rig.last_used()},
+                          {"tet_vertices", rig.tet_vertices()}, {"tets", rig.tets()}, {"has_ct", rig.has_ct()},
+                          {"software_version", rig.software_version()}, {"segments", rig.segments()}};
+    for (const v1::Joint& j : rig.joints()) {
+      out["joints"].push_back({{"name", j.name()}, {"parent", j.parent()}, {"child", j.child()}, {"kind", j.kind()},
+                               {"centre_mm", j.centre_mm()}});
+    }
+    for (const v1::StageTime& t : rig.stage_seconds()) out["stage_seconds"][t.stage()] = t.seconds();
+    std::printf("%s\n", out.dump(2).c_str());
+    return 0;
+  }
+  std::printf("rig %s  %s\n", rig.id().c_str(), rig.name().c_str());
+  std::printf("  %lld tet vertices, %lld tets, %.1f MB, CT %s, created %s, last used %s\n",
+              static_cast<long long>(rig.tet_vertices()), static_cast<long long>(rig.tets()),
+              static_cast<double>(rig.size_bytes()) / 1e6, rig.has_ct() ? "kept" : "none", rig.created().c_str(),
+              rig.last_used().c_str());
+  std::printf("  %d segments, %d joints:\n", rig.segments_size(), rig.joints_size());
+  for (const v1::Joint& j : rig.joints()) {
+    std::printf("    %-24s %-6s %s -> %s at (%.1f, %.1f, %.1f) mm\n", j.name().c_str(), j.kind().c_str(),
+                j.parent().c_str(), j.child().c_str(), j.centre_mm(0), j.centre_mm(1), j.centre_mm(2));
+  }
+  for (const v1::StageTime& t : rig.stage_seconds()) std::printf("  %-10s %8.2f s\n", t.stage().c_str(), t.seconds());
+  return 0;
+}
+
+int run_delete_remote(const Connection& connection, const std::string& rig_id) {
+  if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
+  Result<Remote> remote = Remote::open(connection);
+  if (!remote.ok()) return report(remote.status());
+  v1::GetRigRequest request;
+  request.set_rig_id(rig_id);
+  v1::DeleteRigResponse deleted;
+  const auto context = remote->context(rig_id);
+  if (grpc::Status s = (*remote)->DeleteRig(context.get(), request, &deleted); !s.ok()) {
+    return report_rpc(s, connection.server);
+  }
+  say("deleted rig " + rig_id + " on " + connection.server);
+  return 0;
+}
+
+int run_export_remote(const Connection& connection, const std::string& rig_id, const std::string& rig_out) {
+  if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
+  if (Status s = check_output_files({rig_out}); !s.ok()) return report(s);
+  Result<Remote> remote = Remote::open(connection);
+  if (!remote.ok()) return report(remote.status());
+  v1::GetRigRequest request;
+  request.set_rig_id(rig_id);
+  const auto context = remote->context(rig_id);
+  auto reader = (*remote)->DownloadRig(context.get(), request);
+  v1::RigChunk chunk;
+  std::string bytes, sha;
+  uint64_t size = 0;
+  while (reader->Read(&chunk)) {
+    if (chunk.offset() == 0) {
+      sha = chunk.sha256();
+      size = chunk.size_bytes();
+      bytes.reserve(size);
+    }
+    bytes += chunk.data();
+  }
+  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, connection.server);
+  if (bytes.size() != size || api::sha256_hex(bytes) != sha) {
+    return report(data_loss_error("the rig arrived incomplete or altered (size or SHA-256 differ); run the export "
+                                  "again"));
+  }
+  if (Status s = api::write_file_atomically(rig_out, bytes, "rig file"); !s.ok()) return report(s);
+  say("wrote " + rig_out + " (" + std::to_string(bytes.size() >> 20) + " MB)");
   return 0;
 }
 

@@ -491,3 +491,54 @@ TEST_F(ServerService, RawSamplesUploadAsTheSameVolumeAsTheirFile) {
 
 }  // namespace
 }  // namespace posewarp
+
+namespace posewarp {
+namespace {
+
+using namespace testing_server;
+
+std::string output_of(const std::vector<std::string>& args) {
+  std::string command;
+  for (const std::string& a : args) command += "'" + a + "' ";
+  std::string out;
+  if (FILE* pipe = ::popen((command + "2>/dev/null").c_str(), "r")) {
+    char buffer[4096];
+    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
+    ::pclose(pipe);
+  }
+  return out;
+}
+
+// The CLI's remote rig commands with a token: build, info, export (the stored file, byte for byte), delete.
+TEST(ServerCli, RigCommandsWorkRemotelyWithATokenAndFailWithoutOne) {
+  const fs::path dir = fs::temp_directory_path() / ("posewarp-cli-remote-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  ASSERT_EQ(run({POSEWARP_CLI, "--quiet", "phantom", "bar", "-o", (dir / "bar").string()}), 0);
+  std::ofstream(dir / "tokens") << "cli-token\n";
+  std::ofstream(dir / "token") << "cli-token\n";
+  ServerProcess server(dir / "store", {"--token-file", (dir / "tokens").string()});
+  const std::string address = server.address();
+  const std::string token = (dir / "token").string();
+  EXPECT_NE(run({POSEWARP_CLI, "rig", "list", "--server", address}), 0);
+  std::string id = output_of({POSEWARP_CLI, "-q", "rig", "build", "--server", address, "--token-file", token,
+                              "--labels", (dir / "bar" / "labels.nii.gz").string(), "--label-map",
+                              (dir / "bar" / "label_map.json").string(), "--name", "bar"});
+  if (!id.empty() && id.back() == '\n') id.pop_back();
+  ASSERT_TRUE(is_hex_id(id)) << id;
+  EXPECT_NE(output_of({POSEWARP_CLI, "rig", "list", "--server", address, "--token-file", token}).find(id),
+            std::string::npos);
+  const std::string info = output_of({POSEWARP_CLI, "rig", "info", id, "--json", "--server", address, "--token-file", token});
+  EXPECT_NE(info.find("\"joints\""), std::string::npos) << info;
+  EXPECT_NE(info.find("\"name\": \"bar\""), std::string::npos) << info;
+  ASSERT_EQ(run({POSEWARP_CLI, "rig", "export", id, "--server", address, "--token-file", token, "--rig-out",
+                 (dir / "exported.rig").string()}),
+            0);
+  EXPECT_EQ(file_text(dir / "exported.rig"), file_text(dir / "store" / "rigs" / (id + ".rig")));
+  ASSERT_EQ(run({POSEWARP_CLI, "rig", "delete", id, "--server", address, "--token-file", token}), 0);
+  EXPECT_EQ(run({POSEWARP_CLI, "rig", "info", id, "--server", address, "--token-file", token}) >> 8, 2);  // NOT_FOUND
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace posewarp
