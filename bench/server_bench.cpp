@@ -1,0 +1,264 @@
+// The service measured through the real posewarp-server on loopback: pose latency through the server against the
+// same pose in process (labels + CT returned), throughput with 1, 4 and 16 clients, preview round trips, upload
+// throughput, rig load time from the store, and the server's memory over 100 poses. On the real sample and on the
+// mannequin phantom.
+// Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--repeats R]
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <future>
+#include <iostream>
+
+#include "posewarp/api/files.h"
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/phantom/phantom.h"
+#include "server_process.h"
+
+namespace {
+
+using namespace posewarp;
+using namespace posewarp::testing_server;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+
+// p-th percentile (0..100) of `values`, milliseconds in, milliseconds out.
+double percentile(std::vector<double> values, double p) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const size_t at = std::min(values.size() - 1, static_cast<size_t>(p / 100.0 * static_cast<double>(values.size() - 1) + 0.5));
+  return values[at];
+}
+
+grpc::Status upload_rig(v1::Posewarp::Stub& stub, const std::string& bytes, v1::Rig* rig) {
+  grpc::ClientContext context;
+  auto writer = stub.UploadRig(&context, rig);
+  v1::UploadRigRequest part;
+  part.mutable_header()->set_size_bytes(bytes.size());
+  part.mutable_header()->set_sha256(sha256_hex(bytes));
+  writer->Write(part);
+  for (size_t offset = 0; offset < bytes.size(); offset += 1 << 20) {
+    v1::UploadRigRequest chunk;
+    chunk.set_chunk(bytes.substr(offset, 1 << 20));
+    writer->Write(chunk);
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
+nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
+                          const std::string& pose_json, int repeats) {
+  nlohmann::json row{{"case", name}};
+  // In process: the engine posing labels + CT, as the server will.
+  Result<api::Rig> rig = api::rig_from_bytes(rig_bytes, name);
+  if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+  const int64_t voxels = rig->source_geometry.voxel_count();
+  row["voxels"] = voxels;
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig).value());
+  api::PoseRequest local;
+  local.pose = *api::pose_from_json(pose_json, "bench pose");
+  std::vector<double> local_ms;
+  for (int r = 0; r < repeats; ++r) {
+    const auto start = Clock::now();
+    Result<api::PoseResult> result = engine->pose(local);
+    if (!result.ok()) throw std::runtime_error(result.status().to_string());
+    local_ms.push_back(1e3 * seconds_since(start));
+  }
+
+  const fs::path store = work / ("store-" + name);
+  const int metrics_port = free_port();
+  ServerProcess server(store, {"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port), "--pose-queue", "64"},
+                       {}, work / (name + "-server.log"));
+  if (server.port() == 0) throw std::runtime_error("the server did not start: " + server.log());
+  auto stub = v1::Posewarp::NewStub(server.channel());
+  // Rig upload, then the rig's first load from the store (a cold cache: read, check, engine created).
+  v1::Rig uploaded;
+  const auto upload_start = Clock::now();
+  if (grpc::Status s = upload_rig(*stub, rig_bytes, &uploaded); !s.ok()) throw std::runtime_error(s.error_message());
+  const double upload_s = seconds_since(upload_start);
+  row["rig_mb"] = static_cast<double>(rig_bytes.size()) / 1e6;
+  row["upload_mb_per_s"] = static_cast<double>(rig_bytes.size()) / 1e6 / upload_s;
+  {
+    ServerProcess cold(store.string() + "-cold", {}, {}, work / (name + "-cold.log"));
+    auto cold_stub = v1::Posewarp::NewStub(cold.channel());
+    v1::Rig again;
+    if (!upload_rig(*cold_stub, rig_bytes, &again).ok()) throw std::runtime_error("upload to the cold server failed");
+    cold.stop();
+  }
+  const auto load_start = Clock::now();
+  Result<api::Rig> loaded = api::load_rig((store / "rigs" / (uploaded.id() + ".rig")).string());
+  row["rig_load_ms"] = 1e3 * seconds_since(load_start);
+  {
+    grpc::ClientContext context;
+    v1::GetRigRequest get;
+    get.set_rig_id(uploaded.id());
+    v1::Rig info;
+    const auto start = Clock::now();
+    if (!stub->GetRig(&context, get, &info).ok()) throw std::runtime_error("GetRig failed");
+    row["first_get_rig_ms"] = 1e3 * seconds_since(start);  // load + engine create, through the server
+  }
+
+  v1::PoseRequest request;
+  request.set_rig_id(uploaded.id());
+  request.set_pose_json(pose_json);
+  request.set_want_labels(true);
+  request.set_want_ct(true);
+  std::vector<double> server_ms;
+  for (int r = 0; r < repeats; ++r) {
+    const auto start = Clock::now();
+    const PoseAnswer answer = pose_remote(*stub, request);
+    if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
+    server_ms.push_back(1e3 * seconds_since(start));
+  }
+  row["local_ms"] = {{"p50", percentile(local_ms, 50)}, {"p99", percentile(local_ms, 99)}};
+  row["server_ms"] = {{"p50", percentile(server_ms, 50)}, {"p99", percentile(server_ms, 99)}};
+  row["server_over_local"] = percentile(server_ms, 50) / percentile(local_ms, 50);
+  std::printf("%-12s %9lld voxels  pose labels+CT: local p50 %7.1f ms p99 %7.1f | server p50 %7.1f ms p99 %7.1f "
+              "(x%.2f)\n",
+              name.c_str(), static_cast<long long>(voxels), percentile(local_ms, 50), percentile(local_ms, 99),
+              percentile(server_ms, 50), percentile(server_ms, 99), percentile(server_ms, 50) / percentile(local_ms, 50));
+  std::printf("%-12s rig %.1f MB: upload %.0f MB/s, load from the store %.0f ms (in process), first GetRig %.0f ms\n",
+              name.c_str(), row["rig_mb"].get<double>(), row["upload_mb_per_s"].get<double>(),
+              row["rig_load_ms"].get<double>(), row["first_get_rig_ms"].get<double>());
+  std::fflush(stdout);
+
+  // Throughput: C clients, each on its own connection, posing `per_client` times.
+  for (const int clients : {1, 4, 16}) {
+    const int per_client = std::max(1, repeats * 2 / clients);
+    std::vector<std::future<std::vector<double>>> running;
+    const auto start = Clock::now();
+    for (int c = 0; c < clients; ++c) {
+      running.push_back(std::async(std::launch::async, [&] {
+        auto own = v1::Posewarp::NewStub(server.channel());
+        std::vector<double> ms;
+        for (int i = 0; i < per_client; ++i) {
+          const auto t = Clock::now();
+          const PoseAnswer answer = pose_remote(*own, request);
+          if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
+          ms.push_back(1e3 * seconds_since(t));
+        }
+        return ms;
+      }));
+    }
+    std::vector<double> all;
+    for (auto& r : running) {
+      const std::vector<double> ms = r.get();
+      all.insert(all.end(), ms.begin(), ms.end());
+    }
+    const double wall = seconds_since(start);
+    row["throughput"].push_back({{"clients", clients}, {"poses_per_s", static_cast<double>(all.size()) / wall},
+                                 {"p99_ms", percentile(all, 99)}, {"errors", 0}});
+    std::printf("%-12s %2d clients: %6.2f poses/s, p99 %7.1f ms, 0 errors\n", name.c_str(), clients,
+                static_cast<double>(all.size()) / wall, percentile(all, 99));
+    std::fflush(stdout);
+  }
+
+  // Preview: one update in flight at a time (a slider that waits for its answer), 200 updates.
+  {
+    grpc::ClientContext context;
+    auto stream = stub->Preview(&context);
+    std::vector<double> ms;
+    v1::PreviewResponse answer;
+    for (int i = 0; i < 200; ++i) {
+      v1::PreviewRequest update;
+      if (i == 0) update.set_rig_id(uploaded.id());
+      update.set_sequence(static_cast<uint64_t>(i + 1));
+      update.set_pose_json(pose_json);
+      const auto start = Clock::now();
+      if (!stream->Write(update) || !stream->Read(&answer) || answer.error_code() != 0) {
+        throw std::runtime_error("preview failed: " + answer.error_message());
+      }
+      if (i > 0) ms.push_back(1e3 * seconds_since(start));  // the first carries the topology
+    }
+    stream->WritesDone();
+    while (stream->Read(&answer)) {
+    }
+    stream->Finish();
+    row["preview_ms"] = {{"p50", percentile(ms, 50)}, {"p99", percentile(ms, 99)}};
+    std::printf("%-12s preview round trip p50 %.1f ms, p99 %.1f ms (%d surfaces)\n", name.c_str(), percentile(ms, 50),
+                percentile(ms, 99), answer.surfaces_size());
+  }
+
+  // Memory: resident bytes after 10 and after 100 poses (no growth expected past the first).
+  double after_10 = 0.0, after_100 = 0.0;
+  for (int i = 1; i <= 100; ++i) {
+    request.set_want_ct(i % 2 == 0);
+    if (!pose_remote(*stub, request).status.ok()) throw std::runtime_error("pose failed");
+    if (i == 10) after_10 = metric(scrape_metrics(metrics_port), "process_resident_memory_bytes");
+    if (i == 100) after_100 = metric(scrape_metrics(metrics_port), "process_resident_memory_bytes");
+  }
+  row["resident_mb_after_10_poses"] = after_10 / 1e6;
+  row["resident_mb_after_100_poses"] = after_100 / 1e6;
+  std::printf("%-12s server resident memory after 10 poses %.0f MB, after 100 poses %.0f MB\n", name.c_str(),
+              after_10 / 1e6, after_100 / 1e6);
+  std::fflush(stdout);
+  server.stop();
+  return row;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  double mannequin_mvoxels = 20.0;
+  int repeats = 10;
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
+      mannequin_mvoxels = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
+      repeats = std::max(2, std::atoi(argv[++i]));
+    } else {
+      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--repeats R]\n", argv[0]);
+      return 2;
+    }
+  }
+  const fs::path work = fs::temp_directory_path() / ("posewarp-bench-server-" + std::to_string(::getpid()));
+  fs::create_directories(work);
+  nlohmann::json out;
+  try {
+    const std::string dir = POSEWARP_SAMPLE_DIR;
+    api::BuildInputs sample;
+    sample.labels = *api::read_label_volume(dir + "/seg_total.nii.gz");
+    sample.ct = *api::read_intensity_volume(dir + "/ct.nii.gz");
+    sample.label_map = *api::preset_by_name("totalsegmentator");
+    Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
+    if (!sample_rig.ok()) throw std::runtime_error(sample_rig.status().to_string());
+    const std::string hip = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/sample_hip_flexion.json");
+    out["cases"].push_back(bench_case("real-sample", work, api::rig_to_bytes(*sample_rig), hip, repeats));
+    // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
+    {
+      ServerProcess server(work / "store-upload", {}, {}, work / "upload.log");
+      auto stub = v1::Posewarp::NewStub(server.channel());
+      const fs::path ct = fs::path(dir) / "ct.nii.gz";
+      v1::Volume volume;
+      const auto start = Clock::now();
+      if (!upload(*stub, ct, v1::VOLUME_KIND_INTENSITY, &volume).ok()) throw std::runtime_error("upload failed");
+      const double mb = static_cast<double>(fs::file_size(ct)) / 1e6;
+      out["volume_upload_mb_per_s"] = mb / seconds_since(start);
+      std::printf("volume upload (sample CT, %.1f MB .nii.gz, checked and stored): %.1f MB/s\n", mb,
+                  out["volume_upload_mb_per_s"].get<double>());
+      server.stop();
+    }
+    if (mannequin_mvoxels > 0.0) {
+      phantom::MannequinParams params;
+      params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
+      Result<phantom::Phantom> p = phantom::make_mannequin(params);
+      if (!p.ok()) throw std::runtime_error(p.status().to_string());
+      api::BuildInputs inputs;
+      inputs.labels = p->labels;
+      inputs.ct = p->ct;
+      inputs.label_map = p->label_map;
+      Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+      if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+      const std::string knee = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/knee_bent.json");
+      out["cases"].push_back(bench_case("mannequin", work, api::rig_to_bytes(*rig), knee, std::max(2, repeats / 2)));
+    }
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "posewarp_bench_server: %s\n", error.what());
+    fs::remove_all(work);
+    return 1;
+  }
+  std::cout << out.dump(2) << "\n";
+  fs::remove_all(work);
+  return 0;
+}
