@@ -75,3 +75,20 @@ def test_an_array_uploads_with_its_affine(study):
     volume_id = client.upload(array=array, affine=affine, kind="labels")
     assert re.fullmatch(r"[0-9a-f]{64}", volume_id)
     assert client.upload(array=array, affine=affine, kind="labels") == volume_id  # stored once
+
+
+def test_a_token_protected_server_needs_the_clients_token(tmp_path):
+    (tmp_path / "tokens").write_text("python-token\n")
+    server = subprocess.Popen([SERVER, "--listen", "127.0.0.1:0", "--store", str(tmp_path / "store"),
+                               "--token-file", str(tmp_path / "tokens")], stdout=subprocess.PIPE, text=True)
+    try:
+        port = re.search(r":(\d+), store", server.stdout.readline()).group(1)
+        with Client(f"127.0.0.1:{port}") as anonymous:
+            with pytest.raises(PosewarpError) as refused:
+                anonymous.rigs()
+            assert refused.value.code == grpc.StatusCode.UNAUTHENTICATED
+        with Client(f"127.0.0.1:{port}", token="python-token") as client:
+            assert client.rigs() == []
+    finally:
+        server.terminate()
+        assert server.wait(timeout=60) == 0

@@ -64,10 +64,18 @@ def _volume(data, grid, stored, as_type=None):
 
 
 class Client:
-    def __init__(self, address, timeout_s=600.0):
-        self._channel = grpc.insecure_channel(address, options=[("grpc.max_receive_message_length", 64 << 20)])
+    def __init__(self, address, timeout_s=600.0, token=None, tls_ca=None):
+        """token: the server's bearer token (or None); tls_ca: path of the CA certificate (PEM) of a TLS server."""
+        options = [("grpc.max_receive_message_length", 64 << 20)]
+        if tls_ca:
+            with open(tls_ca, "rb") as f:
+                credentials = grpc.ssl_channel_credentials(root_certificates=f.read())
+            self._channel = grpc.secure_channel(address, credentials, options=options)
+        else:
+            self._channel = grpc.insecure_channel(address, options=options)
         self._stub = rpc.PosewarpStub(self._channel)
         self._timeout = timeout_s
+        self._metadata = (("authorization", "Bearer " + token.strip()),) if token else ()
 
     def close(self):
         self._channel.close()
@@ -80,7 +88,7 @@ class Client:
 
     def _call(self, method, request):
         try:
-            return method(request, timeout=self._timeout)
+            return method(request, timeout=self._timeout, metadata=self._metadata)
         except grpc.RpcError as error:
             raise PosewarpError(error.code(), error.details()) from None
 
@@ -116,7 +124,7 @@ class Client:
         operation = self._call(self._stub.BuildRig, request)
         try:
             for state in self._stub.WatchOperation(pb.GetOperationRequest(operation_id=operation.id),
-                                                   timeout=self._timeout):
+                                                   timeout=self._timeout, metadata=self._metadata):
                 operation = state
                 if progress and state.stage:
                     progress(state.stage, state.stage_fraction)
@@ -147,7 +155,8 @@ class Client:
                                  want_labels=labels, want_ct=ct, want_surfaces=surfaces)
         header, label_bytes, ct_bytes, meshes, report = None, bytearray(), bytearray(), {}, {}
         try:
-            for part in self._stub.Pose(request, timeout=self._timeout):
+            for part in self._stub.Pose(request, timeout=self._timeout,
+                                        metadata=self._metadata + (("x-posewarp-rig", rig_id),)):
                 kind = part.WhichOneof("part")
                 if kind == "header":
                     header = part.header
