@@ -31,22 +31,6 @@ double percentile(std::vector<double> values, double p) {
   return values[at];
 }
 
-grpc::Status upload_rig(v1::Posewarp::Stub& stub, const std::string& bytes, v1::Rig* rig) {
-  grpc::ClientContext context;
-  auto writer = stub.UploadRig(&context, rig);
-  v1::UploadRigRequest part;
-  part.mutable_header()->set_size_bytes(bytes.size());
-  part.mutable_header()->set_sha256(sha256_hex(bytes));
-  writer->Write(part);
-  for (size_t offset = 0; offset < bytes.size(); offset += 1 << 20) {
-    v1::UploadRigRequest chunk;
-    chunk.set_chunk(bytes.substr(offset, 1 << 20));
-    writer->Write(chunk);
-  }
-  writer->WritesDone();
-  return writer->Finish();
-}
-
 nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
                           const std::string& pose_json, int repeats) {
   nlohmann::json row{{"case", name}};
@@ -75,7 +59,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   // Rig upload, then the rig's first load from the store (a cold cache: read, check, engine created).
   v1::Rig uploaded;
   const auto upload_start = Clock::now();
-  if (grpc::Status s = upload_rig(*stub, rig_bytes, &uploaded); !s.ok()) throw std::runtime_error(s.error_message());
+  if (grpc::Status s = upload_rig(*stub, rig_bytes, sha256_hex(rig_bytes), &uploaded); !s.ok()) throw std::runtime_error(s.error_message());
   const double upload_s = seconds_since(upload_start);
   row["rig_mb"] = static_cast<double>(rig_bytes.size()) / 1e6;
   row["upload_mb_per_s"] = static_cast<double>(rig_bytes.size()) / 1e6 / upload_s;
@@ -83,7 +67,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     ServerProcess cold(store.string() + "-cold", {}, {}, work / (name + "-cold.log"));
     auto cold_stub = v1::Posewarp::NewStub(cold.channel());
     v1::Rig again;
-    if (!upload_rig(*cold_stub, rig_bytes, &again).ok()) throw std::runtime_error("upload to the cold server failed");
+    if (!upload_rig(*cold_stub, rig_bytes, sha256_hex(rig_bytes), &again).ok()) throw std::runtime_error("upload to the cold server failed");
     cold.stop();
   }
   const auto load_start = Clock::now();

@@ -6,7 +6,7 @@
 #include <set>
 #include <string>
 
-#include "posewarp/common/result.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::server {
 

@@ -6,7 +6,7 @@
 
 #include <string>
 
-#include "posewarp/common/status.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp::server {
 

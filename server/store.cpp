@@ -224,7 +224,16 @@ Result<std::vector<RigRecord>> RigStore::rigs(const std::string& after, int limi
   return rows;
 }
 
-void RigStore::touch_rig(const std::string& id) { (void)index_->touch_rig(id, iso_now()); }
+void RigStore::touch_rig(const std::string& id) {
+  const auto now = std::chrono::steady_clock::now();
+  {
+    std::lock_guard<std::mutex> lock(touch_mutex_);
+    auto [it, first] = touched_.try_emplace(id, now);
+    if (!first && now - it->second < std::chrono::minutes(1)) return;
+    it->second = now;
+  }
+  (void)index_->touch_rig(id, iso_now());
+}
 
 Status RigStore::delete_rig(const std::string& id) {
   POSEWARP_ASSIGN_OR_RETURN(const RigRecord row, rig(id));

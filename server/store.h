@@ -6,7 +6,9 @@
 #pragma once
 
 #include <cstdint>
+#include <chrono>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -108,6 +110,7 @@ class RigStore {
   Status put_rig(RigRecord record, std::string_view bytes);
   Result<RigRecord> rig(const std::string& id);
   Result<std::vector<RigRecord>> rigs(const std::string& after, int limit);
+  // Notes a rig's use in the index at most once a minute per rig: a pose's hot path pays no index write.
   void touch_rig(const std::string& id);
   // The file first, then the row (a crash between leaves a row without a file, which the next open drops).
   Status delete_rig(const std::string& id);
@@ -127,6 +130,8 @@ class RigStore {
   StoreOptions options_;
   std::unique_ptr<StoreIndex> index_;
   std::mutex write_mutex_;  // quota check and write of one upload or rig at a time
+  std::mutex touch_mutex_;
+  std::map<std::string, std::chrono::steady_clock::time_point> touched_;  // last index write of last_used per rig
 };
 
 // Now, as ISO 8601 UTC ("2026-11-25T10:00:00Z").

@@ -151,6 +151,38 @@ inline grpc::Status upload(v1::Posewarp::Stub& stub, const fs::path& path, v1::V
   return writer->Finish();
 }
 
+// A rig file through UploadRig: its header (size, claimed SHA-256, name), then 1 MiB chunks.
+inline grpc::Status upload_rig(v1::Posewarp::Stub& stub, const std::string& bytes, const std::string& claimed_sha,
+                               v1::Rig* rig, const std::string& name = "") {
+  grpc::ClientContext context;
+  auto writer = stub.UploadRig(&context, rig);
+  v1::UploadRigRequest part;
+  part.mutable_header()->set_size_bytes(bytes.size());
+  part.mutable_header()->set_sha256(claimed_sha);
+  part.mutable_header()->set_name(name);
+  writer->Write(part);
+  for (size_t offset = 0; offset < bytes.size(); offset += 1 << 20) {
+    v1::UploadRigRequest chunk;
+    chunk.set_chunk(bytes.substr(offset, 1 << 20));
+    writer->Write(chunk);
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
+// What a command prints on stdout.
+inline std::string output_of(const std::vector<std::string>& args) {
+  std::string command;
+  for (const std::string& a : args) command += "'" + a + "' ";
+  std::string out;
+  if (FILE* pipe = ::popen((command + "2>/dev/null").c_str(), "r")) {
+    char buffer[4096];
+    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
+    ::pclose(pipe);
+  }
+  return out;
+}
+
 // Follows an operation to its final state.
 inline v1::Operation watch(v1::Posewarp::Stub& stub, const std::string& operation_id) {
   grpc::ClientContext context;

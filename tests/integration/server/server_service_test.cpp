@@ -417,22 +417,6 @@ TEST_F(ServerService, RigsDownloadUploadDeleteAndAssetsRoundTrip) {
     EXPECT_TRUE(reader->Finish().ok());
     EXPECT_GT(surfaces, 0);
   }
-  auto send_rig = [&](const std::string& content, const std::string& claimed_sha, v1::Rig* rig) {
-    grpc::ClientContext context;
-    auto writer = stub->UploadRig(&context, rig);
-    v1::UploadRigRequest part;
-    part.mutable_header()->set_size_bytes(content.size());
-    part.mutable_header()->set_sha256(claimed_sha);
-    part.mutable_header()->set_name("uploaded");
-    writer->Write(part);
-    for (size_t offset = 0; offset < content.size(); offset += 1 << 20) {
-      v1::UploadRigRequest chunk;
-      chunk.set_chunk(content.substr(offset, 1 << 20));
-      writer->Write(chunk);
-    }
-    writer->WritesDone();
-    return writer->Finish();
-  };
   // Deleted, it is gone; uploaded back, it poses as before. A damaged file is refused with DATA_LOSS.
   {
     grpc::ClientContext context;
@@ -445,9 +429,9 @@ TEST_F(ServerService, RigsDownloadUploadDeleteAndAssetsRoundTrip) {
   std::string damaged = bytes;
   damaged[damaged.size() / 2] ^= 0x21;
   v1::Rig rig;
-  EXPECT_EQ(send_rig(damaged, sha256_hex(damaged), &rig).error_code(), grpc::StatusCode::DATA_LOSS);
-  EXPECT_EQ(send_rig(bytes, sha256_hex(damaged), &rig).error_code(), grpc::StatusCode::DATA_LOSS);
-  ASSERT_TRUE(send_rig(bytes, sha, &rig).ok());
+  EXPECT_EQ(upload_rig(*stub, damaged, sha256_hex(damaged), &rig, "uploaded").error_code(), grpc::StatusCode::DATA_LOSS);
+  EXPECT_EQ(upload_rig(*stub, bytes, sha256_hex(damaged), &rig, "uploaded").error_code(), grpc::StatusCode::DATA_LOSS);
+  ASSERT_TRUE(upload_rig(*stub, bytes, sha, &rig, "uploaded").ok());
   EXPECT_EQ(rig.id(), rig_id);
   EXPECT_EQ(rig.name(), "uploaded");
   EXPECT_GT(rig.stage_seconds_size(), 0);
@@ -496,18 +480,6 @@ namespace posewarp {
 namespace {
 
 using namespace testing_server;
-
-std::string output_of(const std::vector<std::string>& args) {
-  std::string command;
-  for (const std::string& a : args) command += "'" + a + "' ";
-  std::string out;
-  if (FILE* pipe = ::popen((command + "2>/dev/null").c_str(), "r")) {
-    char buffer[4096];
-    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
-    ::pclose(pipe);
-  }
-  return out;
-}
 
 // The CLI's remote rig commands with a token: build, info, export (the stored file, byte for byte), delete.
 TEST(ServerCli, RigCommandsWorkRemotelyWithATokenAndFailWithoutOne) {

@@ -30,20 +30,6 @@ namespace {
 
 using namespace testing_server;
 
-// What a command prints on stdout.
-std::string output_of(const std::vector<std::string>& args) {
-  std::ostringstream command;
-  for (const std::string& a : args) command << "'" << a << "' ";
-  command << "2>/dev/null";
-  std::string out;
-  if (FILE* pipe = ::popen(command.str().c_str(), "r")) {
-    char buffer[4096];
-    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
-    ::pclose(pipe);
-  }
-  return out;
-}
-
 class Server : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
