@@ -2,7 +2,8 @@
 // same pose in process (labels + CT returned), throughput with 1, 4 and 16 clients, preview round trips, upload
 // throughput, rig load time from the store, and the server's memory over 100 poses. On the real sample and on the
 // mannequin phantom.
-// Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--repeats R]
+// Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--repeats R] [--latency-only]
+//                              [--rig-cache DIR (keeps the mannequin's rig between runs)]
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -32,7 +33,7 @@ double percentile(std::vector<double> values, double p) {
 }
 
 nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
-                          const std::string& pose_json, int repeats) {
+                          const std::string& pose_json, int repeats, bool latency_only) {
   nlohmann::json row{{"case", name}};
   // In process: the engine posing labels + CT, as the server will.
   Result<api::Rig> rig = api::rig_from_bytes(rig_bytes, name);
@@ -42,12 +43,18 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig).value());
   api::PoseRequest local;
   local.pose = *api::pose_from_json(pose_json, "bench pose");
+  local.want_surfaces = false;  // as the server request below: labels + CT
   std::vector<double> local_ms;
   for (int r = 0; r < repeats; ++r) {
     const auto start = Clock::now();
     Result<api::PoseResult> result = engine->pose(local);
     if (!result.ok()) throw std::runtime_error(result.status().to_string());
     local_ms.push_back(1e3 * seconds_since(start));
+    if (r + 1 == repeats) {
+      std::printf("%-12s local stages (ms):", name.c_str());
+      for (const auto& [stage, seconds] : result->report.stage_seconds) std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds);
+      std::printf("\n");
+    }
   }
 
   const fs::path store = work / ("store-" + name);
@@ -94,6 +101,12 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     const PoseAnswer answer = pose_remote(*stub, request);
     if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
     server_ms.push_back(1e3 * seconds_since(start));
+    if (r + 1 == repeats) {
+      const nlohmann::json report = nlohmann::json::parse(answer.report.json());
+      std::printf("%-12s server stages (ms):", name.c_str());
+      for (const auto& [stage, seconds] : report["stage_seconds"].items()) std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds.get<double>());
+      std::printf("\n");
+    }
   }
   row["local_ms"] = {{"p50", percentile(local_ms, 50)}, {"p99", percentile(local_ms, 99)}};
   row["server_ms"] = {{"p50", percentile(server_ms, 50)}, {"p99", percentile(server_ms, 99)}};
@@ -106,6 +119,10 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
               name.c_str(), row["rig_mb"].get<double>(), row["upload_mb_per_s"].get<double>(),
               row["rig_load_ms"].get<double>(), row["first_get_rig_ms"].get<double>());
   std::fflush(stdout);
+  if (latency_only) {
+    server.stop();
+    return row;
+  }
 
   // Throughput: C clients, each on its own connection, posing `per_client` times.
   for (const int clients : {1, 4, 16}) {
@@ -186,13 +203,20 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
 int main(int argc, char** argv) {
   double mannequin_mvoxels = 20.0;
   int repeats = 10;
+  bool latency_only = false;
+  fs::path rig_cache;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
       mannequin_mvoxels = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(2, std::atoi(argv[++i]));
+    } else if (!std::strcmp(argv[i], "--latency-only")) {
+      latency_only = true;
+    } else if (!std::strcmp(argv[i], "--rig-cache") && i + 1 < argc) {
+      rig_cache = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--repeats R]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--repeats R] [--latency-only] "
+                           "[--rig-cache DIR]\n", argv[0]);
       return 2;
     }
   }
@@ -208,7 +232,7 @@ int main(int argc, char** argv) {
     Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
     if (!sample_rig.ok()) throw std::runtime_error(sample_rig.status().to_string());
     const std::string hip = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/sample_hip_flexion.json");
-    out["cases"].push_back(bench_case("real-sample", work, api::rig_to_bytes(*sample_rig), hip, repeats));
+    out["cases"].push_back(bench_case("real-sample", work, api::rig_to_bytes(*sample_rig), hip, repeats, latency_only));
     // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
     {
       ServerProcess server(work / "store-upload", {}, {}, work / "upload.log");
@@ -224,18 +248,31 @@ int main(int argc, char** argv) {
       server.stop();
     }
     if (mannequin_mvoxels > 0.0) {
-      phantom::MannequinParams params;
-      params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
-      Result<phantom::Phantom> p = phantom::make_mannequin(params);
-      if (!p.ok()) throw std::runtime_error(p.status().to_string());
-      api::BuildInputs inputs;
-      inputs.labels = p->labels;
-      inputs.ct = p->ct;
-      inputs.label_map = p->label_map;
-      Result<api::Rig> rig = api::build_rig(inputs, {}, {});
-      if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+      // The mannequin's rig takes minutes to build: --rig-cache keeps it between runs.
+      const fs::path cached = rig_cache.empty() ? fs::path()
+                                                : rig_cache / ("mannequin-" + std::to_string(mannequin_mvoxels) + ".rig");
+      std::string rig_bytes;
+      if (!cached.empty() && fs::exists(cached)) {
+        rig_bytes = file_text(cached);
+      } else {
+        phantom::MannequinParams params;
+        params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
+        Result<phantom::Phantom> p = phantom::make_mannequin(params);
+        if (!p.ok()) throw std::runtime_error(p.status().to_string());
+        api::BuildInputs inputs;
+        inputs.labels = p->labels;
+        inputs.ct = p->ct;
+        inputs.label_map = p->label_map;
+        Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+        if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+        rig_bytes = api::rig_to_bytes(*rig);
+        if (!cached.empty()) {
+          fs::create_directories(rig_cache);
+          if (Status s = api::write_file_atomically(cached.string(), rig_bytes, "bench rig"); !s.ok()) throw std::runtime_error(s.to_string());
+        }
+      }
       const std::string knee = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/knee_bent.json");
-      out["cases"].push_back(bench_case("mannequin", work, api::rig_to_bytes(*rig), knee, std::max(2, repeats / 2)));
+      out["cases"].push_back(bench_case("mannequin", work, rig_bytes, knee, std::max(2, repeats / 2), latency_only));
     }
   } catch (const std::exception& error) {
     std::fprintf(stderr, "posewarp_bench_server: %s\n", error.what());
@@ -243,6 +280,10 @@ int main(int argc, char** argv) {
     return 1;
   }
   std::cout << out.dump(2) << "\n";
-  fs::remove_all(work);
+  if (std::getenv("POSEWARP_BENCH_KEEP")) {
+    std::fprintf(stderr, "kept %s (server logs)\n", work.c_str());
+  } else {
+    fs::remove_all(work);
+  }
   return 0;
 }

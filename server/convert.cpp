@@ -63,6 +63,46 @@ std::optional<PixelType> pixel_type_of(v1::PixelType type) {
   }
 }
 
+v1::PixelType wire_pixel_type(PixelType type) {
+  switch (type) {
+    case PixelType::kUInt8: return v1::PIXEL_TYPE_UINT8;
+    case PixelType::kInt8: return v1::PIXEL_TYPE_INT8;
+    case PixelType::kUInt16: return v1::PIXEL_TYPE_UINT16;
+    case PixelType::kInt16: return v1::PIXEL_TYPE_INT16;
+    case PixelType::kUInt32: return v1::PIXEL_TYPE_UINT32;
+    case PixelType::kInt32: return v1::PIXEL_TYPE_INT32;
+    case PixelType::kFloat32: return v1::PIXEL_TYPE_FLOAT32;
+    case PixelType::kFloat64: return v1::PIXEL_TYPE_FLOAT64;
+    default: return v1::PIXEL_TYPE_UNSPECIFIED;
+  }
+}
+
+Result<surface::SurfaceMesh> surface_from(const v1::Surface& message) {
+  const std::string name = message.name().empty() ? "mesh" : message.name();
+  if (message.vertices_size() == 0 || message.vertices_size() % 3 != 0 || message.triangles_size() % 3 != 0) {
+    return invalid_argument_error("mesh '" + name + "' needs 3 coordinates per vertex and 3 vertex indices per "
+                                  "triangle");
+  }
+  surface::SurfaceMesh mesh;
+  mesh.name = name;
+  mesh.label = message.label();
+  const int vertices = message.vertices_size() / 3;
+  mesh.vertices.resize(vertices, 3);
+  for (int i = 0; i < message.vertices_size(); ++i) {
+    if (!std::isfinite(message.vertices(i))) return invalid_argument_error("mesh '" + name + "' has a coordinate that is not a finite number");
+    mesh.vertices(i / 3, i % 3) = message.vertices(i);
+  }
+  mesh.triangles.resize(message.triangles_size() / 3, 3);
+  for (int i = 0; i < message.triangles_size(); ++i) {
+    if (message.triangles(i) < 0 || message.triangles(i) >= vertices) {
+      return invalid_argument_error("mesh '" + name + "' has a triangle naming vertex " +
+                                    std::to_string(message.triangles(i)) + " of " + std::to_string(vertices));
+    }
+    mesh.triangles(i / 3, i % 3) = message.triangles(i);
+  }
+  return mesh;
+}
+
 void put_rig_row(const RigRecord& record, v1::Rig* message) {
   message->set_id(record.id);
   message->set_name(record.name);
@@ -172,43 +212,16 @@ OperationRecord record_from(const v1::Operation& operation, const v1::BuildRigRe
 
 namespace {
 
-template <typename Sample, typename Out>
-void convert_samples(std::string_view bytes, Out* out, int64_t count) {
-  for (int64_t i = 0; i < count; ++i) {
-    Sample value;
-    std::memcpy(&value, bytes.data() + i * static_cast<int64_t>(sizeof(Sample)), sizeof(Sample));
-    out[i] = static_cast<Out>(value);
-  }
-}
-
-size_t sample_bytes(PixelType type) {
-  switch (type) {
-    case PixelType::kUInt8: case PixelType::kInt8: return 1;
-    case PixelType::kUInt16: case PixelType::kInt16: return 2;
-    case PixelType::kUInt32: case PixelType::kInt32: case PixelType::kFloat32: return 4;
-    default: return 8;
-  }
-}
-
 template <typename Out>
 Status fill_from_raw(std::string_view bytes, PixelType type, Volume<Out>& volume) {
   const int64_t count = volume.voxel_count();
-  if (static_cast<uint64_t>(bytes.size()) != static_cast<uint64_t>(count) * sample_bytes(type)) {
+  if (static_cast<uint64_t>(bytes.size()) != static_cast<uint64_t>(count) * static_cast<uint64_t>(pixel_type_bytes(type))) {
     return invalid_argument_error("the raw upload has " + std::to_string(bytes.size()) + " bytes; its grid (" +
                                   volume.geometry().describe() + ") of " + std::string(pixel_type_name(type)) +
-                                  " samples needs " + std::to_string(count * static_cast<int64_t>(sample_bytes(type))));
+                                  " samples needs " + std::to_string(count * pixel_type_bytes(type)));
   }
-  Out* out = volume.data();
-  switch (type) {
-    case PixelType::kUInt8: convert_samples<uint8_t>(bytes, out, count); break;
-    case PixelType::kInt8: convert_samples<int8_t>(bytes, out, count); break;
-    case PixelType::kUInt16: convert_samples<uint16_t>(bytes, out, count); break;
-    case PixelType::kInt16: convert_samples<int16_t>(bytes, out, count); break;
-    case PixelType::kUInt32: convert_samples<uint32_t>(bytes, out, count); break;
-    case PixelType::kInt32: convert_samples<int32_t>(bytes, out, count); break;
-    case PixelType::kFloat32: convert_samples<float>(bytes, out, count); break;
-    case PixelType::kFloat64: convert_samples<double>(bytes, out, count); break;
-    default: return invalid_argument_error("raw samples of 64-bit integers are not taken; send int32 or float");
+  if (!read_samples(bytes.data(), count, type, volume.data())) {
+    return invalid_argument_error("raw samples of 64-bit integers are not taken; send int32 or float");
   }
   volume.set_source_type(type);
   return ok_status();

@@ -19,6 +19,10 @@ skinning::Method method_of(v1::Method method);
 const char* extension_of(v1::FileFormat format);
 // RAW samples -> the pixel type, or nullopt.
 std::optional<PixelType> pixel_type_of(v1::PixelType type);
+// The pixel type on the wire; UNSPECIFIED for 64-bit integers, which the proto does not carry.
+v1::PixelType wire_pixel_type(PixelType type);
+// A client's mesh, checked (whole vertices and triangles, finite coordinates, indices in range).
+Result<surface::SurfaceMesh> surface_from(const v1::Surface& message);
 
 // The rig's description: the index row, the skeleton, mesh size and provenance.
 void put_rig(const RigRecord& record, const api::Rig& rig, v1::Rig* message);

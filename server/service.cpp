@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
+#include <future>
 #include <optional>
 #include <thread>
 #include <utility>
@@ -30,6 +31,105 @@ bool stream_chunks(const char* data, uint64_t size, uint64_t chunk, Put&& put) {
   }
   return true;
 }
+
+// How a pose's volumes travel: raw samples or a file format's bytes, in the sample types the client chose.
+struct VolumeEncoding {
+  std::optional<api::VolumeFormat> format;  // none: raw samples
+  bool gzip = false;
+  PixelType label_type = PixelType::kInt32;
+  PixelType ct_type = PixelType::kFloat32;
+};
+
+Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api::Rig& rig) {
+  VolumeEncoding e;
+  switch (request.format()) {
+    case v1::FILE_FORMAT_UNSPECIFIED:
+    case v1::FILE_FORMAT_RAW: break;
+    case v1::FILE_FORMAT_NIFTI_GZ: e.format = api::VolumeFormat::kNifti, e.gzip = true; break;
+    case v1::FILE_FORMAT_NIFTI: e.format = api::VolumeFormat::kNifti; break;
+    case v1::FILE_FORMAT_NRRD: e.format = api::VolumeFormat::kNrrd, e.gzip = true; break;
+    default:
+      return invalid_argument_error("a pose's volumes come as raw samples, NIfTI (.nii, .nii.gz) or NRRD bytes; "
+                                    "ask for one of those (MHA is not offered)");
+  }
+  if (request.samples() == v1::SAMPLE_TYPE_STORED) {
+    // The study's own types, as the CLI writes them; the wire carries no 64-bit integers (labels fit int32).
+    const PixelType labels = rig.labels.source_type();
+    e.label_type = wire_pixel_type(labels) != v1::PIXEL_TYPE_UNSPECIFIED ? labels : PixelType::kInt32;
+    if (rig.ct) {
+      const PixelType ct = rig.ct->source_type();
+      e.ct_type = wire_pixel_type(ct) != v1::PIXEL_TYPE_UNSPECIFIED ? ct : PixelType::kFloat32;
+    }
+  } else if (request.samples() != v1::SAMPLE_TYPE_COMPUTED) {
+    return invalid_argument_error("samples is SAMPLE_TYPE_STORED or SAMPLE_TYPE_COMPUTED");
+  }
+  return e;
+}
+
+using ChunkField = v1::VolumeChunk* (v1::PoseResponse::*)();
+
+// n samples as `type` (or n bytes of a file, T = char), in chunks of about chunk_bytes, each converted straight into its message (no extra copy).
+template <typename T>
+grpc::Status write_samples(grpc::ServerWriter<v1::PoseResponse>* writer, const T* data, int64_t n, PixelType type,
+                           uint64_t chunk_bytes, ChunkField field) {
+  const int64_t sample = pixel_type_bytes(type);
+  const int64_t per_chunk = std::max<int64_t>(1, static_cast<int64_t>(chunk_bytes) / sample);
+  for (int64_t first = 0; first < n; first += per_chunk) {
+    const int64_t count = std::min(per_chunk, n - first);
+    v1::PoseResponse message;
+    v1::VolumeChunk* part = (message.*field)();
+    part->set_offset(static_cast<uint64_t>(first * sample));
+    if (first == 0) part->set_total_bytes(static_cast<uint64_t>(n * sample));
+    std::string* bytes = part->mutable_data();
+    bytes->resize(static_cast<size_t>(count * sample));
+    if constexpr (std::is_same_v<T, char>) {
+      std::memcpy(bytes->data(), data + first, static_cast<size_t>(count));  // a file's bytes, as they are
+    } else if (!convert_samples(data + first, count, type, bytes->data())) {
+      return {grpc::StatusCode::INTERNAL, "a posed value does not fit the study's voxel type " +
+                                              std::string(pixel_type_name(type)) + "; ask for computed samples"};
+    }
+    if (!writer->Write(message)) return kClientGone;
+  }
+  return grpc::Status::OK;
+}
+
+// The posed volumes of one call, written to its stream from a thread of their own while the engine goes on. Each
+// volume waits for the one before it, and the call writes nothing else until wait(): one writer at a time.
+class VolumeSender {
+ public:
+  VolumeSender(grpc::ServerWriter<v1::PoseResponse>* writer, VolumeEncoding encoding, uint64_t chunk_bytes)
+      : writer_(writer), encoding_(std::move(encoding)), chunk_bytes_(chunk_bytes) {}
+  ~VolumeSender() { (void)wait(); }
+
+  template <typename T>
+  void send(std::shared_ptr<const Volume<T>> volume, PixelType type, ChunkField field) {
+    last_ = std::async(std::launch::async, [this, before = std::move(last_), volume = std::move(volume), type,
+                                            field]() mutable -> grpc::Status {
+      if (before.valid()) {
+        if (grpc::Status s = before.get(); !s.ok()) return s;
+      }
+      if (!encoding_.format) return write_samples(writer_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
+      Result<std::string> bytes = api::encode_volume(*volume, *encoding_.format, encoding_.gzip, type);
+      if (!bytes.ok()) return {grpc::StatusCode::INTERNAL, "encoding a posed volume failed: " + bytes.status().message()};
+      return write_samples(writer_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8,
+                           chunk_bytes_, field);
+    });
+  }
+
+  // Waits for every volume handed over; OK, or why one was not sent.
+  grpc::Status wait() {
+    if (!last_.valid()) return status_;
+    status_ = last_.get();
+    return status_;
+  }
+
+ private:
+  grpc::ServerWriter<v1::PoseResponse>* writer_;
+  VolumeEncoding encoding_;
+  uint64_t chunk_bytes_;
+  std::future<grpc::Status> last_;
+  grpc::Status status_;
+};
 
 // A request id from the client's "x-request-id" metadata when it is a plain token, else one of ours.
 std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) {
@@ -818,54 +918,83 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   Result<std::shared_ptr<const api::PoseEngine>> engine = this->engine(request->rig_id());
   if (!engine.ok()) return call.done(to_grpc(engine.status()));
   store_->touch_rig(request->rig_id());
+  const api::Rig& rig = (*engine)->rig();
   api::PoseRequest core;
   core.pose = std::move(pose).value();
   core.method = method_of(request->method());
   core.grid = request->grid() == v1::GRID_POLICY_GROW ? resample::GridPolicy::kGrow : resample::GridPolicy::kInput;
   core.want_labels = request->want_labels();
-  core.want_ct = request->want_ct() && (*engine)->rig().ct.has_value();
+  core.want_ct = request->want_ct() && rig.ct.has_value();
   core.want_surfaces = request->want_surfaces();
+  core.want_fields = request->want_fields();
   core.resample.max_output_bytes =
       request->max_output_bytes() > 0 ? static_cast<int64_t>(request->max_output_bytes()) : options_.max_output_bytes;
+  if (request->meshes_size() > 0 && !request->want_surfaces()) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "meshes come back as posed surfaces: set want_surfaces"});
+  }
+  for (const v1::Surface& mesh : request->meshes()) {
+    Result<surface::SurfaceMesh> parsed = surface_from(mesh);
+    if (!parsed.ok()) return call.done(to_grpc(parsed.status().with_context("in the pose request")));
+    core.extra_surfaces.push_back(std::move(parsed).value());
+  }
+  Result<VolumeEncoding> encoding = volume_encoding(*request, rig);
+  if (!encoding.ok()) return call.done(to_grpc(encoding.status()));
   Result<api::PosePlan> plan = (*engine)->plan(core);
   if (!plan.ok()) return call.done(to_grpc(plan.status()));
-  if ((core.want_labels || core.want_ct) && plan->output_grid.voxel_count() > options_.max_output_voxels) {
+  if ((core.want_labels || core.want_ct || core.want_fields) &&
+      plan->output_grid.voxel_count() > options_.max_output_voxels) {
     return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED,
                       "the pose's output grid has " + std::to_string(plan->output_grid.voxel_count()) +
                           " voxels; this server makes at most " + std::to_string(options_.max_output_voxels) +
                           " (ask for the input grid, or ask the operator)"});
   }
-  Result<api::PoseResult> result = (*engine)->pose(core, call_hooks(context));
-  if (!result.ok()) return call.done(to_grpc(result.status()));
 
-  v1::PoseResponse message;
-  v1::PoseHeader* header = message.mutable_header();
-  put_grid(result->output_grid, header->mutable_grid());
-  const uint64_t label_bytes = result->labels ? result->labels->voxel_count() * sizeof(Label) : 0;
-  const uint64_t ct_bytes = result->ct ? result->ct->voxel_count() * sizeof(float) : 0;
-  header->set_label_bytes(label_bytes);
-  header->set_ct_bytes(ct_bytes);
-  header->set_surface_count(static_cast<int32_t>(result->surfaces.size()));
-  if (result->labels) header->set_label_pixel_type(std::string(pixel_type_name(result->labels->source_type())));
-  if (result->ct) header->set_ct_pixel_type(std::string(pixel_type_name(result->ct->source_type())));
-  if (!writer->Write(message)) return call.done(kClientGone);
-  const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
-  // Label and CT voxels as chunks, each message's chunk in `field` (labels or ct).
-  auto send_voxels = [&](const char* data, uint64_t size, v1::VolumeChunk* (v1::PoseResponse::*field)()) {
-    return stream_chunks(data, size, chunk, [&](uint64_t offset, std::string bytes) {
-      v1::PoseResponse m;
-      (m.*field)()->set_offset(offset);
-      (m.*field)()->set_data(std::move(bytes));
-      return writer->Write(m);
-    });
-  };
-  if (result->labels && !send_voxels(reinterpret_cast<const char*>(result->labels->data()), label_bytes,
-                                     &v1::PoseResponse::mutable_labels)) {
-    return call.done(kClientGone);
+  // The header first, from the plan: the client knows what follows before the engine starts.
+  {
+    v1::PoseResponse message;
+    v1::PoseHeader* header = message.mutable_header();
+    put_grid(plan->output_grid, header->mutable_grid());
+    const uint64_t voxels = static_cast<uint64_t>(plan->output_grid.voxel_count());
+    const bool raw = !encoding->format.has_value();
+    if (core.want_labels && raw) header->set_label_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding->label_type)));
+    if (core.want_ct && raw) header->set_ct_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding->ct_type)));
+    header->set_surface_count(core.want_surfaces ? static_cast<int32_t>(rig.surfaces.size() + core.extra_surfaces.size())
+                                                 : 0);
+    header->set_label_pixel_type(std::string(pixel_type_name(rig.labels.source_type())));
+    if (rig.ct) header->set_ct_pixel_type(std::string(pixel_type_name(rig.ct->source_type())));
+    if (core.want_labels) header->set_label_sample_type(wire_pixel_type(encoding->label_type));
+    if (core.want_ct) header->set_ct_sample_type(wire_pixel_type(encoding->ct_type));
+    header->set_format(request->format());
+    if (core.want_fields) {
+      header->set_inverse_field_bytes(voxels * 12);
+      header->set_forward_field_bytes(static_cast<uint64_t>(rig.labels.voxel_count()) * 12);
+      put_grid(rig.labels.geometry(), header->mutable_source_grid());
+    }
+    if (!writer->Write(message)) return call.done(kClientGone);
   }
-  if (result->ct && !send_voxels(reinterpret_cast<const char*>(result->ct->data()), ct_bytes,
-                                 &v1::PoseResponse::mutable_ct)) {
-    return call.done(kClientGone);
+
+  // Each volume is sent from its own thread as soon as the engine has it, while the engine goes on.
+  const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
+  VolumeSender sender(writer, *encoding, chunk);
+  core.labels_ready = [&](std::shared_ptr<const LabelVolume> labels) {
+    sender.send(std::move(labels), encoding->label_type, &v1::PoseResponse::mutable_labels);
+  };
+  core.ct_ready = [&](std::shared_ptr<const IntensityVolume> ct) {
+    sender.send(std::move(ct), encoding->ct_type, &v1::PoseResponse::mutable_ct);
+  };
+  Result<api::PoseResult> result = (*engine)->pose(core, call_hooks(context));
+  const grpc::Status sent = sender.wait();
+  if (!result.ok()) return call.done(to_grpc(result.status()));
+  if (!sent.ok()) return call.done(sent);
+  if (core.want_fields) {
+    const grpc::Status fields_sent = [&] {
+      grpc::Status s = write_samples(writer, result->inverse_field.data(), static_cast<int64_t>(result->inverse_field.size()),
+                                     PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_inverse_field);
+      if (!s.ok()) return s;
+      return write_samples(writer, result->forward_field.data(), static_cast<int64_t>(result->forward_field.size()),
+                           PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_forward_field);
+    }();
+    if (!fields_sent.ok()) return call.done(fields_sent);
   }
   for (const surface::SurfaceMesh& s : result->surfaces) {
     v1::PoseResponse m;

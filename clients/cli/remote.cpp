@@ -3,6 +3,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -131,6 +132,23 @@ PixelType pixel_type_named(const std::string& name, PixelType fallback) {
     if (pixel_type_name(static_cast<PixelType>(t)) == name) return static_cast<PixelType>(t);
   }
   return fallback;
+}
+
+// The raw samples of a pose answer as a volume on `grid`, to be written in the study's own voxel type.
+template <typename T>
+Result<Volume<T>> volume_from_samples(const std::string& bytes, v1::PixelType sample_type, const ImageGeometry& grid,
+                                      const std::string& study_type) {
+  const PixelType fallback = std::is_same_v<T, float> ? PixelType::kFloat32 : PixelType::kInt32;
+  std::string name = v1::PixelType_Name(sample_type).substr(std::string_view("PIXEL_TYPE_").size());  // "UINT8"
+  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return std::tolower(c); });
+  const PixelType type = pixel_type_named(name, fallback);
+  Volume<T> volume(grid);
+  if (bytes.size() != static_cast<size_t>(volume.voxel_count()) * static_cast<size_t>(pixel_type_bytes(type)) ||
+      !read_samples(bytes.data(), volume.voxel_count(), type, volume.data())) {
+    return data_loss_error("the server's samples do not fill the output grid; run the pose again");
+  }
+  volume.set_source_type(pixel_type_named(study_type, type));
+  return volume;
 }
 
 }  // namespace
@@ -269,17 +287,17 @@ int run_pose_remote(const RemotePose& o) {
                                   std::to_string(header.label_bytes()) + " bytes); run the pose again"));
   }
   if (!o.labels_out.empty()) {
-    LabelVolume volume(grid);
-    std::memcpy(volume.data(), labels.data(), labels.size());
-    volume.set_source_type(pixel_type_named(header.label_pixel_type(), PixelType::kInt32));
-    if (Status s = api::write_volume(volume, o.labels_out); !s.ok()) return report(s);
+    Result<LabelVolume> volume = volume_from_samples<Label>(labels, header.label_sample_type(), grid,
+                                                            header.label_pixel_type());
+    if (!volume.ok()) return report(volume.status());
+    if (Status s = api::write_volume(*volume, o.labels_out); !s.ok()) return report(s);
     say("wrote " + o.labels_out);
   }
   if (!o.ct_out.empty() && !ct.empty()) {
-    IntensityVolume volume(grid);
-    std::memcpy(volume.data(), ct.data(), ct.size());
-    volume.set_source_type(pixel_type_named(header.ct_pixel_type(), PixelType::kFloat32));
-    if (Status s = api::write_volume(volume, o.ct_out); !s.ok()) return report(s);
+    Result<IntensityVolume> volume = volume_from_samples<float>(ct, header.ct_sample_type(), grid,
+                                                                header.ct_pixel_type());
+    if (!volume.ok()) return report(volume.status());
+    if (Status s = api::write_volume(*volume, o.ct_out); !s.ok()) return report(s);
     say("wrote " + o.ct_out);
   }
   if (!o.report_out.empty()) {

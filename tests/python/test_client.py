@@ -52,7 +52,13 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     np.testing.assert_array_equal(posed.labels, np.asarray(cli_labels.dataobj))
     np.testing.assert_allclose(posed.affine, cli_labels.affine, atol=1e-4)
     cli_ct = np.asarray(nibabel.load(str(work / "cli_ct.nii.gz")).dataobj, dtype=np.float32)
-    np.testing.assert_allclose(posed.ct, cli_ct, atol=0.51)  # the file rounds to the study's integer type
+    np.testing.assert_array_equal(posed.ct, cli_ct)  # stored samples: rounded as the file is
+    computed = client.pose(rig, POSE, method="dqs", samples="computed", fields=True,
+                           meshes={"needle": (posed.surfaces[next(iter(posed.surfaces))][0][:4], [[0, 1, 2]])})
+    assert computed.ct.dtype == np.float32 and computed.labels.dtype == np.int32
+    np.testing.assert_allclose(computed.ct, cli_ct, atol=0.51)
+    assert computed.inverse_field.shape == computed.labels.shape + (3,)
+    assert "needle" in computed.surfaces and computed.surfaces["needle"][0].shape == (4, 3)
     assert posed.report["method"] == "dqs"
     assert len(posed.surfaces) > 0
 

@@ -41,10 +41,12 @@ class PosewarpError(RuntimeError):
 
 class PoseResult:
     """A posed study: labels and ct as (x, y, z) numpy arrays (None when not asked for), the RAS affine of their
-    grid (as nibabel uses it), the posed surfaces as {name: (vertices, triangles)} in LPS mm, and the report."""
+    grid (as nibabel uses it), the posed surfaces as {name: (vertices, triangles)} in LPS mm, the report, and with
+    fields=True inverse_field and forward_field as (x, y, z, 3) arrays."""
 
     def __init__(self, labels, ct, affine, surfaces, report):
         self.labels, self.ct, self.affine, self.surfaces, self.report = labels, ct, affine, surfaces, report
+        self.inverse_field = self.forward_field = None
 
 
 def _affine(grid):
@@ -56,11 +58,10 @@ def _affine(grid):
     return np.diag([-1.0, -1.0, 1.0, 1.0]) @ lps
 
 
-def _volume(data, grid, stored, as_type=None):
-    """Voxels sent x fastest as an (x, y, z) array, optionally in the study's own type (labels: exact)."""
+def _volume(data, grid, dtype):
+    """Voxels sent x fastest as an (x, y, z) array."""
     size = tuple(grid.size)
-    array = np.frombuffer(data, dtype=stored).reshape(size[2], size[1], size[0]).transpose(2, 1, 0)
-    return array.astype(_DTYPES[as_type]) if as_type in _DTYPES else array
+    return np.frombuffer(data, dtype=dtype).reshape(size[2], size[1], size[0]).transpose(2, 1, 0)
 
 
 class Client:
@@ -145,38 +146,68 @@ class Client:
             if not token:
                 return found
 
-    def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False):
-        """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one)."""
+    def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False,
+             samples="stored", fields=False, meshes=None):
+        """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one).
+
+        samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
+        bytes); "computed" gives int32 labels and float32 CT as computed. fields: also the inverse (output grid) and
+        forward (study grid) displacement fields, (x, y, z, 3) float32 arrays in LPS mm. meshes: {name: (vertices,
+        triangles)} of your own in rest space (LPS mm), posed and returned among the surfaces."""
         if isinstance(pose, (str, os.PathLike)) and os.path.exists(pose):
             with open(pose) as f:
                 pose = json.load(f)
+        if samples not in ("stored", "computed"):
+            raise ValueError("samples is 'stored' or 'computed'")
         request = pb.PoseRequest(rig_id=rig_id, pose_json=_json_text(pose), method=_METHODS[method],
                                  grid=pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
-                                 want_labels=labels, want_ct=ct, want_surfaces=surfaces)
-        header, label_bytes, ct_bytes, meshes, report = None, bytearray(), bytearray(), {}, {}
+                                 want_labels=labels, want_ct=ct, want_surfaces=surfaces or bool(meshes),
+                                 samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
+                                 want_fields=fields)
+        for name, (vertices, triangles) in (meshes or {}).items():
+            request.meshes.add(name=name, vertices=np.asarray(vertices, dtype=float).ravel().tolist(),
+                               triangles=np.asarray(triangles, dtype=np.int32).ravel().tolist())
+        header, report, found = None, {}, {}
+        parts = {"labels": bytearray(), "ct": bytearray(), "inverse_field": bytearray(), "forward_field": bytearray()}
         try:
             for part in self._stub.Pose(request, timeout=self._timeout,
                                         metadata=self._metadata + (("x-posewarp-rig", rig_id),)):
                 kind = part.WhichOneof("part")
                 if kind == "header":
                     header = part.header
-                elif kind == "labels":
-                    label_bytes += part.labels.data
-                elif kind == "ct":
-                    ct_bytes += part.ct.data
+                elif kind in parts:
+                    parts[kind] += getattr(part, kind).data
                 elif kind == "surface":
-                    meshes[part.surface.name] = (np.array(part.surface.vertices).reshape(-1, 3),
-                                                 np.array(part.surface.triangles, dtype=np.int32).reshape(-1, 3))
+                    found[part.surface.name] = (np.array(part.surface.vertices).reshape(-1, 3),
+                                                np.array(part.surface.triangles, dtype=np.int32).reshape(-1, 3))
                 elif kind == "report":
                     report = json.loads(part.report.json)
         except grpc.RpcError as error:
             raise PosewarpError(error.code(), error.details()) from None
-        if header is None or len(label_bytes) != header.label_bytes or len(ct_bytes) != header.ct_bytes:
+        if header is None or any(len(parts[k]) != n for k, n in (
+                ("labels", header.label_bytes), ("ct", header.ct_bytes),
+                ("inverse_field", header.inverse_field_bytes), ("forward_field", header.forward_field_bytes))):
             raise PosewarpError(grpc.StatusCode.DATA_LOSS, "the server's answer ended early; pose again")
-        return PoseResult(
-            _volume(bytes(label_bytes), header.grid, np.int32, header.label_pixel_type) if label_bytes else None,
-            _volume(bytes(ct_bytes), header.grid, np.float32) if ct_bytes else None,
-            _affine(header.grid), meshes, report)
+        result = PoseResult(
+            _volume(bytes(parts["labels"]), header.grid, _sample_dtype(header.label_sample_type))
+            if parts["labels"] else None,
+            _volume(bytes(parts["ct"]), header.grid, _sample_dtype(header.ct_sample_type)) if parts["ct"] else None,
+            _affine(header.grid), found, report)
+        if fields:
+            result.inverse_field = _field(bytes(parts["inverse_field"]), header.grid)
+            result.forward_field = _field(bytes(parts["forward_field"]), header.source_grid)
+        return result
+
+
+def _sample_dtype(pixel_type):
+    """numpy's dtype of a header's sample type (PIXEL_TYPE_UINT8 -> uint8)."""
+    return _DTYPES[pb.PixelType.Name(pixel_type)[len("PIXEL_TYPE_"):].lower()]
+
+
+def _field(data, grid):
+    """A displacement field sent x fastest, 3 floats per voxel, as an (x, y, z, 3) array."""
+    size = tuple(grid.size)
+    return np.frombuffer(data, dtype=np.float32).reshape(size[2], size[1], size[0], 3).transpose(2, 1, 0, 3)
 
 
 def _json_text(value):

@@ -293,10 +293,33 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
                                       result.output_grid.spacing[1] * result.output_grid.spacing[2] / 1000.0});
     }
     clock.lap("warp-prepare");
+    // The volumes first, each handed to its callback as soon as it is complete (a server sends it while the rest
+    // is computed), then the label report, which needs only the labels.
+    std::shared_ptr<const LabelVolume> handed_out;  // the labels given to labels_ready: the report reads them
+    const LabelVolume* posed_labels = nullptr;
     if (request.want_labels) {
-      POSEWARP_ASSIGN_OR_RETURN(result.labels, warp.warp_labels(rig_.labels));
+      POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(rig_.labels));
       clock.lap("warp-labels");
-      qr.labels = report::label_change(rest_label_counts_, report::label_counts(*result.labels));
+      if (request.labels_ready) {
+        handed_out = std::make_shared<const LabelVolume>(std::move(labels));
+        posed_labels = handed_out.get();
+        request.labels_ready(handed_out);
+      } else {
+        posed_labels = &result.labels.emplace(std::move(labels));
+      }
+    }
+    if (request.want_ct && rig_.ct) {
+      POSEWARP_ASSIGN_OR_RETURN(IntensityVolume ct, warp.warp_intensities(*rig_.ct, request.ct_interpolation));
+      clock.lap("warp-ct");
+      if (request.ct_ready) {
+        request.ct_ready(std::make_shared<const IntensityVolume>(std::move(ct)));
+      } else {
+        result.ct = std::move(ct);
+      }
+    }
+    if (request.want_labels) {
+      POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
+      qr.labels = report::label_change(rest_label_counts_, report::label_counts(*posed_labels));
       for (const auto& [value, counts] : qr.labels.voxels) {
         if (const labels::LabelEntry* entry = rig_.label_map.find(value)) qr.label_names[value] = entry->name;
       }
@@ -306,10 +329,6 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
         qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
       }
       clock.lap("report-labels");
-    }
-    if (request.want_ct && rig_.ct) {
-      POSEWARP_ASSIGN_OR_RETURN(result.ct, warp.warp_intensities(*rig_.ct, request.ct_interpolation));
-      clock.lap("warp-ct");
     }
     if (request.want_fields) {
       result.inverse_field = warp.inverse_displacement();

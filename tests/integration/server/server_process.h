@@ -199,8 +199,9 @@ inline v1::Operation watch(v1::Posewarp::Stub& stub, const std::string& operatio
 struct PoseAnswer {
   grpc::Status status;
   v1::PoseHeader header;
-  std::string labels, ct;
+  std::string labels, ct, inverse_field, forward_field;
   int surfaces = 0;
+  v1::Surface last_surface;
   v1::QualityReport report;
 };
 
@@ -212,10 +213,19 @@ inline PoseAnswer pose_remote(v1::Posewarp::Stub& stub, const v1::PoseRequest& r
   auto reader = stub.Pose(&context, request);
   v1::PoseResponse part;
   while (reader->Read(&part)) {
-    if (part.has_header()) answer.header = part.header();
+    if (part.has_header()) {
+      answer.header = part.header();
+      answer.labels.reserve(answer.header.label_bytes());
+      answer.ct.reserve(answer.header.ct_bytes());
+    }
     if (part.has_labels()) answer.labels += part.labels().data();
     if (part.has_ct()) answer.ct += part.ct().data();
-    if (part.has_surface()) ++answer.surfaces;
+    if (part.has_inverse_field()) answer.inverse_field += part.inverse_field().data();
+    if (part.has_forward_field()) answer.forward_field += part.forward_field().data();
+    if (part.has_surface()) {
+      ++answer.surfaces;
+      answer.last_surface = part.surface();
+    }
     if (part.has_report()) answer.report = part.report();
   }
   answer.status = reader->Finish();

@@ -5,10 +5,13 @@
 
 #include <atomic>
 #include <cstring>
+#include <fstream>
 #include <future>
 
 #include <grpcpp/generic/generic_stub.h>
 
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
 #include "server_process.h"
 
 namespace posewarp {
@@ -471,6 +474,89 @@ TEST_F(ServerService, RawSamplesUploadAsTheSameVolumeAsTheirFile) {
   const grpc::Status short_upload = send(samples.substr(0, samples.size() / 2), &raw);
   EXPECT_EQ(short_upload.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(short_upload.error_message().find("needs"), std::string::npos) << short_upload.error_message();
+}
+
+// What a client can ask of a pose: the study's own sample types (the default), file bytes, displacement fields and
+// its own meshes; each equal to the engine's answer in process.
+TEST_F(ServerService, PoseOptionsGiveWhatTheEngineGivesInProcess) {
+  ServerProcess server(store("options"));
+  auto stub = v1::Posewarp::NewStub(server.channel());
+  const std::string rig_id = build_rig(*stub);
+  Result<api::Rig> rig = api::load_rig((store("options") / "rigs" / (rig_id + ".rig")).string());
+  ASSERT_TRUE(rig.ok());
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig).value());
+  ASSERT_TRUE(engine.ok());
+  // A user's mesh: two triangles on four vertices of the rig's first rest surface.
+  const surface::SurfaceMesh& skin = engine->rig().surfaces.front();
+  surface::SurfaceMesh mine;
+  mine.name = "needle";
+  mine.vertices = skin.vertices.topRows(4);
+  mine.triangles.resize(2, 3);
+  mine.triangles << 0, 1, 2, 0, 1, 3;
+  api::PoseRequest local;
+  local.pose = *api::pose_from_json(bend(rig_id).pose_json(), "test");
+  local.want_fields = true;
+  local.extra_surfaces = {mine};
+  Result<api::PoseResult> expected = engine->pose(local);
+  ASSERT_TRUE(expected.ok()) << expected.status().to_string();
+  const int64_t voxels = expected->labels->voxel_count();
+
+  // Default: the study's types (uint8 labels, int16 CT here), CT rounded as a file stores it.
+  v1::PoseRequest request = bend(rig_id);
+  const PoseAnswer stored = pose_remote(*stub, request);
+  ASSERT_TRUE(stored.status.ok()) << stored.status.error_message();
+  const PixelType label_type = expected->labels->source_type(), ct_type = expected->ct->source_type();
+  ASSERT_EQ(stored.labels.size(), static_cast<size_t>(voxels * pixel_type_bytes(label_type)));
+  ASSERT_EQ(stored.ct.size(), static_cast<size_t>(voxels * pixel_type_bytes(ct_type)));
+  std::string want(stored.labels.size(), '\0');
+  ASSERT_TRUE(convert_samples(expected->labels->data(), voxels, label_type, want.data()));
+  EXPECT_TRUE(stored.labels == want);
+  want.assign(stored.ct.size(), '\0');
+  ASSERT_TRUE(convert_samples(expected->ct->data(), voxels, ct_type, want.data()));
+  EXPECT_TRUE(stored.ct == want);
+  EXPECT_LT(pixel_type_bytes(label_type), 4);  // fewer bytes than the computed int32
+
+  // NIfTI bytes: the file reads back as the posed labels on the output grid.
+  request.set_format(v1::FILE_FORMAT_NIFTI_GZ);
+  const PoseAnswer nifti = pose_remote(*stub, request);
+  ASSERT_TRUE(nifti.status.ok()) << nifti.status.error_message();
+  EXPECT_EQ(nifti.header.label_bytes(), 0u);
+  std::ofstream(dir_ / "posed.nii.gz", std::ios::binary) << nifti.labels;
+  Result<LabelVolume> read = api::read_label_volume((dir_ / "posed.nii.gz").string());
+  ASSERT_TRUE(read.ok()) << read.status().to_string();
+  EXPECT_EQ(read->voxels(), expected->labels->voxels());
+  EXPECT_EQ(read->source_type(), label_type);
+
+  // Fields and a user's mesh.
+  request.set_format(v1::FILE_FORMAT_RAW);
+  request.set_want_fields(true);
+  v1::Surface* sent = request.add_meshes();
+  sent->set_name(mine.name);
+  for (int i = 0; i < 12; ++i) sent->add_vertices(mine.vertices(i / 3, i % 3));
+  for (int i = 0; i < 6; ++i) sent->add_triangles(mine.triangles(i / 3, i % 3));
+  const PoseAnswer fields = pose_remote(*stub, request);
+  ASSERT_TRUE(fields.status.ok()) << fields.status.error_message();
+  ASSERT_EQ(fields.inverse_field.size(), expected->inverse_field.size() * sizeof(float));
+  EXPECT_EQ(std::memcmp(fields.inverse_field.data(), expected->inverse_field.data(), fields.inverse_field.size()), 0);
+  ASSERT_EQ(fields.forward_field.size(), expected->forward_field.size() * sizeof(float));
+  EXPECT_EQ(std::memcmp(fields.forward_field.data(), expected->forward_field.data(), fields.forward_field.size()), 0);
+  EXPECT_EQ(fields.header.forward_field_bytes(), fields.forward_field.size());
+  ASSERT_EQ(fields.surfaces, static_cast<int>(expected->surfaces.size()));
+  EXPECT_EQ(fields.last_surface.name(), "needle");
+  const surface::SurfaceMesh& posed = expected->surfaces.back();
+  ASSERT_EQ(fields.last_surface.vertices_size(), posed.vertices.size());
+  for (int i = 0; i < fields.last_surface.vertices_size(); ++i) {
+    EXPECT_EQ(fields.last_surface.vertices(i), posed.vertices(i / 3, i % 3));
+  }
+
+  // Refused, with what to do: a mesh naming a vertex it does not have, a format not offered.
+  request.mutable_meshes(0)->set_triangles(0, 9);
+  const PoseAnswer bad_mesh = pose_remote(*stub, request);
+  EXPECT_EQ(bad_mesh.status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(bad_mesh.status.error_message().find("needle"), std::string::npos) << bad_mesh.status.error_message();
+  request.clear_meshes();
+  request.set_format(v1::FILE_FORMAT_MHA);
+  EXPECT_EQ(pose_remote(*stub, request).status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
 }
 
 }  // namespace

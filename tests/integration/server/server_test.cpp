@@ -114,6 +114,7 @@ TEST_F(Server, UploadBuildAndPoseGiveWhatTheEnginePosesLocally) {
   request.set_want_labels(true);
   request.set_want_ct(true);
   request.set_want_surfaces(true);
+  request.set_samples(v1::SAMPLE_TYPE_COMPUTED);  // int32 labels and float32 CT, compared byte for byte below
   request.set_chunk_bytes(65536);
   grpc::ClientContext context;
   auto reader = stub_->Pose(&context, request);

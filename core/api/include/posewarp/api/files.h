@@ -29,11 +29,13 @@ using posewarp::sha256_hex;
 using posewarp::write_file_atomically;
 
 // Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
+using io::encode_volume;
 using io::format_name;
 using io::read_header;
 using io::read_intensity_volume;
 using io::read_label_volume;
 using io::ReadOptions;
+using io::VolumeFormat;
 using io::VolumeHeader;
 using io::write_displacement_field;
 using io::write_volume;

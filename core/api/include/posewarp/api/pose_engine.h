@@ -2,7 +2,9 @@
 // report), with everything that does not depend on the pose computed once.
 #pragma once
 
+#include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -28,6 +30,11 @@ struct PoseRequest {
   bool want_fields = false;                 // inverse (output grid) and forward (source grid) displacement fields
   resample::Interpolation ct_interpolation = resample::Interpolation::kLinear;
   resample::ResampleParams resample;
+  // When set, each volume goes here as soon as it is complete instead of into PoseResult (whose labels / ct then
+  // stay empty), while pose() goes on with the rest (the CT, the label report, fields, ...): a server sends it from
+  // a thread of its own. Called on the calling thread; the engine only reads the volume afterwards.
+  std::function<void(std::shared_ptr<const LabelVolume>)> labels_ready;
+  std::function<void(std::shared_ptr<const IntensityVolume>)> ct_ready;
 };
 
 struct PoseResult {

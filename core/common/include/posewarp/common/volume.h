@@ -19,6 +19,16 @@ bool is_floating(PixelType type);
 // Smallest and largest value the type holds.
 double pixel_type_min(PixelType type);
 double pixel_type_max(PixelType type);
+// Bytes of one sample.
+int pixel_type_bytes(PixelType type);
+// n values stored as `type` into out (n * pixel_type_bytes(type) bytes, little-endian), as volume files store them:
+// rounded to the nearest integer for integer types. False when a value does not fit the type (it is stored as 0):
+// the caller reports it, nothing is clipped silently.
+bool convert_samples(const int32_t* in, int64_t n, PixelType type, char* out);
+bool convert_samples(const float* in, int64_t n, PixelType type, char* out);
+// The other way: n little-endian samples of `type` read into out. False for 64-bit integer types (not read).
+bool read_samples(const char* in, int64_t n, PixelType type, int32_t* out);
+bool read_samples(const char* in, int64_t n, PixelType type, float* out);
 
 template <typename T>
 class Volume {

@@ -64,4 +64,13 @@ struct WriteOptions {
 Status write_volume(const LabelVolume& volume, const std::string& path, const WriteOptions& options = {});
 Status write_volume(const IntensityVolume& volume, const std::string& path, const WriteOptions& options = {});
 
+// A volume as the bytes of a file, made in memory (what a server streams to a client that asked for files): NIfTI-1
+// (.nii, or .nii.gz with gzip) or NRRD with its data inline (gzip encoding with gzip). Voxels in `type`, by default
+// the volume's source_type(), converted as write_volume converts them (rounded; OUT_OF_RANGE when a value does not
+// fit, never clipped). Other formats are INVALID_ARGUMENT. gzip runs at level 1 (speed over size).
+Result<std::string> encode_volume(const LabelVolume& volume, VolumeFormat format, bool gzip,
+                                  std::optional<PixelType> type = std::nullopt);
+Result<std::string> encode_volume(const IntensityVolume& volume, VolumeFormat format, bool gzip,
+                                  std::optional<PixelType> type = std::nullopt);
+
 }  // namespace posewarp::io
