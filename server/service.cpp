@@ -307,6 +307,23 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
     if (!raw_type) return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a raw upload names its raw_pixel_type"});
     raw_grid = *grid;
   }
+  const std::string kind = header.kind() == v1::VOLUME_KIND_LABELS ? "labels" : "intensity";
+  const bool labels = kind == "labels";
+  // A file the store holds already (its id is its SHA-256) is answered after the header: the client's chunks are
+  // never read, so a client re-sending a study does not move its bytes again.
+  if (!raw) {
+    if (Result<VolumeRecord> existing = store_->volume(header.sha256()); existing.ok() && existing->kind == kind) {
+      if (Result<api::VolumeHeader> stored = api::read_header(existing->path); stored.ok()) {
+        response->set_id(existing->id);
+        response->set_kind(header.kind());
+        put_grid(stored->geometry, response->mutable_grid());
+        response->set_pixel_type(std::string(pixel_type_name(stored->pixel_type)));
+        response->set_size_bytes(existing->size_bytes);
+        response->set_already_stored(true);
+        return call.done(grpc::Status::OK);
+      }
+    }
+  }
   std::string bytes;
   bytes.reserve(header.size_bytes());
   api::Sha256 hash;
@@ -328,8 +345,6 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   if (hash.hex_digest() != header.sha256()) {
     return call.done({grpc::StatusCode::DATA_LOSS, "the upload's bytes do not match its sha256; send it again"});
   }
-  const std::string kind = header.kind() == v1::VOLUME_KIND_LABELS ? "labels" : "intensity";
-  const bool labels = kind == "labels";
   if (raw) {
     // Raw samples become a NIfTI file in the store; the id covers the samples and their geometry.
     if (raw_grid->voxel_count() > options_.max_volume_voxels) {
@@ -346,36 +361,29 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
       response->set_size_bytes(existing->size_bytes);
       return call.done(grpc::Status::OK);
     }
-    const fs::path staging = fs::path(store_->directory()) / "volumes" / (".staging-" + id + extension);
-    Status written = labels ? [&]() -> Status {
+    // Stored as a .nii.gz made in memory.
+    Result<std::string> encoded = labels ? [&]() -> Result<std::string> {
       POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, labels_from_raw(bytes, *raw_type, *raw_grid));
-      return api::write_volume(v, staging.string());
+      return api::encode_volume(v, api::VolumeFormat::kNifti, true);
     }()
-                            : [&]() -> Status {
+                                         : [&]() -> Result<std::string> {
       POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, intensity_from_raw(bytes, *raw_type, *raw_grid));
-      return api::write_volume(v, staging.string());
+      return api::encode_volume(v, api::VolumeFormat::kNifti, true);
     }();
-    if (!written.ok()) {
-      std::error_code ec;
-      fs::remove(staging, ec);
-      return call.done(to_grpc(written));
-    }
-    Result<std::string> encoded = api::read_text_input(staging.string(), "volume", options_.max_upload_bytes * 2);
-    std::error_code ec;
-    fs::remove(staging, ec);
     if (!encoded.ok()) return call.done(to_grpc(encoded.status()));
     Result<VolumeRecord> stored = store_->put_volume(id, extension, kind, *encoded);
     if (!stored.ok()) return call.done(to_grpc(stored.status()));
     response->set_id(id);
     response->set_kind(header.kind());
     put_grid(*raw_grid, response->mutable_grid());
+    response->set_pixel_type(std::string(pixel_type_name(*raw_type)));
     response->set_size_bytes(stored->size_bytes);
     return call.done(grpc::Status::OK);
   }
   // A file is read as posing will read it before it gets its name in the store.
   const fs::path staging = fs::path(store_->directory()) / "volumes" / (".staging-" + header.sha256() + extension);
   if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return call.done(to_grpc(s));
-  Result<ImageGeometry> grid = [&]() -> Result<ImageGeometry> {
+  Result<api::VolumeHeader> read = [&]() -> Result<api::VolumeHeader> {
     POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staging.string()));
     if (h.geometry.voxel_count() > options_.max_volume_voxels) {
       return resource_exhausted_error("the volume has " + std::to_string(h.geometry.voxel_count()) +
@@ -383,23 +391,24 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
                                       std::to_string(options_.max_volume_voxels) + " (--max-volume-voxels)");
     }
     if (labels) {
-      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, api::read_label_volume(staging.string()));
-      return v.geometry();
+      POSEWARP_RETURN_IF_ERROR(api::read_label_volume(staging.string()).status());
+    } else {
+      POSEWARP_RETURN_IF_ERROR(api::read_intensity_volume(staging.string()).status());
     }
-    POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, api::read_intensity_volume(staging.string()));
-    return v.geometry();
+    return h;
   }();
   std::error_code ec;
   fs::remove(staging, ec);
-  if (!grid.ok()) {
-    return call.done({static_cast<grpc::StatusCode>(grid.status().code()),
-                      without_path(grid.status().message(), staging.string(), "uploaded volume")});
+  if (!read.ok()) {
+    return call.done({static_cast<grpc::StatusCode>(read.status().code()),
+                      without_path(read.status().message(), staging.string(), "uploaded volume")});
   }
   Result<VolumeRecord> stored = store_->put_volume(header.sha256(), extension, kind, bytes);
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
   response->set_id(stored->id);
   response->set_kind(header.kind());
-  put_grid(*grid, response->mutable_grid());
+  put_grid(read->geometry, response->mutable_grid());
+  response->set_pixel_type(std::string(pixel_type_name(read->pixel_type)));
   response->set_size_bytes(stored->size_bytes);
   return call.done(grpc::Status::OK);
 }
@@ -923,6 +932,13 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   core.pose = std::move(pose).value();
   core.method = method_of(request->method());
   core.grid = request->grid() == v1::GRID_POLICY_GROW ? resample::GridPolicy::kGrow : resample::GridPolicy::kInput;
+  if (request->grid() == v1::GRID_POLICY_GIVEN) {
+    Result<ImageGeometry> given = grid_from(request->given_grid());
+    if (!given.ok()) return call.done(to_grpc(given.status().with_context("the pose request's given_grid")));
+    core.grid = resample::GridPolicy::kGiven;
+    core.given_grid = *given;
+  }
+  core.ct_interpolation = request->nearest_ct() ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
   core.want_labels = request->want_labels();
   core.want_ct = request->want_ct() && rig.ct.has_value();
   core.want_surfaces = request->want_surfaces();

@@ -1,6 +1,7 @@
 // Pose commands: pose (one pose of a rig, written as volumes, surfaces, fields and a report) and animate (a BVH
 // range, frame by frame).
 #include <chrono>
+#include <optional>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -90,8 +91,10 @@ Status write_surfaces(const api::PoseResult& result, const std::string& dir, con
   return ok_status();
 }
 
-Status write_outputs(const api::PoseResult& result, const std::string& labels_out, const std::string& ct_out,
-                     const std::string& field_out, const std::string& report_out, const ImageGeometry& source) {
+// The files of a pose, local or answered by the server (report_json: the report as written).
+Status write_outputs(const api::PoseResult& result, const std::string& report_json, const std::string& labels_out,
+                     const std::string& ct_out, const std::string& field_out, const std::string& report_out,
+                     const ImageGeometry& source) {
   if (!labels_out.empty() && result.labels) {
     POSEWARP_RETURN_IF_ERROR(api::write_volume(*result.labels, labels_out));
     say("wrote " + labels_out);
@@ -107,7 +110,7 @@ Status write_outputs(const api::PoseResult& result, const std::string& labels_ou
     say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
   }
   if (!report_out.empty()) {
-    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(report_out, report::to_json(result.report), "report"));
+    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(report_out, report_json, "report"));
     say("wrote " + report_out);
   }
   return ok_status();
@@ -168,6 +171,18 @@ int run_pose(const PoseOptions& o) {
   request->want_ct = !o.ct_out.empty();
   request->want_fields = !o.field_out.empty();
   request->want_surfaces = !o.surfaces_out.empty();
+  if (!o.connection.server.empty()) {
+    Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
+    if (!poser.ok()) return report(poser.status());
+    Result<RemotePoseResult> answer = poser->pose(*request);
+    if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
+    for (const std::string& warning : answer->warnings) say("warning: " + warning);
+    Status written = write_outputs(answer->result, answer->report_json, o.labels_out, o.ct_out, o.field_out,
+                                   o.report_out, answer->source_grid);
+    if (!written.ok()) return report(written);
+    Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
+    return surfaces.ok() ? 0 : report(surfaces);
+  }
   Result<api::PoseEngine> engine = load_engine(o.rig_path);
   if (!engine.ok()) return report(engine.status());
   // Checked here too (pose() checks again) so that a pose that does not fit the rig names its file.
@@ -177,7 +192,8 @@ int run_pose(const PoseOptions& o) {
   Result<api::PoseResult> result = engine->pose(*request, progress_bar());
   if (!result.ok()) return report(result.status());
   summarize(*result);
-  Status written = write_outputs(*result, o.labels_out, o.ct_out, o.field_out, o.report_out, engine->rig().labels.geometry());
+  Status written = write_outputs(*result, report::to_json(result->report), o.labels_out, o.ct_out, o.field_out,
+                                 o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
   Status surfaces = write_surfaces(*result, o.surfaces_out, o.output.surface_format);
   if (!surfaces.ok()) return report(surfaces);
@@ -194,6 +210,7 @@ struct AnimateOptions {
   std::string surfaces_dir;
   bool labels = true;
   bool ct = true;
+  Connection connection;  // animate on posewarp-server; rig_path is then a rig id
   OutputOptions output;
 };
 
@@ -212,15 +229,27 @@ int run_animate(const AnimateOptions& o) {
       return report(invalid_argument_error("--frames takes A:B (0-based, inclusive; B = -1 for the last frame)"));
     }
   }
-  Result<api::PoseEngine> engine = load_engine(o.rig_path);
-  if (!engine.ok()) return report(engine.status());
+  // Frames posed in process, or by the server (one connection for every frame).
+  std::optional<api::PoseEngine> engine;
+  std::optional<RemotePoser> poser;
+  if (o.connection.server.empty()) {
+    Result<api::PoseEngine> loaded = load_engine(o.rig_path);
+    if (!loaded.ok()) return report(loaded.status());
+    engine = std::move(loaded).value();
+  } else {
+    Result<RemotePoser> opened = RemotePoser::open(o.connection, o.rig_path);
+    if (!opened.ok()) return report(opened.status());
+    poser = std::move(opened).value();
+  }
   Result<pose::Animation> animation = [&]() -> Result<pose::Animation> {
     if (!o.animation_path.empty()) return api::read_animation(o.animation_path);
     if (o.bvh_path.empty() || o.map_path.empty()) {
       return invalid_argument_error("give --bvh FILE with --map MAP (or --animation FILE.json)");
     }
     POSEWARP_ASSIGN_OR_RETURN(const pose::BvhMap map, api::read_bvh_map(o.map_path));
-    return api::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
+    if (engine) return api::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
+    POSEWARP_ASSIGN_OR_RETURN(const rig::Skeleton skeleton, poser->skeleton());  // BVH retargeting needs it
+    return api::read_bvh(o.bvh_path, map, skeleton, first, last);
   }();
   if (!animation.ok()) return report(animation.status());
   std::error_code ec;
@@ -234,19 +263,25 @@ int run_animate(const AnimateOptions& o) {
   const size_t count = animation->frames.size();
   for (size_t f = 0; f < count; ++f) {
     request->pose = animation->frames[f];
-    Result<api::PoseResult> result = engine->pose(*request, {});
-    if (!result.ok()) return report(result.status().with_context("frame " + std::to_string(f)));
+    Result<RemotePoseResult> answer = [&]() -> Result<RemotePoseResult> {
+      if (poser) return poser->pose(*request);
+      POSEWARP_ASSIGN_OR_RETURN(api::PoseResult result, engine->pose(*request, {}));
+      const std::string json = report::to_json(result.report);
+      return RemotePoseResult{std::move(result), engine->rig().labels.geometry(), json, {}};
+    }();
+    if (!answer.ok()) return report(answer.status().with_context("frame " + std::to_string(f)));
     char stem[32];
     std::snprintf(stem, sizeof(stem), "frame_%04zu", f);
     const fs::path dir(o.out_dir);
-    if (Status s = write_surfaces(*result, o.surfaces_dir.empty() ? "" : (fs::path(o.surfaces_dir) / stem).string(),
+    if (Status s = write_surfaces(answer->result, o.surfaces_dir.empty() ? "" : (fs::path(o.surfaces_dir) / stem).string(),
                                   o.output.surface_format);
         !s.ok()) {
       return report(s);
     }
-    Status written = write_outputs(*result, o.labels ? (dir / (std::string(stem) + "_labels.nii.gz")).string() : "",
+    Status written = write_outputs(answer->result, answer->report_json,
+                                   o.labels ? (dir / (std::string(stem) + "_labels.nii.gz")).string() : "",
                                    o.ct ? (dir / (std::string(stem) + "_ct.nii.gz")).string() : "", "",
-                                   (dir / (std::string(stem) + "_report.json")).string(), engine->rig().labels.geometry());
+                                   (dir / (std::string(stem) + "_report.json")).string(), answer->source_grid);
     if (!written.ok()) return report(written);
     std::fprintf(stderr, "frame %zu/%zu done\n", f + 1, count);
   }
@@ -281,7 +316,7 @@ void add_pose_commands(CLI::App& app) {
     CLI::App* cmd = app.add_subcommand(
         "pose",
         "Apply a pose to a rig: posed labels (never a new value) and CT, displacement fields and a quality report");
-    cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build)")->required();
+    cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build), or with --server a rig id")->required();
     cmd->add_option("--pose", o->pose_path, "Pose JSON (see data/poses/)")->required();
     cmd->add_option("--labels-out", o->labels_out, "Posed label volume");
     cmd->add_option("--ct-out", o->ct_out, "Posed CT");
@@ -296,24 +331,14 @@ void add_pose_commands(CLI::App& app) {
                     "Pose on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written here");
     add_output_options(cmd, o->output);
     cmd->callback([o] {
-      int code = 0;
-      if (!o->connection.server.empty()) {
-        if (!o->field_out.empty() || !o->output.extra_surfaces.empty() || !o->output.grid_like.empty()) {
-          throw CLI::ValidationError("--server", "--field-out, --surface and --grid-like are local only for now");
-        }
-        code = run_pose_remote({o->connection, o->rig_path, o->pose_path, o->output.method, o->output.grid, o->labels_out,
-                                o->ct_out, o->surfaces_out, o->output.surface_format, o->report_out,
-                                o->output.max_output_mb});
-      } else {
-        code = run_pose(*o);
-      }
+      const int code = run_pose(*o);
       if (code != 0) throw CLI::RuntimeError(code);
     });
   }
   {
     auto o = std::make_shared<AnimateOptions>();
     CLI::App* cmd = app.add_subcommand("animate", "Pose a rig frame by frame from a BVH motion (or an animation JSON)");
-    cmd->add_option("rig", o->rig_path, "Rig file")->required();
+    cmd->add_option("rig", o->rig_path, "Rig file, or with --server a rig id")->required();
     cmd->add_option("--bvh", o->bvh_path, "BVH motion file");
     cmd->add_option("--map", o->map_path, "BVH joint -> rig joint map JSON");
     cmd->add_option("--animation", o->animation_path, "Animation JSON instead of a BVH");
@@ -321,6 +346,10 @@ void add_pose_commands(CLI::App& app) {
     cmd->add_option("--out-dir", o->out_dir, "Directory for frame_NNNN_{labels,ct,report} files")->required();
     cmd->add_flag("!--no-ct", o->ct, "Skip the CT");
     cmd->add_option("--surfaces-out", o->surfaces_dir, "Also write each frame's deformed surfaces under DIR/frame_NNNN/");
+    add_connection_options(cmd, o->connection);
+    cmd->add_option("--server", o->connection.server,
+                    "Animate on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written "
+                    "here (a BVH is retargeted here, on the rig's skeleton downloaded once)");
     add_output_options(cmd, o->output);
     cmd->callback([o] {
       if (int code = run_animate(*o); code != 0) throw CLI::RuntimeError(code);

@@ -5,12 +5,15 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <thread>
 
 #include "cli_support.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/rig_file.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 #include <nlohmann/json.hpp>
@@ -21,13 +24,8 @@ namespace {
 namespace fs = std::filesystem;
 
 // A failed call as the local commands report it: the server's code is the core's, so the exit code table holds.
-int report_rpc(const grpc::Status& status, const std::string& server) {
-  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-    return report(unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message() +
-                                    " (is it running, and is the address right?)"));
-  }
-  return report(Status(static_cast<StatusCode>(status.error_code()), status.error_message()));
-}
+Status status_of(const grpc::Status& status, const std::string& server);
+int report_rpc(const grpc::Status& status, const std::string& server) { return report(status_of(status, server)); }
 
 // The channel and what every call carries: the bearer token, and the rig id (so a load balancer can keep each rig
 // on one replica).
@@ -51,8 +49,40 @@ class Remote {
     }
     grpc::ChannelArguments arguments;
     arguments.SetMaxReceiveMessageSize(64 << 20);
-    remote.stub_ = v1::Posewarp::NewStub(grpc::CreateCustomChannel(c.server, credentials, arguments));
+    // Reconnect as quickly as with_retries tries again (gRPC's default first backoff is 1 s, growing to 120 s).
+    arguments.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 250);
+    arguments.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 250);
+    arguments.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 2000);
+    remote.channel_ = grpc::CreateCustomChannel(c.server, credentials, arguments);
+    remote.stub_ = v1::Posewarp::NewStub(remote.channel_);
+    remote.retries_ = c.retries;
     return remote;
+  }
+  // A unary call with the token and the rig id, tried again while the server is unavailable.
+  template <typename Request, typename Response>
+  grpc::Status unary(grpc::Status (v1::Posewarp::Stub::*method)(grpc::ClientContext*, const Request&, Response*),
+                     const Request& request, Response* response, const std::string& rig_id = "") const {
+    return with_retries([&] {
+      const auto call = context(rig_id);
+      return ((*stub_).*method)(call.get(), request, response);
+    });
+  }
+  // Runs `attempt` (one whole call) again while the server answers UNAVAILABLE, waiting 0.5, 1, 2, ... s.
+  template <typename Attempt>
+  grpc::Status with_retries(Attempt&& attempt) const {
+    grpc::Status status = attempt();
+    double wait_s = 0.5;
+    for (int retry = 0; retry < retries_ && status.error_code() == grpc::StatusCode::UNAVAILABLE; ++retry) {
+      say("posewarp-server at " + server_ + " is unavailable (" + status.error_message() + "); trying again within " +
+          std::to_string(wait_s).substr(0, 3) + " s");
+      // Connecting meanwhile: the next try starts as soon as the server is back, or when the wait is over.
+      const auto until = std::chrono::system_clock::now() + std::chrono::duration_cast<std::chrono::milliseconds>(
+                                                                 std::chrono::duration<double>(wait_s));
+      if (!channel_->WaitForConnected(until)) std::this_thread::sleep_until(until);
+      wait_s *= 2.0;
+      status = attempt();
+    }
+    return status;
   }
   v1::Posewarp::Stub* operator->() const { return stub_.get(); }
   v1::Posewarp::Stub& operator*() const { return *stub_; }
@@ -67,8 +97,19 @@ class Remote {
 
  private:
   std::string server_, token_;
+  int retries_ = 0;
+  std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::Posewarp::Stub> stub_;
 };
+
+// A failed call as a Status: the server's code is the core's; UNAVAILABLE says where it tried.
+Status status_of(const grpc::Status& status, const std::string& server) {
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+    return unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message() +
+                             " (is it running, and is the address right?)");
+  }
+  return Status(static_cast<StatusCode>(status.error_code()), status.error_message());
+}
 
 v1::FileFormat format_of(const std::string& path) {
   auto ends = [&path](const char* suffix) {
@@ -90,27 +131,32 @@ Result<std::string> upload(const Remote& stub, const std::string& path, v1::Volu
                                   "others with `posewarp convert`)");
   }
   POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, api::read_text_input(path, "volume", int64_t{8} << 30));
-  const auto context = stub.context();
   v1::Volume volume;
-  auto writer = stub->UploadVolume(context.get(), &volume);
-  v1::UploadVolumeRequest part;
-  part.mutable_header()->set_kind(kind);
-  part.mutable_header()->set_format(format);
-  part.mutable_header()->set_size_bytes(bytes.size());
-  part.mutable_header()->set_sha256(api::sha256_hex(bytes));
-  bool open = writer->Write(part);
-  for (size_t offset = 0; open && offset < bytes.size(); offset += size_t{1} << 20) {
-    v1::UploadVolumeRequest chunk;
-    chunk.set_chunk(bytes.substr(offset, size_t{1} << 20));
-    open = writer->Write(chunk);
-  }
-  writer->WritesDone();
-  const grpc::Status status = writer->Finish();
-  if (!status.ok()) {
-    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-      return unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message());
+  const grpc::Status status = stub.with_retries([&] {
+    const auto context = stub.context();
+    auto writer = stub->UploadVolume(context.get(), &volume);
+    v1::UploadVolumeRequest part;
+    part.mutable_header()->set_kind(kind);
+    part.mutable_header()->set_format(format);
+    part.mutable_header()->set_size_bytes(bytes.size());
+    part.mutable_header()->set_sha256(api::sha256_hex(bytes));
+    // A server that holds the file already answers after the header; the chunks' writes then fail and stop.
+    bool open = writer->Write(part);
+    for (size_t offset = 0; open && offset < bytes.size(); offset += size_t{1} << 20) {
+      v1::UploadVolumeRequest chunk;
+      chunk.set_chunk(bytes.substr(offset, size_t{1} << 20));
+      open = writer->Write(chunk);
     }
+    writer->WritesDone();
+    return writer->Finish();
+  });
+  if (!status.ok()) {
+    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) return status_of(status, server);
     return Status(static_cast<StatusCode>(status.error_code()), "'" + path + "': " + status.error_message());
+  }
+  if (volume.already_stored()) {
+    say(path + " is on the server already (volume " + volume.id().substr(0, 12) + ")");
+    return volume.id();
   }
   say("uploaded " + path + " as volume " + volume.id().substr(0, 12));
   return volume.id();
@@ -180,9 +226,8 @@ int run_build_remote(const RemoteBuild& o) {
   }
   request.set_name(o.name.empty() ? fs::path(o.labels_path).filename().string() : o.name);
   v1::Operation operation;
-  {
-    const auto context = stub.context();
-    if (grpc::Status s = stub->BuildRig(context.get(), request, &operation); !s.ok()) return report_rpc(s, server);
+  if (grpc::Status s = stub.unary(&v1::Posewarp::Stub::BuildRig, request, &operation); !s.ok()) {
+    return report_rpc(s, server);  // a build request is idempotent: the same inputs share one operation
   }
   // Progress as the local build shows it, from the operation's stream.
   const ProgressHooks bar = progress_bar();
@@ -212,9 +257,8 @@ int run_list_remote(const Connection& connection) {
   v1::ListRigsRequest request;
   request.set_page_size(1000);
   for (;;) {
-    const auto context = remote->context();
     v1::ListRigsResponse page;
-    if (grpc::Status s = (*remote)->ListRigs(context.get(), request, &page); !s.ok()) return report_rpc(s, server);
+    if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::ListRigs, request, &page); !s.ok()) return report_rpc(s, server);
     for (const v1::Rig& rig : page.rigs()) {
       std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
                   static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
@@ -224,98 +268,179 @@ int run_list_remote(const Connection& connection) {
   }
 }
 
-int run_pose_remote(const RemotePose& o) {
-  if (!api::is_hex_id(o.rig_id)) {
-    return report(invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
-                                         "--server` or `posewarp rig list --server`), not '" + o.rig_id + "'"));
+struct RemotePoser::State {
+  Remote remote;
+  std::string rig_id;
+};
+
+RemotePoser::RemotePoser(std::unique_ptr<State> state) : state_(std::move(state)) {}
+RemotePoser::RemotePoser(RemotePoser&&) noexcept = default;
+RemotePoser& RemotePoser::operator=(RemotePoser&&) noexcept = default;
+RemotePoser::~RemotePoser() = default;
+
+Result<RemotePoser> RemotePoser::open(const Connection& connection, const std::string& rig_id) {
+  if (!api::is_hex_id(rig_id)) {
+    return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
+                                  "--server` or `posewarp rig list --server`), not '" + rig_id + "'");
   }
-  if (Status s = refuse_overwriting_inputs({o.labels_out, o.ct_out, o.report_out}, {o.pose_path}); !s.ok()) {
-    return report(s);
+  POSEWARP_ASSIGN_OR_RETURN(Remote remote, Remote::open(connection));
+  return RemotePoser(std::make_unique<State>(State{std::move(remote), rig_id}));
+}
+
+namespace {
+
+void put_grid(const ImageGeometry& g, v1::Grid* grid) {
+  for (int a = 0; a < 3; ++a) {
+    grid->add_size(g.size[static_cast<size_t>(a)]);
+    grid->add_spacing(g.spacing[static_cast<size_t>(a)]);
+    grid->add_origin(g.origin[static_cast<size_t>(a)]);
   }
-  if (Status s = check_output_files({o.labels_out, o.ct_out, o.report_out}); !s.ok()) return report(s);
-  Result<std::string> pose = api::read_text_input(o.pose_path, "pose");
-  if (!pose.ok()) return report(pose.status());
-  if (Result<pose::Pose> parsed = api::pose_from_json(*pose, "'" + o.pose_path + "'"); !parsed.ok()) {
-    return report(parsed.status());
-  }
+  for (int e = 0; e < 9; ++e) grid->add_direction(g.direction[static_cast<size_t>(e)]);
+}
+
+v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_id) {
   v1::PoseRequest request;
-  request.set_rig_id(o.rig_id);
-  request.set_pose_json(*pose);
-  request.set_method(o.method == "dqs" ? v1::METHOD_DQS : o.method == "lbs" ? v1::METHOD_LBS : v1::METHOD_COR);
-  request.set_grid(o.grid == "grow" ? v1::GRID_POLICY_GROW : v1::GRID_POLICY_INPUT);
-  request.set_want_labels(!o.labels_out.empty() || !o.report_out.empty());
-  request.set_want_ct(!o.ct_out.empty());
-  request.set_want_surfaces(!o.surfaces_out.empty());
-  request.set_max_output_bytes(static_cast<uint64_t>(o.max_output_mb) << 20);
-  Result<Remote> remote = Remote::open(o.connection);
-  if (!remote.ok()) return report(remote.status());
-  const auto context = remote->context(o.rig_id);
-  auto reader = (*remote)->Pose(context.get(), request);
-  v1::PoseResponse part;
-  ImageGeometry grid;
-  v1::PoseHeader header;
-  std::string labels, ct, report_json;
-  std::vector<surface::SurfaceMesh> surfaces;
-  while (reader->Read(&part)) {
-    if (part.has_header()) {
-      header = part.header();
-      grid = grid_of(header.grid());
-      labels.reserve(header.label_bytes());
-      ct.reserve(header.ct_bytes());
-    } else if (part.has_labels()) {
-      labels += part.labels().data();
-    } else if (part.has_ct()) {
-      ct += part.ct().data();
-    } else if (part.has_surface()) {
-      const v1::Surface& s = part.surface();
-      surface::SurfaceMesh mesh;
-      mesh.name = s.name();
-      mesh.label = s.label();
-      mesh.vertices.resize(s.vertices_size() / 3, 3);
-      for (int i = 0; i < s.vertices_size(); ++i) mesh.vertices(i / 3, i % 3) = s.vertices(i);
-      mesh.triangles.resize(s.triangles_size() / 3, 3);
-      for (int i = 0; i < s.triangles_size(); ++i) mesh.triangles(i / 3, i % 3) = s.triangles(i);
-      surfaces.push_back(std::move(mesh));
-    } else if (part.has_report()) {
-      report_json = part.report().json();
-      for (const std::string& warning : part.report().warnings()) say("warning: " + warning);
+  request.set_rig_id(rig_id);
+  request.set_pose_json(api::pose_to_json(r.pose));
+  request.set_method(r.method == skinning::Method::kDqs   ? v1::METHOD_DQS
+                     : r.method == skinning::Method::kLbs ? v1::METHOD_LBS
+                                                          : v1::METHOD_COR);
+  if (r.grid == resample::GridPolicy::kGrow) request.set_grid(v1::GRID_POLICY_GROW);
+  if (r.grid == resample::GridPolicy::kGiven && r.given_grid) {
+    request.set_grid(v1::GRID_POLICY_GIVEN);
+    put_grid(*r.given_grid, request.mutable_given_grid());
+  }
+  request.set_nearest_ct(r.ct_interpolation == resample::Interpolation::kNearest);
+  request.set_want_labels(r.want_labels);
+  request.set_want_ct(r.want_ct);
+  request.set_want_surfaces(r.want_surfaces);
+  request.set_want_fields(r.want_fields);
+  request.set_max_output_bytes(static_cast<uint64_t>(std::max<int64_t>(0, r.resample.max_output_bytes)));
+  request.set_samples(v1::SAMPLE_TYPE_STORED);  // what the files hold, in the fewest bytes
+  for (const surface::SurfaceMesh& mesh : r.extra_surfaces) {
+    v1::Surface* m = request.add_meshes();
+    m->set_name(mesh.name);
+    m->set_label(mesh.label);
+    for (Eigen::Index v = 0; v < mesh.vertices.rows(); ++v) {
+      for (int a = 0; a < 3; ++a) m->add_vertices(mesh.vertices(v, a));
+    }
+    for (Eigen::Index t = 0; t < mesh.triangles.rows(); ++t) {
+      for (int a = 0; a < 3; ++a) m->add_triangles(mesh.triangles(t, a));
     }
   }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, o.connection.server);
-  if (labels.size() != header.label_bytes() || ct.size() != header.ct_bytes()) {
-    return report(data_loss_error("the server's answer ended early (labels " + std::to_string(labels.size()) + " of " +
-                                  std::to_string(header.label_bytes()) + " bytes); run the pose again"));
-  }
-  if (!o.labels_out.empty()) {
-    Result<LabelVolume> volume = volume_from_samples<Label>(labels, header.label_sample_type(), grid,
-                                                            header.label_pixel_type());
-    if (!volume.ok()) return report(volume.status());
-    if (Status s = api::write_volume(*volume, o.labels_out); !s.ok()) return report(s);
-    say("wrote " + o.labels_out);
-  }
-  if (!o.ct_out.empty() && !ct.empty()) {
-    Result<IntensityVolume> volume = volume_from_samples<float>(ct, header.ct_sample_type(), grid,
-                                                                header.ct_pixel_type());
-    if (!volume.ok()) return report(volume.status());
-    if (Status s = api::write_volume(*volume, o.ct_out); !s.ok()) return report(s);
-    say("wrote " + o.ct_out);
-  }
-  if (!o.report_out.empty()) {
-    if (Status s = api::write_file_atomically(o.report_out, report_json, "report"); !s.ok()) return report(s);
-    say("wrote " + o.report_out);
-  }
-  if (!o.surfaces_out.empty()) {
-    std::error_code ec;
-    fs::create_directories(o.surfaces_out, ec);
-    for (const surface::SurfaceMesh& s : surfaces) {
-      if (Status w = api::write_surface(s, (fs::path(o.surfaces_out) / (s.name + "." + o.surface_format)).string());
-          !w.ok()) {
-        return report(w);
+  return request;
+}
+
+std::vector<float> floats_of(const std::string& bytes) {
+  std::vector<float> values(bytes.size() / sizeof(float));
+  std::memcpy(values.data(), bytes.data(), values.size() * sizeof(float));
+  return values;
+}
+
+}  // namespace
+
+Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest& core) const {
+  const Remote& remote = state_->remote;
+  const v1::PoseRequest request = proto_request(core, state_->rig_id);
+  v1::PoseHeader header;
+  std::string labels, ct, inverse, forward;
+  RemotePoseResult answer;
+  const grpc::Status status = remote.with_retries([&] {
+    header.Clear();
+    labels.clear(), ct.clear(), inverse.clear(), forward.clear();
+    answer = RemotePoseResult{};
+    const auto context = remote.context(state_->rig_id);
+    auto reader = remote->Pose(context.get(), request);
+    v1::PoseResponse part;
+    while (reader->Read(&part)) {
+      switch (part.part_case()) {
+        case v1::PoseResponse::kHeader:
+          header = part.header();
+          labels.reserve(header.label_bytes());
+          ct.reserve(header.ct_bytes());
+          break;
+        case v1::PoseResponse::kLabels: labels += part.labels().data(); break;
+        case v1::PoseResponse::kCt: ct += part.ct().data(); break;
+        case v1::PoseResponse::kInverseField: inverse += part.inverse_field().data(); break;
+        case v1::PoseResponse::kForwardField: forward += part.forward_field().data(); break;
+        case v1::PoseResponse::kSurface: {
+          const v1::Surface& s = part.surface();
+          surface::SurfaceMesh mesh;
+          mesh.name = s.name();
+          mesh.label = s.label();
+          mesh.vertices.resize(s.vertices_size() / 3, 3);
+          for (int i = 0; i < s.vertices_size(); ++i) mesh.vertices(i / 3, i % 3) = s.vertices(i);
+          mesh.triangles.resize(s.triangles_size() / 3, 3);
+          for (int i = 0; i < s.triangles_size(); ++i) mesh.triangles(i / 3, i % 3) = s.triangles(i);
+          answer.result.surfaces.push_back(std::move(mesh));
+          break;
+        }
+        case v1::PoseResponse::kReport:
+          answer.report_json = part.report().json();
+          answer.warnings.assign(part.report().warnings().begin(), part.report().warnings().end());
+          break;
+        default: break;
       }
     }
-    say("wrote " + std::to_string(surfaces.size()) + " surfaces to " + o.surfaces_out);
+    return reader->Finish();
+  });
+  if (!status.ok()) return status_of(status, remote.server());
+  if (labels.size() != header.label_bytes() || ct.size() != header.ct_bytes() ||
+      inverse.size() != header.inverse_field_bytes() || forward.size() != header.forward_field_bytes()) {
+    return data_loss_error("the server's answer ended early; run the pose again");
   }
-  return 0;
+  const ImageGeometry grid = grid_of(header.grid());
+  answer.result.output_grid = grid;
+  if (core.want_labels) {
+    POSEWARP_ASSIGN_OR_RETURN(answer.result.labels, volume_from_samples<Label>(labels, header.label_sample_type(), grid,
+                                                                               header.label_pixel_type()));
+  }
+  if (core.want_ct && !ct.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(answer.result.ct, volume_from_samples<float>(ct, header.ct_sample_type(), grid,
+                                                                           header.ct_pixel_type()));
+  }
+  answer.result.inverse_field = floats_of(inverse);
+  answer.result.forward_field = floats_of(forward);
+  answer.source_grid = grid_of(header.source_grid());
+  return answer;
+}
+
+namespace {
+
+// A rig file from the server, whole and checked against its SHA-256.
+Result<std::string> download_rig(const Remote& remote, const std::string& rig_id) {
+  v1::GetRigRequest request;
+  request.set_rig_id(rig_id);
+  std::string bytes, sha;
+  uint64_t size = 0;
+  const grpc::Status status = remote.with_retries([&] {
+    bytes.clear();
+    const auto context = remote.context(rig_id);
+    auto reader = remote->DownloadRig(context.get(), request);
+    v1::RigChunk chunk;
+    while (reader->Read(&chunk)) {
+      if (chunk.offset() == 0) {
+        sha = chunk.sha256();
+        size = chunk.size_bytes();
+        bytes.reserve(size);
+      }
+      bytes += chunk.data();
+    }
+    return reader->Finish();
+  });
+  if (!status.ok()) return status_of(status, remote.server());
+  if (bytes.size() != size || api::sha256_hex(bytes) != sha) {
+    return data_loss_error("the rig arrived incomplete or altered (size or SHA-256 differ); try again");
+  }
+  return bytes;
+}
+
+}  // namespace
+
+Result<rig::Skeleton> RemotePoser::skeleton() const {
+  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, download_rig(state_->remote, state_->rig_id));
+  POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::rig_from_bytes(bytes, "rig " + state_->rig_id));
+  return std::move(rig.skeleton);
 }
 
 namespace {
@@ -335,8 +460,9 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
   v1::Rig rig;
-  const auto context = remote->context(rig_id);
-  if (grpc::Status s = (*remote)->GetRig(context.get(), request, &rig); !s.ok()) return report_rpc(s, connection.server);
+  if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::GetRig, request, &rig, rig_id); !s.ok()) {
+    return report_rpc(s, connection.server);
+  }
   if (as_json) {
     nlohmann::json out = {{"id", rig.id()}, {"name", rig.name()}, {"size_bytes", rig.size_bytes()},
                           {"created", rig.created()}, {"last_used", rig.last_used()},
@@ -371,8 +497,7 @@ int run_delete_remote(const Connection& connection, const std::string& rig_id) {
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
   v1::DeleteRigResponse deleted;
-  const auto context = remote->context(rig_id);
-  if (grpc::Status s = (*remote)->DeleteRig(context.get(), request, &deleted); !s.ok()) {
+  if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::DeleteRig, request, &deleted, rig_id); !s.ok()) {
     return report_rpc(s, connection.server);
   }
   say("deleted rig " + rig_id + " on " + connection.server);
@@ -384,28 +509,10 @@ int run_export_remote(const Connection& connection, const std::string& rig_id, c
   if (Status s = check_output_files({rig_out}); !s.ok()) return report(s);
   Result<Remote> remote = Remote::open(connection);
   if (!remote.ok()) return report(remote.status());
-  v1::GetRigRequest request;
-  request.set_rig_id(rig_id);
-  const auto context = remote->context(rig_id);
-  auto reader = (*remote)->DownloadRig(context.get(), request);
-  v1::RigChunk chunk;
-  std::string bytes, sha;
-  uint64_t size = 0;
-  while (reader->Read(&chunk)) {
-    if (chunk.offset() == 0) {
-      sha = chunk.sha256();
-      size = chunk.size_bytes();
-      bytes.reserve(size);
-    }
-    bytes += chunk.data();
-  }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, connection.server);
-  if (bytes.size() != size || api::sha256_hex(bytes) != sha) {
-    return report(data_loss_error("the rig arrived incomplete or altered (size or SHA-256 differ); run the export "
-                                  "again"));
-  }
-  if (Status s = api::write_file_atomically(rig_out, bytes, "rig file"); !s.ok()) return report(s);
-  say("wrote " + rig_out + " (" + std::to_string(bytes.size() >> 20) + " MB)");
+  Result<std::string> bytes = download_rig(*remote, rig_id);
+  if (!bytes.ok()) return report(bytes.status());
+  if (Status s = api::write_file_atomically(rig_out, *bytes, "rig file"); !s.ok()) return report(s);
+  say("wrote " + rig_out + " (" + std::to_string(bytes->size() >> 20) + " MB)");
   return 0;
 }
 

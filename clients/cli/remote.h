@@ -6,7 +6,11 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <memory>
 #include <string>
+#include <vector>
+
+#include "posewarp/api/pose_engine.h"
 
 namespace posewarp::cli {
 
@@ -15,12 +19,18 @@ struct Connection {
   std::string server;      // HOST:PORT
   std::string token_file;  // one line: the token
   std::string tls_ca;      // PEM of the CA that signed the server's certificate; empty: plaintext
+  int retries = 3;         // calls refused with UNAVAILABLE are tried again after 0.5, 1, 2, ... s
 };
 
 // --token-file and --tls-ca beside a command's --server.
 inline void add_connection_options(CLI::App* command, Connection& c) {
   command->add_option("--token-file", c.token_file, "File holding the server's bearer token (with --server)");
   command->add_option("--tls-ca", c.tls_ca, "CA certificate (PEM) of a TLS server (with --server)");
+  command->add_option("--retries", c.retries,
+                      "Tries again this many times, waiting 0.5, 1, 2, ... s, while the server is unavailable "
+                      "(restarting, or not up yet)")
+      ->check(CLI::Range(0, 10))
+      ->capture_default_str();
 }
 
 struct RemoteBuild {
@@ -28,21 +38,36 @@ struct RemoteBuild {
   std::string labels_path, ct_path, label_map_path, preset, spec_path, name;
 };
 
-struct RemotePose {
-  Connection connection;
-  std::string rig_id;
-  std::string pose_path;
-  std::string method = "cor";
-  std::string grid = "input";
-  std::string labels_out, ct_out, surfaces_out, surface_format = "vtp", report_out;
-  int64_t max_output_mb = 0;
+// A pose answered by the server, in the local engine's types: the local command's writers write the same files.
+struct RemotePoseResult {
+  api::PoseResult result;     // labels and CT (the study's own voxel types), fields, surfaces, output grid
+  ImageGeometry source_grid;  // the forward field's grid
+  std::string report_json;    // the CLI's report.json, as the server wrote it
+  std::vector<std::string> warnings;
+};
+
+// One rig on the server, posed as many times as asked over one connection (animate).
+class RemotePoser {
+ public:
+  static Result<RemotePoser> open(const Connection& connection, const std::string& rig_id);
+  RemotePoser(RemotePoser&&) noexcept;
+  RemotePoser& operator=(RemotePoser&&) noexcept;
+  ~RemotePoser();
+  // The engine's request sent as the proto's (pose, method, grid, outputs wanted, the user's meshes, limits).
+  Result<RemotePoseResult> pose(const api::PoseRequest& request) const;
+  // The rig's skeleton (BVH retargeting needs it): the rig file downloaded, checked and read.
+  Result<rig::Skeleton> skeleton() const;
+
+ private:
+  struct State;
+  explicit RemotePoser(std::unique_ptr<State> state);
+  std::unique_ptr<State> state_;
 };
 
 // Uploads the volumes (the server keeps one copy of each), starts the build, shows its progress and prints the
 // rig id. Exit codes as the local commands.
 #ifdef POSEWARP_REMOTE
 int run_build_remote(const RemoteBuild& options);
-int run_pose_remote(const RemotePose& options);
 int run_list_remote(const Connection& connection);
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json);
 int run_delete_remote(const Connection& connection, const std::string& rig_id);
@@ -54,7 +79,16 @@ inline int remote_unavailable() {
   return 2;
 }
 inline int run_build_remote(const RemoteBuild&) { return remote_unavailable(); }
-inline int run_pose_remote(const RemotePose&) { return remote_unavailable(); }
+struct RemotePoser::State {};
+inline RemotePoser::RemotePoser(std::unique_ptr<State> state) : state_(std::move(state)) {}
+inline RemotePoser::RemotePoser(RemotePoser&&) noexcept = default;
+inline RemotePoser& RemotePoser::operator=(RemotePoser&&) noexcept = default;
+inline RemotePoser::~RemotePoser() = default;
+inline Result<RemotePoser> RemotePoser::open(const Connection&, const std::string&) {
+  return unimplemented_error("this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)");
+}
+inline Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest&) const { return unimplemented_error("no remote mode"); }
+inline Result<rig::Skeleton> RemotePoser::skeleton() const { return unimplemented_error("no remote mode"); }
 inline int run_list_remote(const Connection&) { return remote_unavailable(); }
 inline int run_info_remote(const Connection&, const std::string&, bool) { return remote_unavailable(); }
 inline int run_delete_remote(const Connection&, const std::string&) { return remote_unavailable(); }

@@ -65,9 +65,16 @@ def _volume(data, grid, dtype):
 
 
 class Client:
-    def __init__(self, address, timeout_s=600.0, token=None, tls_ca=None):
-        """token: the server's bearer token (or None); tls_ca: path of the CA certificate (PEM) of a TLS server."""
-        options = [("grpc.max_receive_message_length", 64 << 20)]
+    def __init__(self, address, timeout_s=600.0, token=None, tls_ca=None, retries=3):
+        """token: the server's bearer token (or None); tls_ca: path of the CA certificate (PEM) of a TLS server;
+        retries: calls answered UNAVAILABLE (a server restarting) are tried again this many times, 0.5 s apart and
+        doubling (gRPC's own retry policy: a stream is retried only before its first answer)."""
+        policy = {"methodConfig": [{"name": [{"service": "posewarp.v1.Posewarp"}], "retryPolicy": {
+            "maxAttempts": retries + 1, "initialBackoff": "0.5s", "maxBackoff": "8s", "backoffMultiplier": 2,
+            "retryableStatusCodes": ["UNAVAILABLE"]}}]} if retries > 0 else {}
+        options = [("grpc.max_receive_message_length", 64 << 20), ("grpc.enable_retries", 1 if retries > 0 else 0),
+                   ("grpc.service_config", json.dumps(policy)),
+                   ("grpc.initial_reconnect_backoff_ms", 250), ("grpc.max_reconnect_backoff_ms", 2000)]
         if tls_ca:
             with open(tls_ca, "rb") as f:
                 credentials = grpc.ssl_channel_credentials(root_certificates=f.read())

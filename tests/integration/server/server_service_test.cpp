@@ -476,6 +476,37 @@ TEST_F(ServerService, RawSamplesUploadAsTheSameVolumeAsTheirFile) {
   EXPECT_NE(short_upload.error_message().find("needs"), std::string::npos) << short_upload.error_message();
 }
 
+// A client that finds the server down (restarting) tries again and succeeds once it is back; a study sent again is
+// answered after its header.
+TEST_F(ServerService, TheCliRetriesAnUnavailableServerAndSkipsVolumesItHolds) {
+  const int port = free_port();
+  const std::string address = "127.0.0.1:" + std::to_string(port);
+  std::string id;
+  {
+    ServerProcess first(store("retry"), {"--listen", address});
+    ASSERT_EQ(first.port(), port);
+    auto stub = v1::Posewarp::NewStub(first.channel());
+    id = build_rig(*stub);
+    v1::Volume again;
+    ASSERT_TRUE(upload(*stub, dir_ / "bar" / "labels.nii.gz", v1::VOLUME_KIND_LABELS, &again).ok());
+    EXPECT_TRUE(again.already_stored());
+    EXPECT_EQ(again.pixel_type(), "uint8");
+    EXPECT_EQ(again.grid().size_size(), 3);
+    ASSERT_EQ(first.stop(), 0);
+  }
+  // The pose starts while nothing listens; the server comes back a second later on the same store and port.
+  auto posed = std::async(std::launch::async, [&] {
+    return run({POSEWARP_CLI, "pose", "--server", address, id, "--pose",
+                (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string(), "--labels-out",
+                (dir_ / "retried.nii.gz").string(), "--retries", "5"});
+  });
+  std::this_thread::sleep_for(std::chrono::seconds(1));
+  ServerProcess second(store("retry"), {"--listen", address});
+  ASSERT_EQ(second.port(), port);
+  EXPECT_EQ(posed.get(), 0);
+  EXPECT_TRUE(fs::exists(dir_ / "retried.nii.gz"));
+}
+
 // What a client can ask of a pose: the study's own sample types (the default), file bytes, displacement fields and
 // its own meshes; each equal to the engine's answer in process.
 TEST_F(ServerService, PoseOptionsGiveWhatTheEngineGivesInProcess) {

@@ -239,6 +239,13 @@ TEST_F(Server, RemoteAndLocalCommandsWriteTheSameFiles) {
   if (!id.empty() && id.back() == '\n') id.pop_back();
   ASSERT_TRUE(is_hex_id(id)) << id;
   const std::string pose = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
+  // A mesh of the user's own, a small triangle at the middle of the bar (rest space).
+  Result<api::VolumeHeader> grid = api::read_header(bar + "/labels.nii.gz");
+  ASSERT_TRUE(grid.ok());
+  const Index3& n = grid->geometry.size;
+  const Vec3 c = grid->geometry.index_to_physical({n[0] / 2.0, n[1] / 2.0, n[2] / 2.0});
+  std::ofstream(dir_ / "needle.obj") << "v " << c[0] << " " << c[1] << " " << c[2] << "\nv " << c[0] + 2 << " " << c[1]
+                                     << " " << c[2] << "\nv " << c[0] << " " << c[1] + 2 << " " << c[2] << "\nf 1 2 3\n";
   for (const std::string mode : {"remote", "local"}) {
     const fs::path at = out / mode;
     std::vector<std::string> args{POSEWARP_CLI, "-q", "pose"};
@@ -248,21 +255,38 @@ TEST_F(Server, RemoteAndLocalCommandsWriteTheSameFiles) {
       args.push_back((dir_ / "store" / "rigs" / (id + ".rig")).string());
     }
     args.insert(args.end(), {"--pose", pose, "--method", "dqs", "--labels-out", (at / "labels.nii.gz").string(),
-                             "--ct-out", (at / "ct.nii.gz").string(), "--surfaces-out", (at / "surfaces").string()});
+                             "--ct-out", (at / "ct.nii.gz").string(), "--surfaces-out", (at / "surfaces").string(),
+                             "--field-out", (at / "field.nii.gz").string(), "--surface", (dir_ / "needle.obj").string(),
+                             "--grid-like", bar + "/labels.nii.gz", "--nearest-ct"});
     fs::create_directories(at);
     ASSERT_EQ(run(args), 0) << mode;
+    // Animation frames (a BVH retargeted on the rig's skeleton, which the remote run downloads).
+    std::vector<std::string> animate{POSEWARP_CLI, "-q", "animate"};
+    if (mode == "remote") {
+      animate.insert(animate.end(), {"--server", server, id});
+    } else {
+      animate.push_back((dir_ / "store" / "rigs" / (id + ".rig")).string());
+    }
+    const std::string poses = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses").string();
+    animate.insert(animate.end(), {"--bvh", poses + "/bar_wave.bvh", "--map", poses + "/bar_wave_map.json", "--frames",
+                                   "0:1", "--out-dir", (at / "frames").string()});
+    ASSERT_EQ(run(animate), 0) << mode;
   }
-  EXPECT_EQ(file_text(out / "remote" / "labels.nii.gz"), file_text(out / "local" / "labels.nii.gz"));
-  EXPECT_EQ(file_text(out / "remote" / "ct.nii.gz"), file_text(out / "local" / "ct.nii.gz"));
+  for (const std::string file : {"labels.nii.gz", "ct.nii.gz", "field.nii.gz", "field_forward.nii.gz",
+                                 "frames/frame_0000_labels.nii.gz", "frames/frame_0001_ct.nii.gz"}) {
+    ASSERT_TRUE(fs::exists(out / "local" / file)) << file;
+    EXPECT_EQ(file_text(out / "remote" / file), file_text(out / "local" / file)) << file;
+  }
   int surfaces = 0;
   for (const auto& entry : fs::directory_iterator(out / "local" / "surfaces")) {
     EXPECT_EQ(file_text(entry.path()), file_text(out / "remote" / "surfaces" / entry.path().filename()));
     ++surfaces;
   }
-  EXPECT_GT(surfaces, 0);
+  EXPECT_GT(surfaces, 1);
+  EXPECT_TRUE(fs::exists(out / "remote" / "surfaces" / "needle.vtp"));
   // A rig path where an id belongs, and an unreachable server, are clear errors with the documented codes.
   EXPECT_EQ(run({POSEWARP_CLI, "pose", "--server", server, "bar.rig", "--pose", pose}) >> 8, 2);
-  EXPECT_EQ(run({POSEWARP_CLI, "rig", "list", "--server", "127.0.0.1:1"}) >> 8, 1);
+  EXPECT_EQ(run({POSEWARP_CLI, "rig", "list", "--server", "127.0.0.1:1", "--retries", "0"}) >> 8, 1);
 }
 
 // The preview stream flooded with 10,000 updates: the latest wins (the last update is answered, the skipped ones

@@ -55,6 +55,7 @@ using pose::read_animation;
 using pose::read_bvh;
 using pose::read_bvh_map;
 using pose::pose_from_json;
+using pose::pose_to_json;
 using pose::read_pose;
 
 // Rig specs.
