@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <future>
 #include <optional>
+#include <set>
 #include <thread>
 #include <utility>
 
@@ -791,7 +792,11 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
   v1::RigAsset asset;
   put_skeleton(rig, asset.mutable_skeleton());
   if (!writer->Write(asset)) return call.done(kClientGone);
+  // Each surface's role, for a viewer: a bone segment's label, the skin (label 0), or another tissue.
+  std::set<Label> bone_labels;
+  for (const rig::Segment& segment : rig.skeleton.segments) bone_labels.insert(segment.labels.begin(), segment.labels.end());
   for (const surface::SurfaceMesh& mesh : rig.surfaces) {
+    const std::string role = mesh.label == 0 ? "skin" : bone_labels.count(mesh.label) ? "bone" : "tissue";
     v1::RigAsset part;
     if (request->format() == v1::ASSET_FORMAT_VTP) {
       Result<std::string> vtp = api::surface_to_vtp_bytes(mesh);
@@ -799,8 +804,10 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
       part.mutable_vtp()->set_name(mesh.name);
       part.mutable_vtp()->set_label(mesh.label);
       part.mutable_vtp()->set_data(std::move(vtp).value());
+      part.mutable_vtp()->set_role(role);
     } else {
       put_surface(mesh, true, part.mutable_surface());
+      part.mutable_surface()->set_role(role);
     }
     if (!writer->Write(part)) return call.done(kClientGone);
   }
@@ -1145,6 +1152,9 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       if (!topology_sent) put_surface(rest[i], false, answer.add_topology());
     }
     topology_sent = true;
+    for (const Eigen::Vector3d& c : preview->joint_centres) {
+      for (int a = 0; a < 3; ++a) answer.add_joint_centres(c[a]);
+    }
     answer.set_server_ms(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
     if (!stream->Write(answer)) return call.done(kClientGone);
   }

@@ -105,6 +105,10 @@ Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Meth
     for (const mapping::Embedding& e : preview_.embeddings) {
       result.surface_vertices.push_back(mapping::deform_points(e, preview_.mesh, posed));
     }
+    // A joint centre moves with its parent segment (the child turns about it).
+    for (const rig::Joint& joint : rig_.skeleton.joints) {
+      result.joint_centres.push_back(transforms[static_cast<size_t>(joint.parent)].apply(joint.centre_mm));
+    }
     return result;
   });
 }

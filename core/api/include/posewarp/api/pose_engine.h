@@ -61,6 +61,7 @@ struct PosePlan {
 // rig's, rig().surfaces[i].triangles).
 struct PreviewResult {
   std::vector<Eigen::MatrixXd> surface_vertices;  // #P_i x 3, LPS mm
+  std::vector<Eigen::Vector3d> joint_centres;     // posed, in the skeleton's joint order, LPS mm
 };
 
 class PoseEngine {

@@ -1,0 +1,342 @@
+// The VTK scene and the controller the sliders drive.
+#include "scene.h"
+
+#include <vtkActor.h>
+#include <vtkAnnotatedCubeActor.h>
+#include <vtkAppendPolyData.h>
+#include <vtkCallbackCommand.h>
+#include <vtkCamera.h>
+#include <vtkCellArray.h>
+#include <vtkLegendScaleActor.h>
+#include <vtkLineSource.h>
+#include <vtkPNGWriter.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkPolyDataMapper.h>
+#include <vtkPolyDataNormals.h>
+#include <vtkProperty.h>
+#include <vtkRenderWindow.h>
+#include <vtkRenderer.h>
+#include <vtkSphereSource.h>
+#include <vtkTextActor.h>
+#include <vtkTextProperty.h>
+#include <vtkWindowToImageFilter.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+
+namespace posewarp::view {
+
+// Distinct bone colours (Tableau's 10), the skin's and the other tissue's.
+constexpr double kBoneColours[][3] = {{0.90, 0.86, 0.72}, {0.31, 0.47, 0.65}, {0.95, 0.56, 0.17}, {0.88, 0.34, 0.35},
+                                      {0.46, 0.72, 0.70}, {0.35, 0.63, 0.31}, {0.93, 0.79, 0.28}, {0.69, 0.48, 0.63},
+                                      {1.00, 0.62, 0.66}, {0.61, 0.46, 0.38}};
+constexpr double kSkin[3] = {0.96, 0.78, 0.66};
+constexpr double kTissue[3] = {0.80, 0.35, 0.35};
+
+struct Scene::Parts {
+  vtkSmartPointer<vtkRenderWindow> window = vtkSmartPointer<vtkRenderWindow>::New();
+  vtkSmartPointer<vtkRenderer> renderer = vtkSmartPointer<vtkRenderer>::New();
+  vtkSmartPointer<vtkRenderer> marker_renderer = vtkSmartPointer<vtkRenderer>::New();
+  vtkSmartPointer<vtkTextActor> status = vtkSmartPointer<vtkTextActor>::New();
+  vtkSmartPointer<vtkCallbackCommand> follow = vtkSmartPointer<vtkCallbackCommand>::New();
+  std::vector<vtkSmartPointer<vtkPolyData>> surfaces;
+  std::vector<vtkSmartPointer<vtkActor>> surface_actors;
+  std::vector<std::string> roles;
+  vtkSmartPointer<vtkPolyData> skeleton = vtkSmartPointer<vtkPolyData>::New();
+  vtkSmartPointer<vtkActor> skeleton_actor = vtkSmartPointer<vtkActor>::New();
+};
+
+namespace {
+
+// The marker's camera turns with the main one (same direction and up, fixed distance).
+void follow_camera(vtkObject*, unsigned long, void* client, void*) {
+  auto* pair = static_cast<std::pair<vtkRenderer*, vtkRenderer*>*>(client);
+  vtkCamera* main = pair->first->GetActiveCamera();
+  vtkCamera* marker = pair->second->GetActiveCamera();
+  double direction[3];
+  main->GetDirectionOfProjection(direction);
+  marker->SetFocalPoint(0, 0, 0);
+  marker->SetPosition(-4 * direction[0], -4 * direction[1], -4 * direction[2]);
+  marker->SetViewUp(main->GetViewUp());
+  pair->second->ResetCameraClippingRange();
+}
+
+}  // namespace
+
+Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
+  Parts& p = *parts_;
+  p.window->SetSize(width, height);
+  p.window->SetOffScreenRendering(offscreen ? 1 : 0);
+  p.window->SetMultiSamples(0);  // the same pixels on every Mesa
+  p.window->SetNumberOfLayers(2);
+  p.window->SetWindowName("posewarp-view");
+  p.renderer->SetBackground(0.10, 0.11, 0.13);
+  p.window->AddRenderer(p.renderer);
+  // The orientation marker in the lower left corner: L, P, S (LPS, the server's coordinates) on the cube's faces.
+  auto cube = vtkSmartPointer<vtkAnnotatedCubeActor>::New();
+  cube->SetXPlusFaceText("L");
+  cube->SetXMinusFaceText("R");
+  cube->SetYPlusFaceText("P");
+  cube->SetYMinusFaceText("A");
+  cube->SetZPlusFaceText("S");
+  cube->SetZMinusFaceText("I");
+  cube->SetFaceTextScale(0.6);
+  cube->GetCubeProperty()->SetColor(0.35, 0.38, 0.45);
+  p.marker_renderer->AddActor(cube);
+  p.marker_renderer->SetViewport(0.0, 0.0, 0.16, 0.16 * width / std::max(1, height));
+  p.marker_renderer->SetLayer(1);
+  p.marker_renderer->InteractiveOff();
+  p.window->AddRenderer(p.marker_renderer);
+  static thread_local std::pair<vtkRenderer*, vtkRenderer*> cameras;  // one scene per thread
+  cameras = {p.renderer.Get(), p.marker_renderer.Get()};
+  p.follow->SetCallback(follow_camera);
+  p.follow->SetClientData(&cameras);
+  p.renderer->AddObserver(vtkCommand::StartEvent, p.follow);
+  // A scale bar in millimetres along the bottom.
+  auto scale = vtkSmartPointer<vtkLegendScaleActor>::New();
+  scale->AllAxesOff();
+  scale->BottomAxisVisibilityOn();  // ticks labelled in world units: millimetres
+  scale->LegendVisibilityOff();
+  scale->SetLabelModeToDistance();
+  p.renderer->AddViewProp(scale);
+  p.status->GetTextProperty()->SetFontSize(14);
+  p.status->GetTextProperty()->SetColor(0.9, 0.9, 0.9);
+  p.status->SetDisplayPosition(10, height - 24);
+  p.renderer->AddViewProp(p.status);
+  p.skeleton_actor->GetProperty()->SetColor(1.0, 0.85, 0.1);
+  p.skeleton_actor->GetProperty()->SetLineWidth(3.0);
+}
+
+Scene::~Scene() { delete parts_; }
+
+vtkRenderWindow* Scene::window() const { return parts_->window; }
+vtkRenderer* Scene::renderer() const { return parts_->renderer; }
+
+void Scene::set_rig(const RigAssets& assets) {
+  Parts& p = *parts_;
+  int bone = 0;
+  double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+  for (const v1::Surface& s : assets.surfaces) {
+    auto points = vtkSmartPointer<vtkPoints>::New();
+    for (int i = 0; i + 2 < s.vertices_size(); i += 3) {
+      points->InsertNextPoint(s.vertices(i), s.vertices(i + 1), s.vertices(i + 2));
+      for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
+    }
+    auto triangles = vtkSmartPointer<vtkCellArray>::New();
+    for (int i = 0; i + 2 < s.triangles_size(); i += 3) {
+      const vtkIdType ids[3] = {s.triangles(i), s.triangles(i + 1), s.triangles(i + 2)};
+      triangles->InsertNextCell(3, ids);
+    }
+    auto mesh = vtkSmartPointer<vtkPolyData>::New();
+    mesh->SetPoints(points);
+    mesh->SetPolys(triangles);
+    auto normals = vtkSmartPointer<vtkPolyDataNormals>::New();
+    normals->SetInputData(mesh);
+    normals->SplittingOff();
+    auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
+    mapper->SetInputConnection(normals->GetOutputPort());
+    auto actor = vtkSmartPointer<vtkActor>::New();
+    actor->SetMapper(mapper);
+    const std::string role = s.role().empty() ? (s.label() == 0 ? "skin" : "bone") : s.role();
+    if (role == "skin") {
+      actor->GetProperty()->SetColor(kSkin[0], kSkin[1], kSkin[2]);
+      actor->GetProperty()->SetOpacity(0.25);
+    } else if (role == "bone") {
+      const double* c = kBoneColours[bone++ % 10];
+      actor->GetProperty()->SetColor(c[0], c[1], c[2]);
+    } else {
+      actor->GetProperty()->SetColor(kTissue[0], kTissue[1], kTissue[2]);
+      actor->GetProperty()->SetOpacity(0.6);
+      actor->VisibilityOff();  // tissue surfaces are toggled on (key t)
+    }
+    p.renderer->AddActor(actor);
+    p.surfaces.push_back(mesh);
+    p.surface_actors.push_back(actor);
+    p.roles.push_back(role);
+  }
+  for (int a = 0; a < 3; ++a) bounds_[2 * a] = lo[a], bounds_[2 * a + 1] = hi[a];
+  // The skeleton: a sphere per joint and a stick from each joint to the next one down its chain.
+  std::map<std::string, int> joint_with_child;
+  for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
+    const v1::Joint& joint = assets.skeleton.joints(j);
+    joint_names_.push_back(joint.name());
+    rest_centres_.push_back({joint.centre_mm(0), joint.centre_mm(1), joint.centre_mm(2)});
+    joint_with_child[joint.child()] = j;
+  }
+  for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
+    const auto up = joint_with_child.find(assets.skeleton.joints(j).parent());
+    if (up != joint_with_child.end()) sticks_.emplace_back(up->second, j);
+  }
+  auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
+  mapper->SetInputData(p.skeleton);
+  p.skeleton_actor->SetMapper(mapper);
+  p.renderer->AddActor(p.skeleton_actor);
+  place_skeleton(rest_centres_);
+  set_view("anterior");
+}
+
+void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {
+  const double diagonal = std::sqrt(std::pow(bounds_[1] - bounds_[0], 2) + std::pow(bounds_[3] - bounds_[2], 2) +
+                                    std::pow(bounds_[5] - bounds_[4], 2));
+  auto append = vtkSmartPointer<vtkAppendPolyData>::New();
+  for (const std::array<double, 3>& c : centres) {
+    auto sphere = vtkSmartPointer<vtkSphereSource>::New();
+    sphere->SetCenter(c[0], c[1], c[2]);
+    sphere->SetRadius(0.012 * diagonal);
+    sphere->SetThetaResolution(16);
+    sphere->SetPhiResolution(12);
+    append->AddInputConnection(sphere->GetOutputPort());
+  }
+  for (const auto& [a, b] : sticks_) {
+    if (static_cast<size_t>(std::max(a, b)) >= centres.size()) continue;
+    auto line = vtkSmartPointer<vtkLineSource>::New();
+    line->SetPoint1(centres[static_cast<size_t>(a)].data());
+    line->SetPoint2(centres[static_cast<size_t>(b)].data());
+    append->AddInputConnection(line->GetOutputPort());
+  }
+  if (centres.empty()) return;
+  append->Update();
+  parts_->skeleton->DeepCopy(append->GetOutput());
+}
+
+void Scene::apply(const PreviewSession::Answer& answer) {
+  Parts& p = *parts_;
+  for (size_t i = 0; i < answer.vertices.size() && i < p.surfaces.size(); ++i) {
+    vtkPoints* points = p.surfaces[i]->GetPoints();
+    const std::vector<float>& v = answer.vertices[i];
+    if (static_cast<vtkIdType>(v.size() / 3) != points->GetNumberOfPoints()) continue;  // not this rig's surface
+    for (vtkIdType k = 0; k < points->GetNumberOfPoints(); ++k) points->SetPoint(k, v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+    points->Modified();
+    p.surfaces[i]->Modified();
+  }
+  if (answer.joint_centres.size() == rest_centres_.size()) place_skeleton(answer.joint_centres);
+  ++updates_;
+}
+
+bool Scene::set_view(const std::string& preset) {
+  double direction[3], up[3] = {0, 0, 1};
+  if (preset == "anterior") {
+    direction[0] = 0, direction[1] = -1, direction[2] = 0;  // the camera in front of the patient (anterior is -y)
+  } else if (preset == "lateral") {
+    direction[0] = 1, direction[1] = 0, direction[2] = 0;   // from the patient's left
+  } else if (preset == "superior") {
+    direction[0] = 0, direction[1] = 0, direction[2] = 1;   // from above the head, anterior up
+    up[0] = 0, up[1] = -1, up[2] = 0;
+  } else {
+    return false;
+  }
+  const double centre[3] = {(bounds_[0] + bounds_[1]) / 2, (bounds_[2] + bounds_[3]) / 2, (bounds_[4] + bounds_[5]) / 2};
+  vtkCamera* camera = parts_->renderer->GetActiveCamera();
+  camera->SetFocalPoint(centre);
+  camera->SetPosition(centre[0] + direction[0], centre[1] + direction[1], centre[2] + direction[2]);
+  camera->SetViewUp(up);
+  parts_->renderer->ResetCamera(bounds_);
+  return true;
+}
+
+void Scene::set_status(const std::string& text) { parts_->status->SetInput(text.c_str()); }
+
+void Scene::show_tissue(bool shown) {
+  for (size_t i = 0; i < parts_->roles.size(); ++i) {
+    if (parts_->roles[i] == "tissue") parts_->surface_actors[i]->SetVisibility(shown);
+  }
+}
+
+void Scene::render() { parts_->window->Render(); }
+
+bool Scene::snapshot(const std::string& png_path, std::string* error) {
+  render();
+  auto grab = vtkSmartPointer<vtkWindowToImageFilter>::New();
+  grab->SetInput(parts_->window);
+  grab->SetInputBufferTypeToRGB();
+  grab->ReadFrontBufferOff();
+  grab->Update();
+  auto writer = vtkSmartPointer<vtkPNGWriter>::New();
+  const std::string partial = png_path + ".partial";
+  writer->SetFileName(partial.c_str());
+  writer->SetInputConnection(grab->GetOutputPort());
+  writer->Write();
+  std::error_code ec;
+  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(partial, ec) || std::filesystem::file_size(partial, ec) == 0) {
+    std::filesystem::remove(partial, ec);
+    *error = "cannot write the snapshot '" + png_path + "' (is its directory there and writable?)";
+    return false;
+  }
+  std::filesystem::rename(partial, png_path, ec);
+  if (ec) *error = "cannot write the snapshot '" + png_path + "': " + ec.message();
+  return !ec;
+}
+
+Controller::Controller(Scene& scene, PreviewSession& session) : scene_(scene), session_(session) {
+  if (!scene_.joint_names().empty()) joint_ = scene_.joint_names().front();
+}
+
+void Controller::select_joint(size_t index) {
+  if (index < scene_.joint_names().size()) joint_ = scene_.joint_names()[index];
+}
+
+void Controller::set_angle(int axis, double degrees) {
+  if (joint_.empty() || axis < 0 || axis > 2) return;
+  history_.push_back(angles_);
+  JointAngles& a = angles_[joint_];
+  (axis == 0 ? a.flexion : axis == 1 ? a.abduction : a.rotation) = degrees;
+  send();
+}
+
+void Controller::set_method(v1::Method method) {
+  method_ = method;
+  send();
+}
+
+void Controller::set_pose(const PoseAngles& angles) {
+  history_.push_back(angles_);
+  angles_ = angles;
+  send();
+}
+
+void Controller::reset_joint() {
+  history_.push_back(angles_);
+  angles_.erase(joint_);
+  send();
+}
+
+void Controller::reset_all() {
+  history_.push_back(angles_);
+  angles_.clear();
+  send();
+}
+
+void Controller::undo() {
+  if (history_.empty()) return;
+  angles_ = history_.back();
+  history_.pop_back();
+  send();
+}
+
+void Controller::send() { last_sent_ = session_.send(angles_, method_); }
+
+bool Controller::poll() {
+  std::optional<PreviewSession::Answer> answer = session_.take();
+  if (!answer) return false;
+  const auto now = std::chrono::steady_clock::now();
+  drawn_.push_back(now);
+  while (!drawn_.empty() && now - drawn_.front() > std::chrono::seconds(1)) drawn_.erase(drawn_.begin());
+  if (answer->error.failed()) {
+    scene_.set_status("refused: " + answer->error.message);
+    return false;
+  }
+  round_trip_ms_ = answer->round_trip_ms;
+  scene_.apply(*answer);
+  const char* method = method_ == v1::METHOD_DQS ? "DQS" : method_ == v1::METHOD_LBS ? "LBS" : "CoR";
+  const JointAngles a = angles_.count(joint_) ? angles_.at(joint_) : JointAngles{};
+  char text[256];
+  std::snprintf(text, sizeof text, "%s  %s: flexion %.0f  abduction %.0f  rotation %.0f   round trip %.1f ms, %zu fps",
+                method, joint_.c_str(), a.flexion, a.abduction, a.rotation, round_trip_ms_, drawn_.size());
+  scene_.set_status(text);
+  return true;
+}
+
+}  // namespace posewarp::view
