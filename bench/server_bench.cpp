@@ -101,6 +101,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     const PoseAnswer answer = pose_remote(*stub, request);
     if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
     server_ms.push_back(1e3 * seconds_since(start));
+    row["volume_mb_per_pose"] = static_cast<double>(answer.labels.size() + answer.ct.size()) / 1e6;
     if (r + 1 == repeats) {
       const nlohmann::json report = nlohmann::json::parse(answer.report.json());
       std::printf("%-12s server stages (ms):", name.c_str());
@@ -112,9 +113,10 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   row["server_ms"] = {{"p50", percentile(server_ms, 50)}, {"p99", percentile(server_ms, 99)}};
   row["server_over_local"] = percentile(server_ms, 50) / percentile(local_ms, 50);
   std::printf("%-12s %9lld voxels  pose labels+CT: local p50 %7.1f ms p99 %7.1f | server p50 %7.1f ms p99 %7.1f "
-              "(x%.2f)\n",
+              "(x%.2f), %.1f MB of labels + CT per pose\n",
               name.c_str(), static_cast<long long>(voxels), percentile(local_ms, 50), percentile(local_ms, 99),
-              percentile(server_ms, 50), percentile(server_ms, 99), percentile(server_ms, 50) / percentile(local_ms, 50));
+              percentile(server_ms, 50), percentile(server_ms, 99), percentile(server_ms, 50) / percentile(local_ms, 50),
+              row["volume_mb_per_pose"].get<double>());
   std::printf("%-12s rig %.1f MB: upload %.0f MB/s, load from the store %.0f ms (in process), first GetRig %.0f ms\n",
               name.c_str(), row["rig_mb"].get<double>(), row["upload_mb_per_s"].get<double>(),
               row["rig_load_ms"].get<double>(), row["first_get_rig_ms"].get<double>());

@@ -102,6 +102,13 @@ class Remote {
   std::unique_ptr<v1::Posewarp::Stub> stub_;
 };
 
+// A rig id where --server wants one (a rig path there is the usual slip).
+Status check_rig_id(const std::string& rig_id) {
+  if (api::is_hex_id(rig_id)) return ok_status();
+  return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
+                                "--server` or `posewarp rig list --server`), not '" + rig_id + "'");
+}
+
 // A failed call as a Status: the server's code is the core's; UNAVAILABLE says where it tried.
 Status status_of(const grpc::Status& status, const std::string& server) {
   if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
@@ -279,10 +286,7 @@ RemotePoser& RemotePoser::operator=(RemotePoser&&) noexcept = default;
 RemotePoser::~RemotePoser() = default;
 
 Result<RemotePoser> RemotePoser::open(const Connection& connection, const std::string& rig_id) {
-  if (!api::is_hex_id(rig_id)) {
-    return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
-                                  "--server` or `posewarp rig list --server`), not '" + rig_id + "'");
-  }
+  POSEWARP_RETURN_IF_ERROR(check_rig_id(rig_id));
   POSEWARP_ASSIGN_OR_RETURN(Remote remote, Remote::open(connection));
   return RemotePoser(std::make_unique<State>(State{std::move(remote), rig_id}));
 }
@@ -442,16 +446,6 @@ Result<rig::Skeleton> RemotePoser::skeleton() const {
   POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::rig_from_bytes(bytes, "rig " + state_->rig_id));
   return std::move(rig.skeleton);
 }
-
-namespace {
-
-Status check_rig_id(const std::string& rig_id) {
-  if (api::is_hex_id(rig_id)) return ok_status();
-  return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig list --server`), "
-                                "not '" + rig_id + "'");
-}
-
-}  // namespace
 
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);

@@ -42,6 +42,7 @@ struct Scene::Parts {
   vtkSmartPointer<vtkRenderer> marker_renderer = vtkSmartPointer<vtkRenderer>::New();
   vtkSmartPointer<vtkTextActor> status = vtkSmartPointer<vtkTextActor>::New();
   vtkSmartPointer<vtkCallbackCommand> follow = vtkSmartPointer<vtkCallbackCommand>::New();
+  std::pair<vtkRenderer*, vtkRenderer*> cameras;  // the main renderer and the marker's, for follow_camera
   std::vector<vtkSmartPointer<vtkPolyData>> surfaces;
   std::vector<vtkSmartPointer<vtkActor>> surface_actors;
   std::vector<std::string> roles;
@@ -90,10 +91,9 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
   p.marker_renderer->SetLayer(1);
   p.marker_renderer->InteractiveOff();
   p.window->AddRenderer(p.marker_renderer);
-  static thread_local std::pair<vtkRenderer*, vtkRenderer*> cameras;  // one scene per thread
-  cameras = {p.renderer.Get(), p.marker_renderer.Get()};
+  p.cameras = {p.renderer.Get(), p.marker_renderer.Get()};
   p.follow->SetCallback(follow_camera);
-  p.follow->SetClientData(&cameras);
+  p.follow->SetClientData(&p.cameras);
   p.renderer->AddObserver(vtkCommand::StartEvent, p.follow);
   // A scale bar in millimetres along the bottom.
   auto scale = vtkSmartPointer<vtkLegendScaleActor>::New();

@@ -28,20 +28,11 @@ int16_t nifti_datatype(PixelType type) {
   return 0;
 }
 
+// NRRD's type names are ours but for the floating types.
 std::string_view nrrd_type(PixelType type) {
-  switch (type) {
-    case PixelType::kUInt8: return "uint8";
-    case PixelType::kInt8: return "int8";
-    case PixelType::kUInt16: return "uint16";
-    case PixelType::kInt16: return "int16";
-    case PixelType::kUInt32: return "uint32";
-    case PixelType::kInt32: return "int32";
-    case PixelType::kUInt64: return "uint64";
-    case PixelType::kInt64: return "int64";
-    case PixelType::kFloat32: return "float";
-    case PixelType::kFloat64: return "double";
-  }
-  return "";
+  if (type == PixelType::kFloat32) return "float";
+  if (type == PixelType::kFloat64) return "double";
+  return pixel_type_name(type);
 }
 
 template <typename T>
