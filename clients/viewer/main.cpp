@@ -1,114 +1,116 @@
-// posewarp-view: previews poses of a rig held by posewarp-server, live (sliders) or as offscreen snapshots.
+// posewarp-view: previews poses of a rig held by posewarp-server, live (sliders) or as offscreen snapshots, and
+// shows the posed volume as slices with its quality report.
 #include <CLI/CLI.hpp>
 #include <vtkCallbackCommand.h>
 #include <vtkCommand.h>
 #include <vtkInteractorStyleTrackballCamera.h>
+#include <vtkObjectFactory.h>
 #include <vtkRenderWindow.h>
 #include <vtkRenderWindowInteractor.h>
+#include <vtkRenderer.h>
 #include <vtkSliderRepresentation2D.h>
 #include <vtkSliderWidget.h>
 #include <vtkTextProperty.h>
 
+#include <cmath>
 #include <cstdio>
-#include <fstream>
-#include <sstream>
+#include <filesystem>
 
-#include "scene.h"
+#include "app.h"
+#include "files.h"
 
 namespace {
 
 using namespace posewarp::view;
 namespace v1 = posewarp::v1;
+namespace fs = std::filesystem;
 
 int fail(const std::string& message, int code = 1) {
   std::fprintf(stderr, "error: %s\n", message.c_str());
   return code;
 }
 
-// gRPC's code -> the CLI's exit codes: 2 for what the user can fix (bad input, unknown rig), 1 otherwise.
+// gRPC's code -> the CLI's exit codes: 2 for what the user can fix (bad input, unknown rig), 3 over a limit, 1
+// otherwise.
 int exit_code(const CallError& e) {
   switch (e.code) {
     case grpc::StatusCode::INVALID_ARGUMENT:
     case grpc::StatusCode::NOT_FOUND:
     case grpc::StatusCode::UNAUTHENTICATED:
-    case grpc::StatusCode::PERMISSION_DENIED: return 2;
+    case grpc::StatusCode::PERMISSION_DENIED:
+    case grpc::StatusCode::FAILED_PRECONDITION: return 2;
+    case grpc::StatusCode::RESOURCE_EXHAUSTED: return 3;
     default: return 1;
   }
 }
 
-v1::Method method_named(const std::string& name) {
-  return name == "dqs" ? v1::METHOD_DQS : name == "lbs" ? v1::METHOD_LBS : v1::METHOD_COR;
+// Waits for a request from the command line, saying how far it got about once a second.
+CallError finish(VolumeRequest& request, const std::string& what, PosedVolumes* result) {
+  std::string last;
+  while (!request.wait(1000)) {
+    const std::string now = progress_text(what, request);
+    if (now != last) std::fprintf(stderr, "%s\n", now.c_str());
+    last = now;
+  }
+  return request.take(result);
 }
 
-struct Options {
-  ServerAddress address;
-  std::string rig_id, pose_path, method = "cor", view = "anterior", snapshot, size = "1024x768";
-  bool list = false, tissue = false;
-};
+// The trackball camera without its own keys (posewarp-view's keys are its own), with clicks on slices and
+// joint spheres taken by the app, and the wheel stepping slices over a slice view.
+class ViewerStyle : public vtkInteractorStyleTrackballCamera {
+ public:
+  static ViewerStyle* New();
+  vtkTypeMacro(ViewerStyle, vtkInteractorStyleTrackballCamera)
+  App* app = nullptr;
+  void OnChar() override {}
+  void OnLeftButtonDown() override {
+    const int* at = GetInteractor()->GetEventPosition();
+    if (app != nullptr && app->click(at[0], at[1])) {
+      GetInteractor()->Render();
+    } else {
+      vtkInteractorStyleTrackballCamera::OnLeftButtonDown();
+    }
+  }
+  void OnMouseWheelForward() override { wheel(1); }
+  void OnMouseWheelBackward() override { wheel(-1); }
 
-// The interactive window: three sliders for the chosen joint, keys for the rest, answers drawn on a timer.
-struct Interactive {
-  Scene* scene;
-  Controller* controller;
-  vtkSliderWidget* sliders[3];
-  bool tissue = false;
-  void show_joint() {
-    const JointAngles a = controller->angles().count(controller->joint()) ? controller->angles().at(controller->joint())
-                                                                          : JointAngles{};
-    const double values[3] = {a.flexion, a.abduction, a.rotation};
-    for (int i = 0; i < 3; ++i) static_cast<vtkSliderRepresentation2D*>(sliders[i]->GetRepresentation())->SetValue(values[i]);
+ private:
+  void wheel(int steps) {
+    const int* at = GetInteractor()->GetEventPosition();
+    for (int v = 0; app != nullptr && v < 3; ++v) {
+      vtkRenderer* r = app->scene->slices().renderer(v);
+      if (r->GetDraw() && r->IsInViewport(at[0], at[1])) {
+        app->scene->slices().step(r, steps);
+        GetInteractor()->Render();
+        return;
+      }
+    }
+    if (steps > 0) {
+      vtkInteractorStyleTrackballCamera::OnMouseWheelForward();
+    } else {
+      vtkInteractorStyleTrackballCamera::OnMouseWheelBackward();
+    }
   }
 };
+vtkStandardNewMacro(ViewerStyle);
 
 void on_slider(vtkObject* caller, unsigned long, void* client, void*) {
-  auto* ui = static_cast<Interactive*>(client);
+  auto* app = static_cast<App*>(client);
   for (int i = 0; i < 3; ++i) {
-    if (caller == ui->sliders[i]) {
-      const double value = static_cast<vtkSliderRepresentation2D*>(ui->sliders[i]->GetRepresentation())->GetValue();
-      ui->controller->set_angle(i, std::round(value));
+    if (caller == app->sliders[i]) {
+      const double value = static_cast<vtkSliderRepresentation2D*>(app->sliders[i]->GetRepresentation())->GetValue();
+      app->controller->set_angle(i, std::round(value));
     }
   }
 }
 
 void on_timer(vtkObject* caller, unsigned long, void* client, void*) {
-  auto* ui = static_cast<Interactive*>(client);
-  if (ui->controller->poll()) static_cast<vtkRenderWindowInteractor*>(caller)->Render();
+  if (static_cast<App*>(client)->tick()) static_cast<vtkRenderWindowInteractor*>(caller)->Render();
 }
 
 void on_key(vtkObject* caller, unsigned long, void* client, void*) {
-  auto* ui = static_cast<Interactive*>(client);
   auto* interactor = static_cast<vtkRenderWindowInteractor*>(caller);
-  const std::string key = interactor->GetKeySym() ? interactor->GetKeySym() : "";
-  const std::vector<std::string>& joints = ui->scene->joint_names();
-  size_t at = std::find(joints.begin(), joints.end(), ui->controller->joint()) - joints.begin();
-  if (key == "n" || key == "p") {
-    if (!joints.empty()) ui->controller->select_joint(key == "n" ? (at + 1) % joints.size() : (at + joints.size() - 1) % joints.size());
-    ui->show_joint();
-  } else if (key == "1") {
-    ui->controller->set_method(v1::METHOD_COR);
-  } else if (key == "2") {
-    ui->controller->set_method(v1::METHOD_DQS);
-  } else if (key == "3") {
-    ui->controller->set_method(v1::METHOD_LBS);
-  } else if (key == "r") {
-    ui->controller->reset_joint();
-    ui->show_joint();
-  } else if (key == "R") {
-    ui->controller->reset_all();
-    ui->show_joint();
-  } else if (key == "u") {
-    ui->controller->undo();
-    ui->show_joint();
-  } else if (key == "a" || key == "l" || key == "s") {
-    ui->scene->set_view(key == "a" ? "anterior" : key == "l" ? "lateral" : "superior");
-  } else if (key == "t") {
-    ui->tissue = !ui->tissue;
-    ui->scene->show_tissue(ui->tissue);
-  } else if (key == "w") {
-    const std::string path = "pose_" + std::to_string(std::time(nullptr)) + ".json";
-    std::ofstream(path) << pose_json(ui->controller->angles()) << "\n";
-    ui->scene->set_status("saved the pose to " + path);
-  }
+  static_cast<App*>(client)->key(interactor->GetKeySym() ? interactor->GetKeySym() : "");
   interactor->Render();
 }
 
@@ -134,26 +136,52 @@ vtkSmartPointer<vtkSliderWidget> make_slider(vtkRenderWindowInteractor* interact
   return widget;
 }
 
+constexpr const char* kHelp =
+    "posewarp-view: preview poses of a rig held by posewarp-server.\n\n"
+    "In the window: n/p (or a click on a joint's sphere) choose the joint, the first entry being the root; the three "
+    "sliders set its flexion, abduction and axial rotation (degrees, the joint's own frame; the root's turn about "
+    "L-R, A-P and S-I). 1/2/3 CoR/DQS/LBS, c two methods side by side, r/R reset the joint/all, u undo, "
+    "a/l/s anterior/lateral/superior view, t tissue surfaces, w save the pose JSON, o load the next pose of --poses, "
+    "f full volume (posed CT and labels as three slices with the quality report; a click moves the cursor, arrows or "
+    "the wheel step a slice, b bone/soft-tissue window, +/- label opacity, v back to 3D), d save the posed volumes, "
+    "surfaces and report, Esc cancel a running request, x reconnect the preview, q quit.\n\n"
+    "With --snapshot it renders once offscreen and exits (use xvfb-run without a display); with --save it writes "
+    "the posed files and exits.";
+
 }  // namespace
 
 int main(int argc, char** argv) {
   Options o;
-  CLI::App app{"posewarp-view: preview poses of a rig held by posewarp-server. Interactive: n/p choose the joint, the "
-               "sliders set its flexion, abduction and axial rotation (degrees, the joint's own frame), 1/2/3 CoR/DQS/"
-               "LBS, r/R reset the joint/all, u undo, a/l/s anterior/lateral/superior view, t tissue surfaces, w save "
-               "the pose JSON. With --snapshot it renders once offscreen and exits (use xvfb-run without a display)."};
+  CLI::App app{kHelp};
   app.add_option("--server", o.address.server, "posewarp-server at HOST:PORT")->required();
   app.add_option("--token-file", o.address.token_file, "File holding the server's bearer token");
   app.add_option("--tls-ca", o.address.tls_ca, "CA certificate (PEM) of a TLS server");
   app.add_flag("--list", o.list, "List the server's rigs (id, name, size, created) and exit");
   app.add_option("--rig", o.rig_id, "Rig id to open (default: the only rig, if the server holds one)");
-  app.add_option("--pose", o.pose_path, "Pose JSON to start from (the CLI's angles_deg form)");
+  app.add_option("--pose", o.pose_path, "Pose JSON to start from (the CLI's; joints in angles_deg)");
+  app.add_option("--poses", o.poses_dir, "Directory of pose JSONs that o steps through (default: --pose's directory)");
   app.add_option("--method", o.method, "Skinning: cor, dqs or lbs")->check(CLI::IsMember({"cor", "dqs", "lbs"}))->capture_default_str();
+  app.add_option("--compare", o.compare, "Show this method side by side with --method")
+      ->check(CLI::IsMember({"cor", "dqs", "lbs"}));
   app.add_option("--view", o.view, "Camera: anterior, lateral or superior")
       ->check(CLI::IsMember({"anterior", "lateral", "superior"}))
       ->capture_default_str();
   app.add_flag("--tissue", o.tissue, "Show the tissue surfaces too");
+  app.add_flag("--slices", o.slices, "Ask for the full posed volume and show its slices with the quality report");
+  app.add_option("--cursor", o.cursor, "Where the slices cross: X,Y,Z in LPS mm (default: the volume's centre)");
+  app.add_option("--window", o.window, "CT window of the slices: soft (tissue) or bone")
+      ->check(CLI::IsMember({"soft", "bone"}))
+      ->capture_default_str();
+  app.add_option("--label-opacity", o.label_opacity, "Opacity of the labels over the CT, 0 to 1")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  app.add_option("--grid", o.grid, "Grid of the full volume and saved files: input (the study's, as the CLI) or grow "
+                 "(grown to hold the posed body)")
+      ->check(CLI::IsMember({"input", "grow"}))
+      ->capture_default_str();
   app.add_option("--snapshot", o.snapshot, "Render offscreen to this PNG and exit");
+  app.add_option("--save", o.save, "Write the posed volumes, surfaces, report and pose into this directory and exit");
+  app.add_option("--out-dir", o.out_dir, "Where w and d write in the window")->capture_default_str();
   app.add_option("--size", o.size, "Window or snapshot size WxH")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
@@ -162,6 +190,13 @@ int main(int argc, char** argv) {
       height > 8192) {
     return fail("--size takes WxH between 64x64 and 8192x8192, not '" + o.size + "'", 2);
   }
+  std::array<double, 3> cursor{};
+  if (!o.cursor.empty() &&
+      (std::sscanf(o.cursor.c_str(), "%lf,%lf,%lf", &cursor[0], &cursor[1], &cursor[2]) != 3 ||
+       !std::isfinite(cursor[0] + cursor[1] + cursor[2]))) {
+    return fail("--cursor takes X,Y,Z in millimetres, not '" + o.cursor + "'", 2);
+  }
+  if (o.compare == o.method) return fail("--compare names the method --method shows already; choose another", 2);
   CallError error;
   std::unique_ptr<ViewerClient> client = ViewerClient::connect(o.address, &error);
   if (!client) return fail(error.message, 2);
@@ -182,49 +217,99 @@ int main(int argc, char** argv) {
   }
   RigAssets assets;
   if (CallError e = client->assets(o.rig_id, &assets); e.failed()) return fail(e.message, exit_code(e));
-  PoseAngles start;
+  Pose start;
   if (!o.pose_path.empty()) {
-    std::ifstream in(o.pose_path);
-    std::ostringstream text;
-    text << in.rdbuf();
     std::string why;
-    std::optional<PoseAngles> angles = in ? angles_from_json(text.str(), &why) : std::nullopt;
-    if (!angles) return fail("pose file '" + o.pose_path + "': " + (in ? why : "cannot be read"), 2);
-    start = *angles;
+    std::optional<Pose> pose = read_pose(o.pose_path, &why);
+    if (!pose) return fail(why, 2);
+    start = *pose;
   }
+  const v1::Method method = method_named(o.method);
 
+  // Without a window: save, snapshot, or both, then exit.
+  if (!o.save.empty() || !o.snapshot.empty()) {
+    if (!o.save.empty()) {
+      VolumeRequest request(*client, o.rig_id, start, method, false, grid_named(o.grid));
+      PosedVolumes posed;
+      if (CallError e = finish(request, "saving", &posed); e.failed()) return fail(e.message, exit_code(e));
+      std::string why;
+      if (!save_posed(posed, o.save, &why)) return fail(why);
+      std::fprintf(stderr, "wrote the posed volumes, surfaces, report and pose to %s\n", o.save.c_str());
+    }
+    if (o.snapshot.empty()) return 0;
+  }
   const bool offscreen = !o.snapshot.empty();
   Scene scene(width, height, offscreen);
   scene.set_rig(assets);
   scene.show_tissue(o.tissue);
-  scene.set_view(o.view);
-  PreviewSession session(*client, o.rig_id);
-  Controller controller(scene, session);
-  if (!start.empty() || o.method != "cor") {
-    controller.set_method(method_named(o.method));
-    controller.set_pose(start);
-    if (!session.wait_for(controller.last_sent(), 30000)) {
-      const CallError e = session.ended();
-      return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s", e.failed() ? exit_code(e) : 1);
-    }
-    controller.poll();
+  scene.slices().set_window(o.window == "bone" ? kBone : kSoftTissue);
+  scene.slices().set_label_opacity(o.label_opacity);
+  auto session = std::make_unique<PreviewSession>(*client, o.rig_id);
+  Controller controller(scene, *session);
+  std::unique_ptr<PreviewSession> compare;
+  controller.set_method(method);
+  controller.set_pose(start);
+  if (!o.compare.empty()) {
+    compare = std::make_unique<PreviewSession>(*client, o.rig_id);
+    controller.set_compare(compare.get(), method_named(o.compare));
+    scene.set_layout(Scene::Layout::kCompare);
   }
+  const auto answered = [&](PreviewSession& s, uint64_t sequence) -> std::optional<int> {
+    if (s.wait_for(sequence, 30000)) return std::nullopt;
+    const CallError e = s.ended();
+    return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s", e.failed() ? exit_code(e) : 1);
+  };
+  if (std::optional<int> failed = answered(*session, controller.last_sent())) return *failed;
+  if (compare) {
+    if (std::optional<int> failed = answered(*compare, 1)) return *failed;
+  }
+  controller.poll();
+  if (const CallError& e = controller.last_error(); e.failed()) return fail("the server refused the pose: " + e.message, exit_code(e));
+  if (o.slices) {
+    VolumeRequest request(*client, o.rig_id, start, method, true, grid_named(o.grid));
+    PosedVolumes posed;
+    if (CallError e = finish(request, "full volume", &posed); e.failed()) return fail(e.message, exit_code(e));
+    SliceVolume volume;
+    std::string why;
+    if (!slice_volume(posed, &volume, &why)) return fail(why);
+    scene.slices().set_volume(std::move(volume));
+    if (!o.cursor.empty()) scene.slices().set_cursor_mm(cursor);
+    scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report);
+    scene.set_layout(Scene::Layout::kSlices);
+  }
+  scene.set_view(o.view);
   if (offscreen) {
     scene.set_status("");
+    scene.slices().update();
     std::string why;
     if (!scene.snapshot(o.snapshot, &why)) return fail(why);
     std::fprintf(stderr, "wrote %s\n", o.snapshot.c_str());
     return 0;
   }
 
+  App ui;
+  ui.options = o;
+  ui.client = client.get();
+  ui.scene = &scene;
+  ui.session = std::move(session);
+  ui.compare = std::move(compare);
+  const std::string poses_dir = !o.poses_dir.empty()         ? o.poses_dir
+                                : !o.pose_path.empty() ? fs::path(o.pose_path).parent_path().string()
+                                                       : std::string(".");
+  ui.options.poses_dir = poses_dir.empty() ? "." : poses_dir;
+  ui.pose_files = pose_files_in(ui.options.poses_dir);
   auto interactor = vtkSmartPointer<vtkRenderWindowInteractor>::New();
   interactor->SetRenderWindow(scene.window());
-  interactor->SetInteractorStyle(vtkSmartPointer<vtkInteractorStyleTrackballCamera>::New());
+  auto style = vtkSmartPointer<ViewerStyle>::New();
+  style->app = &ui;
+  interactor->SetInteractorStyle(style);
   interactor->Initialize();
+  ui.interactor = interactor;
   vtkSmartPointer<vtkSliderWidget> sliders[3] = {make_slider(interactor, "flexion", 0.20),
                                                  make_slider(interactor, "abduction", 0.13),
                                                  make_slider(interactor, "rotation", 0.06)};
-  Interactive ui{&scene, &controller, {sliders[0], sliders[1], sliders[2]}, o.tissue};
+  for (int i = 0; i < 3; ++i) ui.sliders[i] = sliders[i];
+  ui.controller = &controller;
   auto slid = vtkSmartPointer<vtkCallbackCommand>::New();
   slid->SetCallback(on_slider);
   slid->SetClientData(&ui);
@@ -239,7 +324,7 @@ int main(int argc, char** argv) {
   keys->SetClientData(&ui);
   interactor->AddObserver(vtkCommand::KeyPressEvent, keys);
   ui.show_joint();
-  scene.set_status("joint " + controller.joint() + " (n/p to change)");
+  scene.set_status("joint " + controller.joint() + " (n/p or a click on a sphere to change; --help lists the keys)");
   scene.render();
   interactor->Start();
   return 0;

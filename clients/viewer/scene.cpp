@@ -7,6 +7,7 @@
 #include <vtkCallbackCommand.h>
 #include <vtkCamera.h>
 #include <vtkCellArray.h>
+#include <vtkCellPicker.h>
 #include <vtkLegendScaleActor.h>
 #include <vtkLineSource.h>
 #include <vtkPNGWriter.h>
@@ -26,6 +27,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <sstream>
 
 namespace posewarp::view {
 
@@ -48,9 +50,30 @@ struct Scene::Parts {
   std::vector<std::string> roles;
   vtkSmartPointer<vtkPolyData> skeleton = vtkSmartPointer<vtkPolyData>::New();
   vtkSmartPointer<vtkActor> skeleton_actor = vtkSmartPointer<vtkActor>::New();
+  // The side-by-side view: the same surfaces posed by another method, seen by the same camera.
+  vtkSmartPointer<vtkRenderer> compare_renderer = vtkSmartPointer<vtkRenderer>::New();
+  std::vector<vtkSmartPointer<vtkPolyData>> compare_surfaces;
+  std::vector<vtkSmartPointer<vtkActor>> compare_actors;
+  vtkSmartPointer<vtkTextActor> method_names[2] = {vtkSmartPointer<vtkTextActor>::New(), vtkSmartPointer<vtkTextActor>::New()};
+  vtkSmartPointer<vtkTextActor> report = vtkSmartPointer<vtkTextActor>::New();
+  vtkSmartPointer<vtkTextActor> warnings = vtkSmartPointer<vtkTextActor>::New();
+  vtkSmartPointer<vtkTextActor> joint_list = vtkSmartPointer<vtkTextActor>::New();
+  std::string view = "anterior";
+  double sphere_radius = 1.0;
+  int width = 0, height = 0;
 };
 
 namespace {
+
+// A text actor placed in its renderer's normalized viewport coordinates.
+void place_text(vtkTextActor* text, double x, double y, int size, const double colour[3], bool right = false) {
+  text->GetTextProperty()->SetFontSize(size);
+  text->GetTextProperty()->SetColor(colour[0], colour[1], colour[2]);
+  text->GetTextProperty()->SetJustification(right ? VTK_TEXT_RIGHT : VTK_TEXT_LEFT);
+  text->GetTextProperty()->SetVerticalJustification(VTK_TEXT_TOP);
+  text->GetPositionCoordinate()->SetCoordinateSystemToNormalizedViewport();
+  text->GetPositionCoordinate()->SetValue(x, y);
+}
 
 // The marker's camera turns with the main one (same direction and up, fixed distance).
 void follow_camera(vtkObject*, unsigned long, void* client, void*) {
@@ -108,6 +131,29 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
   p.renderer->AddViewProp(p.status);
   p.skeleton_actor->GetProperty()->SetColor(1.0, 0.85, 0.1);
   p.skeleton_actor->GetProperty()->SetLineWidth(3.0);
+  p.width = width, p.height = height;
+  p.compare_renderer->SetBackground(0.10, 0.11, 0.13);
+  p.compare_renderer->SetActiveCamera(p.renderer->GetActiveCamera());
+  p.compare_renderer->SetViewport(0, 0, 0, 0);
+  p.compare_renderer->DrawOff();
+  p.window->AddRenderer(p.compare_renderer);
+  const double white[3] = {0.9, 0.9, 0.9}, orange[3] = {1.0, 0.6, 0.2};
+  for (int i = 0; i < 2; ++i) {
+    place_text(p.method_names[i], 0.5, 0.06, 16, white);
+    p.method_names[i]->GetTextProperty()->SetJustificationToCentered();
+    p.method_names[i]->GetTextProperty()->SetVerticalJustificationToBottom();
+  }
+  p.renderer->AddViewProp(p.method_names[0]);
+  p.compare_renderer->AddViewProp(p.method_names[1]);
+  place_text(p.report, 0.98, 0.97, 13, white, true);
+  place_text(p.warnings, 0.98, 0.62, 13, orange, true);
+  for (vtkTextActor* text : {p.report.Get(), p.warnings.Get()}) {
+    text->GetTextProperty()->SetBackgroundColor(0.0, 0.0, 0.0);
+    text->GetTextProperty()->SetBackgroundOpacity(0.55);
+  }
+  place_text(p.joint_list, 0.01, 0.88, 12, white);
+  for (vtkTextActor* text : {p.report.Get(), p.warnings.Get(), p.joint_list.Get()}) p.renderer->AddViewProp(text);
+  slices_ = std::make_unique<SliceViews>(p.window);
 }
 
 Scene::~Scene() { delete parts_; }
@@ -156,6 +202,20 @@ void Scene::set_rig(const RigAssets& assets) {
     p.surfaces.push_back(mesh);
     p.surface_actors.push_back(actor);
     p.roles.push_back(role);
+    auto twin = vtkSmartPointer<vtkPolyData>::New();
+    twin->DeepCopy(mesh);
+    auto twin_normals = vtkSmartPointer<vtkPolyDataNormals>::New();
+    twin_normals->SetInputData(twin);
+    twin_normals->SplittingOff();
+    auto twin_mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
+    twin_mapper->SetInputConnection(twin_normals->GetOutputPort());
+    auto twin_actor = vtkSmartPointer<vtkActor>::New();
+    twin_actor->SetMapper(twin_mapper);
+    twin_actor->SetProperty(actor->GetProperty());
+    twin_actor->SetVisibility(actor->GetVisibility());
+    p.compare_renderer->AddActor(twin_actor);
+    p.compare_surfaces.push_back(twin);
+    p.compare_actors.push_back(twin_actor);
   }
   for (int a = 0; a < 3; ++a) bounds_[2 * a] = lo[a], bounds_[2 * a + 1] = hi[a];
   // The skeleton: a sphere per joint and a stick from each joint to the next one down its chain.
@@ -181,11 +241,13 @@ void Scene::set_rig(const RigAssets& assets) {
 void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {
   const double diagonal = std::sqrt(std::pow(bounds_[1] - bounds_[0], 2) + std::pow(bounds_[3] - bounds_[2], 2) +
                                     std::pow(bounds_[5] - bounds_[4], 2));
+  centres_ = centres;
+  parts_->sphere_radius = 0.012 * diagonal;
   auto append = vtkSmartPointer<vtkAppendPolyData>::New();
   for (const std::array<double, 3>& c : centres) {
     auto sphere = vtkSmartPointer<vtkSphereSource>::New();
     sphere->SetCenter(c[0], c[1], c[2]);
-    sphere->SetRadius(0.012 * diagonal);
+    sphere->SetRadius(parts_->sphere_radius);
     sphere->SetThetaResolution(16);
     sphere->SetPhiResolution(12);
     append->AddInputConnection(sphere->GetOutputPort());
@@ -202,18 +264,100 @@ void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {
   parts_->skeleton->DeepCopy(append->GetOutput());
 }
 
-void Scene::apply(const PreviewSession::Answer& answer) {
+void Scene::apply(const PreviewSession::Answer& answer, bool compare) {
   Parts& p = *parts_;
-  for (size_t i = 0; i < answer.vertices.size() && i < p.surfaces.size(); ++i) {
-    vtkPoints* points = p.surfaces[i]->GetPoints();
+  std::vector<vtkSmartPointer<vtkPolyData>>& surfaces = compare ? p.compare_surfaces : p.surfaces;
+  for (size_t i = 0; i < answer.vertices.size() && i < surfaces.size(); ++i) {
+    vtkPoints* points = surfaces[i]->GetPoints();
     const std::vector<float>& v = answer.vertices[i];
     if (static_cast<vtkIdType>(v.size() / 3) != points->GetNumberOfPoints()) continue;  // not this rig's surface
     for (vtkIdType k = 0; k < points->GetNumberOfPoints(); ++k) points->SetPoint(k, v[3 * k], v[3 * k + 1], v[3 * k + 2]);
     points->Modified();
-    p.surfaces[i]->Modified();
+    surfaces[i]->Modified();
   }
-  if (answer.joint_centres.size() == rest_centres_.size()) place_skeleton(answer.joint_centres);
+  if (!compare && answer.joint_centres.size() == rest_centres_.size()) place_skeleton(answer.joint_centres);
   ++updates_;
+}
+
+void Scene::set_layout(Layout layout) {
+  Parts& p = *parts_;
+  layout_ = layout;
+  const double aspect = static_cast<double>(p.width) / std::max(1, p.height);
+  p.renderer->SetViewport(0, layout == Layout::kSlices ? 0.5 : 0.0, layout == Layout::kSingle ? 1.0 : 0.5, 1.0);
+  p.compare_renderer->SetViewport(layout == Layout::kCompare ? 0.5 : 0.0, 0, layout == Layout::kCompare ? 1.0 : 0.0,
+                                  layout == Layout::kCompare ? 1.0 : 0.0);
+  p.compare_renderer->SetDraw(layout == Layout::kCompare ? 1 : 0);
+  const double marker = layout == Layout::kSingle ? 0.16 : 0.10, bottom = layout == Layout::kSlices ? 0.5 : 0.0;
+  p.marker_renderer->SetViewport(0.0, bottom, marker, bottom + marker * aspect);
+  for (int i = 0; i < 2; ++i) p.method_names[i]->SetVisibility(layout == Layout::kCompare);
+  p.report->SetVisibility(layout == Layout::kSlices);
+  p.warnings->SetVisibility(layout == Layout::kSlices);
+  if (layout == Layout::kSlices) {
+    slices_->set_viewports({{{0.5, 0.5, 1.0, 1.0}, {0.0, 0.0, 0.5, 0.5}, {0.5, 0.0, 1.0, 0.5}}});
+  } else {
+    slices_->set_viewports({});
+  }
+  set_view(p.view);
+}
+
+void Scene::set_method_names(const std::string& main, const std::string& compare) {
+  parts_->method_names[0]->SetInput(main.c_str());
+  parts_->method_names[1]->SetInput(compare.c_str());
+}
+
+void Scene::set_report(const std::string& title, const v1::QualityReport& report) {
+  std::string text = title;
+  for (const std::string& line : report_lines(report)) text += "\n" + line;
+  parts_->report->SetInput(text.c_str());
+  // Warnings wrapped to the 3D view's width (about 7 pixels a character at this size).
+  const size_t columns = static_cast<size_t>(std::max(30, parts_->width / 2 / 7 - 4));
+  std::string warnings;
+  for (const std::string& w : report.warnings()) {
+    size_t width = 0;
+    warnings.append("warning:");
+    width = 8;
+    std::istringstream words(w);
+    for (std::string word; words >> word;) {
+      if (width + 1 + word.size() > columns) {
+        warnings.append("\n  ");
+        width = 2;
+      }
+      warnings.append(" ").append(word);
+      width += 1 + word.size();
+    }
+    warnings.append("\n");
+  }
+  parts_->warnings->SetInput(warnings.c_str());
+}
+
+void Scene::set_joint_list(const std::vector<std::string>& names, const std::string& chosen) {
+  // At most 24 lines, around the chosen joint.
+  const auto at = std::find(names.begin(), names.end(), chosen);
+  const size_t index = at == names.end() ? 0 : static_cast<size_t>(at - names.begin());
+  const size_t first = names.size() <= 24 ? 0 : std::min(names.size() - 24, index > 12 ? index - 12 : 0);
+  std::string text;
+  for (size_t i = first; i < names.size() && i < first + 24; ++i) {
+    text += (i == index ? "> " : "   ") + names[i] + "\n";
+  }
+  parts_->joint_list->SetInput(text.c_str());
+}
+
+int Scene::joint_at(int x, int y) const {
+  if (centres_.empty()) return -1;
+  auto picker = vtkSmartPointer<vtkCellPicker>::New();
+  picker->SetTolerance(0.005);
+  picker->PickFromListOn();
+  picker->AddPickList(parts_->skeleton_actor);
+  if (picker->Pick(x, y, 0.0, parts_->renderer) == 0) return -1;
+  double picked[3];
+  picker->GetPickPosition(picked);
+  int nearest = -1;
+  double best = 2.0 * parts_->sphere_radius;
+  for (size_t j = 0; j < centres_.size(); ++j) {
+    const double d = std::hypot(picked[0] - centres_[j][0], picked[1] - centres_[j][1], picked[2] - centres_[j][2]);
+    if (d < best) best = d, nearest = static_cast<int>(j);
+  }
+  return nearest;
 }
 
 bool Scene::set_view(const std::string& preset) {
@@ -228,6 +372,7 @@ bool Scene::set_view(const std::string& preset) {
   } else {
     return false;
   }
+  parts_->view = preset;
   const double centre[3] = {(bounds_[0] + bounds_[1]) / 2, (bounds_[2] + bounds_[3]) / 2, (bounds_[4] + bounds_[5]) / 2};
   vtkCamera* camera = parts_->renderer->GetActiveCamera();
   camera->SetFocalPoint(centre);
@@ -241,7 +386,9 @@ void Scene::set_status(const std::string& text) { parts_->status->SetInput(text.
 
 void Scene::show_tissue(bool shown) {
   for (size_t i = 0; i < parts_->roles.size(); ++i) {
-    if (parts_->roles[i] == "tissue") parts_->surface_actors[i]->SetVisibility(shown);
+    if (parts_->roles[i] != "tissue") continue;
+    parts_->surface_actors[i]->SetVisibility(shown);
+    parts_->compare_actors[i]->SetVisibility(shown);
   }
 }
 
@@ -270,19 +417,41 @@ bool Scene::snapshot(const std::string& png_path, std::string* error) {
   return !ec;
 }
 
-Controller::Controller(Scene& scene, PreviewSession& session) : scene_(scene), session_(session) {
+const char* method_name(v1::Method method) {
+  return method == v1::METHOD_DQS ? "DQS" : method == v1::METHOD_LBS ? "LBS" : "CoR";
+}
+
+Controller::Controller(Scene& scene, PreviewSession& session) : scene_(scene), session_(&session) {
   if (!scene_.joint_names().empty()) joint_ = scene_.joint_names().front();
 }
 
 void Controller::select_joint(size_t index) {
-  if (index < scene_.joint_names().size()) joint_ = scene_.joint_names()[index];
+  if (index >= scene_.joint_names().size()) return;
+  joint_ = scene_.joint_names()[index];
+  at_root_ = false;
+}
+
+void Controller::select_root() {
+  joint_ = "root";
+  at_root_ = true;
+}
+
+std::array<double, 3> Controller::chosen_angles() const {
+  if (at_root_) return pose_.root_deg;
+  const auto a = pose_.joints.find(joint_);
+  if (a == pose_.joints.end()) return {0.0, 0.0, 0.0};
+  return {a->second.flexion, a->second.abduction, a->second.rotation};
 }
 
 void Controller::set_angle(int axis, double degrees) {
-  if (joint_.empty() || axis < 0 || axis > 2) return;
-  history_.push_back(angles_);
-  JointAngles& a = angles_[joint_];
-  (axis == 0 ? a.flexion : axis == 1 ? a.abduction : a.rotation) = degrees;
+  if ((joint_.empty() && !at_root_) || axis < 0 || axis > 2) return;
+  history_.push_back(pose_);
+  if (at_root_) {
+    pose_.root_deg[static_cast<size_t>(axis)] = degrees;
+  } else {
+    JointAngles& a = pose_.joints[joint_];
+    (axis == 0 ? a.flexion : axis == 1 ? a.abduction : a.rotation) = degrees;
+  }
   send();
 }
 
@@ -291,50 +460,80 @@ void Controller::set_method(v1::Method method) {
   send();
 }
 
-void Controller::set_pose(const PoseAngles& angles) {
-  history_.push_back(angles_);
-  angles_ = angles;
+void Controller::set_pose(const Pose& pose) {
+  history_.push_back(pose_);
+  pose_ = pose;
   send();
 }
 
 void Controller::reset_joint() {
-  history_.push_back(angles_);
-  angles_.erase(joint_);
+  history_.push_back(pose_);
+  if (at_root_) {
+    pose_.root_deg = {0.0, 0.0, 0.0};
+    pose_.root_mm = {0.0, 0.0, 0.0};
+  } else {
+    pose_.joints.erase(joint_);
+  }
   send();
 }
 
 void Controller::reset_all() {
-  history_.push_back(angles_);
-  angles_.clear();
+  history_.push_back(pose_);
+  pose_ = Pose{};
   send();
 }
 
 void Controller::undo() {
   if (history_.empty()) return;
-  angles_ = history_.back();
+  pose_ = history_.back();
   history_.pop_back();
   send();
 }
 
-void Controller::send() { last_sent_ = session_.send(angles_, method_); }
+void Controller::set_session(PreviewSession& session) {
+  session_ = &session;
+  send();
+}
+
+void Controller::set_compare(PreviewSession* session, v1::Method method) {
+  compare_ = session;
+  compare_method_ = method;
+  scene_.set_method_names(method_name(method_), method_name(method));
+  if (compare_ != nullptr) compare_->send(pose_, compare_method_);
+}
+
+void Controller::send() {
+  last_sent_ = session_->send(pose_, method_);
+  if (compare_ != nullptr) compare_->send(pose_, compare_method_);
+  scene_.set_method_names(method_name(method_), method_name(compare_method_));
+}
 
 bool Controller::poll() {
-  std::optional<PreviewSession::Answer> answer = session_.take();
-  if (!answer) return false;
+  bool drew = false;
+  if (compare_ != nullptr) {
+    if (std::optional<PreviewSession::Answer> other = compare_->take(); other && !other->error.failed()) {
+      scene_.apply(*other, true);
+      drew = true;
+    }
+  }
+  std::optional<PreviewSession::Answer> answer = session_->take();
+  if (!answer) return drew;
   const auto now = std::chrono::steady_clock::now();
   drawn_.push_back(now);
   while (!drawn_.empty() && now - drawn_.front() > std::chrono::seconds(1)) drawn_.erase(drawn_.begin());
+  last_error_ = answer->error;
   if (answer->error.failed()) {
-    scene_.set_status("refused: " + answer->error.message);
-    return false;
+    scene_.set_status("refused: " + answer->error.message + "  (u undoes the last change)");
+    return true;
   }
   round_trip_ms_ = answer->round_trip_ms;
   scene_.apply(*answer);
-  const char* method = method_ == v1::METHOD_DQS ? "DQS" : method_ == v1::METHOD_LBS ? "LBS" : "CoR";
-  const JointAngles a = angles_.count(joint_) ? angles_.at(joint_) : JointAngles{};
-  char text[256];
-  std::snprintf(text, sizeof text, "%s  %s: flexion %.0f  abduction %.0f  rotation %.0f   round trip %.1f ms, %zu fps",
-                method, joint_.c_str(), a.flexion, a.abduction, a.rotation, round_trip_ms_, drawn_.size());
+  const std::array<double, 3> a = chosen_angles();
+  const char* names = at_root_ ? "L-R %.0f  A-P %.0f  S-I %.0f" : "flexion %.0f  abduction %.0f  rotation %.0f";
+  char angles[96], text[320];
+  std::snprintf(angles, sizeof angles, names, a[0], a[1], a[2]);
+  std::snprintf(text, sizeof text, "%s  %s: %s   round trip %.1f ms, %zu fps", method_name(method_), joint_.c_str(), angles,
+                round_trip_ms_, drawn_.size());
   scene_.set_status(text);
   return true;
 }

@@ -5,9 +5,11 @@
 #include <vtkSmartPointer.h>
 
 #include <chrono>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "slices.h"
 #include "viewer_client.h"
 
 class vtkActor;
@@ -25,8 +27,23 @@ class Scene {
   ~Scene();
 
   void set_rig(const RigAssets& assets);
-  // Posed surfaces and joints from a preview answer (vertices in the rest surfaces' order).
-  void apply(const PreviewSession::Answer& answer);
+  // Posed surfaces and joints from a preview answer (vertices in the rest surfaces' order); `compare` draws them
+  // in the side-by-side view instead.
+  void apply(const PreviewSession::Answer& answer, bool compare = false);
+
+  // The window's layout: the 3D view alone, two methods side by side, or the 3D view with the three slices.
+  enum class Layout { kSingle, kCompare, kSlices };
+  void set_layout(Layout layout);
+  Layout layout() const { return layout_; }
+  // Names the methods shown (the side-by-side view's two, or the 3D view's one).
+  void set_method_names(const std::string& main, const std::string& compare);
+  SliceViews& slices() { return *slices_; }
+  // The quality report's key figures beside the slices, warnings highlighted; `title` says which pose it is.
+  void set_report(const std::string& title, const v1::QualityReport& report);
+  // The joint list down the left side, the chosen one marked (empty: hidden).
+  void set_joint_list(const std::vector<std::string>& names, const std::string& chosen);
+  // The joint whose sphere is under display (x, y) in the 3D view, or -1.
+  int joint_at(int x, int y) const;
   // "anterior", "lateral" (from the patient's left) or "superior"; false for another name.
   bool set_view(const std::string& preset);
   void set_status(const std::string& text);
@@ -44,6 +61,9 @@ class Scene {
   void place_skeleton(const std::vector<std::array<double, 3>>& centres);
   struct Parts;
   Parts* parts_;
+  std::unique_ptr<SliceViews> slices_;
+  Layout layout_ = Layout::kSingle;
+  std::vector<std::array<double, 3>> centres_;  // as drawn now
   std::vector<std::string> joint_names_;
   std::vector<std::array<double, 3>> rest_centres_;
   std::vector<std::pair<int, int>> sticks_;  // joint pairs joined by a bone stick
@@ -51,41 +71,64 @@ class Scene {
   int updates_ = 0;
 };
 
-// What the controls call: a joint chosen, its three angles set, the method switched, resets and undo; each change
-// goes out on the preview stream and poll() draws the newest answer.
+// What the controls call: a joint (or the root) chosen, its three angles set, the method switched, resets and
+// undo; each change goes out on the preview stream (and on the side-by-side view's, when shown) and poll() draws
+// the newest answers.
 class Controller {
  public:
   Controller(Scene& scene, PreviewSession& session);
 
-  // Joints by index in the skeleton's order.
+  // Joints by index in the skeleton's order; select_root() chooses the root, whose three angles turn the whole
+  // body about L-R, A-P and S-I.
   void select_joint(size_t index);
+  void select_root();
+  bool at_root() const { return at_root_; }
+  // The chosen joint's name ("root" for the root).
   const std::string& joint() const { return joint_; }
-  // axis 0 flexion, 1 abduction, 2 axial rotation; degrees in the joint's own frame.
+  // The chosen joint's three angles (degrees): flexion, abduction, axial rotation; the root's about L-R, A-P, S-I.
+  std::array<double, 3> chosen_angles() const;
+  // axis 0 flexion, 1 abduction, 2 axial rotation; degrees in the joint's own frame (or the root's axes).
   void set_angle(int axis, double degrees);
   void set_method(v1::Method method);
-  void set_pose(const PoseAngles& angles);
+  void set_pose(const Pose& pose);
   void reset_joint();
   void reset_all();
   void undo();
-  const PoseAngles& angles() const { return angles_; }
+  const Pose& pose() const { return pose_; }
   v1::Method method() const { return method_; }
   uint64_t last_sent() const { return last_sent_; }
 
-  // Draws the newest answer if one came (true); the status line shows round trip and frame rate.
+  // A stream to use from now on (after reconnecting); the current pose goes out on it.
+  void set_session(PreviewSession& session);
+  // A second stream posing the same angles with `method`, drawn side by side; nullptr ends the comparison.
+  void set_compare(PreviewSession* session, v1::Method method);
+  v1::Method compare_method() const { return compare_method_; }
+
+  // Draws the newest answers if any came (true); the status line shows round trip and frame rate.
   bool poll();
   double last_round_trip_ms() const { return round_trip_ms_; }
+  // Why the server refused the last answered update (OK when it was drawn).
+  const CallError& last_error() const { return last_error_; }
+  double frames_per_second() const { return static_cast<double>(drawn_.size()); }
 
  private:
   void send();
   Scene& scene_;
-  PreviewSession& session_;
+  PreviewSession* session_;
+  PreviewSession* compare_ = nullptr;
+  v1::Method compare_method_ = v1::METHOD_DQS;
   std::string joint_;
-  PoseAngles angles_;
-  std::vector<PoseAngles> history_;
+  bool at_root_ = false;
+  Pose pose_;
+  std::vector<Pose> history_;
   v1::Method method_ = v1::METHOD_COR;
   uint64_t last_sent_ = 0;
   double round_trip_ms_ = 0.0;
-  std::vector<std::chrono::steady_clock::time_point> drawn_;  // the last frames' times, for frames per second
+  CallError last_error_;
+  std::vector<std::chrono::steady_clock::time_point> drawn_;  // the last second's frames, for frames per second
 };
+
+// "CoR", "DQS" or "LBS".
+const char* method_name(v1::Method method);
 
 }  // namespace posewarp::view

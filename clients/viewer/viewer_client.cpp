@@ -3,6 +3,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <sstream>
 
@@ -29,29 +31,115 @@ bool read_file(const std::string& path, std::string* text) {
 
 }  // namespace
 
-std::string pose_json(const PoseAngles& angles, const std::string& name) {
+bool Pose::is_rest() const {
+  for (const auto& [joint, a] : joints) {
+    if (!a.is_zero()) return false;
+  }
+  return root_deg == std::array<double, 3>{} && root_mm == std::array<double, 3>{};
+}
+
+namespace {
+
+using Quaternion = std::array<double, 4>;  // w, x, y, z
+
+Quaternion multiply(const Quaternion& a, const Quaternion& b) {
+  return {a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3], a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+          a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1], a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]};
+}
+
+// The root's three angles (about x, then y, then z: R = Rz Ry Rx) as a quaternion, and back.
+Quaternion root_quaternion(const std::array<double, 3>& degrees) {
+  Quaternion q{1, 0, 0, 0};
+  for (int axis = 0; axis < 3; ++axis) {
+    const double half = degrees[static_cast<size_t>(axis)] * M_PI / 360.0;
+    Quaternion turn{std::cos(half), 0, 0, 0};
+    turn[static_cast<size_t>(axis) + 1] = std::sin(half);
+    q = multiply(turn, q);
+  }
+  return q;
+}
+
+std::array<double, 3> root_angles(Quaternion q) {
+  const double n = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  for (double& c : q) c /= n;
+  const double w = q[0], x = q[1], y = q[2], z = q[3];
+  const double r21 = 2 * (y * z + w * x), r22 = 1 - 2 * (x * x + y * y), r20 = 2 * (x * z - w * y);
+  const double r10 = 2 * (x * y + w * z), r00 = 1 - 2 * (y * y + z * z);
+  const double degrees = 180.0 / M_PI;
+  return {std::atan2(r21, r22) * degrees, std::asin(std::clamp(-r20, -1.0, 1.0)) * degrees,
+          std::atan2(r10, r00) * degrees};
+}
+
+bool numbers(const nlohmann::json& value, size_t count) {
+  if (!value.is_array() || value.size() != count) return false;
+  return std::all_of(value.begin(), value.end(), [](const nlohmann::json& v) { return v.is_number(); });
+}
+
+}  // namespace
+
+std::string pose_json(const Pose& pose, const std::string& name) {
   nlohmann::json doc{{"format", "posewarp.pose"}, {"version", 1}, {"name", name}, {"joints", nlohmann::json::object()}};
-  for (const auto& [joint, a] : angles) {
+  if (pose.root_deg != std::array<double, 3>{} || pose.root_mm != std::array<double, 3>{}) {
+    doc["root"] = {{"translation_mm", pose.root_mm}, {"rotation", {{"quaternion", root_quaternion(pose.root_deg)}}}};
+  }
+  for (const auto& [joint, a] : pose.joints) {
     if (a.is_zero()) continue;
     doc["joints"][joint] = {{"angles_deg", {{"flexion", a.flexion}, {"abduction", a.abduction}, {"rotation", a.rotation}}}};
   }
   return doc.dump();
 }
 
-std::optional<PoseAngles> angles_from_json(const std::string& text, std::string* error) {
+std::optional<Pose> pose_from_json(const std::string& text, std::string* error) {
   const nlohmann::json doc = nlohmann::json::parse(text, nullptr, false);
   if (doc.is_discarded() || !doc.is_object() || !doc.contains("joints") || !doc["joints"].is_object()) {
     *error = "not a pose JSON (an object with \"joints\")";
     return std::nullopt;
   }
-  PoseAngles angles;
+  Pose pose;
+  if (doc.contains("root")) {
+    const nlohmann::json& root = doc["root"];
+    if (!root.is_object()) {
+      *error = "\"root\" must be an object with \"translation_mm\" and \"rotation\"";
+      return std::nullopt;
+    }
+    if (root.contains("translation_mm")) {
+      if (!numbers(root["translation_mm"], 3)) {
+        *error = "root translation_mm must be three numbers (LPS mm)";
+        return std::nullopt;
+      }
+      for (size_t a = 0; a < 3; ++a) pose.root_mm[a] = root["translation_mm"][a].get<double>();
+    }
+    if (root.contains("rotation")) {
+      const nlohmann::json& r = root["rotation"];
+      Quaternion q{1, 0, 0, 0};
+      if (r.is_object() && r.contains("quaternion") && numbers(r["quaternion"], 4)) {
+        for (size_t c = 0; c < 4; ++c) q[c] = r["quaternion"][c].get<double>();
+      } else if (r.is_object() && r.contains("axis_angle") && r["axis_angle"].is_object() &&
+                 numbers(r["axis_angle"].value("axis", nlohmann::json()), 3) && r["axis_angle"].contains("degrees") &&
+                 r["axis_angle"]["degrees"].is_number()) {
+        const nlohmann::json& axis = r["axis_angle"]["axis"];
+        const double x = axis[0].get<double>(), y = axis[1].get<double>(), z = axis[2].get<double>();
+        const double length = std::sqrt(x * x + y * y + z * z), half = r["axis_angle"]["degrees"].get<double>() * M_PI / 360;
+        if (length > 0) q = {std::cos(half), std::sin(half) * x / length, std::sin(half) * y / length, std::sin(half) * z / length};
+      } else {
+        *error = "root rotation: the viewer reads a \"quaternion\" [w, x, y, z] or an \"axis_angle\"";
+        return std::nullopt;
+      }
+      const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+      if (!std::isfinite(norm) || std::abs(norm - 1.0) > 1e-3) {
+        *error = "root rotation: the quaternion is not a unit quaternion";
+        return std::nullopt;
+      }
+      pose.root_deg = root_angles(q);
+    }
+  }
   for (const auto& [joint, value] : doc["joints"].items()) {
     if (!value.is_object() || !value.contains("angles_deg") || !value["angles_deg"].is_object()) {
       *error = "joint '" + joint + "': the viewer reads \"angles_deg\": {\"flexion\", \"abduction\", \"rotation\"}";
       return std::nullopt;
     }
     const nlohmann::json& a = value["angles_deg"];
-    JointAngles& j = angles[joint];
+    JointAngles& j = pose.joints[joint];
     for (auto [key, field] : {std::pair{"flexion", &j.flexion}, {"abduction", &j.abduction}, {"rotation", &j.rotation}}) {
       if (!a.contains(key)) continue;
       if (!a[key].is_number()) {
@@ -61,7 +149,7 @@ std::optional<PoseAngles> angles_from_json(const std::string& text, std::string*
       *field = a[key].get<double>();
     }
   }
-  return angles;
+  return pose;
 }
 
 std::unique_ptr<ViewerClient> ViewerClient::connect(const ServerAddress& address, CallError* error) {
@@ -152,7 +240,7 @@ PreviewSession::~PreviewSession() {
   reader_.join();
 }
 
-uint64_t PreviewSession::send(const PoseAngles& angles, v1::Method method) {
+uint64_t PreviewSession::send(const Pose& pose, v1::Method method) {
   v1::PreviewRequest update;
   uint64_t sequence = 0;
   {
@@ -162,7 +250,7 @@ uint64_t PreviewSession::send(const PoseAngles& angles, v1::Method method) {
   }
   if (sequence == 1) update.set_rig_id(rig_id_);
   update.set_sequence(sequence);
-  update.set_pose_json(pose_json(angles));
+  update.set_pose_json(pose_json(pose));
   update.set_method(method);
   std::lock_guard<std::mutex> lock(write_mutex_);
   stream_->Write(update);
@@ -224,6 +312,109 @@ uint64_t PreviewSession::answers() const {
 CallError PreviewSession::ended() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return end_;
+}
+
+VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_id, const Pose& pose, v1::Method method,
+                             bool raw, v1::GridPolicy grid)
+    : context_(client.context(rig_id)), client_(client) {
+  v1::PoseRequest request;
+  request.set_rig_id(rig_id);
+  request.set_pose_json(pose_json(pose));
+  request.set_method(method);
+  request.set_grid(grid);
+  request.set_want_labels(true);
+  request.set_want_ct(true);
+  request.set_want_surfaces(!raw);
+  request.set_format(raw ? v1::FILE_FORMAT_RAW : v1::FILE_FORMAT_NIFTI_GZ);
+  request.set_samples(v1::SAMPLE_TYPE_STORED);
+  result_.pose_json = request.pose_json();
+  thread_ = std::thread([this, request] { run(request); });
+}
+
+VolumeRequest::~VolumeRequest() {
+  cancel();
+  thread_.join();
+}
+
+void VolumeRequest::run(v1::PoseRequest request) {
+  auto reader = client_.stub().Pose(context_.get(), request);
+  v1::PoseResponse part;
+  PosedVolumes result;
+  result.pose_json = request.pose_json();
+  uint64_t label_total = 0, ct_total = 0;
+  while (reader->Read(&part)) {
+    uint64_t received = 0;
+    if (part.has_header()) {
+      result.header = part.header();
+      label_total = result.header.label_bytes(), ct_total = result.header.ct_bytes();
+    } else if (part.has_labels() || part.has_ct()) {
+      const v1::VolumeChunk& chunk = part.has_labels() ? part.labels() : part.ct();
+      std::string& bytes = part.has_labels() ? result.labels : result.ct;
+      uint64_t& total = part.has_labels() ? label_total : ct_total;
+      if (chunk.total_bytes() > 0) total = chunk.total_bytes();
+      if (chunk.offset() != bytes.size()) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        error_ = {grpc::StatusCode::DATA_LOSS, "the server sent a chunk out of order"};
+        context_->TryCancel();
+        break;
+      }
+      bytes += chunk.data();
+      received = chunk.data().size();
+    } else if (part.has_surface()) {
+      result.surfaces.push_back(part.surface());
+    } else if (part.has_report()) {
+      result.report = part.report();
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    received_ += received;
+    expected_ = label_total + ct_total;
+  }
+  const grpc::Status status = reader->Finish();
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!error_.failed()) {
+    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
+      error_ = {status.error_code(), "cannot reach posewarp-server at " + client_.server() + ": " + status.error_message()};
+    } else if (!status.ok()) {
+      error_ = {status.error_code(), status.error_message()};
+    } else if (result.labels.empty() || result.ct.empty() ||
+               (request.format() == v1::FILE_FORMAT_RAW &&
+                (result.labels.size() != label_total || result.ct.size() != ct_total))) {
+      error_ = {grpc::StatusCode::DATA_LOSS, "the server's answer ended before the volumes were complete"};
+    }
+  }
+  result_ = std::move(result);
+  done_ = true;
+  finished_.notify_all();
+}
+
+bool VolumeRequest::done() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return done_;
+}
+
+std::pair<uint64_t, uint64_t> VolumeRequest::progress() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return {received_, expected_};
+}
+
+void VolumeRequest::cancel() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!done_) {
+    error_ = {grpc::StatusCode::CANCELLED, "cancelled"};
+    context_->TryCancel();
+  }
+}
+
+CallError VolumeRequest::take(PosedVolumes* result) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!done_) return {grpc::StatusCode::UNAVAILABLE, "the request is still running"};
+  if (!error_.failed()) *result = std::move(result_);
+  return error_;
+}
+
+bool VolumeRequest::wait(int timeout_ms) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  return finished_.wait_for(lock, std::chrono::milliseconds(timeout_ms), [&] { return done_; });
 }
 
 }  // namespace posewarp::view

@@ -45,10 +45,19 @@ struct JointAngles {
 };
 using PoseAngles = std::map<std::string, JointAngles>;
 
-// The pose JSON the server (and the CLI) reads, from joint angles.
-std::string pose_json(const PoseAngles& angles, const std::string& name = "posewarp-view");
-// Joint angles from a pose JSON (the "angles_deg" form); an error for anything else.
-std::optional<PoseAngles> angles_from_json(const std::string& text, std::string* error);
+// What the viewer poses: joint angles, and the root turned about the body's axes (degrees about L-R, A-P and S-I,
+// applied in that order, about the root segment's centroid) and moved (LPS mm).
+struct Pose {
+  PoseAngles joints;
+  std::array<double, 3> root_deg{0.0, 0.0, 0.0};
+  std::array<double, 3> root_mm{0.0, 0.0, 0.0};
+  bool is_rest() const;
+};
+
+// The pose JSON the server (and the CLI) reads.
+std::string pose_json(const Pose& pose, const std::string& name = "posewarp-view");
+// A pose from a pose JSON: joints in the "angles_deg" form, the root in any rotation form; an error otherwise.
+std::optional<Pose> pose_from_json(const std::string& text, std::string* error);
 
 class ViewerClient {
  public:
@@ -88,7 +97,7 @@ class PreviewSession {
   PreviewSession& operator=(const PreviewSession&) = delete;
 
   // Sends a pose (the latest wins on the server when updates come faster than it answers); its sequence number.
-  uint64_t send(const PoseAngles& angles, v1::Method method);
+  uint64_t send(const Pose& pose, v1::Method method);
   // The newest answer not taken yet, if any.
   std::optional<Answer> take();
   // Waits up to timeout_ms for the answer to `sequence` (or a later one); false on timeout or a closed stream.
@@ -111,6 +120,50 @@ class PreviewSession {
   CallError end_;
   std::mutex write_mutex_;
   std::thread reader_;
+};
+
+// A posed volume as the Pose call answers it: raw samples (the header's sample types) for the slices, or the bytes
+// of NIfTI files and the posed surfaces for saving.
+struct PosedVolumes {
+  v1::PoseHeader header;
+  std::string labels, ct;
+  std::vector<v1::Surface> surfaces;
+  v1::QualityReport report;
+  std::string pose_json;  // what was asked
+};
+
+// One Pose call on its own thread, so the window never waits on it: progress while it runs, then the result or
+// the error; cancel() ends it early (the destructor cancels and waits).
+class VolumeRequest {
+ public:
+  // raw: samples for display; otherwise NIfTI (.nii.gz) bytes and the posed surfaces, for saving. grid: the study's
+  // grid (GRID_POLICY_INPUT, what the CLI does by default) or one grown to hold the posed body.
+  VolumeRequest(const ViewerClient& client, const std::string& rig_id, const Pose& pose, v1::Method method, bool raw,
+                v1::GridPolicy grid = v1::GRID_POLICY_INPUT);
+  ~VolumeRequest();
+  VolumeRequest(const VolumeRequest&) = delete;
+  VolumeRequest& operator=(const VolumeRequest&) = delete;
+
+  bool done() const;
+  // Bytes received and expected so far (expected is 0 until the server has said).
+  std::pair<uint64_t, uint64_t> progress() const;
+  void cancel();
+  // Once done: the error, or OK with the result moved out.
+  CallError take(PosedVolumes* result);
+  // Waits until done, at most timeout_ms; false on timeout.
+  bool wait(int timeout_ms);
+
+ private:
+  void run(v1::PoseRequest request);
+  std::unique_ptr<grpc::ClientContext> context_;
+  const ViewerClient& client_;
+  mutable std::mutex mutex_;
+  std::condition_variable finished_;
+  bool done_ = false;
+  uint64_t received_ = 0, expected_ = 0;
+  PosedVolumes result_;
+  CallError error_;
+  std::thread thread_;
 };
 
 }  // namespace posewarp::view

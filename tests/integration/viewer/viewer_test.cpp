@@ -132,7 +132,7 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   ASSERT_TRUE(controller.poll());
   EXPECT_GE(scene.updates(), 1);
   EXPECT_GT(controller.last_round_trip_ms(), 0.0);
-  EXPECT_EQ(controller.angles().at("joint_2_3").flexion, 90.0);
+  EXPECT_EQ(controller.pose().joints.at("joint_2_3").flexion, 90.0);
   // The scene now shows what the snapshot of the same pose shows.
   scene.set_status("");
   std::string why;
@@ -142,10 +142,10 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   EXPECT_LT(differing(read_png(dir_ / "driven.png"), read_png(dir_ / "posed.png"), 0, 360), 0.01);
   // Undo returns to 70 degrees; reset all goes back to rest.
   controller.undo();
-  EXPECT_EQ(controller.angles().at("joint_2_3").flexion, 70.0);
+  EXPECT_EQ(controller.pose().joints.at("joint_2_3").flexion, 70.0);
   controller.reset_all();
   ASSERT_TRUE(session.wait_for(controller.last_sent(), 30000));
-  EXPECT_TRUE(controller.angles().empty());
+  EXPECT_TRUE(controller.pose().is_rest());
   EXPECT_GE(session.answers(), 2u);
 }
 
