@@ -4,8 +4,16 @@
 #include <gtest/gtest.h>
 #include <vtkImageData.h>
 #include <vtkPNGReader.h>
+#include <vtkRenderer.h>
 #include <vtkSmartPointer.h>
 
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <thread>
+
+#include "app.h"
+#include "posewarp/api/files.h"
 #include "scene.h"
 #include "server_process.h"
 
@@ -60,6 +68,55 @@ double drawn(const Image& a) {
   return static_cast<double>(count) / (a.width * a.height);
 }
 
+// Pixels of the rectangle [x0, x1) x [y0, y1) (rows from the bottom) that are coloured (channels apart by more than
+// 60) in `labelled` and grey but not black in `plain`: labels drawn over CT.
+int64_t labels_over_ct(const Image& labelled, const Image& plain, int x0, int x1, int y0, int y1) {
+  int64_t count = 0;
+  for (int y = y0; y < y1; ++y) {
+    for (int x = x0; x < x1; ++x) {
+      const unsigned char *a = labelled.at(x, y), *b = plain.at(x, y);
+      const int spread_a = std::max({a[0], a[1], a[2]}) - std::min({a[0], a[1], a[2]});
+      const int spread_b = std::max({b[0], b[1], b[2]}) - std::min({b[0], b[1], b[2]});
+      count += spread_a > 60 && spread_b < 8 && b[0] > 40;
+    }
+  }
+  return count;
+}
+
+// Grey, not black pixels of a rectangle: CT drawn.
+int64_t grey_pixels(const Image& image, int x0, int x1, int y0, int y1) {
+  int64_t count = 0;
+  for (int y = y0; y < y1; ++y) {
+    for (int x = x0; x < x1; ++x) {
+      const unsigned char* a = image.at(x, y);
+      count += std::max({a[0], a[1], a[2]}) - std::min({a[0], a[1], a[2]}) < 8 && a[0] > 40;
+    }
+  }
+  return count;
+}
+
+// What a command prints on stderr.
+std::string stderr_of(const std::vector<std::string>& args) {
+  std::string command;
+  for (const std::string& a : args) command += "'" + a + "' ";
+  std::string out;
+  if (FILE* pipe = ::popen((command + "2>&1 >/dev/null").c_str(), "r")) {
+    char buffer[4096];
+    for (size_t n; (n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
+    ::pclose(pipe);
+  }
+  return out;
+}
+
+// Where a world point (LPS mm) lands in the window, after a render.
+std::array<int, 2> on_screen(vtkRenderer* renderer, const std::array<double, 3>& point) {
+  renderer->SetWorldPoint(point[0], point[1], point[2], 1.0);
+  renderer->WorldToDisplay();
+  double display[3];
+  renderer->GetDisplayPoint(display);
+  return {static_cast<int>(std::lround(display[0])), static_cast<int>(std::lround(display[1]))};
+}
+
 class Viewer : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -79,8 +136,8 @@ class Viewer : public ::testing::Test {
     fs::remove_all(dir_);
   }
   static int snapshot(const fs::path& png, const std::vector<std::string>& more = {}) {
-    std::vector<std::string> args{POSEWARP_VIEW, "--server", server_->address(), "--rig", rig_id_, "--size", "480x360",
-                                  "--snapshot", png.string()};
+    std::vector<std::string> args{POSEWARP_VIEW, "--server", server_->address(), "--rig", rig_id_, "--snapshot", png.string()};
+    if (std::find(more.begin(), more.end(), "--size") == more.end()) args.insert(args.end(), {"--size", "480x360"});
     args.insert(args.end(), more.begin(), more.end());
     return run(args);
   }
@@ -149,5 +206,233 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   EXPECT_GE(session.answers(), 2u);
 }
 
+
+TEST_F(Viewer, TheSlicesSnapshotShowsLabelsOverTheCtWithTheReport) {
+  const std::string bend = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
+  ASSERT_EQ(snapshot(dir_ / "slices.png", {"--pose", bend, "--slices", "--size", "960x720", "--label-opacity", "0.5"}), 0);
+  ASSERT_EQ(snapshot(dir_ / "plain.png", {"--pose", bend, "--slices", "--size", "960x720", "--label-opacity", "0"}), 0);
+  const Image labelled = read_png(dir_ / "slices.png"), plain = read_png(dir_ / "plain.png");
+  ASSERT_EQ(labelled.width, 960);
+  ASSERT_EQ(labelled.height, 720);
+  // The layout: the 3D view top left, axial top right, coronal bottom left, sagittal bottom right (rows from the
+  // bottom). Each slice shows CT without labels, and coloured labels over that CT with them.
+  const int quadrants[3][4] = {{480, 960, 360, 720}, {0, 480, 0, 360}, {480, 960, 0, 360}};
+  for (const auto& q : quadrants) {
+    const int64_t area = static_cast<int64_t>(q[1] - q[0]) * (q[3] - q[2]);
+    EXPECT_GT(grey_pixels(plain, q[0], q[1], q[2], q[3]), area / 50) << "no CT in the view at x " << q[0] << ", y " << q[2];
+    EXPECT_GT(labels_over_ct(labelled, plain, q[0], q[1], q[2], q[3]), area / 50)
+        << "no labels over the CT in the view at x " << q[0] << ", y " << q[2];
+  }
+  // The 3D view above them still shows the posed bar, and the same in both.
+  EXPECT_LT(differing(labelled, plain, 360, 720), 0.5);
+  // A grid grown to hold the bent bar: the bar is no longer cut where it leaves the study's grid.
+  ASSERT_EQ(snapshot(dir_ / "grown.png", {"--pose", bend, "--slices", "--size", "960x720", "--grid", "grow"}), 0);
+  EXPECT_GT(differing(read_png(dir_ / "grown.png"), labelled, 0, 360), 0.01);
+}
+
+TEST_F(Viewer, SavesThePosedFilesAsTheCliWritesThem) {
+  const std::string bend = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
+  const fs::path saved = dir_ / "saved", cli = dir_ / "cli";
+  ASSERT_EQ(run({POSEWARP_VIEW, "--server", server_->address(), "--rig", rig_id_, "--pose", bend, "--method", "dqs",
+                 "--save", saved.string()}), 0);
+  fs::create_directories(cli);
+  ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", rig_id_, "--server", server_->address(), "--pose", bend, "--method", "dqs",
+                 "--labels-out", (cli / "labels.nii.gz").string(), "--ct-out", (cli / "ct.nii.gz").string(),
+                 "--surfaces-out", (cli / "surfaces").string(), "--report", (cli / "report.json").string()}), 0);
+  auto ours = api::read_label_volume((saved / "labels.nii.gz").string());
+  auto theirs = api::read_label_volume((cli / "labels.nii.gz").string());
+  ASSERT_TRUE(ours.ok() && theirs.ok());
+  EXPECT_TRUE(ours->geometry().same_grid(theirs->geometry()));
+  EXPECT_EQ(ours->voxels(), theirs->voxels());
+  auto ct = api::read_intensity_volume((saved / "ct.nii.gz").string());
+  auto cli_ct = api::read_intensity_volume((cli / "ct.nii.gz").string());
+  ASSERT_TRUE(ct.ok() && cli_ct.ok());
+  EXPECT_EQ(ct->voxels(), cli_ct->voxels());
+  size_t surfaces = 0;
+  for (const auto& entry : fs::directory_iterator(cli / "surfaces")) {
+    ++surfaces;
+    auto a = api::read_surface((saved / "surfaces" / entry.path().filename()).string());
+    auto b = api::read_surface(entry.path().string());
+    ASSERT_TRUE(a.ok()) << entry.path().filename();
+    ASSERT_TRUE(b.ok());
+    EXPECT_EQ(a->vertices.rows(), b->vertices.rows());
+    EXPECT_LT((a->vertices - b->vertices).cwiseAbs().maxCoeff(), 1e-4);
+  }
+  EXPECT_GT(surfaces, 0u);
+  EXPECT_EQ(nlohmann::json::parse(file_text(saved / "report.json"))["inverted_tets"],
+            nlohmann::json::parse(file_text(cli / "report.json"))["inverted_tets"]);
+  std::string why;
+  const std::optional<view::Pose> pose = view::pose_from_json(file_text(saved / "pose.json"), &why);
+  ASSERT_TRUE(pose) << why;
+  EXPECT_EQ(pose->joints.at("joint_2_3").flexion, 90.0);
+  for (const auto& entry : fs::recursive_directory_iterator(saved)) EXPECT_NE(entry.path().extension(), ".partial");
+}
+
+TEST_F(Viewer, BadAddressesPosesAndRigsGetClearErrorsAndNoSnapshot) {
+  // Nothing listens on the port of a server that was stopped.
+  const int port = [] {
+    ServerProcess gone(dir_ / "gone-store");
+    return gone.port();
+  }();
+  const std::string message = stderr_of({POSEWARP_VIEW, "--server", "127.0.0.1:" + std::to_string(port), "--snapshot",
+                                         (dir_ / "x.png").string()});
+  EXPECT_NE(message.find("cannot reach posewarp-server"), std::string::npos) << message;
+  // A joint the rig does not have: the server refuses the pose, the viewer says so and writes nothing.
+  const fs::path wrong = dir_ / "wrong_joint.json";
+  std::ofstream(wrong) << R"({"format": "posewarp.pose", "version": 1, "joints": {"knee_left": {"angles_deg": {"flexion": 30}}}})";
+  EXPECT_EQ(snapshot(dir_ / "refused.png", {"--pose", wrong.string()}) >> 8, 2);
+  EXPECT_FALSE(fs::exists(dir_ / "refused.png"));
+  // A pose file the viewer cannot read: exit 2 before any call.
+  std::ofstream(dir_ / "broken.json") << "{\"joints\": [1, 2]}";
+  EXPECT_EQ(snapshot(dir_ / "broken.png", {"--pose", (dir_ / "broken.json").string()}) >> 8, 2);
+  EXPECT_EQ(snapshot(dir_ / "bad.png", {"--cursor", "1,2"}) >> 8, 2);
+}
+
+TEST(ViewerPose, RootAnglesAndJointsSurviveTheJsonTheServerReads) {
+  view::Pose pose;
+  pose.joints["knee_left"].flexion = 45;
+  pose.root_deg = {10.0, -20.0, 30.0};
+  pose.root_mm = {1.0, 2.0, 3.0};
+  std::string why;
+  const std::optional<view::Pose> back = view::pose_from_json(view::pose_json(pose), &why);
+  ASSERT_TRUE(back) << why;
+  EXPECT_EQ(back->joints.at("knee_left").flexion, 45.0);
+  for (size_t a = 0; a < 3; ++a) {
+    EXPECT_NEAR(back->root_deg[a], pose.root_deg[a], 1e-9);
+    EXPECT_EQ(back->root_mm[a], pose.root_mm[a]);
+  }
+  // A root turn as an axis-angle about S-I is the third angle.
+  const auto turned = view::pose_from_json(
+      R"({"joints": {}, "root": {"rotation": {"axis_angle": {"axis": [0, 0, 2], "degrees": 25}}}})", &why);
+  ASSERT_TRUE(turned) << why;
+  EXPECT_NEAR(turned->root_deg[2], 25.0, 1e-9);
+  EXPECT_NEAR(turned->root_deg[0], 0.0, 1e-9);
+  EXPECT_FALSE(view::pose_from_json(R"({"joints": {}, "root": {"rotation": {"quaternion": [2, 0, 0, 0]}}})", &why));
+  EXPECT_FALSE(view::pose_from_json(R"({"joints": {"a": {"quaternion": [1, 0, 0, 0]}}})", &why));
+  EXPECT_NE(why.find("angles_deg"), std::string::npos);
+}
+
+TEST(ViewerReport, KeyFiguresReadAsTheyShould) {
+  v1::QualityReport report;
+  report.set_inverted_tets(3);
+  report.set_bone_rigidity_error_mm(0.126);
+  report.set_volume_change(-0.0123);
+  report.add_lost_labels(13);
+  const std::vector<std::string> lines = view::report_lines(report);
+  ASSERT_EQ(lines.size(), 5u);
+  EXPECT_EQ(lines[0], "inverted tets: 3");
+  EXPECT_EQ(lines[1], "bone rigidity error: 0.13 mm");
+  EXPECT_EQ(lines[2], "volume change: -1.23 %");
+  EXPECT_EQ(lines[3], "new labels: none");
+  EXPECT_EQ(lines[4], "lost labels: 13");
+}
+
+// The window's keys and clicks, driven as the interactor calls them (without one): choose a joint by clicking its
+// sphere, bend it, compare two methods, ask for the full volume, move the cursor, change the window and opacity,
+// save, load a pose file, turn the root, reconnect.
+TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
+  view::CallError error;
+  auto client = view::ViewerClient::connect({server_->address(), "", ""}, &error);
+  ASSERT_TRUE(client) << error.message;
+  view::RigAssets assets;
+  ASSERT_FALSE(client->assets(rig_id_, &assets).failed());
+  view::Scene scene(960, 720, true);
+  scene.set_rig(assets);
+  view::App app;
+  app.options.rig_id = rig_id_;
+  app.options.out_dir = (dir_ / "window").string();
+  fs::create_directories(app.options.out_dir);
+  app.client = client.get();
+  app.scene = &scene;
+  app.session = std::make_unique<view::PreviewSession>(*client, rig_id_);
+  view::Controller controller(scene, *app.session);
+  app.controller = &controller;
+  const auto answered = [&] {
+    const uint64_t before = static_cast<uint64_t>(scene.updates());
+    for (int i = 0; i < 3000 && static_cast<uint64_t>(scene.updates()) == before; ++i) {
+      app.tick();
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return static_cast<uint64_t>(scene.updates()) > before;
+  };
+  scene.render();
+  // A click on joint_2_3's sphere chooses it.
+  const auto& joints = scene.joint_names();
+  const size_t knee = static_cast<size_t>(std::find(joints.begin(), joints.end(), "joint_2_3") - joints.begin());
+  ASSERT_LT(knee, joints.size());
+  const std::array<double, 3> centre{assets.skeleton.joints(static_cast<int>(knee)).centre_mm(0),
+                                     assets.skeleton.joints(static_cast<int>(knee)).centre_mm(1),
+                                     assets.skeleton.joints(static_cast<int>(knee)).centre_mm(2)};
+  const std::array<int, 2> at = on_screen(scene.renderer(), centre);
+  ASSERT_TRUE(app.click(at[0], at[1]));
+  EXPECT_EQ(controller.joint(), "joint_2_3");
+  // A click on empty background leaves the camera to the trackball.
+  EXPECT_FALSE(app.click(5, 5));
+  controller.set_angle(0, 90);
+  ASSERT_TRUE(answered());
+  // Side by side: the second stream answers too, with the other method.
+  app.key("c");
+  EXPECT_EQ(scene.layout(), view::Scene::Layout::kCompare);
+  EXPECT_EQ(controller.compare_method(), v1::METHOD_DQS);
+  ASSERT_TRUE(app.compare->wait_for(1, 30000));
+  app.key("c");
+  EXPECT_EQ(scene.layout(), view::Scene::Layout::kSingle);
+  // The full volume arrives off this thread (tick keeps returning while it runs) and shows as slices.
+  app.key("f");
+  EXPECT_TRUE(app.volume_request != nullptr);
+  ASSERT_TRUE(app.settle(120000));
+  ASSERT_TRUE(scene.slices().has_volume());
+  EXPECT_EQ(scene.layout(), view::Scene::Layout::kSlices);
+  // A click in the coronal view (bottom left) moves the cursor's L-R and S-I, not its A-P.
+  scene.render();
+  const std::array<double, 3> before = scene.slices().cursor_mm();
+  vtkRenderer* coronal = scene.slices().renderer(1);
+  std::array<double, 3> target = before;
+  target[0] += 10.0, target[2] -= 20.0;
+  const std::array<int, 2> there = on_screen(coronal, target);
+  ASSERT_TRUE(app.click(there[0], there[1]));
+  const std::array<double, 3> after = scene.slices().cursor_mm();
+  const view::SliceVolume& volume = scene.slices().volume();
+  EXPECT_NEAR(after[0], target[0], volume.spacing[0]);
+  EXPECT_NEAR(after[2], target[2], volume.spacing[2]);
+  EXPECT_EQ(after[1], before[1]);
+  app.key("b");
+  EXPECT_STREQ(scene.slices().window().name, view::kBone.name);
+  app.key("plus");
+  EXPECT_NEAR(scene.slices().label_opacity(), 0.5, 1e-9);
+  // A changed pose marks the slices as an earlier pose's.
+  controller.set_angle(0, 60);
+  app.tick();
+  EXPECT_TRUE(app.stale);
+  // d saves the posed files into --out-dir.
+  app.key("d");
+  ASSERT_TRUE(app.settle(120000));
+  ASSERT_FALSE(app.save_dir.empty());
+  EXPECT_TRUE(fs::exists(fs::path(app.save_dir) / "labels.nii.gz"));
+  EXPECT_TRUE(fs::exists(fs::path(app.save_dir) / "report.json"));
+  // w writes the pose JSON; o loads the pose files of --poses.
+  app.key("w");
+  bool wrote_pose = false;
+  for (const auto& entry : fs::directory_iterator(app.options.out_dir)) wrote_pose |= entry.path().extension() == ".json";
+  EXPECT_TRUE(wrote_pose);
+  app.pose_files = {(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_twist_90.json").string()};
+  app.key("o");
+  EXPECT_EQ(controller.pose().joints.at("joint_2_3").rotation, 90.0);
+  // The root: first in the joint list; its third control turns the body about S-I.
+  app.choose(0);
+  EXPECT_TRUE(controller.at_root());
+  controller.set_angle(2, 30);
+  ASSERT_TRUE(answered());
+  EXPECT_FALSE(controller.last_error().failed()) << controller.last_error().message;
+  EXPECT_EQ(controller.pose().root_deg[2], 30.0);
+  // Undo, reset all; then a fresh stream (x) answers as the old one did.
+  app.key("u");
+  EXPECT_EQ(controller.pose().root_deg[2], 0.0);
+  app.key("R");
+  EXPECT_TRUE(controller.pose().is_rest());
+  app.key("x");
+  ASSERT_TRUE(answered());
+  EXPECT_FALSE(app.stream_lost);
+}
 }  // namespace
 }  // namespace posewarp
