@@ -14,6 +14,7 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/phantom/phantom.h"
+#include "bench_rigs.h"
 #include "server_process.h"
 
 namespace {
@@ -24,13 +25,7 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
-// p-th percentile (0..100) of `values`, milliseconds in, milliseconds out.
-double percentile(std::vector<double> values, double p) {
-  if (values.empty()) return 0.0;
-  std::sort(values.begin(), values.end());
-  const size_t at = std::min(values.size() - 1, static_cast<size_t>(p / 100.0 * static_cast<double>(values.size() - 1) + 0.5));
-  return values[at];
-}
+using bench::percentile;
 
 nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
                           const std::string& pose_json, int repeats, bool latency_only) {
@@ -227,14 +222,8 @@ int main(int argc, char** argv) {
   nlohmann::json out;
   try {
     const std::string dir = POSEWARP_SAMPLE_DIR;
-    api::BuildInputs sample;
-    sample.labels = *api::read_label_volume(dir + "/seg_total.nii.gz");
-    sample.ct = *api::read_intensity_volume(dir + "/ct.nii.gz");
-    sample.label_map = *api::preset_by_name("totalsegmentator");
-    Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
-    if (!sample_rig.ok()) throw std::runtime_error(sample_rig.status().to_string());
     const std::string hip = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/sample_hip_flexion.json");
-    out["cases"].push_back(bench_case("real-sample", work, api::rig_to_bytes(*sample_rig), hip, repeats, latency_only));
+    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only));
     // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
     {
       ServerProcess server(work / "store-upload", {}, {}, work / "upload.log");
@@ -251,28 +240,7 @@ int main(int argc, char** argv) {
     }
     if (mannequin_mvoxels > 0.0) {
       // The mannequin's rig takes minutes to build: --rig-cache keeps it between runs.
-      const fs::path cached = rig_cache.empty() ? fs::path()
-                                                : rig_cache / ("mannequin-" + std::to_string(mannequin_mvoxels) + ".rig");
-      std::string rig_bytes;
-      if (!cached.empty() && fs::exists(cached)) {
-        rig_bytes = file_text(cached);
-      } else {
-        phantom::MannequinParams params;
-        params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
-        Result<phantom::Phantom> p = phantom::make_mannequin(params);
-        if (!p.ok()) throw std::runtime_error(p.status().to_string());
-        api::BuildInputs inputs;
-        inputs.labels = p->labels;
-        inputs.ct = p->ct;
-        inputs.label_map = p->label_map;
-        Result<api::Rig> rig = api::build_rig(inputs, {}, {});
-        if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
-        rig_bytes = api::rig_to_bytes(*rig);
-        if (!cached.empty()) {
-          fs::create_directories(rig_cache);
-          if (Status s = api::write_file_atomically(cached.string(), rig_bytes, "bench rig"); !s.ok()) throw std::runtime_error(s.to_string());
-        }
-      }
+      const std::string rig_bytes = bench::mannequin_rig_bytes(mannequin_mvoxels, rig_cache);
       const std::string knee = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/knee_bent.json");
       out["cases"].push_back(bench_case("mannequin", work, rig_bytes, knee, std::max(2, repeats / 2), latency_only));
     }

@@ -8,6 +8,7 @@
 #include <vtkCamera.h>
 #include <vtkCellArray.h>
 #include <vtkCellPicker.h>
+#include <vtkDecimatePro.h>
 #include <vtkLegendScaleActor.h>
 #include <vtkLineSource.h>
 #include <vtkPNGWriter.h>
@@ -48,6 +49,10 @@ struct Scene::Parts {
   std::vector<vtkSmartPointer<vtkPolyData>> surfaces;
   std::vector<vtkSmartPointer<vtkActor>> surface_actors;
   std::vector<std::string> roles;
+  // A surface drawn with fewer triangles: the server's vertex index of each drawn point (empty: all drawn as sent),
+  // and how many vertices the server sends for it.
+  std::vector<std::vector<vtkIdType>> source_index;
+  std::vector<vtkIdType> sent_vertices;
   vtkSmartPointer<vtkPolyData> skeleton = vtkSmartPointer<vtkPolyData>::New();
   vtkSmartPointer<vtkActor> skeleton_actor = vtkSmartPointer<vtkActor>::New();
   // The side-by-side view: the same surfaces posed by another method, seen by the same camera.
@@ -60,6 +65,7 @@ struct Scene::Parts {
   vtkSmartPointer<vtkTextActor> joint_list = vtkSmartPointer<vtkTextActor>::New();
   std::string view = "anterior";
   double sphere_radius = 1.0;
+  std::vector<std::array<double, 3>> sphere_template;  // a joint sphere's points about its centre
   int width = 0, height = 0;
 };
 
@@ -143,6 +149,7 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
     p.method_names[i]->GetTextProperty()->SetJustificationToCentered();
     p.method_names[i]->GetTextProperty()->SetVerticalJustificationToBottom();
   }
+  for (int i = 0; i < 2; ++i) p.method_names[i]->VisibilityOff();  // shown side by side only
   p.renderer->AddViewProp(p.method_names[0]);
   p.compare_renderer->AddViewProp(p.method_names[1]);
   place_text(p.report, 0.98, 0.97, 13, white, true);
@@ -161,10 +168,48 @@ Scene::~Scene() { delete parts_; }
 vtkRenderWindow* Scene::window() const { return parts_->window; }
 vtkRenderer* Scene::renderer() const { return parts_->renderer; }
 
-void Scene::set_rig(const RigAssets& assets) {
+namespace {
+
+// A surface with about `keep` of its triangles for drawing (vtkDecimatePro collapses edges onto existing vertices,
+// so every drawn point is one of the surface's own), and the index of each drawn point among the surface's.
+vtkSmartPointer<vtkPolyData> fewer_triangles(vtkPolyData* mesh, double keep, std::vector<vtkIdType>* source_index) {
+  auto decimate = vtkSmartPointer<vtkDecimatePro>::New();
+  decimate->SetInputData(mesh);
+  decimate->SetTargetReduction(1.0 - keep);
+  decimate->PreserveTopologyOn();
+  decimate->Update();
+  vtkPolyData* fewer = decimate->GetOutput();
+  std::map<std::array<float, 3>, vtkIdType> index;
+  vtkPoints* all = mesh->GetPoints();
+  for (vtkIdType i = 0; i < all->GetNumberOfPoints(); ++i) {
+    double x[3];
+    all->GetPoint(i, x);
+    index.emplace(std::array<float, 3>{static_cast<float>(x[0]), static_cast<float>(x[1]), static_cast<float>(x[2])}, i);
+  }
+  source_index->clear();
+  for (vtkIdType i = 0; i < fewer->GetNumberOfPoints(); ++i) {
+    double x[3];
+    fewer->GetPoint(i, x);
+    const auto found = index.find({static_cast<float>(x[0]), static_cast<float>(x[1]), static_cast<float>(x[2])});
+    if (found == index.end()) return nullptr;  // a point of its own: draw the surface whole
+    source_index->push_back(found->second);
+  }
+  auto result = vtkSmartPointer<vtkPolyData>::New();
+  result->DeepCopy(fewer);
+  return result;
+}
+
+}  // namespace
+
+void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
   Parts& p = *parts_;
   int bone = 0;
   double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+  int64_t triangles_sent = 0;
+  for (const v1::Surface& s : assets.surfaces) triangles_sent += s.triangles_size() / 3;
+  const double keep = triangle_budget > 0 && triangles_sent > triangle_budget
+                          ? static_cast<double>(triangle_budget) / static_cast<double>(triangles_sent)
+                          : 1.0;
   for (const v1::Surface& s : assets.surfaces) {
     auto points = vtkSmartPointer<vtkPoints>::New();
     for (int i = 0; i + 2 < s.vertices_size(); i += 3) {
@@ -179,9 +224,21 @@ void Scene::set_rig(const RigAssets& assets) {
     auto mesh = vtkSmartPointer<vtkPolyData>::New();
     mesh->SetPoints(points);
     mesh->SetPolys(triangles);
+    p.sent_vertices.push_back(points->GetNumberOfPoints());
+    p.source_index.emplace_back();
+    // Over the budget, each large surface is drawn with its share of the triangles (a preview: the posed files keep
+    // every triangle).
+    if (keep < 1.0 && triangles->GetNumberOfCells() > 2000) {
+      if (vtkSmartPointer<vtkPolyData> fewer = fewer_triangles(mesh, keep, &p.source_index.back())) {
+        mesh = fewer;
+      } else {
+        p.source_index.back().clear();
+      }
+    }
     auto normals = vtkSmartPointer<vtkPolyDataNormals>::New();
     normals->SetInputData(mesh);
     normals->SplittingOff();
+    normals->ConsistencyOff();  // the server's surfaces are oriented already; checking them again costs most of a frame
     auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
     mapper->SetInputConnection(normals->GetOutputPort());
     auto actor = vtkSmartPointer<vtkActor>::New();
@@ -190,6 +247,9 @@ void Scene::set_rig(const RigAssets& assets) {
     if (role == "skin") {
       actor->GetProperty()->SetColor(kSkin[0], kSkin[1], kSkin[2]);
       actor->GetProperty()->SetOpacity(0.25);
+      // Its far side drawn too would double the translucent pixels (a quarter of a frame on a software renderer)
+      // for little to see.
+      actor->GetProperty()->BackfaceCullingOn();
     } else if (role == "bone") {
       const double* c = kBoneColours[bone++ % 10];
       actor->GetProperty()->SetColor(c[0], c[1], c[2]);
@@ -207,6 +267,7 @@ void Scene::set_rig(const RigAssets& assets) {
     auto twin_normals = vtkSmartPointer<vtkPolyDataNormals>::New();
     twin_normals->SetInputData(twin);
     twin_normals->SplittingOff();
+    twin_normals->ConsistencyOff();
     auto twin_mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
     twin_mapper->SetInputConnection(twin_normals->GetOutputPort());
     auto twin_actor = vtkSmartPointer<vtkActor>::New();
@@ -239,29 +300,58 @@ void Scene::set_rig(const RigAssets& assets) {
 }
 
 void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {
+  if (centres.empty()) return;
+  Parts& p = *parts_;
+  centres_ = centres;
+  vtkPoints* points = p.skeleton->GetPoints();
+  const vtkIdType sphere_points = static_cast<vtkIdType>(p.sphere_template.size());
+  const vtkIdType expected = static_cast<vtkIdType>(centres.size()) * sphere_points + 2 * static_cast<vtkIdType>(sticks_.size());
+  if (points != nullptr && sphere_points > 0 && points->GetNumberOfPoints() == expected) {
+    // The same spheres and sticks moved: only the points change.
+    vtkIdType at = 0;
+    for (const std::array<double, 3>& c : centres) {
+      for (const std::array<double, 3>& t : p.sphere_template) points->SetPoint(at++, c[0] + t[0], c[1] + t[1], c[2] + t[2]);
+    }
+    for (const auto& [a, b] : sticks_) {
+      points->SetPoint(at++, centres[static_cast<size_t>(a)].data());
+      points->SetPoint(at++, centres[static_cast<size_t>(b)].data());
+    }
+    points->Modified();
+    p.skeleton->Modified();
+    return;
+  }
   const double diagonal = std::sqrt(std::pow(bounds_[1] - bounds_[0], 2) + std::pow(bounds_[3] - bounds_[2], 2) +
                                     std::pow(bounds_[5] - bounds_[4], 2));
-  centres_ = centres;
-  parts_->sphere_radius = 0.012 * diagonal;
+  p.sphere_radius = 0.012 * diagonal;
+  auto sphere = vtkSmartPointer<vtkSphereSource>::New();
+  sphere->SetRadius(p.sphere_radius);
+  sphere->SetThetaResolution(16);
+  sphere->SetPhiResolution(12);
+  sphere->Update();
+  p.sphere_template.clear();
+  for (vtkIdType i = 0; i < sphere->GetOutput()->GetNumberOfPoints(); ++i) {
+    double x[3];
+    sphere->GetOutput()->GetPoint(i, x);
+    p.sphere_template.push_back({x[0], x[1], x[2]});
+  }
+  // Spheres first, then the sticks, in this order (the moves above rely on it).
   auto append = vtkSmartPointer<vtkAppendPolyData>::New();
   for (const std::array<double, 3>& c : centres) {
-    auto sphere = vtkSmartPointer<vtkSphereSource>::New();
-    sphere->SetCenter(c[0], c[1], c[2]);
-    sphere->SetRadius(parts_->sphere_radius);
-    sphere->SetThetaResolution(16);
-    sphere->SetPhiResolution(12);
-    append->AddInputConnection(sphere->GetOutputPort());
+    auto placed = vtkSmartPointer<vtkSphereSource>::New();
+    placed->SetCenter(c[0], c[1], c[2]);
+    placed->SetRadius(p.sphere_radius);
+    placed->SetThetaResolution(16);
+    placed->SetPhiResolution(12);
+    append->AddInputConnection(placed->GetOutputPort());
   }
   for (const auto& [a, b] : sticks_) {
-    if (static_cast<size_t>(std::max(a, b)) >= centres.size()) continue;
     auto line = vtkSmartPointer<vtkLineSource>::New();
     line->SetPoint1(centres[static_cast<size_t>(a)].data());
     line->SetPoint2(centres[static_cast<size_t>(b)].data());
     append->AddInputConnection(line->GetOutputPort());
   }
-  if (centres.empty()) return;
   append->Update();
-  parts_->skeleton->DeepCopy(append->GetOutput());
+  p.skeleton->DeepCopy(append->GetOutput());
 }
 
 void Scene::apply(const PreviewSession::Answer& answer, bool compare) {
@@ -270,13 +360,31 @@ void Scene::apply(const PreviewSession::Answer& answer, bool compare) {
   for (size_t i = 0; i < answer.vertices.size() && i < surfaces.size(); ++i) {
     vtkPoints* points = surfaces[i]->GetPoints();
     const std::vector<float>& v = answer.vertices[i];
-    if (static_cast<vtkIdType>(v.size() / 3) != points->GetNumberOfPoints()) continue;  // not this rig's surface
-    for (vtkIdType k = 0; k < points->GetNumberOfPoints(); ++k) points->SetPoint(k, v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+    if (static_cast<vtkIdType>(v.size() / 3) != p.sent_vertices[i]) continue;  // not this rig's surface
+    const std::vector<vtkIdType>& from = p.source_index[i];
+    // A surface that did not move keeps its normals (most of them, when one joint turns).
+    bool moved = false;
+    for (vtkIdType k = 0; k < points->GetNumberOfPoints(); ++k) {
+      const size_t at = 3 * static_cast<size_t>(from.empty() ? k : from[static_cast<size_t>(k)]);
+      double x[3];
+      points->GetPoint(k, x);
+      if (x[0] != v[at] || x[1] != v[at + 1] || x[2] != v[at + 2]) {
+        points->SetPoint(k, v[at], v[at + 1], v[at + 2]);
+        moved = true;
+      }
+    }
+    if (!moved) continue;
     points->Modified();
     surfaces[i]->Modified();
   }
   if (!compare && answer.joint_centres.size() == rest_centres_.size()) place_skeleton(answer.joint_centres);
   ++updates_;
+}
+
+int64_t Scene::drawn_triangles() const {
+  int64_t count = 0;
+  for (const auto& surface : parts_->surfaces) count += surface->GetNumberOfPolys();
+  return count;
 }
 
 void Scene::set_layout(Layout layout) {

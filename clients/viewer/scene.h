@@ -26,7 +26,10 @@ class Scene {
   Scene(int width, int height, bool offscreen);
   ~Scene();
 
-  void set_rig(const RigAssets& assets);
+  // The rest surfaces and skeleton. Rigs whose surfaces add up to more than `triangle_budget` triangles (0: no
+  // limit) are drawn with fewer (each large surface its share), so a slider keeps up on a software renderer.
+  void set_rig(const RigAssets& assets, int64_t triangle_budget = kTriangleBudget);
+  static constexpr int64_t kTriangleBudget = 30000;
   // Posed surfaces and joints from a preview answer (vertices in the rest surfaces' order); `compare` draws them
   // in the side-by-side view instead.
   void apply(const PreviewSession::Answer& answer, bool compare = false);
@@ -55,6 +58,8 @@ class Scene {
   vtkRenderWindow* window() const;
   vtkRenderer* renderer() const;
   int updates() const { return updates_; }
+  // Triangles of the surfaces as drawn (fewer than the rig's over the budget).
+  int64_t drawn_triangles() const;
   const std::vector<std::string>& joint_names() const { return joint_names_; }
 
  private:

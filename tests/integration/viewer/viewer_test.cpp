@@ -197,6 +197,22 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   const std::string bend = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
   ASSERT_EQ(snapshot(dir_ / "posed.png", {"--pose", bend}), 0);
   EXPECT_LT(differing(read_png(dir_ / "driven.png"), read_png(dir_ / "posed.png"), 0, 360), 0.01);
+  // Drawn with a quarter of the triangles (a rig over the triangle budget), the same pose looks the same.
+  int64_t sent = 0;
+  for (const auto& surface : assets.surfaces) sent += surface.triangles_size() / 3;
+  view::Scene fewer(480, 360, true);
+  fewer.set_rig(assets, sent / 4);
+  EXPECT_LT(fewer.drawn_triangles(), sent / 2);
+  EXPECT_EQ(scene.drawn_triangles(), sent);
+  view::PreviewSession again(*client, rig_id_);
+  view::Controller bent(fewer, again);
+  bent.select_joint(static_cast<size_t>(joint - joints.begin()));
+  bent.set_angle(0, 90.0);
+  ASSERT_TRUE(again.wait_for(bent.last_sent(), 30000));
+  ASSERT_TRUE(bent.poll());
+  fewer.set_status("");
+  ASSERT_TRUE(fewer.snapshot((dir_ / "fewer.png").string(), &why)) << why;
+  EXPECT_LT(differing(read_png(dir_ / "fewer.png"), read_png(dir_ / "posed.png"), 0, 360), 0.03);
   // Undo returns to 70 degrees; reset all goes back to rest.
   controller.undo();
   EXPECT_EQ(controller.pose().joints.at("joint_2_3").flexion, 70.0);

@@ -1,0 +1,64 @@
+// The rigs the service benchmarks pose (the real sample's, the mannequin phantom's, cached between runs since the
+// mannequin's takes minutes to build) and their percentiles.
+#pragma once
+
+#include <algorithm>
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "posewarp/api/files.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/phantom/phantom.h"
+
+namespace posewarp::bench {
+
+// p-th percentile (0..100) of `values`.
+inline double percentile(std::vector<double> values, double p) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const size_t at = std::min(values.size() - 1, static_cast<size_t>(p / 100.0 * static_cast<double>(values.size() - 1) + 0.5));
+  return values[at];
+}
+
+// The sample's rig (data/totalsegmentator_example, default parameters), as rig file bytes.
+inline std::string sample_rig_bytes(const std::string& sample_dir) {
+  api::BuildInputs sample;
+  sample.labels = *api::read_label_volume(sample_dir + "/seg_total.nii.gz");
+  sample.ct = *api::read_intensity_volume(sample_dir + "/ct.nii.gz");
+  sample.label_map = *api::preset_by_name("totalsegmentator");
+  Result<api::Rig> rig = api::build_rig(sample, {}, {});
+  if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+  return api::rig_to_bytes(*rig);
+}
+
+// The mannequin phantom's rig at about `mvoxels` million voxels; with a cache directory, read from or kept in
+// mannequin-M.rig there.
+inline std::string mannequin_rig_bytes(double mvoxels, const std::filesystem::path& cache) {
+  const std::filesystem::path cached =
+      cache.empty() ? std::filesystem::path() : cache / ("mannequin-" + std::to_string(mvoxels) + ".rig");
+  if (!cached.empty() && std::filesystem::exists(cached)) {
+    Result<std::string> bytes = api::read_text_input(cached.string(), "cached bench rig", int64_t{1} << 34);
+    if (!bytes.ok()) throw std::runtime_error(bytes.status().to_string());
+    return *bytes;
+  }
+  phantom::MannequinParams params;
+  params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mvoxels * 1e6));
+  Result<phantom::Phantom> p = phantom::make_mannequin(params);
+  if (!p.ok()) throw std::runtime_error(p.status().to_string());
+  api::BuildInputs inputs;
+  inputs.labels = p->labels;
+  inputs.ct = p->ct;
+  inputs.label_map = p->label_map;
+  Result<api::Rig> rig = api::build_rig(inputs, {}, {});
+  if (!rig.ok()) throw std::runtime_error(rig.status().to_string());
+  std::string bytes = api::rig_to_bytes(*rig);
+  if (!cached.empty()) {
+    std::filesystem::create_directories(cache);
+    if (Status s = api::write_file_atomically(cached.string(), bytes, "bench rig"); !s.ok()) throw std::runtime_error(s.to_string());
+  }
+  return bytes;
+}
+
+}  // namespace posewarp::bench
