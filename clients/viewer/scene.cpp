@@ -153,7 +153,8 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
   p.renderer->AddViewProp(p.method_names[0]);
   p.compare_renderer->AddViewProp(p.method_names[1]);
   place_text(p.report, 0.98, 0.97, 13, white, true);
-  place_text(p.warnings, 0.98, 0.62, 13, orange, true);
+  place_text(p.warnings, 0.98, 0.10, 12, orange, true);
+  p.warnings->GetTextProperty()->SetVerticalJustificationToBottom();
   for (vtkTextActor* text : {p.report.Get(), p.warnings.Get()}) {
     text->GetTextProperty()->SetBackgroundColor(0.0, 0.0, 0.0);
     text->GetTextProperty()->SetBackgroundOpacity(0.55);
@@ -247,9 +248,11 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
     if (role == "skin") {
       actor->GetProperty()->SetColor(kSkin[0], kSkin[1], kSkin[2]);
       actor->GetProperty()->SetOpacity(0.25);
-      // Its far side drawn too would double the translucent pixels (a quarter of a frame on a software renderer)
-      // for little to see.
+      // One translucent layer over opaque bones: its near side blended over them in the opaque pass, drawn after
+      // everything else (below), instead of VTK's order-independent transparency, which costs half a frame on a
+      // software renderer.
       actor->GetProperty()->BackfaceCullingOn();
+      actor->ForceOpaqueOn();
     } else if (role == "bone") {
       const double* c = kBoneColours[bone++ % 10];
       actor->GetProperty()->SetColor(c[0], c[1], c[2]);
@@ -258,7 +261,7 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
       actor->GetProperty()->SetOpacity(0.6);
       actor->VisibilityOff();  // tissue surfaces are toggled on (key t)
     }
-    p.renderer->AddActor(actor);
+    if (role != "skin") p.renderer->AddActor(actor);
     p.surfaces.push_back(mesh);
     p.surface_actors.push_back(actor);
     p.roles.push_back(role);
@@ -274,7 +277,8 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
     twin_actor->SetMapper(twin_mapper);
     twin_actor->SetProperty(actor->GetProperty());
     twin_actor->SetVisibility(actor->GetVisibility());
-    p.compare_renderer->AddActor(twin_actor);
+    twin_actor->SetForceOpaque(actor->GetForceOpaque());
+    if (role != "skin") p.compare_renderer->AddActor(twin_actor);
     p.compare_surfaces.push_back(twin);
     p.compare_actors.push_back(twin_actor);
   }
@@ -295,6 +299,11 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
   mapper->SetInputData(p.skeleton);
   p.skeleton_actor->SetMapper(mapper);
   p.renderer->AddActor(p.skeleton_actor);
+  for (size_t i = 0; i < p.roles.size(); ++i) {
+    if (p.roles[i] != "skin") continue;
+    p.renderer->AddActor(p.surface_actors[i]);
+    p.compare_renderer->AddActor(p.compare_actors[i]);
+  }
   place_skeleton(rest_centres_);
   set_view("anterior");
 }
@@ -417,10 +426,13 @@ void Scene::set_report(const std::string& title, const v1::QualityReport& report
   std::string text = title;
   for (const std::string& line : report_lines(report)) text += "\n" + line;
   parts_->report->SetInput(text.c_str());
-  // Warnings wrapped to the 3D view's width (about 7 pixels a character at this size).
+  // The first warnings, wrapped to the 3D view's width (about 7 pixels a character at this size); the report
+  // file has them all.
   const size_t columns = static_cast<size_t>(std::max(30, parts_->width / 2 / 7 - 4));
+  constexpr int kShown = 3;
   std::string warnings;
-  for (const std::string& w : report.warnings()) {
+  for (int i = 0; i < std::min(kShown, report.warnings_size()); ++i) {
+    const std::string& w = report.warnings(i);
     size_t width = 0;
     warnings.append("warning:");
     width = 8;
@@ -435,6 +447,10 @@ void Scene::set_report(const std::string& title, const v1::QualityReport& report
     }
     warnings.append("\n");
   }
+  if (report.warnings_size() > kShown) {
+    warnings.append("and ").append(std::to_string(report.warnings_size() - kShown)).append(" more warnings (d saves report.json)\n");
+  }
+  if (!warnings.empty()) warnings.pop_back();
   parts_->warnings->SetInput(warnings.c_str());
 }
 

@@ -450,5 +450,40 @@ TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
   ASSERT_TRUE(answered());
   EXPECT_FALSE(app.stream_lost);
 }
+
+// The real sample (data/totalsegmentator_example) through the viewer: at rest, bent (the lumbar spine bent to the
+// left and the left hip flexed), CoR beside LBS, and the slices of the posed CT with its labels and report. These are
+// the README's pictures: scripts/docs-snapshots runs this test with POSEWARP_DOCS_OUT=docs to keep them.
+TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
+  const std::string sample = (fs::path(POSEWARP_SOURCE_DIR) / "data/totalsegmentator_example").string();
+  std::string rig = output_of({POSEWARP_CLI, "-q", "rig", "build", "--server", server_->address(), "--labels",
+                               sample + "/seg_total.nii.gz", "--ct", sample + "/ct.nii.gz", "--name", "sample"});
+  if (!rig.empty() && rig.back() == '\n') rig.pop_back();
+  ASSERT_EQ(rig.size(), 64u) << rig;
+  const fs::path pose = dir_ / "sample_bent.json";
+  std::ofstream(pose) << R"({"format": "posewarp.pose", "version": 1, "name": "spine bent left, left hip flexed",
+    "joints": {"L2_L3": {"angles_deg": {"abduction": 12}}, "L1_L2": {"angles_deg": {"abduction": 12}},
+               "thoracolumbar": {"angles_deg": {"abduction": 10}}, "hip_left": {"angles_deg": {"flexion": 40}}}})";
+  const auto shot = [&](const std::string& name, std::vector<std::string> more) {
+    std::vector<std::string> args{POSEWARP_VIEW, "--server", server_->address(), "--rig", rig, "--size", "800x600",
+                                  "--snapshot", (dir_ / name).string()};
+    args.insert(args.end(), more.begin(), more.end());
+    EXPECT_EQ(run(args), 0) << name;
+    return read_png(dir_ / name);
+  };
+  const Image rest = shot("sample_rest.png", {});
+  const Image bent = shot("sample_bent.png", {"--pose", pose.string()});
+  const Image compare = shot("sample_cor_lbs.png", {"--pose", pose.string(), "--compare", "lbs", "--view", "lateral"});
+  const Image slices = shot("sample_slices.png", {"--pose", pose.string(), "--slices", "--window", "bone"});
+  for (const Image* image : {&rest, &bent, &compare, &slices}) EXPECT_GT(drawn(*image), 0.10);
+  // The spine bends above the pelvis (the upper part of the picture); the pelvis below stays.
+  EXPECT_GT(differing(rest, bent, 300, 600), 0.02);
+  EXPECT_LT(differing(rest, bent, 0, 150), differing(rest, bent, 300, 600));
+  if (const char* out = std::getenv("POSEWARP_DOCS_OUT")) {
+    for (const char* name : {"sample_rest.png", "sample_bent.png", "sample_cor_lbs.png", "sample_slices.png"}) {
+      fs::copy_file(dir_ / name, fs::path(out) / name, fs::copy_options::overwrite_existing);
+    }
+  }
+}
 }  // namespace
 }  // namespace posewarp
