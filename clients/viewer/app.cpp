@@ -105,6 +105,19 @@ void App::show_joint() {
   scene->set_joint_list(joint_list(), controller->joint());
 }
 
+void App::layout(Scene::Layout layout) {
+  scene->set_layout(layout);
+  // The sliders sit in the bottom right corner of the 3D view; the slices leave it too small for them (v returns).
+  const double right = layout == Scene::Layout::kSingle ? 0.97 : 0.48, width = layout == Scene::Layout::kSingle ? 0.25 : 0.2;
+  for (int i = 0; i < 3 && sliders[i] != nullptr; ++i) {
+    auto* rep = static_cast<vtkSliderRepresentation2D*>(sliders[i]->GetRepresentation());
+    rep->GetPoint1Coordinate()->SetValue(right - width, 0.06 + 0.07 * (2 - i));
+    rep->GetPoint2Coordinate()->SetValue(right, 0.06 + 0.07 * (2 - i));
+    rep->Modified();  // its coordinates changing does not tell it
+    sliders[i]->SetEnabled(layout == Scene::Layout::kSlices ? 0 : 1);
+  }
+}
+
 // index in joint_list()'s order.
 void App::choose(int index) {
   if (index <= 0) {
@@ -135,7 +148,7 @@ void App::toggle_compare() {
   if (compare) {
     controller->set_compare(nullptr, v1::METHOD_DQS);
     compare.reset();
-    scene->set_layout(Scene::Layout::kSingle);
+    layout(Scene::Layout::kSingle);
     return;
   }
   // The other method: the next one after the current (CoR -> DQS -> LBS -> CoR).
@@ -144,7 +157,7 @@ void App::toggle_compare() {
                                                                     : v1::METHOD_COR;
   compare = std::make_unique<PreviewSession>(*client, options.rig_id);
   controller->set_compare(compare.get(), other);
-  scene->set_layout(Scene::Layout::kCompare);
+  layout(Scene::Layout::kCompare);
 }
 
 void App::reconnect() {
@@ -218,7 +231,7 @@ bool App::tick() {
       shown_title = "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
       scene->set_report(shown_title, shown_report);
       if (compare) toggle_compare();
-      scene->set_layout(Scene::Layout::kSlices);
+      layout(Scene::Layout::kSlices);
       status("full volume shown: click a slice to move the cursor, arrows step, b window, +/- label opacity");
     }
     arrived = PosedVolumes{};
@@ -283,7 +296,7 @@ void App::key(const std::string& k) {
   } else if (k == "v") {
     if (!scene->slices().has_volume()) return status("no full volume yet (f asks for one)");
     if (compare) toggle_compare();
-    scene->set_layout(scene->layout() == Scene::Layout::kSlices ? Scene::Layout::kSingle : Scene::Layout::kSlices);
+    layout(scene->layout() == Scene::Layout::kSlices ? Scene::Layout::kSingle : Scene::Layout::kSlices);
   } else if (k == "b") {
     const bool bone = scene->slices().window().name == std::string(kBone.name);
     scene->slices().set_window(bone ? kSoftTissue : kBone);
@@ -300,6 +313,10 @@ void App::key(const std::string& k) {
     }
   } else if (k == "d") {
     save_volumes();
+  } else if (k == "k") {
+    const std::string path = (fs::path(options.out_dir) / ("posewarp-view-" + stamp() + ".png")).string();
+    std::string why;
+    status(scene->snapshot(path, &why) ? "saved the picture to " + path : why);
   } else if (k == "x") {
     reconnect();
   } else if (k == "Escape") {

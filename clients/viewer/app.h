@@ -23,6 +23,7 @@ struct Options {
                                            size = "1024x768", window = "soft", cursor, grid = "input";
   bool list = false, tissue = false, slices = false;
   double label_opacity = 0.4;
+  int64_t triangles = Scene::kTriangleBudget;
 };
 
 v1::Method method_named(const std::string& name);  // "cor", "dqs" or "lbs"
@@ -64,6 +65,8 @@ struct App {
   // The sliders and the joint list show the chosen joint.
   void show_joint();
   void choose(int index);
+  // Changes the window's layout and moves the sliders into the 3D view.
+  void layout(Scene::Layout layout);
   void full_volume();
   void save_volumes();
   void toggle_compare();

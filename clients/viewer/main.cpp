@@ -114,7 +114,8 @@ void on_key(vtkObject* caller, unsigned long, void* client, void*) {
   interactor->Render();
 }
 
-vtkSmartPointer<vtkSliderWidget> make_slider(vtkRenderWindowInteractor* interactor, const char* title, double y) {
+vtkSmartPointer<vtkSliderWidget> make_slider(vtkRenderWindowInteractor* interactor, vtkRenderer* renderer,
+                                             const char* title, double y) {
   auto rep = vtkSmartPointer<vtkSliderRepresentation2D>::New();
   rep->SetMinimumValue(-120.0);
   rep->SetMaximumValue(120.0);
@@ -127,9 +128,14 @@ vtkSmartPointer<vtkSliderWidget> make_slider(vtkRenderWindowInteractor* interact
   rep->SetSliderLength(0.02);
   rep->SetTubeWidth(0.006);
   rep->SetLabelFormat("%.0f");
-  rep->GetTitleProperty()->SetFontSize(12);
+  rep->SetTitleHeight(0.018);
+  rep->SetLabelHeight(0.018);
+  rep->SetEndCapLength(0.006);
+  rep->SetEndCapWidth(0.02);
+  rep->SetSliderWidth(0.015);
   auto widget = vtkSmartPointer<vtkSliderWidget>::New();
   widget->SetInteractor(interactor);
+  widget->SetDefaultRenderer(renderer);  // the 3D view's, not whichever renderer lies under (0, 0)
   widget->SetRepresentation(rep);
   widget->SetAnimationModeToJump();
   widget->EnabledOn();
@@ -144,7 +150,8 @@ constexpr const char* kHelp =
     "a/l/s anterior/lateral/superior view, t tissue surfaces, w save the pose JSON, o load the next pose of --poses, "
     "f full volume (posed CT and labels as three slices with the quality report; a click moves the cursor, arrows or "
     "the wheel step a slice, b bone/soft-tissue window, +/- label opacity, v back to 3D), d save the posed volumes, "
-    "surfaces and report, Esc cancel a running request, x reconnect the preview, q quit.\n\n"
+    "surfaces and report, k save a picture of the window, Esc cancel a running request, x reconnect the preview, "
+    "q quit.\n\n"
     "With --snapshot it renders once offscreen and exits (use xvfb-run without a display); with --save it writes "
     "the posed files and exits.";
 
@@ -183,6 +190,9 @@ int main(int argc, char** argv) {
   app.add_option("--save", o.save, "Write the posed volumes, surfaces, report and pose into this directory and exit");
   app.add_option("--out-dir", o.out_dir, "Where w and d write in the window")->capture_default_str();
   app.add_option("--size", o.size, "Window or snapshot size WxH")->capture_default_str();
+  app.add_option("--triangles", o.triangles, "Draw a rig with more triangles than this with fewer (0: every one)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   int width = 0, height = 0;
@@ -240,7 +250,7 @@ int main(int argc, char** argv) {
   }
   const bool offscreen = !o.snapshot.empty();
   Scene scene(width, height, offscreen);
-  scene.set_rig(assets);
+  scene.set_rig(assets, o.triangles);
   scene.show_tissue(o.tissue);
   scene.slices().set_window(o.window == "bone" ? kBone : kSoftTissue);
   scene.slices().set_label_opacity(o.label_opacity);
@@ -305,10 +315,11 @@ int main(int argc, char** argv) {
   interactor->SetInteractorStyle(style);
   interactor->Initialize();
   ui.interactor = interactor;
-  vtkSmartPointer<vtkSliderWidget> sliders[3] = {make_slider(interactor, "flexion", 0.20),
-                                                 make_slider(interactor, "abduction", 0.13),
-                                                 make_slider(interactor, "rotation", 0.06)};
+  vtkSmartPointer<vtkSliderWidget> sliders[3] = {make_slider(interactor, scene.renderer(), "flexion", 0.20),
+                                                 make_slider(interactor, scene.renderer(), "abduction", 0.13),
+                                                 make_slider(interactor, scene.renderer(), "rotation", 0.06)};
   for (int i = 0; i < 3; ++i) ui.sliders[i] = sliders[i];
+  ui.layout(scene.layout());
   ui.controller = &controller;
   auto slid = vtkSmartPointer<vtkCallbackCommand>::New();
   slid->SetCallback(on_slider);

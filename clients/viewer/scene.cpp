@@ -142,12 +142,12 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
   p.compare_renderer->SetActiveCamera(p.renderer->GetActiveCamera());
   p.compare_renderer->SetViewport(0, 0, 0, 0);
   p.compare_renderer->DrawOff();
+  p.compare_renderer->InteractiveOff();
   p.window->AddRenderer(p.compare_renderer);
   const double white[3] = {0.9, 0.9, 0.9}, orange[3] = {1.0, 0.6, 0.2};
   for (int i = 0; i < 2; ++i) {
-    place_text(p.method_names[i], 0.5, 0.06, 16, white);
+    place_text(p.method_names[i], 0.5, 0.90, 16, white);
     p.method_names[i]->GetTextProperty()->SetJustificationToCentered();
-    p.method_names[i]->GetTextProperty()->SetVerticalJustificationToBottom();
   }
   for (int i = 0; i < 2; ++i) p.method_names[i]->VisibilityOff();  // shown side by side only
   p.renderer->AddViewProp(p.method_names[0]);
@@ -404,6 +404,7 @@ void Scene::set_layout(Layout layout) {
   p.compare_renderer->SetViewport(layout == Layout::kCompare ? 0.5 : 0.0, 0, layout == Layout::kCompare ? 1.0 : 0.0,
                                   layout == Layout::kCompare ? 1.0 : 0.0);
   p.compare_renderer->SetDraw(layout == Layout::kCompare ? 1 : 0);
+  p.compare_renderer->SetInteractive(layout == Layout::kCompare ? 1 : 0);
   const double marker = layout == Layout::kSingle ? 0.16 : 0.10, bottom = layout == Layout::kSlices ? 0.5 : 0.0;
   p.marker_renderer->SetViewport(0.0, bottom, marker, bottom + marker * aspect);
   for (int i = 0; i < 2; ++i) p.method_names[i]->SetVisibility(layout == Layout::kCompare);

@@ -9,6 +9,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+
 #include <cmath>
 #include <thread>
 
@@ -484,6 +488,83 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
       fs::copy_file(dir_ / name, fs::path(out) / name, fs::copy_options::overwrite_existing);
     }
   }
+}
+
+// The real window under Xvfb, driven with X events (xdotool, from scripts/setup): a joint chosen with a key, its
+// flexion slider dragged with the mouse, the pose saved, side by side on and off, the full volume shown and pictured,
+// the posed files saved, and q quits cleanly.
+TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
+  if (std::system("command -v xdotool >/dev/null 2>&1") != 0) GTEST_SKIP() << "xdotool is not installed (scripts/setup installs it)";
+  const fs::path out = dir_ / "window-out";
+  fs::create_directories(out);
+  const pid_t viewer = ::fork();
+  if (viewer == 0) {
+    const int null = ::open("/dev/null", O_WRONLY);
+    ::dup2(null, 1);
+    ::dup2(null, 2);
+    ::execl(POSEWARP_VIEW, POSEWARP_VIEW, "--server", server_->address().c_str(), "--rig", rig_id_.c_str(), "--size",
+            "900x700", "--out-dir", out.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  ASSERT_GT(viewer, 0);
+  const auto xdotool = [](const std::string& arguments) { return std::system(("xdotool " + arguments + " >/dev/null 2>&1").c_str()); };
+  std::string window;
+  for (int i = 0; i < 100 && window.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    window = output_of({"xdotool", "search", "--name", "^posewarp-view$"});
+    if (const size_t end = window.find('\n'); end != std::string::npos) window.resize(end);
+  }
+  ASSERT_FALSE(window.empty()) << "the window did not open";
+  const auto key = [&](const std::string& k, int wait_ms = 400) {
+    EXPECT_EQ(xdotool("key --window " + window + " " + k), 0) << k;
+    std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms));
+  };
+  key("n");
+  // The flexion slider: the top one in the bottom right corner (y = 0.20 of the height from the bottom).
+  EXPECT_EQ(xdotool("mousemove --window " + window + " 760 560 mousedown 1 sleep 0.2 mousemove --window " + window +
+                    " 800 560 sleep 0.2 mousemove --window " + window + " 840 560 mouseup 1"), 0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(800));
+  key("w");
+  key("c", 800);
+  key("c", 800);
+  key("f", 3000);
+  key("k", 800);
+  key("v", 400);
+  key("d", 3000);
+  xdotool("key --window " + window + " q");  // may fail on the key's release: the window is gone by then
+  int status = -1;
+  for (int i = 0; i < 100 && ::waitpid(viewer, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  if (::waitpid(viewer, &status, WNOHANG) == 0) {
+    ::kill(viewer, SIGKILL);
+    ::waitpid(viewer, &status, 0);
+    FAIL() << "q did not close the window";
+  }
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  // What the window wrote: the dragged pose, a picture of the slices, the posed files.
+  bool flexed = false, pictured = false, saved = false;
+  for (const auto& entry : fs::directory_iterator(out)) {
+    const std::string name = entry.path().filename().string();
+    if (entry.path().extension() == ".json") {
+      std::string why;
+      const auto pose = view::pose_from_json(file_text(entry.path()), &why);
+      ASSERT_TRUE(pose) << why;
+      for (const auto& [joint, angles] : pose->joints) flexed |= angles.flexion > 10.0;
+    } else if (entry.path().extension() == ".png") {
+      // The slices layout: something drawn in the axial view (top right), where the 3D view would be background.
+      const Image picture = read_png(entry.path());
+      int64_t lit = 0;
+      for (int y = 380; y < 680 && picture.width == 900; ++y) {
+        for (int x = 480; x < 880; ++x) lit += std::max({picture.at(x, y)[0], picture.at(x, y)[1], picture.at(x, y)[2]}) > 60;
+      }
+      pictured = lit > 5000;
+    } else if (entry.is_directory()) {
+      saved = fs::exists(entry.path() / "labels.nii.gz") && fs::exists(entry.path() / "ct.nii.gz") &&
+              fs::exists(entry.path() / "report.json");
+    }
+  }
+  EXPECT_TRUE(flexed) << "the slider drag did not reach the saved pose";
+  EXPECT_TRUE(pictured) << "no picture of the slices";
+  EXPECT_TRUE(saved) << "the posed files were not saved";
 }
 }  // namespace
 }  // namespace posewarp
