@@ -287,6 +287,9 @@ void App::key(const std::string& k) {
   } else if (k == "t") {
     tissue = !tissue;
     scene->show_tissue(tissue);
+  } else if (k == "T") {
+    const std::string shown = scene->next_tissue();
+    status(shown.empty() ? "no tissue surface shown (T steps through them)" : "tissue surface: " + shown);
   } else if (k == "w") {
     save_pose();
   } else if (k == "o") {

@@ -13,6 +13,8 @@
 #include <vtkTextProperty.h>
 
 #include <cmath>
+#include <unistd.h>
+
 #include <cstdio>
 #include <filesystem>
 
@@ -147,7 +149,7 @@ constexpr const char* kHelp =
     "In the window: n/p (or a click on a joint's sphere) choose the joint, the first entry being the root; the three "
     "sliders set its flexion, abduction and axial rotation (degrees, the joint's own frame; the root's turn about "
     "L-R, A-P and S-I). 1/2/3 CoR/DQS/LBS, c two methods side by side, r/R reset the joint/all, u undo, "
-    "a/l/s anterior/lateral/superior view, t tissue surfaces, w save the pose JSON, o load the next pose of --poses, "
+    "a/l/s anterior/lateral/superior view, t tissue surfaces, T one tissue surface at a time, w save the pose JSON, o load the next pose of --poses, "
     "f full volume (posed CT and labels as three slices with the quality report; a click moves the cursor, arrows or "
     "the wheel step a slice, b bone/soft-tissue window, +/- label opacity, v back to 3D), d save the posed volumes, "
     "surfaces and report, k save a picture of the window, Esc cancel a running request, x reconnect the preview, "
@@ -164,7 +166,7 @@ int main(int argc, char** argv) {
   app.add_option("--token-file", o.address.token_file, "File holding the server's bearer token");
   app.add_option("--tls-ca", o.address.tls_ca, "CA certificate (PEM) of a TLS server");
   app.add_flag("--list", o.list, "List the server's rigs (id, name, size, created) and exit");
-  app.add_option("--rig", o.rig_id, "Rig id to open (default: the only rig, if the server holds one)");
+  app.add_option("--rig", o.rig_id, "Rig id to open (default: the only rig, or one chosen from a list at a terminal)");
   app.add_option("--pose", o.pose_path, "Pose JSON to start from (the CLI's; joints in angles_deg)");
   app.add_option("--poses", o.poses_dir, "Directory of pose JSONs that o steps through (default: --pose's directory)");
   app.add_option("--method", o.method, "Skinning: cor, dqs or lbs")->check(CLI::IsMember({"cor", "dqs", "lbs"}))->capture_default_str();
@@ -220,10 +222,23 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (o.rig_id.empty()) {
-    if (rigs.size() != 1) {
+    const bool ask = rigs.size() > 1 && o.snapshot.empty() && o.save.empty() && ::isatty(0) && ::isatty(1);
+    if (ask) {
+      // At a terminal: the rigs by number, one chosen by the user.
+      for (size_t i = 0; i < rigs.size(); ++i) {
+        std::printf("%3zu  %-24s %10.1f MB  %s  %s\n", i + 1, rigs[i].name().c_str(),
+                    static_cast<double>(rigs[i].size_bytes()) / 1e6, rigs[i].created().c_str(), rigs[i].id().c_str());
+      }
+      std::printf("open which rig (1-%zu)? ", rigs.size());
+      std::fflush(stdout);
+      size_t chosen = 0;
+      if (std::scanf("%zu", &chosen) != 1 || chosen < 1 || chosen > rigs.size()) return fail("no rig chosen", 2);
+      o.rig_id = rigs[chosen - 1].id();
+    } else if (rigs.size() != 1) {
       return fail("the server holds " + std::to_string(rigs.size()) + " rigs; choose one with --rig ID (--list lists them)", 2);
+    } else {
+      o.rig_id = rigs.front().id();
     }
-    o.rig_id = rigs.front().id();
   }
   RigAssets assets;
   if (CallError e = client->assets(o.rig_id, &assets); e.failed()) return fail(e.message, exit_code(e));

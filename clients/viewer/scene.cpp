@@ -49,6 +49,7 @@ struct Scene::Parts {
   std::vector<vtkSmartPointer<vtkPolyData>> surfaces;
   std::vector<vtkSmartPointer<vtkActor>> surface_actors;
   std::vector<std::string> roles;
+  std::vector<std::string> surface_names;
   // A surface drawn with fewer triangles: the server's vertex index of each drawn point (empty: all drawn as sent),
   // and how many vertices the server sends for it.
   std::vector<std::vector<vtkIdType>> source_index;
@@ -265,6 +266,7 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
     p.surfaces.push_back(mesh);
     p.surface_actors.push_back(actor);
     p.roles.push_back(role);
+    p.surface_names.push_back(s.name());
     auto twin = vtkSmartPointer<vtkPolyData>::New();
     twin->DeepCopy(mesh);
     auto twin_normals = vtkSmartPointer<vtkPolyDataNormals>::New();
@@ -515,6 +517,21 @@ void Scene::show_tissue(bool shown) {
     parts_->surface_actors[i]->SetVisibility(shown);
     parts_->compare_actors[i]->SetVisibility(shown);
   }
+}
+
+std::string Scene::next_tissue() {
+  Parts& p = *parts_;
+  std::vector<int> tissue;
+  for (size_t i = 0; i < p.roles.size(); ++i) {
+    if (p.roles[i] == "tissue") tissue.push_back(static_cast<int>(i));
+  }
+  const auto at = std::find(tissue.begin(), tissue.end(), tissue_shown_);
+  tissue_shown_ = at == tissue.end() ? (tissue.empty() ? -1 : tissue.front()) : (at + 1 == tissue.end() ? -1 : *(at + 1));
+  for (int i : tissue) {
+    p.surface_actors[static_cast<size_t>(i)]->SetVisibility(i == tissue_shown_);
+    p.compare_actors[static_cast<size_t>(i)]->SetVisibility(i == tissue_shown_);
+  }
+  return tissue_shown_ < 0 ? "" : p.surface_names[static_cast<size_t>(tissue_shown_)];
 }
 
 void Scene::render() { parts_->window->Render(); }

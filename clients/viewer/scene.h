@@ -51,6 +51,8 @@ class Scene {
   bool set_view(const std::string& preset);
   void set_status(const std::string& text);
   void show_tissue(bool shown);
+  // Shows the next tissue surface alone (after the last, none); its name, or "" when none is shown.
+  std::string next_tissue();
   void render();
   // Renders and writes a PNG; false with a message when it cannot.
   bool snapshot(const std::string& png_path, std::string* error);
@@ -74,6 +76,7 @@ class Scene {
   std::vector<std::pair<int, int>> sticks_;  // joint pairs joined by a bone stick
   double bounds_[6] = {0, 1, 0, 1, 0, 1};
   int updates_ = 0;
+  int tissue_shown_ = -1;  // next_tissue's surface
 };
 
 // What the controls call: a joint (or the root) chosen, its three angles set, the method switched, resets and

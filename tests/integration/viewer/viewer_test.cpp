@@ -297,6 +297,21 @@ TEST_F(Viewer, BadAddressesPosesAndRigsGetClearErrorsAndNoSnapshot) {
   const std::string message = stderr_of({POSEWARP_VIEW, "--server", "127.0.0.1:" + std::to_string(port), "--snapshot",
                                          (dir_ / "x.png").string()});
   EXPECT_NE(message.find("cannot reach posewarp-server"), std::string::npos) << message;
+  // A server that needs a token: without one, or with a wrong one, exit 2 and a message that says so.
+  {
+    std::ofstream(dir_ / "tokens") << "right-token\n";
+    std::ofstream(dir_ / "wrong") << "wrong-token\n";
+    ServerProcess guarded(dir_ / "guarded-store", {"--token-file", (dir_ / "tokens").string()});
+    const std::vector<std::string> base{POSEWARP_VIEW, "--server", guarded.address(), "--list"};
+    EXPECT_NE(stderr_of(base).find("needs a bearer token"), std::string::npos);
+    std::vector<std::string> wrong = base;
+    wrong.insert(wrong.end(), {"--token-file", (dir_ / "wrong").string()});
+    EXPECT_NE(stderr_of(wrong).find("not one this server accepts"), std::string::npos);
+    EXPECT_EQ(run(wrong) >> 8, 2);
+    std::vector<std::string> right = base;
+    right.insert(right.end(), {"--token-file", (dir_ / "tokens").string()});
+    EXPECT_EQ(run(right), 0);
+  }
   // A joint the rig does not have: the server refuses the pose, the viewer says so and writes nothing.
   const fs::path wrong = dir_ / "wrong_joint.json";
   std::ofstream(wrong) << R"({"format": "posewarp.pose", "version": 1, "joints": {"knee_left": {"angles_deg": {"flexion": 30}}}})";
@@ -416,6 +431,8 @@ TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
   EXPECT_NEAR(after[0], target[0], volume.spacing[0]);
   EXPECT_NEAR(after[2], target[2], volume.spacing[2]);
   EXPECT_EQ(after[1], before[1]);
+  app.key("T");
+  app.key("T");
   app.key("b");
   EXPECT_STREQ(scene.slices().window().name, view::kBone.name);
   app.key("plus");
