@@ -52,7 +52,9 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   }
   view::Scene scene(width, height, true);
   scene.set_rig(assets);
-  view::PreviewSession session(*client, uploaded.id());
+  // The stream closes before the server stops (a server waits out its grace period for open streams).
+  auto session_owner = std::make_unique<view::PreviewSession>(*client, uploaded.id());
+  view::PreviewSession& session = *session_owner;
   view::Controller controller(scene, session);
   const auto& joints = scene.joint_names();
   const auto at = std::find(joints.begin(), joints.end(), joint);
@@ -128,6 +130,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
               row["unchanged_render_p50_ms"].get<double>(), row["drag_sent_per_s"].get<double>(),
               row["drag_frames_per_s"].get<double>());
   std::fflush(stdout);
+  session_owner.reset();
   server.stop();
   return row;
 }

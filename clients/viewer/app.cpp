@@ -129,7 +129,7 @@ void App::choose(int index) {
 }
 
 void App::full_volume() {
-  if (volume_request) return status("a full volume is on its way already (Esc cancels)");
+  if (volume_request || converting.valid()) return status("a full volume is on its way already (Esc cancels)");
   volume_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(), true,
                                                    grid_named(options.grid));
   requested_pose = pose_json(controller->pose()) + method_name(controller->method());
@@ -161,12 +161,19 @@ void App::toggle_compare() {
 }
 
 void App::reconnect() {
+  // The old streams go first (a server limits the streams of one client).
+  const bool comparing = compare != nullptr;
+  const v1::Method other = controller->compare_method();
+  if (comparing) {
+    controller->set_compare(nullptr, other);
+    compare.reset();
+  }
   auto fresh = std::make_unique<PreviewSession>(*client, options.rig_id);
   controller->set_session(*fresh);
   session = std::move(fresh);
-  if (compare) {
+  if (comparing) {
     compare = std::make_unique<PreviewSession>(*client, options.rig_id);
-    controller->set_compare(compare.get(), controller->compare_method());
+    controller->set_compare(compare.get(), other);
   }
   stream_lost = false;
   status("reconnecting to " + client->server() + "...");
@@ -192,9 +199,10 @@ void App::save_pose() {
 // Called every 15 ms on the render thread: draws new answers and finishes requests.
 bool App::tick() {
   bool redraw = controller->poll();
-  if (!stream_lost && session->ended().failed()) {
+  const CallError ended = session->ended().failed() ? session->ended() : compare ? compare->ended() : CallError{};
+  if (!stream_lost && ended.failed()) {
     stream_lost = true;
-    const CallError e = session->ended();
+    const CallError& e = ended;
     status((e.code == grpc::StatusCode::UNAVAILABLE ? "lost the server: " : "the preview stopped: ") + e.message +
            "  (x reconnects)");
     redraw = true;
@@ -204,7 +212,7 @@ bool App::tick() {
   if (volume_request && !volume_request->done() && progress_due) {
     status(progress_text("full volume", *volume_request));
     last_progress = now, redraw = true;
-  } else if (volume_request && volume_request->done()) {
+  } else if (volume_request && volume_request->done() && !converting.valid()) {
     PosedVolumes result;
     const CallError e = volume_request->take(&result);
     volume_request.reset();
@@ -213,10 +221,14 @@ bool App::tick() {
     } else {
       status("full volume: arrived, preparing the slices...");
       arrived = std::move(result);
-      converting = std::async(std::launch::async, [this] {
-        std::string why;
-        const bool ok = slice_volume(arrived, &converted, &why);
-        return std::pair{ok, why};
+      converting = std::async(std::launch::async, [this]() -> std::pair<bool, std::string> {
+        try {
+          std::string why;
+          const bool ok = slice_volume(arrived, &converted, &why);
+          return {ok, why};
+        } catch (const std::bad_alloc&) {
+          return {false, "not enough memory for the slices of this volume"};
+        }
       });
     }
     redraw = true;

@@ -47,9 +47,10 @@ struct App {
   // The full volume (for the slices) and a save, each a Pose call on its own thread; the conversion of a finished
   // volume runs off the render thread too.
   std::unique_ptr<VolumeRequest> volume_request, save_request;
-  std::future<std::pair<bool, std::string>> converting;
   SliceVolume converted;
   PosedVolumes arrived;
+  // Declared after what it reads and writes, so it is waited for (destroyed) first.
+  std::future<std::pair<bool, std::string>> converting;
   std::string requested_pose, shown_pose;  // the pose JSON and method of the volume asked for and of the one shown
   std::string shown_title;
   v1::QualityReport shown_report;

@@ -7,27 +7,40 @@
 #include <vtkSmartPointer.h>
 #include <vtkXMLPolyDataWriter.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <cctype>
 #include <filesystem>
 #include <fstream>
+#include <set>
 
 namespace posewarp::view {
 namespace fs = std::filesystem;
 namespace {
 
-// A surface name from the server as a file name: letters, digits, '-', '_' and '.', nothing that leaves `dir`.
+// A surface name from the server as a file name: letters, digits, '-' and '_' (anything else becomes '_', so
+// nothing leaves the directory).
 std::string file_name(const std::string& name, size_t index) {
   std::string safe;
   for (char c : name) safe += (std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_') ? c : '_';
   return safe.empty() ? "surface_" + std::to_string(index) : safe;
 }
 
+// The file's bytes on the disk before it takes its name.
+bool flush_to_disk(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  if (fd < 0) return false;
+  const bool synced = ::fsync(fd) == 0;
+  return ::close(fd) == 0 && synced;
+}
+
 bool commit(const fs::path& partial, const fs::path& path, std::string* error) {
   std::error_code ec;
-  fs::rename(partial, path, ec);
-  if (ec) {
+  if (flush_to_disk(partial)) fs::rename(partial, path, ec);
+  if (ec || fs::exists(partial)) {
     fs::remove(partial, ec);
-    *error = "cannot write '" + path.string() + "': " + ec.message();
+    *error = "cannot write '" + path.string() + "'" + (ec ? ": " + ec.message() : " (disk full?)");
     return false;
   }
   return true;
@@ -67,7 +80,7 @@ bool write_file(const std::string& path, const std::string& text, std::string* e
   {
     std::ofstream out(partial, std::ios::binary | std::ios::trunc);
     out.write(text.data(), static_cast<std::streamsize>(text.size()));
-    out.flush();
+    out.close();
     if (!out) {
       std::error_code ec;
       fs::remove(partial, ec);
@@ -79,24 +92,40 @@ bool write_file(const std::string& path, const std::string& text, std::string* e
 }
 
 bool save_posed(const PosedVolumes& posed, const std::string& dir, std::string* error) {
+  // Everything goes into DIR.partial, which becomes DIR once whole: a failed save leaves no DIR that looks done.
+  const fs::path root(dir), partial(dir + ".partial");
   std::error_code ec;
-  fs::create_directories(fs::path(dir) / "surfaces", ec);
+  if (fs::exists(root, ec)) {
+    *error = "'" + dir + "' exists already; choose a new directory for the posed files";
+    return false;
+  }
+  fs::remove_all(partial, ec);
+  fs::create_directories(partial / "surfaces", ec);
   if (ec) {
-    *error = "cannot make the directory '" + dir + "': " + ec.message();
+    *error = "cannot make the directory '" + partial.string() + "': " + ec.message();
     return false;
   }
-  const fs::path root(dir);
-  if (!write_file((root / "labels.nii.gz").string(), posed.labels, error) ||
-      !write_file((root / "ct.nii.gz").string(), posed.ct, error) ||
-      !write_file((root / "report.json").string(), posed.report.json(), error) ||
-      !write_file((root / "pose.json").string(), posed.pose_json, error)) {
-    return false;
+  bool ok = write_file((partial / "labels.nii.gz").string(), posed.labels, error) &&
+            write_file((partial / "ct.nii.gz").string(), posed.ct, error) &&
+            write_file((partial / "report.json").string(), posed.report.json(), error) &&
+            write_file((partial / "pose.json").string(), posed.pose_json, error);
+  std::set<std::string> used;
+  for (size_t i = 0; ok && i < posed.surfaces.size(); ++i) {
+    std::string name = file_name(posed.surfaces[i].name(), i);
+    if (!used.insert(name).second) {  // two names alike once cleaned
+      name.push_back('_');
+      name.append(std::to_string(i));
+      used.insert(name);
+    }
+    ok = write_surface(posed.surfaces[i], partial / "surfaces" / (name + ".vtp"), error);
   }
-  for (size_t i = 0; i < posed.surfaces.size(); ++i) {
-    const v1::Surface& s = posed.surfaces[i];
-    if (!write_surface(s, root / "surfaces" / (file_name(s.name(), i) + ".vtp"), error)) return false;
+  if (ok) {
+    fs::rename(partial, root, ec);
+    if (ec) *error = "cannot name the posed files '" + dir + "': " + ec.message();
+    ok = !ec;
   }
-  return true;
+  if (!ok) fs::remove_all(partial, ec);
+  return ok;
 }
 
 }  // namespace posewarp::view

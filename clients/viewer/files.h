@@ -8,11 +8,12 @@
 
 namespace posewarp::view {
 
-// Writes into `dir` (made if missing): labels.nii.gz and ct.nii.gz (the server's NIfTI bytes), report.json,
-// pose.json and surfaces/NAME.vtp; false with a message naming the file that could not be written.
+// Writes the directory `dir` (which must not exist; made whole through DIR.partial): labels.nii.gz and ct.nii.gz
+// (the server's NIfTI bytes), report.json, pose.json and surfaces/NAME.vtp; false with a message naming what could
+// not be written.
 bool save_posed(const PosedVolumes& posed, const std::string& dir, std::string* error);
 
-// Writes `text` to `path` through a partial file and a rename; false with a message.
+// Writes `text` to `path` through a partial file, flushed to disk and renamed; false with a message.
 bool write_file(const std::string& path, const std::string& text, std::string* error);
 
 }  // namespace posewarp::view

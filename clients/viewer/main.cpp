@@ -289,6 +289,7 @@ int main(int argc, char** argv) {
     if (std::optional<int> failed = answered(*compare, 1)) return *failed;
   }
   controller.poll();
+  v1::QualityReport shown_report;
   if (const CallError& e = controller.last_error(); e.failed()) return fail("the server refused the pose: " + e.message, exit_code(e));
   if (o.slices) {
     VolumeRequest request(*client, o.rig_id, start, method, true, grid_named(o.grid));
@@ -301,6 +302,7 @@ int main(int argc, char** argv) {
     if (!o.cursor.empty()) scene.slices().set_cursor_mm(cursor);
     scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report);
     scene.set_layout(Scene::Layout::kSlices);
+    shown_report = posed.report;
   }
   scene.set_view(o.view);
   if (offscreen) {
@@ -313,6 +315,11 @@ int main(int argc, char** argv) {
   }
 
   App ui;
+  if (scene.slices().has_volume()) {  // --slices: the window knows which pose its slices show
+    ui.shown_pose = pose_json(start) + method_name(method);
+    ui.shown_title = std::string("quality report (") + method_name(method) + ")";
+    ui.shown_report = shown_report;
+  }
   ui.options = o;
   ui.client = client.get();
   ui.scene = &scene;

@@ -219,8 +219,10 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
       for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
     }
     auto triangles = vtkSmartPointer<vtkCellArray>::New();
+    const int vertices = s.vertices_size() / 3;
     for (int i = 0; i + 2 < s.triangles_size(); i += 3) {
       const vtkIdType ids[3] = {s.triangles(i), s.triangles(i + 1), s.triangles(i + 2)};
+      if (std::any_of(ids, ids + 3, [&](vtkIdType id) { return id < 0 || id >= vertices; })) continue;  // not a triangle
       triangles->InsertNextCell(3, ids);
     }
     auto mesh = vtkSmartPointer<vtkPolyData>::New();
@@ -290,7 +292,9 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
   for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
     const v1::Joint& joint = assets.skeleton.joints(j);
     joint_names_.push_back(joint.name());
-    rest_centres_.push_back({joint.centre_mm(0), joint.centre_mm(1), joint.centre_mm(2)});
+    rest_centres_.push_back(joint.centre_mm_size() == 3
+                                ? std::array<double, 3>{joint.centre_mm(0), joint.centre_mm(1), joint.centre_mm(2)}
+                                : std::array<double, 3>{0.0, 0.0, 0.0});
     joint_with_child[joint.child()] = j;
   }
   for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
@@ -587,7 +591,13 @@ std::array<double, 3> Controller::chosen_angles() const {
 
 void Controller::set_angle(int axis, double degrees) {
   if ((joint_.empty() && !at_root_) || axis < 0 || axis > 2) return;
-  history_.push_back(pose_);
+  if (chosen_angles()[static_cast<size_t>(axis)] == degrees) return;  // a slider event that changed nothing
+  // A drag is one change for undo: moves of the same control less than a second apart extend it.
+  const auto now = std::chrono::steady_clock::now();
+  const std::string control = joint_ + "/" + std::to_string(axis);
+  if (control != last_control_ || now - last_change_ > std::chrono::seconds(1)) remember();
+  last_control_ = control;
+  last_change_ = now;
   if (at_root_) {
     pose_.root_deg[static_cast<size_t>(axis)] = degrees;
   } else {
@@ -603,13 +613,13 @@ void Controller::set_method(v1::Method method) {
 }
 
 void Controller::set_pose(const Pose& pose) {
-  history_.push_back(pose_);
+  remember();
   pose_ = pose;
   send();
 }
 
 void Controller::reset_joint() {
-  history_.push_back(pose_);
+  remember();
   if (at_root_) {
     pose_.root_deg = {0.0, 0.0, 0.0};
     pose_.root_mm = {0.0, 0.0, 0.0};
@@ -620,7 +630,7 @@ void Controller::reset_joint() {
 }
 
 void Controller::reset_all() {
-  history_.push_back(pose_);
+  remember();
   pose_ = Pose{};
   send();
 }
@@ -629,7 +639,14 @@ void Controller::undo() {
   if (history_.empty()) return;
   pose_ = history_.back();
   history_.pop_back();
+  last_control_.clear();
   send();
+}
+
+void Controller::remember() {
+  history_.push_back(pose_);
+  if (history_.size() > 1000) history_.erase(history_.begin());
+  last_control_.clear();
 }
 
 void Controller::set_session(PreviewSession& session) {
@@ -653,7 +670,10 @@ void Controller::send() {
 bool Controller::poll() {
   bool drew = false;
   if (compare_ != nullptr) {
-    if (std::optional<PreviewSession::Answer> other = compare_->take(); other && !other->error.failed()) {
+    if (std::optional<PreviewSession::Answer> other = compare_->take(); other && other->error.failed()) {
+      scene_.set_status(std::string("refused (") + method_name(compare_method_) + "): " + other->error.message);
+      drew = true;
+    } else if (other) {
       scene_.apply(*other, true);
       drew = true;
     }

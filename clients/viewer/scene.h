@@ -121,6 +121,7 @@ class Controller {
 
  private:
   void send();
+  void remember();  // the pose before a change, for undo
   Scene& scene_;
   PreviewSession* session_;
   PreviewSession* compare_ = nullptr;
@@ -129,6 +130,8 @@ class Controller {
   bool at_root_ = false;
   Pose pose_;
   std::vector<Pose> history_;
+  std::string last_control_;  // "joint/axis" of the last angle set, for coalescing a drag
+  std::chrono::steady_clock::time_point last_change_;
   v1::Method method_ = v1::METHOD_COR;
   uint64_t last_sent_ = 0;
   double round_trip_ms_ = 0.0;

@@ -170,7 +170,10 @@ std::unique_ptr<ViewerClient> ViewerClient::connect(const ServerAddress& address
       *error = {grpc::StatusCode::INVALID_ARGUMENT, "cannot read the token file '" + address.token_file + "'"};
       return nullptr;
     }
-    const size_t first = token.find_first_not_of(" \t\r\n"), last = token.find_last_not_of(" \t\r\n");
+    // The first line (a server's token file may hold several; a client sends one).
+    const size_t first = token.find_first_not_of(" \t\r\n");
+    const size_t end = first == std::string::npos ? first : token.find_first_of("\r\n", first);
+    const size_t last = token.find_last_not_of(" \t", end == std::string::npos ? std::string::npos : end - 1);
     if (first == std::string::npos) {
       *error = {grpc::StatusCode::INVALID_ARGUMENT, "the token file '" + address.token_file + "' is empty"};
       return nullptr;
@@ -179,6 +182,9 @@ std::unique_ptr<ViewerClient> ViewerClient::connect(const ServerAddress& address
   }
   grpc::ChannelArguments arguments;
   arguments.SetMaxReceiveMessageSize(256 << 20);
+  // A server that vanished without closing is noticed within half a minute, not at the next TCP timeout.
+  arguments.SetInt(GRPC_ARG_KEEPALIVE_TIME_MS, 20000);
+  arguments.SetInt(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, 10000);
   client->channel_ = grpc::CreateCustomChannel(address.server, credentials, arguments);
   client->stub_ = v1::Posewarp::NewStub(client->channel_);
   return client;
@@ -236,6 +242,12 @@ PreviewSession::~PreviewSession() {
   {
     std::lock_guard<std::mutex> lock(write_mutex_);
     stream_->WritesDone();
+  }
+  // The server answers the last update and closes; one that does not within 2 s (busy loading a rig, or gone
+  // without a word) is cut off, so the window never waits on it.
+  {
+    std::unique_lock<std::mutex> lock(mutex_);
+    if (!answered_.wait_for(lock, std::chrono::seconds(2), [&] { return closed_; })) context_->TryCancel();
   }
   reader_.join();
 }

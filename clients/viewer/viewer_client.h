@@ -78,8 +78,9 @@ class ViewerClient {
   std::unique_ptr<v1::Posewarp::Stub> stub_;
 };
 
-// A preview stream for sliders: send() never blocks on the server; a reader thread keeps the newest answer. Each
-// answer carries the sequence it answers, the server's time and the round trip measured here.
+// A preview stream for sliders: send() does not wait for an answer (it may wait briefly while gRPC's flow control
+// holds the write); a reader thread keeps the newest answer. Each answer carries the sequence it answers, the
+// server's time and the round trip measured here. The destructor gives the server 2 s to close, then cuts the call.
 class PreviewSession {
  public:
   struct Answer {

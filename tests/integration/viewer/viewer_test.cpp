@@ -14,6 +14,7 @@
 #include <sys/wait.h>
 
 #include <cmath>
+#include <functional>
 #include <thread>
 
 #include "app.h"
@@ -52,6 +53,9 @@ Image read_png(const fs::path& path) {
 
 // Fraction of the pixels in rows [y0, y1) whose largest channel difference exceeds `tolerance`.
 double differing(const Image& a, const Image& b, int y0, int y1, int tolerance = 24) {
+  // Pictures of different sizes (or none, when a snapshot failed) differ everywhere; the callers' sizes checks say
+  // which.
+  if (a.width != b.width || a.height != b.height || a.rgb.empty()) return -1.0;
   int64_t count = 0, total = 0;
   for (int y = y0; y < y1; ++y) {
     for (int x = 0; x < a.width; ++x, ++total) {
@@ -217,9 +221,14 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   fewer.set_status("");
   ASSERT_TRUE(fewer.snapshot((dir_ / "fewer.png").string(), &why)) << why;
   EXPECT_LT(differing(read_png(dir_ / "fewer.png"), read_png(dir_ / "posed.png"), 0, 360), 0.03);
-  // Undo returns to 70 degrees; reset all goes back to rest.
+  // Undo takes back the whole drag (moves of one control less than a second apart); reset all goes back to rest.
   controller.undo();
-  EXPECT_EQ(controller.pose().joints.at("joint_2_3").flexion, 70.0);
+  EXPECT_FALSE(controller.pose().joints.count("joint_2_3") && controller.pose().joints.at("joint_2_3").flexion != 0.0);
+  controller.set_angle(0, 30.0);
+  controller.set_angle(1, 10.0);
+  controller.undo();
+  EXPECT_EQ(controller.pose().joints.at("joint_2_3").flexion, 30.0);
+  EXPECT_EQ(controller.pose().joints.at("joint_2_3").abduction, 0.0);
   controller.reset_all();
   ASSERT_TRUE(session.wait_for(controller.last_sent(), 30000));
   EXPECT_TRUE(controller.pose().is_rest());
@@ -413,8 +422,17 @@ TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
   app.key("c");
   EXPECT_EQ(scene.layout(), view::Scene::Layout::kSingle);
   // The full volume arrives off this thread (tick keeps returning while it runs) and shows as slices.
+  // The request runs on its own thread: neither the key nor the timer's ticks wait for it.
+  const auto milliseconds = [](auto start) {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  };
+  auto pressed = std::chrono::steady_clock::now();
   app.key("f");
+  EXPECT_LT(milliseconds(pressed), 200.0);
   EXPECT_TRUE(app.volume_request != nullptr);
+  pressed = std::chrono::steady_clock::now();
+  app.tick();
+  EXPECT_LT(milliseconds(pressed), 200.0);
   ASSERT_TRUE(app.settle(120000));
   ASSERT_TRUE(scene.slices().has_volume());
   EXPECT_EQ(scene.layout(), view::Scene::Layout::kSlices);
@@ -496,7 +514,10 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
   const Image bent = shot("sample_bent.png", {"--pose", pose.string()});
   const Image compare = shot("sample_cor_lbs.png", {"--pose", pose.string(), "--compare", "lbs", "--view", "lateral"});
   const Image slices = shot("sample_slices.png", {"--pose", pose.string(), "--slices", "--window", "bone"});
-  for (const Image* image : {&rest, &bent, &compare, &slices}) EXPECT_GT(drawn(*image), 0.10);
+  for (const Image* image : {&rest, &bent, &compare, &slices}) {
+    ASSERT_EQ(image->width, 800);
+    EXPECT_GT(drawn(*image), 0.10);
+  }
   // The spine bends above the pelvis (the upper part of the picture); the pelvis below stays.
   EXPECT_GT(differing(rest, bent, 300, 600), 0.02);
   EXPECT_LT(differing(rest, bent, 0, 150), differing(rest, bent, 300, 600));
@@ -531,7 +552,11 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
     window = output_of({"xdotool", "search", "--name", "^posewarp-view$"});
     if (const size_t end = window.find('\n'); end != std::string::npos) window.resize(end);
   }
-  ASSERT_FALSE(window.empty()) << "the window did not open";
+  if (window.empty()) {
+    ::kill(viewer, SIGKILL);
+    ::waitpid(viewer, nullptr, 0);
+    FAIL() << "the window did not open";
+  }
   const auto key = [&](const std::string& k, int wait_ms = 400) {
     EXPECT_EQ(xdotool("key --window " + window + " " + k), 0) << k;
     std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms));
@@ -540,14 +565,52 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
   // The flexion slider: the top one in the bottom right corner (y = 0.20 of the height from the bottom).
   EXPECT_EQ(xdotool("mousemove --window " + window + " 760 560 mousedown 1 sleep 0.2 mousemove --window " + window +
                     " 800 560 sleep 0.2 mousemove --window " + window + " 840 560 mouseup 1"), 0);
-  std::this_thread::sleep_for(std::chrono::milliseconds(800));
-  key("w");
-  key("c", 800);
-  key("c", 800);
-  key("f", 3000);
-  key("k", 800);
-  key("v", 400);
-  key("d", 3000);
+  // What the window writes tells how far it got; each step waits for it (up to 60 s) instead of guessing a time.
+  const auto written = [&](const std::function<bool(const fs::path&)>& test) {
+    for (int i = 0; i < 300; ++i) {
+      for (const auto& entry : fs::directory_iterator(out)) {
+        if (entry.path().extension() != ".partial" && test(entry.path())) return true;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    }
+    return false;
+  };
+  // The dragged pose: w until the saved pose has the flexion.
+  bool flexed = false;
+  for (int attempt = 0; attempt < 20 && !flexed; ++attempt) {
+    key("w", 300);
+    flexed = written([](const fs::path& p) {
+      std::string why;
+      const auto pose = p.extension() == ".json" ? view::pose_from_json(file_text(p), &why) : std::nullopt;
+      return pose && std::any_of(pose->joints.begin(), pose->joints.end(), [](const auto& j) { return j.second.flexion > 10.0; });
+    });
+  }
+  EXPECT_TRUE(flexed) << "the slider drag did not reach the saved pose";
+  key("c", 500);
+  key("c", 500);
+  // The full volume: pictures (k) until one shows the slices layout, where the coronal view fills the bottom left.
+  key("f", 500);
+  const auto shows_slices = [](const fs::path& p) {
+    if (p.extension() != ".png") return false;
+    const Image picture = read_png(p);
+    int64_t lit = 0;
+    for (int y = 100; y < 330 && picture.width == 900; ++y) {
+      for (int x = 160; x < 400; ++x) lit += std::max({picture.at(x, y)[0], picture.at(x, y)[1], picture.at(x, y)[2]}) > 60;
+    }
+    return lit > 2000;
+  };
+  bool pictured = false;
+  for (int attempt = 0; attempt < 60 && !pictured; ++attempt) {
+    key("k", 500);
+    for (const auto& entry : fs::directory_iterator(out)) pictured |= shows_slices(entry.path());
+  }
+  EXPECT_TRUE(pictured) << "no picture of the slices";
+  key("v", 300);
+  key("d", 300);
+  const bool saved = written([](const fs::path& p) {
+    return fs::is_directory(p) && fs::exists(p / "labels.nii.gz") && fs::exists(p / "ct.nii.gz") && fs::exists(p / "report.json");
+  });
+  EXPECT_TRUE(saved) << "the posed files were not saved";
   xdotool("key --window " + window + " q");  // may fail on the key's release: the window is gone by then
   int status = -1;
   for (int i = 0; i < 100 && ::waitpid(viewer, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
@@ -557,31 +620,147 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
     FAIL() << "q did not close the window";
   }
   EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-  // What the window wrote: the dragged pose, a picture of the slices, the posed files.
-  bool flexed = false, pictured = false, saved = false;
-  for (const auto& entry : fs::directory_iterator(out)) {
-    const std::string name = entry.path().filename().string();
-    if (entry.path().extension() == ".json") {
-      std::string why;
-      const auto pose = view::pose_from_json(file_text(entry.path()), &why);
-      ASSERT_TRUE(pose) << why;
-      for (const auto& [joint, angles] : pose->joints) flexed |= angles.flexion > 10.0;
-    } else if (entry.path().extension() == ".png") {
-      // The slices layout: something drawn in the axial view (top right), where the 3D view would be background.
-      const Image picture = read_png(entry.path());
-      int64_t lit = 0;
-      for (int y = 380; y < 680 && picture.width == 900; ++y) {
-        for (int x = 480; x < 880; ++x) lit += std::max({picture.at(x, y)[0], picture.at(x, y)[1], picture.at(x, y)[2]}) > 60;
+}
+
+// A posed volume as the Pose call sends it: raw uint8 labels and int16 CT on `grid`, the voxel at index (i, j, k)
+// holding label value(i, j, k) and CT 10 * value(i, j, k).
+view::PosedVolumes synthetic(const std::array<int, 3>& n, const std::array<double, 9>& direction,
+                             const std::array<double, 3>& spacing, const std::array<double, 3>& origin,
+                             const std::function<int(int, int, int)>& value) {
+  view::PosedVolumes posed;
+  v1::Grid& grid = *posed.header.mutable_grid();
+  for (int a = 0; a < 3; ++a) {
+    grid.add_size(n[static_cast<size_t>(a)]);
+    grid.add_spacing(spacing[static_cast<size_t>(a)]);
+    grid.add_origin(origin[static_cast<size_t>(a)]);
+  }
+  for (double d : direction) grid.add_direction(d);
+  posed.header.set_label_sample_type(v1::PIXEL_TYPE_UINT8);
+  posed.header.set_ct_sample_type(v1::PIXEL_TYPE_INT16);
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const int v = value(i, j, k);
+        posed.labels.push_back(static_cast<char>(v));
+        const int16_t ct = static_cast<int16_t>(10 * v);
+        posed.ct.append(reinterpret_cast<const char*>(&ct), 2);
       }
-      pictured = lit > 5000;
-    } else if (entry.is_directory()) {
-      saved = fs::exists(entry.path() / "labels.nii.gz") && fs::exists(entry.path() / "ct.nii.gz") &&
-              fs::exists(entry.path() / "report.json");
     }
   }
-  EXPECT_TRUE(flexed) << "the slider drag did not reach the saved pose";
-  EXPECT_TRUE(pictured) << "no picture of the slices";
-  EXPECT_TRUE(saved) << "the posed files were not saved";
+  return posed;
+}
+
+// The world position (LPS mm) of index (i, j, k) on a grid, as ITK defines it.
+std::array<double, 3> world(const std::array<double, 9>& d, const std::array<double, 3>& spacing,
+                            const std::array<double, 3>& origin, int i, int j, int k) {
+  const double index[3] = {i * spacing[0], j * spacing[1], k * spacing[2]};
+  std::array<double, 3> p = origin;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) p[static_cast<size_t>(r)] += d[static_cast<size_t>(3 * r + c)] * index[c];
+  }
+  return p;
+}
+
+TEST(ViewerSlices, AGridOnPermutedAndFlippedAxesIsTurnedOntoLps) {
+  // Index axis 0 runs toward anterior (-y), axis 1 toward superior (+z), axis 2 toward the patient's right (-x).
+  const std::array<double, 9> direction{0, 0, -1, -1, 0, 0, 0, 1, 0};
+  const std::array<int, 3> n{4, 5, 6};
+  const std::array<double, 3> spacing{1.5, 2.0, 0.5}, origin{10.0, -20.0, 30.0};
+  const auto value = [](int i, int j, int k) { return 1 + i + 4 * j + 20 * k; };
+  view::SliceVolume volume;
+  std::string why;
+  ASSERT_TRUE(view::slice_volume(synthetic(n, direction, spacing, origin, value), &volume, &why)) << why;
+  EXPECT_FALSE(volume.oblique);
+  EXPECT_EQ(volume.size, (std::array<int, 3>{6, 4, 5}));
+  EXPECT_EQ(volume.spacing, (std::array<double, 3>{0.5, 1.5, 2.0}));
+  // Every source voxel lands where its world position says, with its values.
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const std::array<double, 3> p = world(direction, spacing, origin, i, j, k);
+        int at[3];
+        for (size_t a = 0; a < 3; ++a) {
+          const double index = (p[a] - volume.origin[a]) / volume.spacing[a];
+          ASSERT_NEAR(index, std::round(index), 1e-9);
+          at[a] = static_cast<int>(std::lround(index));
+          ASSERT_GE(at[a], 0);
+          ASSERT_LT(at[a], volume.size[a]);
+        }
+        const size_t linear = static_cast<size_t>(at[0] + volume.size[0] * (at[1] + volume.size[1] * at[2]));
+        EXPECT_EQ(volume.labels[linear], value(i, j, k));
+        EXPECT_EQ(volume.ct[linear], 10.0f * static_cast<float>(value(i, j, k)));
+      }
+    }
+  }
+  // A header that promises more voxels than came: an error, not a read past the end.
+  view::PosedVolumes short_one = synthetic(n, direction, spacing, origin, value);
+  short_one.ct.resize(short_one.ct.size() - 2);
+  EXPECT_FALSE(view::slice_volume(short_one, &volume, &why));
+}
+
+// Where the patient's left, anterior and superior parts show in each view: axial with the left on the right and
+// anterior up, coronal with the left on the right and superior up, sagittal with anterior on the left and superior
+// up (the radiological convention).
+TEST(ViewerSlices, TheViewsFollowTheRadiologicalConvention) {
+  const std::array<double, 9> identity{1, 0, 0, 0, 1, 0, 0, 0, 1};
+  const std::array<int, 3> n{30, 30, 30};
+  const auto render = [&](const std::function<int(int, int, int)>& value) {
+    view::SliceVolume volume;
+    std::string why;
+    EXPECT_TRUE(view::slice_volume(synthetic(n, identity, {2, 2, 2}, {0, 0, 0}, value), &volume, &why)) << why;
+    view::Scene scene(600, 600, true);
+    scene.slices().set_volume(std::move(volume));
+    scene.slices().set_label_opacity(1.0);
+    scene.set_layout(view::Scene::Layout::kSlices);
+    scene.set_status("");
+    std::string why_not;
+    const fs::path png = fs::temp_directory_path() / ("posewarp-viewer-slices-" + std::to_string(::getpid()) + ".png");
+    EXPECT_TRUE(scene.snapshot(png.string(), &why_not)) << why_not;
+    Image image = read_png(png);
+    fs::remove(png);
+    return image;
+  };
+  // Coloured (labelled) pixels in a window rectangle [x0, x1) x [y0, y1), rows from the bottom.
+  const auto coloured = [](const Image& image, int x0, int x1, int y0, int y1) {
+    int64_t count = 0;
+    for (int y = y0; y < y1; ++y) {
+      for (int x = x0; x < x1; ++x) {
+        const unsigned char* p = image.at(x, y);
+        count += std::max({p[0], p[1], p[2]}) - std::min({p[0], p[1], p[2]}) > 80;
+      }
+    }
+    return count;
+  };
+  // Quadrants (600x600, rows from the bottom): axial top right, coronal bottom left, sagittal bottom right. Each
+  // half is split away from its centre line (the cursor lines) by 20 pixels.
+  struct Half {
+    int x0, x1, y0, y1;
+  };
+  const auto left_right = [](int qx, int qy) {
+    return std::pair{Half{qx + 20, qx + 130, qy + 40, qy + 260}, Half{qx + 170, qx + 280, qy + 40, qy + 260}};
+  };
+  const auto bottom_top = [](int qx, int qy) {
+    return std::pair{Half{qx + 40, qx + 260, qy + 20, qy + 130}, Half{qx + 40, qx + 260, qy + 170, qy + 280}};
+  };
+  const auto more_in_second = [&](const Image& image, const std::pair<Half, Half>& halves) {
+    const auto& [a, b] = halves;
+    return coloured(image, b.x0, b.x1, b.y0, b.y1) > 10 * (1 + coloured(image, a.x0, a.x1, a.y0, a.y1));
+  };
+  const auto more_in_first = [&](const Image& image, const std::pair<Half, Half>& halves) {
+    return more_in_second(image, {halves.second, halves.first});
+  };
+  // The patient's left (x > centre): on the right in axial and coronal.
+  const Image left = render([](int i, int, int) { return i >= 18 ? 1 : 0; });
+  EXPECT_TRUE(more_in_second(left, left_right(300, 300))) << "axial: left not on the right";
+  EXPECT_TRUE(more_in_second(left, left_right(0, 0))) << "coronal: left not on the right";
+  // Anterior (y < centre): up in axial, on the left in sagittal.
+  const Image anterior = render([](int, int j, int) { return j < 12 ? 2 : 0; });
+  EXPECT_TRUE(more_in_second(anterior, bottom_top(300, 300))) << "axial: anterior not up";
+  EXPECT_TRUE(more_in_first(anterior, left_right(300, 0))) << "sagittal: anterior not on the left";
+  // Superior (z > centre): up in coronal and sagittal.
+  const Image superior = render([](int, int, int k) { return k >= 18 ? 3 : 0; });
+  EXPECT_TRUE(more_in_second(superior, bottom_top(0, 0))) << "coronal: superior not up";
+  EXPECT_TRUE(more_in_second(superior, bottom_top(300, 0))) << "sagittal: superior not up";
 }
 }  // namespace
 }  // namespace posewarp
