@@ -1,0 +1,545 @@
+// CT series through DCMTK: parsed from Part 10 bytes, checked as a volume, and written back as a derived series.
+#include "posewarp/dicom/ct_series.h"
+
+#include <dcmtk/config/osconfig.h>  // before any other DCMTK header
+#include <dcmtk/dcmdata/dcdeftag.h>
+#include <dcmtk/dcmdata/dcfilefo.h>
+#include <dcmtk/dcmdata/dcistrmb.h>
+#include <dcmtk/dcmdata/dcostrmb.h>
+#include <dcmtk/dcmdata/dcrledrg.h>
+#include <dcmtk/dcmdata/dcuid.h>
+#include <dcmtk/dcmjpeg/djdecode.h>
+#include <dcmtk/dcmjpls/djdecode.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <random>
+
+#include "posewarp/common/atomic_file.h"
+#include "posewarp/common/input_file.h"
+
+namespace posewarp::dicom {
+namespace fs = std::filesystem;
+namespace {
+
+using Vec = std::array<double, 3>;
+
+Vec cross(const Vec& a, const Vec& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double dot(const Vec& a, const Vec& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+double norm(const Vec& a) { return std::sqrt(dot(a, a)); }
+
+// The decoders of compressed pixel data DCMTK has (RLE, JPEG, JPEG-LS), registered once.
+void register_decoders() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    DcmRLEDecoderRegistration::registerCodecs();
+    DJDecoderRegistration::registerCodecs();
+    DJLSDecoderRegistration::registerCodecs();
+  });
+}
+
+std::string text(DcmItem& item, const DcmTagKey& tag) {
+  OFString value;
+  if (item.findAndGetOFStringArray(tag, value).bad()) return {};
+  return value.c_str();
+}
+
+bool numbers(DcmItem& item, const DcmTagKey& tag, double* out, int count) {
+  for (int i = 0; i < count; ++i) {
+    Float64 value = 0;
+    if (item.findAndGetFloat64(tag, value, static_cast<unsigned long>(i)).bad() || !std::isfinite(value)) return false;
+    out[i] = value;
+  }
+  return true;
+}
+
+// One parsed instance with what the volume needs from it.
+struct Slice {
+  std::unique_ptr<DcmFileFormat> file;
+  std::string series_uid;
+  Vec row{}, column{}, position{};
+  double pixel_spacing[2] = {0, 0};  // between rows, between columns
+  int rows = 0, columns = 0;
+  double slope = 1, intercept = 0;
+  double along = 0;  // position along the slice normal
+  int index = 0;     // in the input, for messages
+};
+
+Result<Slice> parse(const std::string& bytes, int index) {
+  const std::string name = "instance " + std::to_string(index + 1);
+  Slice slice;
+  slice.index = index;
+  slice.file = std::make_unique<DcmFileFormat>();
+  DcmInputBufferStream stream;
+  stream.setBuffer(bytes.data(), static_cast<offile_off_t>(bytes.size()));
+  stream.setEos();
+  slice.file->transferInit();
+  const OFCondition read = slice.file->read(stream);
+  slice.file->transferEnd();
+  if (read.bad()) return data_loss_error(name + " is not a readable DICOM file: " + read.text());
+  DcmDataset& d = *slice.file->getDataset();
+  slice.series_uid = text(d, DCM_SeriesInstanceUID);
+  if (slice.series_uid.empty()) return invalid_argument_error(name + " has no SeriesInstanceUID");
+  return slice;
+}
+
+// Geometry and pixel format of a CT slice; an error naming what is missing.
+Status check_slice(Slice& slice) {
+  const std::string name = "instance " + std::to_string(slice.index + 1) + " of series " + slice.series_uid;
+  DcmDataset& d = *slice.file->getDataset();
+  const std::string modality = text(d, DCM_Modality);
+  if (modality != "CT") {
+    return invalid_argument_error(name + " has modality '" + modality + "'; posewarp reads CT series here");
+  }
+  Sint32 frames = 1;
+  if (d.findAndGetSint32(DCM_NumberOfFrames, frames).good() && frames > 1) {
+    return invalid_argument_error(name + " is a multi-frame image (" + std::to_string(frames) +
+                                  " frames); posewarp reads single-frame CT series (convert enhanced CT first)");
+  }
+  double orientation[6];
+  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) || !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
+      !numbers(d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
+    return invalid_argument_error(name + " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
+                                  "its place in the patient is unknown");
+  }
+  slice.row = {orientation[0], orientation[1], orientation[2]};
+  slice.column = {orientation[3], orientation[4], orientation[5]};
+  if (std::abs(norm(slice.row) - 1) > 1e-3 || std::abs(norm(slice.column) - 1) > 1e-3 ||
+      std::abs(dot(slice.row, slice.column)) > 1e-3 || slice.pixel_spacing[0] <= 0 || slice.pixel_spacing[1] <= 0) {
+    return invalid_argument_error(name + " has an orientation that is not two unit, orthogonal vectors, or a "
+                                  "spacing that is not positive");
+  }
+  Uint16 rows = 0, columns = 0, bits = 0, samples = 1;
+  d.findAndGetUint16(DCM_Rows, rows);
+  d.findAndGetUint16(DCM_Columns, columns);
+  d.findAndGetUint16(DCM_BitsAllocated, bits);
+  d.findAndGetUint16(DCM_SamplesPerPixel, samples);
+  if (rows == 0 || columns == 0 || bits != 16 || samples != 1) {
+    return invalid_argument_error(name + " is not a 16-bit greyscale image (rows " + std::to_string(rows) + ", columns " +
+                                  std::to_string(columns) + ", bits allocated " + std::to_string(bits) + ")");
+  }
+  slice.rows = rows, slice.columns = columns;
+  Float64 slope = 1, intercept = 0;
+  if (d.findAndGetFloat64(DCM_RescaleSlope, slope).good()) slice.slope = slope;
+  if (d.findAndGetFloat64(DCM_RescaleIntercept, intercept).good()) slice.intercept = intercept;
+  if (!std::isfinite(slice.slope) || !std::isfinite(slice.intercept) || slice.slope == 0) {
+    return invalid_argument_error(name + " has a rescale slope of 0 or a non-finite rescale");
+  }
+  // Compressed pixel data is decoded to little-endian explicit here (or refused).
+  if (DcmXfer(d.getOriginalXfer()).isEncapsulated()) {
+    register_decoders();
+    if (d.chooseRepresentation(EXS_LittleEndianExplicit, nullptr).bad() || !d.canWriteXfer(EXS_LittleEndianExplicit)) {
+      return invalid_argument_error(name + " has pixel data in a transfer syntax posewarp cannot decode (" +
+                                    std::string(DcmXfer(d.getOriginalXfer()).getXferName()) + ")");
+    }
+  }
+  return ok_status();
+}
+
+std::string describe_series(const std::map<std::string, int>& counts) {
+  std::string list;
+  for (const auto& [uid, count] : counts) list += "\n  " + uid + " (" + std::to_string(count) + " images)";
+  return list;
+}
+
+// 128 random bits as a version 4 UUID, written as one decimal integer (the "2.25" UID form).
+std::string uuid_decimal() {
+  static std::mutex mutex;
+  static std::random_device device;
+  std::array<uint32_t, 4> limbs;
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    for (uint32_t& limb : limbs) limb = device();
+  }
+  limbs[1] = (limbs[1] & 0xFFFF0FFFu) | 0x00004000u;  // version 4 (bits 48-51 of the UUID)
+  limbs[2] = (limbs[2] & 0x3FFFFFFFu) | 0x80000000u;  // variant 10
+  std::string digits;
+  while (std::any_of(limbs.begin(), limbs.end(), [](uint32_t l) { return l != 0; })) {
+    uint64_t remainder = 0;
+    for (uint32_t& limb : limbs) {  // most significant first
+      const uint64_t value = (remainder << 32) | limb;
+      limb = static_cast<uint32_t>(value / 10);
+      remainder = value % 10;
+    }
+    digits.push_back(static_cast<char>('0' + remainder));
+  }
+  std::reverse(digits.begin(), digits.end());
+  return digits.empty() ? "0" : digits;
+}
+
+bool valid_uid_root(const std::string& root) {
+  if (root.empty() || root.size() > 40 || root.front() == '.' || root.back() == '.') return false;
+  for (size_t i = 0; i < root.size(); ++i) {
+    const char c = root[i];
+    if (c == '.') {
+      if (root[i - 1] == '.') return false;
+    } else if (c < '0' || c > '9') {
+      return false;
+    } else if (c == '0' && (i == 0 || root[i - 1] == '.') && i + 1 < root.size() && root[i + 1] != '.') {
+      return false;  // a component with a leading zero
+    }
+  }
+  return true;
+}
+
+std::string date_now(const char* format) {
+  const std::time_t now = std::time(nullptr);
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  char out[32];
+  std::strftime(out, sizeof out, format, &utc);
+  return out;
+}
+
+}  // namespace
+
+Result<std::string> new_uid(const std::string& root) {
+  if (!valid_uid_root(root)) {
+    return invalid_argument_error("'" + root + "' is not a UID root: digits in dot-separated components without "
+                                  "leading zeros, at most 40 characters (e.g. 2.25 or your organisation's root)");
+  }
+  std::string uid = root + "." + uuid_decimal();
+  if (uid.size() > 64) uid.resize(64);
+  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.')) uid.pop_back();
+  return uid;
+}
+
+Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid) {
+  if (instances.empty()) return invalid_argument_error("no DICOM instances to read");
+  std::vector<Slice> all;
+  std::map<std::string, int> counts;
+  for (size_t i = 0; i < instances.size(); ++i) {
+    POSEWARP_ASSIGN_OR_RETURN(Slice slice, parse(instances[i], static_cast<int>(i)));
+    ++counts[slice.series_uid];
+    all.push_back(std::move(slice));
+  }
+  std::string uid = series_uid;
+  if (uid.empty()) {
+    if (counts.size() > 1) {
+      return invalid_argument_error("the instances hold " + std::to_string(counts.size()) +
+                                    " series; name the one to read:" + describe_series(counts));
+    }
+    uid = counts.begin()->first;
+  } else if (!counts.count(uid)) {
+    return not_found_error("series " + uid + " is not among the instances:" + describe_series(counts));
+  }
+  std::vector<Slice> slices;
+  for (Slice& s : all) {
+    if (s.series_uid == uid) slices.push_back(std::move(s));
+  }
+  for (Slice& s : slices) POSEWARP_RETURN_IF_ERROR(check_slice(s));
+  const Slice& first = slices.front();
+  const Vec normal = cross(first.row, first.column);
+  for (const Slice& s : slices) {
+    if (norm(cross(s.row, first.row)) > 1e-4 || norm(cross(s.column, first.column)) > 1e-4 || dot(s.row, first.row) < 0) {
+      return invalid_argument_error("series " + uid + " mixes image orientations (instance " + std::to_string(s.index + 1) +
+                                    "); posewarp reads one stack of parallel slices");
+    }
+    if (s.rows != first.rows || s.columns != first.columns || std::abs(s.pixel_spacing[0] - first.pixel_spacing[0]) > 1e-4 ||
+        std::abs(s.pixel_spacing[1] - first.pixel_spacing[1]) > 1e-4) {
+      return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (instance " +
+                                    std::to_string(s.index + 1) + ")");
+    }
+  }
+  for (Slice& s : slices) s.along = dot(s.position, normal);
+  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
+  // The slices' spacing along the normal: even, without gaps or repeats, and the slices stacked straight along the
+  // normal (a tilted gantry shears them sideways).
+  double spacing = 1.0;
+  if (slices.size() > 1) {
+    std::vector<double> steps;
+    for (size_t i = 1; i < slices.size(); ++i) steps.push_back(slices[i].along - slices[i - 1].along);
+    std::vector<double> sorted = steps;
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+    spacing = sorted[sorted.size() / 2];
+    if (spacing <= 1e-6) {
+      return invalid_argument_error("series " + uid + " has several images at the same position (a repeated "
+                                    "acquisition or a localizer mixed in); keep one stack");
+    }
+    for (size_t i = 0; i < steps.size(); ++i) {
+      const double at = slices[i].along;
+      if (steps[i] < 1e-3 * spacing) {
+        return invalid_argument_error("series " + uid + " has two images at the same position (" +
+                                      std::to_string(at) + " mm along the slice normal)");
+      }
+      if (std::abs(steps[i] - spacing) > std::max(0.01, 0.01 * spacing)) {
+        const double missing = std::round(steps[i] / spacing) - 1;
+        if (missing >= 1 && std::abs(steps[i] - (missing + 1) * spacing) <= std::max(0.01, 0.01 * spacing)) {
+          return invalid_argument_error("series " + uid + " misses " + std::to_string(static_cast<int>(missing)) +
+                                        " slice(s) between " + std::to_string(at) + " and " +
+                                        std::to_string(at + steps[i]) + " mm along the slice normal; fetch the "
+                                        "whole series");
+        }
+        return invalid_argument_error("series " + uid + " has uneven slice spacing (" + std::to_string(steps[i]) +
+                                      " mm where the others are " + std::to_string(spacing) +
+                                      " mm); resample it to even slices first");
+      }
+      const Vec step{slices[i + 1].position[0] - slices[i].position[0], slices[i + 1].position[1] - slices[i].position[1],
+                     slices[i + 1].position[2] - slices[i].position[2]};
+      const Vec sideways = cross(step, normal);
+      if (norm(sideways) > 1e-3 * norm(step) + 1e-3) {
+        const double degrees = std::atan2(norm(sideways), dot(step, normal)) * 180.0 / M_PI;
+        return invalid_argument_error("series " + uid + " is tilted: its slices are stacked " + std::to_string(degrees) +
+                                      " degrees off their normal (gantry tilt); posewarp needs an untilted stack "
+                                      "(resample the series onto an orthogonal grid first)");
+      }
+    }
+  }
+  // The volume: x along the rows (columns index), y along the columns (rows index), z along the normal.
+  ImageGeometry g;
+  g.size = {first.columns, first.rows, static_cast<int64_t>(slices.size())};
+  g.spacing = {first.pixel_spacing[1], first.pixel_spacing[0], spacing};
+  g.origin = {slices.front().position[0], slices.front().position[1], slices.front().position[2]};
+  for (int r = 0; r < 3; ++r) {
+    g.direction[static_cast<size_t>(3 * r + 0)] = first.row[static_cast<size_t>(r)];
+    g.direction[static_cast<size_t>(3 * r + 1)] = first.column[static_cast<size_t>(r)];
+    g.direction[static_cast<size_t>(3 * r + 2)] = normal[static_cast<size_t>(r)] / norm(normal);
+  }
+  POSEWARP_RETURN_IF_ERROR(g.validate());
+  CtSeries out;
+  out.ct = IntensityVolume(g);
+  out.ct.set_source_type(PixelType::kInt16);
+  const size_t per_slice = static_cast<size_t>(first.rows) * static_cast<size_t>(first.columns);
+  for (size_t k = 0; k < slices.size(); ++k) {
+    DcmDataset& d = *slices[k].file->getDataset();
+    Uint16 representation = 0;
+    d.findAndGetUint16(DCM_PixelRepresentation, representation);
+    const Uint16* words = nullptr;
+    unsigned long count = 0;
+    if (d.findAndGetUint16Array(DCM_PixelData, words, &count).bad() || words == nullptr || count < per_slice) {
+      return data_loss_error("instance " + std::to_string(slices[k].index + 1) + " of series " + uid +
+                             " has less pixel data than its rows x columns");
+    }
+    float* out_slice = out.ct.data() + k * per_slice;
+    for (size_t i = 0; i < per_slice; ++i) {
+      const double stored = representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
+      out_slice[i] = static_cast<float>(stored * slices[k].slope + slices[k].intercept);
+    }
+    out.info.sop_instance_uids.push_back(text(d, DCM_SOPInstanceUID));
+  }
+  DcmDataset& d = *slices.front().file->getDataset();
+  SeriesInfo& info = out.info;
+  info.specific_character_set = text(d, DCM_SpecificCharacterSet);
+  info.patient_name = text(d, DCM_PatientName);
+  info.patient_id = text(d, DCM_PatientID);
+  info.patient_birth_date = text(d, DCM_PatientBirthDate);
+  info.patient_sex = text(d, DCM_PatientSex);
+  info.study_instance_uid = text(d, DCM_StudyInstanceUID);
+  info.study_date = text(d, DCM_StudyDate);
+  info.study_time = text(d, DCM_StudyTime);
+  info.study_id = text(d, DCM_StudyID);
+  info.accession_number = text(d, DCM_AccessionNumber);
+  info.referring_physician_name = text(d, DCM_ReferringPhysicianName);
+  info.study_description = text(d, DCM_StudyDescription);
+  info.series_instance_uid = uid;
+  info.series_number = text(d, DCM_SeriesNumber);
+  info.series_description = text(d, DCM_SeriesDescription);
+  info.modality = text(d, DCM_Modality);
+  info.patient_position = text(d, DCM_PatientPosition);
+  info.frame_of_reference_uid = text(d, DCM_FrameOfReferenceUID);
+  info.sop_class_uid = text(d, DCM_SOPClassUID);
+  if (info.study_instance_uid.empty()) return invalid_argument_error("series " + uid + " has no StudyInstanceUID");
+  return out;
+}
+
+Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid) {
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec)) return not_found_error("'" + directory + "' is not a directory of DICOM files");
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(directory, ec)) {
+    if (entry.is_regular_file(ec)) files.push_back(entry.path());
+  }
+  std::sort(files.begin(), files.end());
+  std::vector<std::string> instances;
+  for (const fs::path& path : files) {
+    // Part 10 files: 128 bytes of preamble, then "DICM".
+    std::string bytes;
+    POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(path.string(), "DICOM file", int64_t{1} << 31));
+    if (bytes.size() >= 132 && bytes.compare(128, 4, "DICM") == 0) instances.push_back(std::move(bytes));
+  }
+  if (instances.empty()) return not_found_error("no DICOM files (Part 10, with a DICM preamble) in '" + directory + "'");
+  return read_ct_series(instances, series_uid);
+}
+
+Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
+                                                   const DerivedSeriesOptions& options, SeriesInfo* info_out) {
+  const ImageGeometry& g = ct.geometry();
+  POSEWARP_RETURN_IF_ERROR(g.validate());
+  if (g.size[0] > 65535 || g.size[1] > 65535) {
+    return invalid_argument_error("a DICOM image has at most 65535 rows and columns; this grid is " +
+                                  std::to_string(g.size[0]) + " x " + std::to_string(g.size[1]));
+  }
+  if (source.study_instance_uid.empty()) return invalid_argument_error("the source series has no StudyInstanceUID");
+  const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
+  Vec slice_axis{g.direction[2], g.direction[5], g.direction[8]};
+  // DICOM's slice normal is row x column; a left-handed grid's slices go out in reverse order.
+  const bool reverse = dot(cross(row, column), slice_axis) < 0;
+  SeriesInfo info = source;
+  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, new_uid(options.uid_root));
+  const int source_number = std::atoi(source.series_number.c_str());
+  info.series_number = std::to_string(options.series_number > 0 ? options.series_number : source_number + 1000);
+  info.series_description = options.series_description.empty() ? "posewarp derived" : options.series_description;
+  info.modality = "CT";
+  info.sop_class_uid = UID_CTImageStorage;
+  if (info.frame_of_reference_uid.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, new_uid(options.uid_root));
+  }
+  info.sop_instance_uids.clear();
+  const std::string date = date_now("%Y%m%d"), time = date_now("%H%M%S");
+  const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
+  std::vector<Sint16> samples(per_slice);
+  std::vector<std::string> files;
+  int64_t clipped = 0;
+  for (int64_t n = 0; n < g.size[2]; ++n) {
+    const int64_t k = reverse ? g.size[2] - 1 - n : n;
+    std::string sop_uid;
+    POSEWARP_ASSIGN_OR_RETURN(sop_uid, new_uid(options.uid_root));
+    DcmFileFormat file;
+    DcmDataset& d = *file.getDataset();
+    const auto put = [&d](const DcmTagKey& tag, const std::string& value) { d.putAndInsertString(tag, value.c_str()); };
+    if (!info.specific_character_set.empty()) put(DCM_SpecificCharacterSet, info.specific_character_set);
+    put(DCM_SOPClassUID, UID_CTImageStorage);
+    put(DCM_SOPInstanceUID, sop_uid);
+    put(DCM_ImageType, "DERIVED\\SECONDARY\\AXIAL");
+    put(DCM_InstanceCreationDate, date);
+    put(DCM_InstanceCreationTime, time);
+    put(DCM_ContentDate, date);
+    put(DCM_ContentTime, time);
+    // Patient and study: the source's.
+    put(DCM_PatientName, info.patient_name);
+    put(DCM_PatientID, info.patient_id);
+    put(DCM_PatientBirthDate, info.patient_birth_date);
+    put(DCM_PatientSex, info.patient_sex);
+    put(DCM_StudyInstanceUID, info.study_instance_uid);
+    put(DCM_StudyDate, info.study_date);
+    put(DCM_StudyTime, info.study_time);
+    put(DCM_StudyID, info.study_id);
+    put(DCM_AccessionNumber, info.accession_number);
+    put(DCM_ReferringPhysicianName, info.referring_physician_name);
+    if (!info.study_description.empty()) put(DCM_StudyDescription, info.study_description);
+    // The new series.
+    put(DCM_Modality, "CT");
+    put(DCM_Laterality, "");
+    put(DCM_PatientPosition, info.patient_position);
+    put(DCM_SeriesInstanceUID, info.series_instance_uid);
+    put(DCM_SeriesNumber, info.series_number);
+    put(DCM_SeriesDescription, info.series_description);
+    put(DCM_SeriesDate, date);
+    put(DCM_SeriesTime, time);
+    put(DCM_FrameOfReferenceUID, info.frame_of_reference_uid);
+    put(DCM_PositionReferenceIndicator, "");
+    put(DCM_Manufacturer, "posewarp");
+    put(DCM_InstanceNumber, std::to_string(n + 1));
+    put(DCM_KVP, "");
+    put(DCM_AcquisitionNumber, "");
+    if (!options.derivation_description.empty()) put(DCM_DerivationDescription, options.derivation_description);
+    // Where it came from: every source image, in each slice (each posed slice draws on all of them), and the source
+    // series with its instances (Common Instance Reference).
+    const char* source_class = source.sop_class_uid.empty() ? UID_CTImageStorage : source.sop_class_uid.c_str();
+    DcmItem* series_item = nullptr;
+    if (!source.sop_instance_uids.empty() && d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
+      series_item->putAndInsertString(DCM_SeriesInstanceUID, source.series_instance_uid.c_str());
+    }
+    for (const std::string& source_uid : source.sop_instance_uids) {
+      for (auto [parent, sequence] : {std::pair<DcmItem*, DcmTagKey>{&d, DCM_SourceImageSequence},
+                                      std::pair<DcmItem*, DcmTagKey>{series_item, DCM_ReferencedInstanceSequence}}) {
+        DcmItem* item = nullptr;
+        if (parent != nullptr && parent->findOrCreateSequenceItem(sequence, item, -2).good()) {
+          item->putAndInsertString(DCM_ReferencedSOPClassUID, source_class);
+          item->putAndInsertString(DCM_ReferencedSOPInstanceUID, source_uid.c_str());
+        }
+      }
+    }
+    // Geometry of this slice.
+    const double offset = static_cast<double>(k) * g.spacing[2];
+    const Vec position{g.origin[0] + offset * slice_axis[0], g.origin[1] + offset * slice_axis[1],
+                       g.origin[2] + offset * slice_axis[2]};
+    char value[256];
+    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f\\%.6f\\%.6f\\%.6f", row[0], row[1], row[2], column[0], column[1], column[2]);
+    put(DCM_ImageOrientationPatient, value);
+    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f", position[0], position[1], position[2]);
+    put(DCM_ImagePositionPatient, value);
+    std::snprintf(value, sizeof value, "%.6f\\%.6f", g.spacing[1], g.spacing[0]);
+    put(DCM_PixelSpacing, value);
+    std::snprintf(value, sizeof value, "%.6f", g.spacing[2]);
+    put(DCM_SliceThickness, value);
+    std::snprintf(value, sizeof value, "%.6f", dot(position, cross(row, column)));
+    put(DCM_SliceLocation, value);
+    // Pixels: int16 HU, rescale 1 and 0.
+    d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
+    put(DCM_PhotometricInterpretation, "MONOCHROME2");
+    d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
+    d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
+    d.putAndInsertUint16(DCM_BitsAllocated, 16);
+    d.putAndInsertUint16(DCM_BitsStored, 16);
+    d.putAndInsertUint16(DCM_HighBit, 15);
+    d.putAndInsertUint16(DCM_PixelRepresentation, 1);
+    put(DCM_RescaleIntercept, "0");
+    put(DCM_RescaleSlope, "1");
+    put(DCM_RescaleType, "HU");
+    put(DCM_WindowCenter, "40");
+    put(DCM_WindowWidth, "400");
+    const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
+    for (size_t i = 0; i < per_slice; ++i) {
+      const float v = std::isfinite(slice[i]) ? std::nearbyint(slice[i]) : 0.0f;
+      const float bounded = std::clamp(v, -32768.0f, 32767.0f);
+      clipped += bounded != v;
+      samples[i] = static_cast<Sint16>(bounded);
+    }
+    // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
+    std::vector<Uint16> words(per_slice);
+    std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
+    d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(per_slice));
+    // Part 10 bytes, little-endian explicit.
+    OFCondition written = file.validateMetaInfo(EXS_LittleEndianExplicit);
+    const Uint32 length = file.calcElementLength(EXS_LittleEndianExplicit, EET_ExplicitLength);
+    std::string bytes(static_cast<size_t>(length) + 4096, '\0');
+    DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
+    if (written.good()) {
+      file.transferInit();
+      written = file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr);
+      file.transferEnd();
+    }
+    if (written.bad()) return internal_error("encoding DICOM slice " + std::to_string(n + 1) + " failed: " + written.text());
+    void* buffer = nullptr;
+    offile_off_t used = 0;
+    out.flushBuffer(buffer, used);
+    bytes.resize(static_cast<size_t>(used));
+    files.push_back(std::move(bytes));
+    info.sop_instance_uids.push_back(sop_uid);
+  }
+  if (clipped > 0) {
+    return out_of_range_error(std::to_string(clipped) + " CT values do not fit int16 (-32768..32767); a DICOM CT "
+                              "series cannot hold them");
+  }
+  if (info_out != nullptr) *info_out = info;
+  return files;
+}
+
+Result<SeriesInfo> write_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
+                                    const DerivedSeriesOptions& options, const std::string& directory) {
+  std::error_code ec;
+  if (fs::exists(directory, ec) && !fs::is_empty(directory, ec)) {
+    return already_exists_error("DICOM output directory '" + directory + "' is not empty; choose a new one");
+  }
+  SeriesInfo info;
+  POSEWARP_ASSIGN_OR_RETURN(std::vector<std::string> files, encode_derived_ct(ct, source, options, &info));
+  fs::create_directories(directory, ec);
+  if (ec) return invalid_argument_error("cannot make the directory '" + directory + "': " + ec.message());
+  for (size_t i = 0; i < files.size(); ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "CT%06zu.dcm", i + 1);
+    POSEWARP_RETURN_IF_ERROR(write_file_atomically((fs::path(directory) / name).string(), files[i], "DICOM slice"));
+  }
+  return info;
+}
+
+}  // namespace posewarp::dicom
