@@ -1,0 +1,203 @@
+// DICOM SEG: the sample's labels through a SEG on its derived CT series and back (voxels, names, codes), dciodvfy's
+// verdict, a fractional SEG thresholded at one half, and SEGs that do not belong to the grid refused.
+#include <dcmtk/config/osconfig.h>
+#include <dcmtk/dcmdata/dcdeftag.h>
+#include <dcmtk/dcmdata/dcfilefo.h>
+#include <dcmtk/dcmdata/dcostrmb.h>
+#include <dcmtk/dcmfg/fgfracon.h>
+#include <dcmtk/dcmfg/fgpixmsr.h>
+#include <dcmtk/dcmfg/fgplanor.h>
+#include <dcmtk/dcmfg/fgplanpo.h>
+#include <dcmtk/dcmfg/fgseg.h>
+#include <dcmtk/dcmseg/segdoc.h>
+#include <dcmtk/dcmseg/segment.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "posewarp/dicom/segmentation.h"
+#include "posewarp/io/volume_io.h"
+
+namespace posewarp::dicom {
+namespace {
+
+namespace fs = std::filesystem;
+
+SeriesInfo study() {
+  SeriesInfo s;
+  s.patient_name = "Sample^Phantom";
+  s.patient_id = "PW-0002";
+  s.study_instance_uid = *new_uid("2.25");
+  s.series_instance_uid = *new_uid("2.25");
+  s.series_number = "3";
+  s.frame_of_reference_uid = *new_uid("2.25");
+  s.patient_position = "HFS";
+  return s;
+}
+
+struct Written {
+  LabelVolume labels;
+  CtSeries ct;  // as read back from its DICOM files
+  std::string seg;
+  std::map<Label, int> numbers;
+};
+
+// The sample's labels as a SEG on the sample's CT written as a DICOM series.
+Written sample_seg(const std::vector<Segment>& described = {}) {
+  const std::string dir = POSEWARP_SAMPLE_DIR;
+  Written w;
+  const IntensityVolume ct = *io::read_intensity_volume(dir + "/ct.nii.gz");
+  w.labels = *io::read_label_volume(dir + "/seg_total.nii.gz");
+  SeriesInfo info;
+  const std::vector<std::string> files = *encode_derived_ct(ct, study(), {}, &info);
+  w.ct = *read_ct_series(files);
+  Result<std::string> seg = encode_segmentation(w.labels, described, info, {}, nullptr, &w.numbers);
+  EXPECT_TRUE(seg.ok()) << seg.status().to_string();
+  if (seg.ok()) w.seg = *seg;
+  return w;
+}
+
+TEST(DicomSeg, TheSampleLabelsGoThroughASegAndBack) {
+  std::vector<Segment> described(1);
+  described[0].number = 2;  // the sample's kidney_right (labels_total.tsv)
+  described[0].label = "kidney_right";
+  described[0].description = "right kidney";
+  described[0].type = {"64033007", "SCT", "Kidney"};
+  described[0].category = {"123037004", "SCT", "Anatomical Structure"};
+  const Written w = sample_seg(described);
+  ASSERT_FALSE(w.seg.empty());
+  Result<Segmentation> back = read_segmentation(w.seg, w.ct.ct.geometry());
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  EXPECT_EQ(back->segments.size(), w.numbers.size());
+  EXPECT_TRUE(back->warnings.empty());
+  // Every voxel: the segment number of its label (the CT series' grid may run its slices the other way).
+  const ImageGeometry &a = w.labels.geometry(), &b = back->labels.geometry();
+  int64_t labelled = 0;
+  for (int64_t k = 0; k < b.size[2]; ++k) {
+    for (int64_t j = 0; j < b.size[1]; ++j) {
+      for (int64_t i = 0; i < b.size[0]; ++i) {
+        const Vec3 at = a.physical_to_index(b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
+        const Label original = w.labels.at(std::lround(at[0]), std::lround(at[1]), std::lround(at[2]));
+        const Label expected = original == 0 ? 0 : w.numbers.at(original);
+        ASSERT_EQ(back->labels.at(i, j, k), expected) << "at " << i << ", " << j << ", " << k;
+        labelled += original != 0;
+      }
+    }
+  }
+  EXPECT_GT(labelled, 10000);
+  // The described segment keeps its name, description and codes; the others are named by their value.
+  const Segment& kidney = back->segments[static_cast<size_t>(w.numbers.at(2) - 1)];
+  EXPECT_EQ(kidney.label, "kidney_right");
+  EXPECT_EQ(kidney.description, "right kidney");
+  EXPECT_EQ(kidney.type.value, "64033007");
+  EXPECT_EQ(kidney.type.meaning, "Kidney");
+  EXPECT_EQ(kidney.category.scheme, "SCT");
+  EXPECT_EQ(back->segments[static_cast<size_t>(w.numbers.at(1) - 1)].label, "label 1");
+  EXPECT_EQ(back->referenced_series_uid, w.ct.info.series_instance_uid);
+}
+
+TEST(DicomSeg, DciodvfyFindsNoErrorsInTheSeg) {
+  if (std::system("command -v dciodvfy >/dev/null 2>&1") != 0) GTEST_SKIP() << "dciodvfy (dicom3tools) is not installed";
+  const Written w = sample_seg();
+  const fs::path file = fs::temp_directory_path() / ("posewarp-seg-" + std::to_string(::getpid()) + ".dcm");
+  std::ofstream(file, std::ios::binary) << w.seg;
+  const fs::path report = file.string() + ".txt";
+  std::system(("dciodvfy '" + file.string() + "' > '" + report.string() + "' 2>&1").c_str());
+  std::ifstream in(report);
+  std::string line, errors;
+  while (std::getline(in, line)) {
+    if (line.rfind("Error", 0) == 0) errors += line + "\n";
+  }
+  fs::remove(file);
+  fs::remove(report);
+  EXPECT_TRUE(errors.empty()) << errors;
+}
+
+TEST(DicomSeg, SegsOfAnotherGridOrNotSegsAreRefused) {
+  const Written w = sample_seg();
+  ImageGeometry shifted = w.ct.ct.geometry();
+  shifted.origin[2] += 0.5 * shifted.spacing[2];
+  Result<Segmentation> off = read_segmentation(w.seg, shifted);
+  ASSERT_FALSE(off.ok());
+  EXPECT_NE(off.status().message().find("not made on this CT"), std::string::npos) << off.status().message();
+  ImageGeometry smaller = w.ct.ct.geometry();
+  smaller.size[0] -= 1;
+  EXPECT_FALSE(read_segmentation(w.seg, smaller).ok());
+  const std::vector<std::string> ct = *encode_derived_ct(w.ct.ct, w.ct.info, {});
+  Result<Segmentation> not_seg = read_segmentation(ct.front(), w.ct.ct.geometry());
+  ASSERT_FALSE(not_seg.ok());
+  EXPECT_NE(not_seg.status().message().find("not a DICOM Segmentation"), std::string::npos);
+  EXPECT_FALSE(read_segmentation("not dicom at all", w.ct.ct.geometry()).ok());
+}
+
+// A fractional SEG made with DCMTK itself: 4 x 4 pixels, one frame at the grid's first slice, values 0, 100, 200,
+// 255 of 255: only the values of at least one half are the segment.
+TEST(DicomSeg, AFractionalSegIsThresholdedAtOneHalfWithAWarning) {
+  IODGeneralEquipmentModule::EquipmentInfo equipment("test", "test", "0", "1");
+  ContentIdentificationMacro content("1", "TEST", "fractional", "test");
+  DcmSegmentation* created = nullptr;
+  ASSERT_TRUE(DcmSegmentation::createFractionalSegmentation(created, 4, 4, DcmSegTypes::SFT_PROBABILITY, 255, equipment,
+                                                            content).good());
+  std::unique_ptr<DcmSegmentation> seg(created);
+  seg->getPatient().setPatientID("X");
+  seg->getStudy().setStudyInstanceUID(new_uid("2.25")->c_str());
+  seg->getFrameOfReference().setFrameOfReferenceUID(new_uid("2.25")->c_str());
+  seg->getSeries().setSeriesInstanceUID(new_uid("2.25")->c_str());
+  seg->getSeries().setSeriesNumber("1");
+  FGPixelMeasures measures;
+  measures.setPixelSpacing("1\\1");
+  measures.setSliceThickness("1");
+  FGPlaneOrientationPatient orientation;
+  orientation.setImageOrientationPatient("1", "0", "0", "0", "1", "0");
+  ASSERT_TRUE(seg->addForAllFrames(measures).good());
+  ASSERT_TRUE(seg->addForAllFrames(orientation).good());
+  DcmSegment* segment = nullptr;
+  ASSERT_TRUE(DcmSegment::create(segment, "liver", CodeSequenceMacro("123037004", "SCT", "Anatomical Structure"),
+                                 CodeSequenceMacro("10200004", "SCT", "Liver"), DcmSegTypes::SAT_AUTOMATIC, "test").good());
+  Uint16 number = 0;
+  ASSERT_TRUE(seg->addSegment(segment, number).good());
+  FGSegmentation identification;
+  identification.setReferencedSegmentNumber(number);
+  FGPlanePosPatient position;
+  position.setImagePositionPatient("0", "0", "0");
+  FGFrameContent frame_content;
+  frame_content.setDimensionIndexValues(1, 0);
+  frame_content.setDimensionIndexValues(1, 1);
+  Uint8 pixels[16] = {0, 100, 200, 255, 0, 0, 0, 0, 128, 127, 0, 0, 0, 0, 0, 255};
+  OFVector<FGBase*> groups{&identification, &position, &frame_content};
+  ASSERT_TRUE(seg->addFrame(pixels, number, groups).good());
+  const std::string uid = *new_uid("2.25");
+  seg->getDimensions().addDimensionIndex(DCM_ReferencedSegmentNumber, uid.c_str(), DCM_SegmentIdentificationSequence, "segment");
+  seg->getDimensions().addDimensionIndex(DCM_ImagePositionPatient, uid.c_str(), DCM_PlanePositionSequence, "position");
+  DcmFileFormat file;
+  const OFCondition wrote = seg->writeDataset(*file.getDataset());
+  ASSERT_TRUE(wrote.good()) << wrote.text();
+  std::string bytes(1 << 20, '\0');
+  DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
+  file.transferInit();
+  ASSERT_TRUE(file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr).good());
+  file.transferEnd();
+  void* buffer = nullptr;
+  offile_off_t used = 0;
+  out.flushBuffer(buffer, used);
+  bytes.resize(static_cast<size_t>(used));
+
+  ImageGeometry grid;
+  grid.size = {4, 4, 2};
+  Result<Segmentation> read = read_segmentation(bytes, grid);
+  ASSERT_TRUE(read.ok()) << read.status().to_string();
+  const std::vector<Label> expected{0, 0, 1, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 1};
+  EXPECT_EQ(std::vector<Label>(read->labels.voxels().begin(), read->labels.voxels().begin() + 16), expected);
+  EXPECT_EQ(read->labels.at(0, 0, 1), 0);
+  ASSERT_EQ(read->warnings.size(), 1u);
+  EXPECT_NE(read->warnings[0].find("thresholded at one half"), std::string::npos);
+  ASSERT_EQ(read->segments.size(), 1u);
+  EXPECT_EQ(read->segments[0].label, "liver");
+  EXPECT_EQ(read->segments[0].type.meaning, "Liver");
+}
+
+}  // namespace
+}  // namespace posewarp::dicom
