@@ -12,6 +12,7 @@
 #include "remote.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
+#include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 
 namespace posewarp::cli {
@@ -37,6 +38,8 @@ struct PoseOptions {
   std::string surfaces_out;
   std::string field_out;
   std::string report_out;
+  // DICOM out: the posed CT as a derived series and the labels as a SEG of the source series' study.
+  std::string dicom_out, dicom_source, uid_root = "2.25", series_description;
   Connection connection;  // pose on posewarp-server; rig_path is then a rig id
   OutputOptions output;
 };
@@ -155,6 +158,24 @@ Result<api::PoseEngine> load_engine(const std::string& path) {
   return api::PoseEngine::create(std::move(rig), progress_bar());
 }
 
+// The posed CT and labels as a derived CT series and a SEG of the source series' study (--dicom-out).
+Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const api::PoseResult& result,
+                   const labels::LabelMap& map, const std::string& pose_name) {
+  if (!result.ct || !result.labels) return internal_error("the pose returned no CT or labels for the DICOM output");
+  api::DerivedSeriesOptions options;
+  options.uid_root = o.uid_root;
+  options.series_description = o.series_description.empty()
+                                   ? "posewarp: " + pose_name + " (" + o.output.method + ")"
+                                   : o.series_description;
+  options.derivation_description = "re-posed by posewarp (" + pose_name + ", " + o.output.method + ") from series " +
+                                   source.series_instance_uid;
+  POSEWARP_ASSIGN_OR_RETURN(const api::DicomOutputs outputs,
+                            api::encode_dicom_outputs(*result.ct, *result.labels, map, source, options));
+  POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(outputs, o.dicom_out));
+  say("wrote the derived CT series (" + std::to_string(outputs.ct_files.size()) + " images) and its SEG to " + o.dicom_out);
+  return ok_status();
+}
+
 int run_pose(const PoseOptions& o) {
   std::vector<std::string> inputs{o.rig_path, o.pose_path, o.output.grid_like};
   inputs.insert(inputs.end(), o.output.extra_surfaces.begin(), o.output.extra_surfaces.end());
@@ -164,11 +185,26 @@ int run_pose(const PoseOptions& o) {
   if (Status s = check_output_files(outputs); !s.ok()) return report(s);
   Result<pose::Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
+  // DICOM out needs the source series: its patient, study and images are what the derived series refer to.
+  std::optional<api::SeriesInfo> dicom_source;
+  if (std::error_code ec; !o.dicom_out.empty() && fs::exists(o.dicom_out, ec) && !fs::is_empty(o.dicom_out, ec)) {
+    return report(already_exists_error("--dicom-out '" + o.dicom_out + "' is not empty; choose a new directory"));
+  }
+  if (!o.dicom_out.empty()) {
+    if (o.dicom_source.empty()) {
+      return report(invalid_argument_error("--dicom-out needs --dicom-source DIR: the CT series the rig was built "
+                                           "from (its patient, study and images are referenced)"));
+    }
+    Result<api::CtSeries> source = api::read_ct_directory(o.dicom_source);
+    if (!source.ok()) return report(source.status().with_context("--dicom-source"));
+    dicom_source = source->info;
+  }
+  const std::string pose_name = fs::path(o.pose_path).stem().string();
   Result<api::PoseRequest> request = make_request(o.output);
   if (!request.ok()) return report(request.status());
   request->pose = *pose;
-  request->want_labels = !o.labels_out.empty() || !o.report_out.empty();
-  request->want_ct = !o.ct_out.empty();
+  request->want_labels = !o.labels_out.empty() || !o.report_out.empty() || !o.dicom_out.empty();
+  request->want_ct = !o.ct_out.empty() || !o.dicom_out.empty();
   request->want_fields = !o.field_out.empty();
   request->want_surfaces = !o.surfaces_out.empty();
   if (!o.connection.server.empty()) {
@@ -180,6 +216,11 @@ int run_pose(const PoseOptions& o) {
     Status written = write_outputs(answer->result, answer->report_json, o.labels_out, o.ct_out, o.field_out,
                                    o.report_out, answer->source_grid);
     if (!written.ok()) return report(written);
+    if (dicom_source) {
+      Result<labels::LabelMap> map = poser->label_map();
+      if (!map.ok()) return report(map.status());
+      if (Status s = write_dicom(o, *dicom_source, answer->result, *map, pose_name); !s.ok()) return report(s);
+    }
     Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
     return surfaces.ok() ? 0 : report(surfaces);
   }
@@ -195,6 +236,9 @@ int run_pose(const PoseOptions& o) {
   Status written = write_outputs(*result, report::to_json(result->report), o.labels_out, o.ct_out, o.field_out,
                                  o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
+  if (dicom_source) {
+    if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok()) return report(s);
+  }
   Status surfaces = write_surfaces(*result, o.surfaces_out, o.output.surface_format);
   if (!surfaces.ok()) return report(surfaces);
   return 0;
@@ -326,6 +370,14 @@ void add_pose_commands(CLI::App& app) {
                     "Inverse displacement field (output grid, for ITK/ANTs/elastix); the forward field goes beside it "
                     "as *_forward");
     cmd->add_option("--report", o->report_out, "Quality report JSON");
+    cmd->add_option("--dicom-out", o->dicom_out,
+                    "Directory for the posed CT as a derived DICOM series (ct/) and the labels as a DICOM SEG (seg.dcm), "
+                    "in the study of --dicom-source");
+    cmd->add_option("--dicom-source", o->dicom_source, "The CT series (a directory of DICOM files) the rig was built from");
+    cmd->add_option("--uid-root", o->uid_root, "Root of the new DICOM UIDs (2.25: UUID-derived, no registration needed)")
+        ->capture_default_str();
+    cmd->add_option("--series-description", o->series_description,
+                    "Series Description of the derived series (default: posewarp: POSE (METHOD))");
     add_connection_options(cmd, o->connection);
     cmd->add_option("--server", o->connection.server,
                     "Pose on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written here");

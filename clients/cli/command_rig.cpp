@@ -9,6 +9,7 @@
 
 #include "cli_support.h"
 #include "remote.h"
+#include "posewarp/api/dicom.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
@@ -52,11 +53,27 @@ int run_build(BuildOptions& options) {
   Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
   inputs.label_map = std::move(map).value();
-  Result<LabelVolume> labels = api::read_label_volume(options.labels_path, read_options());
-  if (!labels.ok()) return report(labels.status());
-  inputs.labels = std::move(labels).value();
-  inputs.labels_source = options.labels_path;
-  if (!options.ct_path.empty()) {
+  if (api::is_dicom_file(options.labels_path)) {
+    // A DICOM SEG on a DICOM CT series: the labels are the segments' numbers, the map follows their names.
+    if (options.ct_path.empty()) {
+      return report(invalid_argument_error("'" + options.labels_path + "' is a DICOM file: give the CT series it was "
+                                           "made on with --ct DIR (a directory of DICOM files)"));
+    }
+    Result<api::DicomStudy> study = api::read_dicom_study(options.ct_path, options.labels_path, inputs.label_map);
+    if (!study.ok()) return report(study.status());
+    for (const std::string& warning : study->warnings) say("warning: " + warning);
+    inputs.labels = std::move(study->labels);
+    inputs.ct = std::move(study->ct.ct);
+    inputs.label_map = std::move(study->label_map);
+    inputs.labels_source = options.labels_path;
+    inputs.ct_source = options.ct_path;
+  } else {
+    Result<LabelVolume> labels = api::read_label_volume(options.labels_path, read_options());
+    if (!labels.ok()) return report(labels.status());
+    inputs.labels = std::move(labels).value();
+    inputs.labels_source = options.labels_path;
+  }
+  if (!options.ct_path.empty() && !inputs.ct) {
     Result<IntensityVolume> ct = api::read_intensity_volume(options.ct_path, read_options());
     if (!ct.ok()) return report(ct.status());
     inputs.ct = std::move(ct).value();
@@ -226,7 +243,8 @@ void add_rig_commands(CLI::App& app) {
         "build",
         "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the body, Laplace skinning weights and\n"
         "centres of rotation, written as one checksummed file");
-    cmd->add_option("--labels", o->labels_path, "Label volume (segmentation)")->required();
+    cmd->add_option("--labels", o->labels_path, "Label volume (segmentation), or a DICOM SEG made on --ct (a DICOM series)")
+        ->required();
     cmd->add_option("--ct", o->ct_path, "CT on the same grid (joins the body mask; kept for posing)");
     cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
     cmd->add_option("--label-map", o->label_map_path, "Label map JSON");

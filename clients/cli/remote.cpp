@@ -447,6 +447,12 @@ Result<rig::Skeleton> RemotePoser::skeleton() const {
   return std::move(rig.skeleton);
 }
 
+Result<labels::LabelMap> RemotePoser::label_map() const {
+  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, download_rig(state_->remote, state_->rig_id));
+  POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::rig_from_bytes(bytes, "rig " + state_->rig_id));
+  return std::move(rig.label_map);
+}
+
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
   Result<Remote> remote = Remote::open(connection);

@@ -57,6 +57,8 @@ class RemotePoser {
   Result<RemotePoseResult> pose(const api::PoseRequest& request) const;
   // The rig's skeleton (BVH retargeting needs it): the rig file downloaded, checked and read.
   Result<rig::Skeleton> skeleton() const;
+  // The rig's label map (naming the segments of a DICOM SEG), the same way.
+  Result<labels::LabelMap> label_map() const;
 
  private:
   struct State;

@@ -10,6 +10,7 @@
 #include <dcmtk/dcmdata/dcuid.h>
 #include <dcmtk/dcmjpeg/djdecode.h>
 #include <dcmtk/dcmjpls/djdecode.h>
+#include <dcmtk/oflog/oflog.h>
 
 #include <algorithm>
 #include <array>
@@ -26,6 +27,13 @@
 
 namespace posewarp::dicom {
 namespace fs = std::filesystem;
+
+void quiet_dcmtk() {
+  // DCMTK logs warnings to the console; posewarp reports what matters as its own errors and warnings.
+  static std::once_flag once;
+  std::call_once(once, [] { OFLog::configure(OFLogger::OFF_LOG_LEVEL); });
+}
+
 namespace {
 
 using Vec = std::array<double, 3>;
@@ -40,6 +48,7 @@ double norm(const Vec& a) { return std::sqrt(dot(a, a)); }
 void register_decoders() {
   static std::once_flag once;
   std::call_once(once, [] {
+    quiet_dcmtk();
     DcmRLEDecoderRegistration::registerCodecs();
     DJDecoderRegistration::registerCodecs();
     DJLSDecoderRegistration::registerCodecs();
@@ -213,6 +222,7 @@ Result<std::string> new_uid(const std::string& root) {
 }
 
 Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid) {
+  quiet_dcmtk();
   if (instances.empty()) return invalid_argument_error("no DICOM instances to read");
   std::vector<Slice> all;
   std::map<std::string, int> counts;
@@ -371,6 +381,7 @@ Result<CtSeries> read_ct_directory(const std::string& directory, const std::stri
 
 Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
                                                    const DerivedSeriesOptions& options, SeriesInfo* info_out) {
+  quiet_dcmtk();
   const ImageGeometry& g = ct.geometry();
   POSEWARP_RETURN_IF_ERROR(g.validate());
   if (g.size[0] > 65535 || g.size[1] > 65535) {

@@ -58,6 +58,7 @@ Result<DcmFileFormat*> parse(const std::string& bytes, std::unique_ptr<DcmFileFo
 }  // namespace
 
 Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeometry& grid) {
+  quiet_dcmtk();
   POSEWARP_RETURN_IF_ERROR(grid.validate());
   std::unique_ptr<DcmFileFormat> file;
   POSEWARP_ASSIGN_OR_RETURN(DcmFileFormat * parsed, parse(bytes, file));
@@ -180,6 +181,7 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
 Result<std::string> encode_segmentation(const LabelVolume& labels, const std::vector<Segment>& segments,
                                         const SeriesInfo& ct, const DerivedSeriesOptions& options, SeriesInfo* info_out,
                                         std::map<Label, int>* numbers) {
+  quiet_dcmtk();
   const ImageGeometry& g = labels.geometry();
   POSEWARP_RETURN_IF_ERROR(g.validate());
   if (ct.sop_instance_uids.size() != static_cast<size_t>(g.size[2])) {

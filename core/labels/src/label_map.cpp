@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -293,6 +294,49 @@ Result<LabelMap> read_label_map(const std::string& path) {
 
 Status write_label_map(const LabelMap& map, const std::string& path) {
   return write_file_atomically(path, label_map_to_json(map), "label map");
+}
+
+namespace {
+
+// A name as relabel_by_name compares it: lower case, spaces and hyphens as underscores.
+std::string comparable(std::string_view name) {
+  std::string out;
+  for (char c : name) out += (c == ' ' || c == '-') ? '_' : static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return out;
+}
+
+}  // namespace
+
+Result<LabelMap> relabel_by_name(const LabelMap& map, const std::vector<std::pair<Label, std::string>>& names,
+                                 std::vector<std::string>* unknown) {
+  std::map<std::string, const LabelEntry*> by_name;
+  for (const LabelEntry& e : map.entries()) by_name.emplace(comparable(e.name), &e);
+  std::vector<LabelEntry> entries;
+  std::set<std::string> segments;
+  for (const LabelEntry& e : map.entries()) {
+    if (e.value == 0) entries.push_back(e);  // the background keeps 0
+  }
+  for (const auto& [value, name] : names) {
+    if (value == 0) return invalid_argument_error("segment '" + name + "' has the value 0, which is the background");
+    const auto known = by_name.find(comparable(name));
+    LabelEntry entry;
+    if (known != by_name.end()) {
+      entry = *known->second;
+    } else {
+      entry.name = name;
+      entry.role = LabelRole::kTissue;
+      if (unknown != nullptr) unknown->push_back(name);
+    }
+    entry.value = value;
+    if (entry.role == LabelRole::kBone) segments.insert(entry.segment);
+    entries.push_back(entry);
+  }
+  std::vector<JointName> joints;
+  for (const JointName& j : map.joint_names()) {
+    if (segments.count(j.segment_a) && segments.count(j.segment_b)) joints.push_back(j);
+  }
+  const std::string root = segments.count(map.root_segment()) ? map.root_segment() : std::string();
+  return LabelMap::create(map.name(), std::move(entries), std::move(joints), root);
 }
 
 LabelCensus census(const LabelMap& map, const LabelVolume& volume) {

@@ -137,3 +137,28 @@ TEST(LabelMapJson, NumbersPastADoubleAreAnErrorNotACrash) {
 
 }  // namespace
 }  // namespace posewarp::labels
+
+namespace posewarp::labels {
+namespace {
+
+// A DICOM SEG numbers its segments 1, 2, 3, ... and names them: the preset's meaning follows the names.
+TEST(RelabelByName, APresetFollowsSegmentNamesToNewValues) {
+  const LabelMap preset = *preset_by_name("totalsegmentator");
+  std::vector<std::string> unknown;
+  Result<LabelMap> map = relabel_by_name(preset, {{1, "Femur Left"}, {2, "hip-left"}, {3, "tumour"}}, &unknown);
+  ASSERT_TRUE(map.ok()) << map.status().to_string();
+  ASSERT_NE(map->find(1), nullptr);
+  EXPECT_EQ(map->find(1)->name, "femur_left");
+  EXPECT_EQ(map->role_of(1), LabelRole::kBone);
+  EXPECT_EQ(map->role_of(2), LabelRole::kBone);
+  EXPECT_EQ(map->role_of(3), LabelRole::kTissue);
+  EXPECT_EQ(unknown, std::vector<std::string>{"tumour"});
+  // The hip joint between the two segments present stays; joints to absent segments go.
+  EXPECT_NE(map->declared_joint("hip_left", "femur_left"), nullptr);
+  EXPECT_EQ(map->declared_joint("hip_right", "femur_right"), nullptr);
+  EXPECT_EQ(map->find(75), nullptr);  // the preset's own value for femur_left is gone
+  EXPECT_FALSE(relabel_by_name(preset, {{0, "femur_left"}}).ok());
+}
+
+}  // namespace
+}  // namespace posewarp::labels

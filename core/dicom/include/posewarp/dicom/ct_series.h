@@ -61,4 +61,7 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
 Result<SeriesInfo> write_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
                                     const DerivedSeriesOptions& options, const std::string& directory);
 
+// DCMTK's own console log off (every function here calls it; posewarp reports errors and warnings itself).
+void quiet_dcmtk();
+
 }  // namespace posewarp::dicom

@@ -111,6 +111,13 @@ std::string label_map_to_json(const LabelMap& map);
 Result<LabelMap> read_label_map(const std::string& path);
 Status write_label_map(const LabelMap& map, const std::string& path);
 
+// `map` with its values replaced by the values that `names` give the same names (a DICOM SEG numbers its segments
+// 1, 2, 3, ... and names them): names compare without case, with spaces, hyphens and underscores alike. A name the
+// map does not know becomes a soft-tissue entry; the map's entries no name refers to are dropped, and so are its
+// joints between segments that are gone. `unknown` (optional) receives the names the map did not know.
+Result<LabelMap> relabel_by_name(const LabelMap& map, const std::vector<std::pair<Label, std::string>>& names,
+                                 std::vector<std::string>* unknown = nullptr);
+
 // What a label volume holds compared with its map.
 struct LabelCensus {
   std::map<Label, int64_t> voxel_counts;  // every value present, with its voxel count (0 included)
