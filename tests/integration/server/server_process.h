@@ -24,6 +24,7 @@
 #include <thread>
 #include <vector>
 
+#include "../support/free_port.h"
 #include "posewarp/api/files.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
@@ -235,18 +236,7 @@ inline PoseAnswer pose_remote(v1::Posewarp::Stub& stub, const v1::PoseRequest& r
   return answer;
 }
 
-// A loopback port free at this moment (for the metrics listener, which cannot pick its own).
-inline int free_port() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in address{};
-  address.sin_family = AF_INET;
-  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address);
-  socklen_t size = sizeof address;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &size);
-  ::close(fd);
-  return ntohs(address.sin_port);
-}
+using testing_support::free_port;  // for the metrics listener, which cannot pick its own
 
 // GET /metrics over a plain socket: the Prometheus text (empty when nothing answers).
 inline std::string scrape_metrics(int port) {

@@ -1,0 +1,62 @@
+// A DICOMweb client (libcurl) for PACS-side work: QIDO-RS search, WADO-RS retrieval of a series (multipart/related
+// application/dicom, streamed to disk part by part) and STOW-RS storage, with basic auth or a bearer token, TLS
+// verification on by default, timeouts, and retries with backoff on connection errors and 5xx answers.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "posewarp/common/result.h"
+
+namespace posewarp::pacs {
+
+struct DicomWebOptions {
+  std::string base_url;         // e.g. http://127.0.0.1:8042/dicom-web (no trailing slash needed)
+  std::string username, password;  // HTTP basic auth, when given
+  std::string bearer_token;     // Authorization: Bearer ..., when given
+  bool verify_tls = true;       // off only for a test PACS with a self-signed certificate
+  std::string ca_file;          // a CA bundle of one's own
+  int connect_timeout_s = 10;
+  int timeout_s = 600;          // a whole request (a large series takes a while)
+  int retries = 3;              // on connection errors and 5xx: waits 0.5, 1, 2 s ...
+};
+
+// One QIDO-RS result: its attributes by keyword (StudyInstanceUID, SeriesInstanceUID, Modality, ...), first values
+// as text.
+using DicomWebRecord = std::map<std::string, std::string>;
+
+class DicomWebClient {
+ public:
+  explicit DicomWebClient(DicomWebOptions options);
+
+  // QIDO-RS: /studies?query, /studies/{study}/series?query (query: "Modality=CT&StudyDate=20250101-", as QIDO-RS
+  // takes it).
+  Result<std::vector<DicomWebRecord>> search_studies(const std::string& query) const;
+  Result<std::vector<DicomWebRecord>> search_series(const std::string& study_uid, const std::string& query = "") const;
+  // WADO-RS: every instance of a series, each written to `directory` as NNNNNN.dcm (the answer streams to a file
+  // and is split there, never held whole in memory); the paths written.
+  Result<std::vector<std::string>> retrieve_series(const std::string& study_uid, const std::string& series_uid,
+                                                   const std::string& directory) const;
+  // STOW-RS: instances (Part 10 bytes) stored in one request (to /studies/{study} when a study is given).
+  Status store(const std::vector<std::string>& instances, const std::string& study_uid = "") const;
+
+ private:
+  struct Response {
+    long status = 0;
+    std::string body, content_type;
+  };
+  // One request with retries; `body_file` (optional) receives the body instead of Response::body.
+  Result<Response> request(const std::string& method, const std::string& url, const std::vector<std::string>& headers,
+                           const std::string& payload, const std::string& body_file = "") const;
+  Result<std::vector<DicomWebRecord>> search(const std::string& path, const std::string& query) const;
+  DicomWebOptions options_;
+};
+
+// The parts of a multipart body held in `file` (boundary from its Content-Type), written to `directory` as
+// NNNNNN.dcm; streamed in blocks. Exposed for tests.
+Result<std::vector<std::string>> split_multipart_file(const std::string& file, const std::string& content_type,
+                                                      const std::string& directory);
+
+}  // namespace posewarp::pacs
