@@ -50,5 +50,6 @@ void add_label_commands(CLI::App& app);
 void add_rig_commands(CLI::App& app);
 void add_pose_commands(CLI::App& app);
 void add_dicom_commands(CLI::App& app);
+void add_batch_command(CLI::App& app);
 
 }  // namespace posewarp::cli

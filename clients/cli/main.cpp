@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
   cli::add_rig_commands(app);
   cli::add_pose_commands(app);
   cli::add_dicom_commands(app);
+  cli::add_batch_command(app);
 
   try {
     app.parse(argc, argv);

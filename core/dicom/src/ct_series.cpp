@@ -24,6 +24,7 @@
 
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
+#include "posewarp/common/sha256.h"
 
 namespace posewarp::dicom {
 namespace fs = std::filesystem;
@@ -159,17 +160,11 @@ std::string describe_series(const std::map<std::string, int>& counts) {
   return list;
 }
 
-// 128 random bits as a version 4 UUID, written as one decimal integer (the "2.25" UID form).
-std::string uuid_decimal() {
-  static std::mutex mutex;
-  static std::random_device device;
-  std::array<uint32_t, 4> limbs;
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    for (uint32_t& limb : limbs) limb = device();
-  }
-  limbs[1] = (limbs[1] & 0xFFFF0FFFu) | 0x00004000u;  // version 4 (bits 48-51 of the UUID)
-  limbs[2] = (limbs[2] & 0x3FFFFFFFu) | 0x80000000u;  // variant 10
+// 128 bits as a UUID of `version` (4: random, 8: derived from a name), written as one decimal integer (the "2.25"
+// UID form).
+std::string uuid_decimal(std::array<uint32_t, 4> limbs, uint32_t version) {
+  limbs[1] = (limbs[1] & 0xFFFF0FFFu) | (version << 12);  // the version (bits 48-51 of the UUID)
+  limbs[2] = (limbs[2] & 0x3FFFFFFFu) | 0x80000000u;      // variant 10
   std::string digits;
   while (std::any_of(limbs.begin(), limbs.end(), [](uint32_t l) { return l != 0; })) {
     uint64_t remainder = 0;
@@ -182,6 +177,22 @@ std::string uuid_decimal() {
   }
   std::reverse(digits.begin(), digits.end());
   return digits.empty() ? "0" : digits;
+}
+
+std::array<uint32_t, 4> random_bits() {
+  static std::mutex mutex;
+  static std::random_device device;
+  std::array<uint32_t, 4> limbs;
+  std::lock_guard<std::mutex> lock(mutex);
+  for (uint32_t& limb : limbs) limb = device();
+  return limbs;
+}
+
+std::array<uint32_t, 4> bits_of(const std::string& text) {
+  const std::string hex = sha256_hex(text);
+  std::array<uint32_t, 4> limbs;
+  for (size_t i = 0; i < 4; ++i) limbs[i] = static_cast<uint32_t>(std::stoul(hex.substr(8 * i, 8), nullptr, 16));
+  return limbs;
 }
 
 bool valid_uid_root(const std::string& root) {
@@ -215,7 +226,16 @@ Result<std::string> new_uid(const std::string& root) {
     return invalid_argument_error("'" + root + "' is not a UID root: digits in dot-separated components without "
                                   "leading zeros, at most 40 characters (e.g. 2.25 or your organisation's root)");
   }
-  std::string uid = root + "." + uuid_decimal();
+  std::string uid = root + "." + uuid_decimal(random_bits(), 4);
+  if (uid.size() > 64) uid.resize(64);
+  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.')) uid.pop_back();
+  return uid;
+}
+
+Result<std::string> uid_for(const DerivedSeriesOptions& options, const std::string& purpose) {
+  if (options.uid_seed.empty()) return new_uid(options.uid_root);
+  if (!valid_uid_root(options.uid_root)) return new_uid(options.uid_root);  // its message
+  std::string uid = options.uid_root + "." + uuid_decimal(bits_of(options.uid_seed + "\n" + purpose), 8);
   if (uid.size() > 64) uid.resize(64);
   while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.')) uid.pop_back();
   return uid;
@@ -394,14 +414,14 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
   // DICOM's slice normal is row x column; a left-handed grid's slices go out in reverse order.
   const bool reverse = dot(cross(row, column), slice_axis) < 0;
   SeriesInfo info = source;
-  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, new_uid(options.uid_root));
+  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, uid_for(options, "ct-series"));
   const int source_number = std::atoi(source.series_number.c_str());
   info.series_number = std::to_string(options.series_number > 0 ? options.series_number : source_number + 1000);
   info.series_description = options.series_description.empty() ? "posewarp derived" : options.series_description;
   info.modality = "CT";
   info.sop_class_uid = UID_CTImageStorage;
   if (info.frame_of_reference_uid.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, new_uid(options.uid_root));
+    POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, uid_for(options, "frame-of-reference"));
   }
   info.sop_instance_uids.clear();
   const std::string date = date_now("%Y%m%d"), time = date_now("%H%M%S");
@@ -412,7 +432,7 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
   for (int64_t n = 0; n < g.size[2]; ++n) {
     const int64_t k = reverse ? g.size[2] - 1 - n : n;
     std::string sop_uid;
-    POSEWARP_ASSIGN_OR_RETURN(sop_uid, new_uid(options.uid_root));
+    POSEWARP_ASSIGN_OR_RETURN(sop_uid, uid_for(options, "ct/" + std::to_string(n)));
     DcmFileFormat file;
     DcmDataset& d = *file.getDataset();
     const auto put = [&d](const DcmTagKey& tag, const std::string& value) { d.putAndInsertString(tag, value.c_str()); };

@@ -206,9 +206,9 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   std::unique_ptr<DcmSegmentation> seg(created);
   if (ok.bad() || !seg) return internal_error(std::string("cannot create a segmentation: ") + ok.text());
   SeriesInfo info = ct;
-  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, new_uid(options.uid_root));
+  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, uid_for(options, "seg-series"));
   std::string sop_uid;
-  POSEWARP_ASSIGN_OR_RETURN(sop_uid, new_uid(options.uid_root));
+  POSEWARP_ASSIGN_OR_RETURN(sop_uid, uid_for(options, "seg"));
   info.modality = "SEG";
   info.sop_class_uid = UID_SegmentationStorage;
   info.sop_instance_uids = {sop_uid};
@@ -301,7 +301,7 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     }
   }
   std::string dimension_uid;
-  POSEWARP_ASSIGN_OR_RETURN(dimension_uid, new_uid(options.uid_root));
+  POSEWARP_ASSIGN_OR_RETURN(dimension_uid, uid_for(options, "seg-dimensions"));
   IODMultiframeDimensionModule& dimensions = seg->getDimensions();
   dimensions.addDimensionIndex(DCM_ReferencedSegmentNumber, dimension_uid.c_str(), DCM_SegmentIdentificationSequence,
                                "ReferencedSegmentNumber");

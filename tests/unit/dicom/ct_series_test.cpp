@@ -246,6 +246,17 @@ TEST(DicomUid, NewUidsAreValidAndUnderTheirRoot) {
   }
   EXPECT_EQ(seen.size(), 200u);
   EXPECT_EQ(new_uid("1.2.840.99999.1")->rfind("1.2.840.99999.1.", 0), 0u);
+  // Seeded: the same seed and purpose give the same UID (a rewrite replaces instead of duplicating).
+  DerivedSeriesOptions seeded;
+  seeded.uid_seed = std::string(POSEWARP_SOURCE_DIR) + "/batch.json row 7";
+  EXPECT_EQ(*uid_for(seeded, "ct/3"), *uid_for(seeded, "ct/3"));
+  EXPECT_NE(*uid_for(seeded, "ct/3"), *uid_for(seeded, "ct/4"));
+  EXPECT_EQ(uid_for(seeded, "ct/3")->rfind("2.25.", 0), 0u);
+  EXPECT_LE(uid_for(seeded, "ct/3")->size(), 64u);
+  DerivedSeriesOptions other;
+  other.uid_seed = seeded.uid_seed + " again";
+  EXPECT_NE(*uid_for(seeded, "ct/3"), *uid_for(other, "ct/3"));
+  EXPECT_NE(*uid_for(DerivedSeriesOptions{}, "ct/3"), *uid_for(DerivedSeriesOptions{}, "ct/3"));
   for (const char* bad : {"", "1.02.3", "1..2", "1.2.", "abc", "1.2.3.4.5.6.7.8.9.10.11.12.13.14.15.16.17.18.19"}) {
     EXPECT_FALSE(new_uid(bad).ok()) << bad;
   }

@@ -45,10 +45,16 @@ struct DerivedSeriesOptions {
   std::string series_description;      // e.g. "posewarp: knee bent (CoR)"
   std::string derivation_description;  // e.g. the pose and method in words
   int series_number = 0;               // 0: the source's number + 1000
+  // Non-empty: every new UID is derived from this text (and what it names) instead of drawn at random, so writing
+  // the same result again gives the same UIDs (a PACS then replaces, never duplicates; a batch uses its row's key).
+  std::string uid_seed;
 };
 
 // A new UID under `root` (see DerivedSeriesOptions::uid_root); at most 64 characters.
 Result<std::string> new_uid(const std::string& root);
+// The UID `options` give the thing `purpose` names ("ct-series", "ct/12", ...): derived from options.uid_seed when
+// set, else new.
+Result<std::string> uid_for(const DerivedSeriesOptions& options, const std::string& purpose);
 
 // `ct` as a derived CT series of `source`'s study (same patient and study, new series and instance UIDs, ImageType
 // DERIVED\SECONDARY\AXIAL, the original series referenced, every source instance in each slice's Source Image Sequence,

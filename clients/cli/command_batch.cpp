@@ -1,0 +1,651 @@
+// posewarp batch: the rows of a manifest (JSON or CSV), or of a PACS query, posed in parallel: each study's rig built
+// once and reused by every pose of that study, results written to directories and/or stored back into the PACS,
+// progress on the way, a state file that makes a rerun skip what is done, and a summary (JSON and CSV).
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <filesystem>
+#include <fstream>
+#include <future>
+#include <map>
+#include <mutex>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "cli_support.h"
+#include "posewarp/api/dicom.h"
+#include "posewarp/api/files.h"
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/pacs/dicomweb.h"
+
+namespace posewarp::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using json = nlohmann::json;
+
+double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+
+// One row: where the study comes from, what to do, where the results go.
+struct Row {
+  std::string id;
+  std::string labels, ct, label_map, preset = "totalsegmentator";  // files
+  std::string dicom_ct, dicom_seg;                                  // a DICOM series directory and its SEG
+  std::string pacs_study, ct_series, seg_series;                    // a study in the PACS
+  std::string pose, animation;
+  std::string method = "cor";
+  std::string out_dir;
+  bool to_pacs = false;
+  std::string study_key() const {
+    return json{{"labels", labels}, {"ct", ct}, {"label_map", label_map}, {"preset", preset}, {"dicom_ct", dicom_ct},
+                {"dicom_seg", dicom_seg}, {"pacs_study", pacs_study}, {"ct_series", ct_series}, {"seg_series", seg_series}}
+        .dump();
+  }
+};
+
+constexpr const char* kColumns[] = {"id", "labels", "ct", "label_map", "preset", "dicom_ct", "dicom_seg", "pacs_study",
+                                    "ct_series", "seg_series", "pose", "animation", "method", "out_dir", "to_pacs"};
+
+Status set_field(Row& row, const std::string& key, const std::string& value, const std::string& where) {
+  std::string* fields[] = {&row.id, &row.labels, &row.ct, &row.label_map, &row.preset, &row.dicom_ct, &row.dicom_seg,
+                           &row.pacs_study, &row.ct_series, &row.seg_series, &row.pose, &row.animation, &row.method,
+                           &row.out_dir};
+  for (size_t i = 0; i < std::size(fields); ++i) {
+    if (key == kColumns[i]) {
+      if (!value.empty()) *fields[i] = value;
+      return ok_status();
+    }
+  }
+  if (key == "to_pacs") {
+    row.to_pacs = value == "true" || value == "1" || value == "yes";
+    return ok_status();
+  }
+  return invalid_argument_error(where + ": unknown field '" + key + "'; a row has: id, labels, ct, label_map, preset, "
+                                "dicom_ct, dicom_seg, pacs_study, ct_series, seg_series, pose, animation, method, "
+                                "out_dir, to_pacs");
+}
+
+// One CSV line's fields (double quotes around a field that holds commas; "" inside it is a quote).
+std::vector<std::string> csv_fields(const std::string& line) {
+  std::vector<std::string> out(1);
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted && c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+      out.back() += '"';
+      ++i;
+    } else if (c == '"') {
+      quoted = !quoted;
+    } else if (c == ',' && !quoted) {
+      out.emplace_back();
+    } else if (c != '\r') {
+      out.back() += c;
+    }
+  }
+  return out;
+}
+
+std::string csv_field(const std::string& value) {
+  if (value.find_first_of(",\"\n") == std::string::npos) return value;
+  std::string quoted = "\"";
+  for (char c : value) quoted += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return quoted + "\"";
+}
+
+// Paths in a manifest are relative to the manifest's directory.
+void resolve(Row& row, const fs::path& base) {
+  for (std::string* path : {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose,
+                            &row.animation, &row.out_dir}) {
+    if (!path->empty() && fs::path(*path).is_relative()) *path = (base / *path).lexically_normal().string();
+  }
+}
+
+Status check_row(const Row& row, const std::string& where) {
+  const int sources = (!row.labels.empty()) + (!row.dicom_seg.empty()) + (!row.pacs_study.empty());
+  if (sources != 1) {
+    return invalid_argument_error(where + ": give one input: labels (+ ct), dicom_ct + dicom_seg, or pacs_study");
+  }
+  if (!row.dicom_seg.empty() && row.dicom_ct.empty()) return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
+  if (row.pose.empty() == row.animation.empty()) return invalid_argument_error(where + ": give a pose or an animation");
+  if (row.method != "cor" && row.method != "dqs" && row.method != "lbs") {
+    return invalid_argument_error(where + ": method must be cor, dqs or lbs, not '" + row.method + "'");
+  }
+  if (row.out_dir.empty() && !row.to_pacs) return invalid_argument_error(where + ": give out_dir, to_pacs or both");
+  if (row.to_pacs && !row.labels.empty()) {
+    return invalid_argument_error(where + ": to_pacs stores a derived series into the study it came from; a row "
+                                  "from files has none (export it with posewarp dicom export first)");
+  }
+  return ok_status();
+}
+
+Result<std::vector<Row>> read_manifest(const std::string& path) {
+  POSEWARP_ASSIGN_OR_RETURN(const std::string text, api::read_text_input(path, "batch manifest"));
+  const fs::path base = fs::path(path).parent_path();
+  std::vector<Row> rows;
+  const size_t first = text.find_first_not_of(" \t\r\n");
+  const bool is_json = fs::path(path).extension() == ".json" || (first != std::string::npos && text[first] == '{');
+  if (is_json) {
+    const json doc = json::parse(text, nullptr, false);
+    if (doc.is_discarded() || !doc.is_object() || !doc.contains("rows") || !doc["rows"].is_array()) {
+      return invalid_argument_error("manifest '" + path + "' is not JSON with \"rows\": [...] (or a CSV with a header)");
+    }
+    const json defaults = doc.value("defaults", json::object());
+    for (size_t i = 0; i < doc["rows"].size(); ++i) {
+      const std::string where = "manifest '" + path + "' row " + std::to_string(i + 1);
+      Row row;
+      for (const json* source : {&defaults, &doc["rows"][i]}) {
+        if (!source->is_object()) return invalid_argument_error(where + " is not an object");
+        for (const auto& [key, value] : source->items()) {
+          const std::string v = value.is_string() ? value.get<std::string>() : value.is_boolean() ? (value.get<bool>() ? "true" : "false") : value.dump();
+          POSEWARP_RETURN_IF_ERROR(set_field(row, key, v, where));
+        }
+      }
+      rows.push_back(row);
+    }
+  } else {
+    std::istringstream lines(text);
+    std::string line;
+    std::vector<std::string> header;
+    for (int number = 1; std::getline(lines, line); ++number) {
+      if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
+      if (header.empty()) {
+        header = csv_fields(line);
+        continue;
+      }
+      const std::vector<std::string> fields = csv_fields(line);
+      const std::string where = "manifest '" + path + "' line " + std::to_string(number);
+      if (fields.size() > header.size()) return invalid_argument_error(where + " has more fields than the header");
+      Row row;
+      for (size_t i = 0; i < fields.size(); ++i) POSEWARP_RETURN_IF_ERROR(set_field(row, header[i], fields[i], where));
+      rows.push_back(row);
+    }
+  }
+  std::set<std::string> ids;
+  for (size_t i = 0; i < rows.size(); ++i) {
+    Row& row = rows[i];
+    if (row.id.empty()) row.id = "row" + std::to_string(i + 1);
+    if (!ids.insert(row.id).second) return invalid_argument_error("manifest '" + path + "': two rows are called '" + row.id + "'");
+    resolve(row, base);
+    POSEWARP_RETURN_IF_ERROR(check_row(row, "manifest '" + path + "' row '" + row.id + "'"));
+  }
+  if (rows.empty()) return invalid_argument_error("manifest '" + path + "' has no rows");
+  return rows;
+}
+
+// What a row's result depends on: its fields, its pose's text and its input files' sizes and times. A rerun skips a
+// row whose key the state file holds.
+std::string row_key(const Row& row) {
+  json key{{"study", row.study_key()}, {"method", row.method}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}};
+  for (const std::string& file : {row.pose, row.animation}) {
+    if (file.empty()) continue;
+    Result<std::string> text = api::read_text_input(file, "pose");
+    key["pose"] = text.ok() ? api::sha256_hex(*text) : file;
+  }
+  for (const std::string& file : {row.labels, row.ct, row.dicom_seg, row.label_map}) {
+    std::error_code ec;
+    if (file.empty() || !fs::is_regular_file(file, ec)) continue;
+    key[file] = std::to_string(fs::file_size(file, ec)) + "@" +
+                std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
+  }
+  return api::sha256_hex(key.dump());
+}
+
+struct BatchOptions {
+  std::string manifest, state, summary, rig_cache;
+  int jobs = 1;
+  // The PACS.
+  std::string pacs, pacs_user, pacs_password_file, pacs_token_file, pacs_ca, uid_root = "2.25";
+  bool pacs_insecure = false;
+  // Rows from a query instead of a manifest.
+  std::string query, pose, animation, method = "cor", out_dir;
+  bool to_pacs = false;
+};
+
+// A study ready to pose: its engine (poses of one study run one at a time on it) and where it came from.
+struct Study {
+  std::unique_ptr<api::PoseEngine> engine;
+  std::mutex posing;
+  std::optional<api::SeriesInfo> dicom;  // the source CT series, for derived series
+  double fetch_s = 0, rig_s = 0;
+  bool rig_cached = false;
+};
+
+struct RowResult {
+  std::string status = "failed", error;
+  std::vector<std::string> outputs;
+  json figures = json::object();
+  double fetch_s = 0, rig_s = 0, pose_s = 0, encode_s = 0, store_s = 0;
+};
+
+class Batch {
+ public:
+  Batch(BatchOptions options, std::vector<Row> rows) : o_(std::move(options)), rows_(std::move(rows)) {}
+
+  int run() {
+    if (Status s = open_pacs(); !s.ok()) return report(s);
+    // Rows the state file says are done are skipped.
+    std::set<std::string> done;
+    {
+      std::ifstream in(o_.state);
+      for (std::string line; std::getline(in, line);) {
+        const json entry = json::parse(line, nullptr, false);
+        if (entry.is_object() && entry.value("status", "") == "done") done.insert(entry.value("key", ""));
+      }
+    }
+    results_.resize(rows_.size());
+    std::vector<size_t> todo;
+    for (size_t i = 0; i < rows_.size(); ++i) {
+      keys_.push_back(row_key(rows_[i]));
+      if (done.count(keys_[i])) {
+        results_[i].status = "skipped";
+      } else {
+        todo.push_back(i);
+      }
+    }
+    say("batch: " + std::to_string(rows_.size()) + " rows, " + std::to_string(rows_.size() - todo.size()) +
+        " done before (skipped), " + std::to_string(todo.size()) + " to run with " + std::to_string(o_.jobs) + " jobs");
+    const auto start = Clock::now();
+    std::atomic<size_t> next{0};
+    std::vector<std::thread> workers;
+    std::atomic<bool> finished{false};
+    std::thread progress([&] {
+      while (!finished) {
+        for (int i = 0; i < 20 && !finished; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        if (!finished) say(progress_line(todo.size(), start));
+      }
+    });
+    for (int w = 0; w < std::max(1, o_.jobs); ++w) {
+      workers.emplace_back([&] {
+        for (size_t n; (n = next++) < todo.size();) {
+          const size_t i = todo[n];
+          ++running_;
+          results_[i] = run_row(rows_[i], keys_[i]);
+          --running_;
+          (results_[i].status == "done" ? finished_ok_ : failed_)++;
+          if (results_[i].status != "done") say("row '" + rows_[i].id + "' failed: " + results_[i].error);
+        }
+      });
+    }
+    for (std::thread& t : workers) t.join();
+    finished = true;
+    progress.join();
+    if (Status s = write_summary(); !s.ok()) return report(s);
+    say("batch: " + std::to_string(finished_ok_) + " done, " + std::to_string(failed_) + " failed, " +
+        std::to_string(rows_.size() - todo.size()) + " skipped in " + std::to_string(static_cast<int>(seconds_since(start))) +
+        " s; summary in " + o_.summary + ".json and .csv");
+    return failed_ == 0 ? 0 : 1;
+  }
+
+ private:
+  Status open_pacs() {
+    if (o_.pacs.empty()) {
+      for (const Row& row : rows_) {
+        if (!row.pacs_study.empty() || row.to_pacs) {
+          return invalid_argument_error("row '" + row.id + "' uses the PACS: give --pacs URL (its DICOMweb root)");
+        }
+      }
+      return ok_status();
+    }
+    pacs::DicomWebOptions options;
+    options.base_url = o_.pacs;
+    options.username = o_.pacs_user;
+    options.verify_tls = !o_.pacs_insecure;
+    options.ca_file = o_.pacs_ca;
+    for (auto [file, field] : {std::pair{&o_.pacs_password_file, &options.password}, {&o_.pacs_token_file, &options.bearer_token}}) {
+      if (file->empty()) continue;
+      POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(*file, "secret file", 1 << 16));
+      while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
+      *field = secret;
+    }
+    pacs_ = std::make_unique<pacs::DicomWebClient>(options);
+    return ok_status();
+  }
+
+  std::string progress_line(size_t total, Clock::time_point start) const {
+    const size_t finished = finished_ok_ + failed_;
+    std::string line = "batch: " + std::to_string(finished) + "/" + std::to_string(total) + " rows, " +
+                       std::to_string(running_.load()) + " running, " + std::to_string(failed_.load()) + " failed";
+    if (finished > 0 && finished < total) {
+      const double eta = seconds_since(start) / static_cast<double>(finished) * static_cast<double>(total - finished);
+      line += ", about " + std::to_string(static_cast<int>(eta)) + " s left";
+    }
+    return line;
+  }
+
+  // The study of a row, loaded once: its rig from the cache, or built (other rows of the study wait for it).
+  Result<std::shared_ptr<Study>> study_of(const Row& row) {
+    std::shared_future<Result<std::shared_ptr<Study>>> future;
+    bool mine = false;
+    std::promise<Result<std::shared_ptr<Study>>> promise;
+    {
+      std::lock_guard<std::mutex> lock(studies_mutex_);
+      const auto found = studies_.find(row.study_key());
+      if (found != studies_.end()) {
+        future = found->second;
+      } else {
+        future = promise.get_future().share();
+        studies_.emplace(row.study_key(), future);
+        mine = true;
+      }
+    }
+    if (mine) promise.set_value(load_study(row));
+    return future.get();
+  }
+
+  Result<std::shared_ptr<Study>> load_study(const Row& row) {
+    auto study = std::make_shared<Study>();
+    const auto fetch_start = Clock::now();
+    api::BuildInputs inputs;
+    POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map, api::load_label_map(row.label_map, row.preset));
+    if (!row.labels.empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(inputs.labels, api::read_label_volume(row.labels, read_options()));
+      if (!row.ct.empty()) {
+        POSEWARP_ASSIGN_OR_RETURN(inputs.ct, api::read_intensity_volume(row.ct, read_options()));
+      }
+      inputs.label_map = map;
+    } else {
+      api::DicomStudy dicom;
+      if (!row.dicom_seg.empty()) {
+        POSEWARP_ASSIGN_OR_RETURN(dicom, api::read_dicom_study(row.dicom_ct, row.dicom_seg, map));
+      } else {
+        POSEWARP_ASSIGN_OR_RETURN(dicom, fetch_from_pacs(row, map));
+      }
+      for (const std::string& w : dicom.warnings) say("row '" + row.id + "': " + w);
+      inputs.labels = std::move(dicom.labels);
+      inputs.ct = std::move(dicom.ct.ct);
+      inputs.label_map = std::move(dicom.label_map);
+      study->dicom = dicom.ct.info;
+    }
+    study->fetch_s = seconds_since(fetch_start);
+    const auto rig_start = Clock::now();
+    // The rig cache: one file per study (its inputs' key), kept between runs.
+    const std::string cached = (fs::path(o_.rig_cache) / (api::sha256_hex(row.study_key()).substr(0, 32) + ".rig")).string();
+    std::optional<api::Rig> rig;
+    if (std::error_code ec; fs::exists(cached, ec)) {
+      Result<api::Rig> loaded = api::load_rig(cached);
+      if (loaded.ok()) rig = std::move(loaded).value(), study->rig_cached = true;
+    }
+    if (!rig) {
+      POSEWARP_ASSIGN_OR_RETURN(api::Rig built, api::build_rig(inputs, {}, {}));
+      std::error_code ec;
+      fs::create_directories(o_.rig_cache, ec);
+      if (Status s = api::save_rig(built, cached); !s.ok()) say("warning: the rig cache: " + s.to_string());
+      rig = std::move(built);
+    }
+    POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, api::PoseEngine::create(std::move(*rig)));
+    study->engine = std::make_unique<api::PoseEngine>(std::move(engine));
+    study->rig_s = seconds_since(rig_start);
+    return study;
+  }
+
+  // The CT series and SEG of a study in the PACS (the series named by the row, else its CT and its SEG).
+  Result<api::DicomStudy> fetch_from_pacs(const Row& row, const labels::LabelMap& map) {
+    std::string ct_series = row.ct_series, seg_series = row.seg_series;
+    if (ct_series.empty() || seg_series.empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(const std::vector<pacs::DicomWebRecord> series, pacs_->search_series(row.pacs_study));
+      size_t most = 0;
+      for (const pacs::DicomWebRecord& s : series) {
+        const std::string modality = s.count("Modality") ? s.at("Modality") : "";
+        const size_t count = s.count("NumberOfSeriesRelatedInstances") ? std::stoul("0" + s.at("NumberOfSeriesRelatedInstances")) : 0;
+        const std::string description = s.count("SeriesDescription") ? s.at("SeriesDescription") : "";
+        if (description.rfind("posewarp", 0) == 0) continue;  // our own derived series are not inputs
+        if (ct_series.empty() && modality == "CT" && count >= most) most = count, ct_series = s.at("SeriesInstanceUID");
+        if (row.seg_series.empty() && modality == "SEG" && seg_series.empty()) seg_series = s.at("SeriesInstanceUID");
+      }
+      if (ct_series.empty() || seg_series.empty()) {
+        return not_found_error("study " + row.pacs_study + " in the PACS has no CT series or no SEG to pose");
+      }
+    }
+    const fs::path scratch = fs::path(o_.rig_cache) / ("fetch-" + api::sha256_hex(row.id + row.pacs_study).substr(0, 16));
+    std::error_code ec;
+    fs::remove_all(scratch, ec);
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> ct_files,
+                              pacs_->retrieve_series(row.pacs_study, ct_series, (scratch / "ct").string()));
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> seg_files,
+                              pacs_->retrieve_series(row.pacs_study, seg_series, (scratch / "seg").string()));
+    if (seg_files.size() != 1) return invalid_argument_error("the SEG series " + seg_series + " holds " + std::to_string(seg_files.size()) + " instances, not one");
+    std::vector<std::string> instances;
+    for (const std::string& f : ct_files) {
+      POSEWARP_ASSIGN_OR_RETURN(std::string bytes, api::read_text_input(f, "DICOM file", int64_t{1} << 31));
+      instances.push_back(std::move(bytes));
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const std::string seg, api::read_text_input(seg_files.front(), "DICOM SEG", int64_t{1} << 32));
+    fs::remove_all(scratch, ec);
+    return api::read_dicom_study(instances, seg, map);
+  }
+
+  RowResult run_row(const Row& row, const std::string& key) {
+    RowResult result;
+    Result<std::shared_ptr<Study>> study = study_of(row);
+    if (!study.ok()) {
+      result.error = study.status().to_string();
+      return result;
+    }
+    Study& s = **study;
+    // The first row of a study pays for fetching and the rig; the others find it ready.
+    {
+      std::lock_guard<std::mutex> lock(studies_mutex_);
+      if (charged_.insert(row.study_key()).second) result.fetch_s = s.fetch_s, result.rig_s = s.rig_s;
+    }
+    std::vector<pose::Pose> poses;
+    if (!row.pose.empty()) {
+      Result<pose::Pose> p = api::read_pose(row.pose);
+      if (!p.ok()) return result.error = p.status().to_string(), result;
+      poses.push_back(*p);
+    } else {
+      Result<pose::Animation> a = api::read_animation(row.animation);
+      if (!a.ok()) return result.error = a.status().to_string(), result;
+      poses = a->frames;
+    }
+    const std::string pose_name = fs::path(row.pose.empty() ? row.animation : row.pose).stem().string();
+    for (size_t f = 0; f < poses.size(); ++f) {
+      const std::string frame = poses.size() == 1 ? "" : "frame_" + std::to_string(f);
+      api::PoseRequest request;
+      request.pose = poses[f];
+      request.want_labels = request.want_ct = true;
+      Result<skinning::Method> method = skinning::method_from_name(row.method);
+      request.method = *method;
+      const auto pose_start = Clock::now();
+      Result<api::PoseResult> posed = [&] {
+        std::lock_guard<std::mutex> lock(s.posing);
+        return s.engine->pose(request);
+      }();
+      result.pose_s += seconds_since(pose_start);
+      if (!posed.ok()) return result.error = posed.status().to_string(), result;
+      const report::QualityReport& q = posed->report;
+      result.figures = {{"inverted_tets", q.mesh.inverted_tets}, {"bone_rigidity_error_mm", q.bone_rigidity_error_mm},
+                        {"volume_change", q.mesh.body_volume_change}, {"new_labels", q.labels.appeared},
+                        {"lost_labels", q.labels.vanished}, {"warnings", q.warnings.size()}};
+      // Everything is made first; files land through a partial directory, the PACS gets each series whole.
+      const auto encode_start = Clock::now();
+      std::optional<api::DicomOutputs> dicom;
+      if (s.dicom) {
+        api::DerivedSeriesOptions options;
+        options.uid_root = o_.uid_root;
+        options.uid_seed = key + "/" + frame;  // a rerun writes the same UIDs: nothing stored twice
+        options.series_description = "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
+        options.derivation_description = "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " +
+                                         s.dicom->series_instance_uid;
+        Result<api::DicomOutputs> encoded =
+            api::encode_dicom_outputs(*posed->ct, *posed->labels, s.engine->rig().label_map, *s.dicom, options);
+        if (!encoded.ok()) return result.error = encoded.status().to_string(), result;
+        dicom = std::move(encoded).value();
+      }
+      if (!row.out_dir.empty()) {
+        const fs::path out = frame.empty() ? fs::path(row.out_dir) : fs::path(row.out_dir) / frame;
+        if (Status w = write_directory(out, *posed, dicom); !w.ok()) return result.error = w.to_string(), result;
+        result.outputs.push_back(out.string());
+      }
+      result.encode_s += seconds_since(encode_start);
+      if (row.to_pacs && dicom) {
+        const auto store_start = Clock::now();
+        Status stored = pacs_->store(dicom->ct_files, s.dicom->study_instance_uid);
+        if (stored.ok()) stored = pacs_->store({dicom->seg_file}, s.dicom->study_instance_uid);
+        if (!stored.ok()) return result.error = stored.to_string(), result;
+        result.store_s += seconds_since(store_start);
+        result.outputs.push_back("pacs:" + dicom->ct.series_instance_uid);
+        result.outputs.push_back("pacs:" + dicom->seg.series_instance_uid);
+      }
+    }
+    result.status = "done";
+    record(row, key, result);
+    return result;
+  }
+
+  // OUT.partial filled, then renamed to OUT: a row killed midway leaves no OUT that looks finished.
+  static Status write_directory(const fs::path& out, const api::PoseResult& posed, const std::optional<api::DicomOutputs>& dicom) {
+    const fs::path partial = out.string() + ".partial";
+    std::error_code ec;
+    fs::remove_all(partial, ec);
+    fs::create_directories(partial, ec);
+    if (ec) return invalid_argument_error("cannot make '" + partial.string() + "': " + ec.message());
+    POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.labels, (partial / "labels.nii.gz").string()));
+    POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.ct, (partial / "ct.nii.gz").string()));
+    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically((partial / "report.json").string(), report::to_json(posed.report), "report"));
+    if (dicom) {
+      POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(*dicom, (partial / "dicom").string()));
+    }
+    fs::remove_all(out, ec);
+    fs::rename(partial, out, ec);
+    if (ec) return invalid_argument_error("cannot name '" + out.string() + "': " + ec.message());
+    return ok_status();
+  }
+
+  // A finished row, appended to the state file and flushed to disk before the next row counts it done.
+  void record(const Row& row, const std::string& key, const RowResult& result) {
+    const json entry{{"key", key}, {"id", row.id}, {"status", "done"}, {"outputs", result.outputs}};
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    std::ofstream out(o_.state, std::ios::app);
+    out << entry.dump() << "\n";
+    out.flush();
+    if (!out) say("warning: cannot append to the state file '" + o_.state + "'; a rerun will redo row '" + row.id + "'");
+  }
+
+  Status write_summary() const {
+    json rows = json::array();
+    std::string csv = "id,status,error,outputs,inverted_tets,bone_rigidity_error_mm,volume_change,warnings,fetch_s,rig_s,pose_s,encode_s,store_s\n";
+    for (size_t i = 0; i < rows_.size(); ++i) {
+      const RowResult& r = results_[i];
+      rows.push_back({{"id", rows_[i].id}, {"status", r.status}, {"error", r.error}, {"outputs", r.outputs},
+                      {"report", r.figures},
+                      {"seconds", {{"fetch", r.fetch_s}, {"rig", r.rig_s}, {"pose", r.pose_s}, {"encode", r.encode_s}, {"store", r.store_s}}}});
+      std::string outputs;
+      for (const std::string& out : r.outputs) outputs += (outputs.empty() ? "" : ";") + out;
+      const auto figure = [&](const char* name) { return r.figures.contains(name) ? r.figures[name].dump() : std::string(); };
+      char times[160];
+      std::snprintf(times, sizeof times, "%.3f,%.3f,%.3f,%.3f,%.3f", r.fetch_s, r.rig_s, r.pose_s, r.encode_s, r.store_s);
+      csv += csv_field(rows_[i].id) + "," + r.status + "," + csv_field(r.error) + "," + csv_field(outputs) + "," +
+             figure("inverted_tets") + "," + figure("bone_rigidity_error_mm") + "," + figure("volume_change") + "," +
+             figure("warnings") + "," + times + "\n";
+    }
+    const json doc{{"format", "posewarp.batch_summary"}, {"version", 1}, {"rows", rows}};
+    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(o_.summary + ".json", doc.dump(2) + "\n", "batch summary"));
+    return api::write_file_atomically(o_.summary + ".csv", csv, "batch summary");
+  }
+
+  BatchOptions o_;
+  std::vector<Row> rows_;
+  std::vector<std::string> keys_;
+  std::vector<RowResult> results_;
+  std::unique_ptr<pacs::DicomWebClient> pacs_;
+  std::mutex studies_mutex_, state_mutex_;
+  std::map<std::string, std::shared_future<Result<std::shared_ptr<Study>>>> studies_;
+  std::set<std::string> charged_;
+  std::atomic<int> running_{0}, finished_ok_{0}, failed_{0};
+};
+
+// Rows from a QIDO-RS query: one per study found, posed with the given pose.
+Result<std::vector<Row>> rows_from_query(const BatchOptions& o) {
+  if (o.pacs.empty()) return invalid_argument_error("--query searches a PACS: give --pacs URL");
+  if (o.pose.empty() == o.animation.empty()) return invalid_argument_error("--query needs --pose or --animation");
+  if (o.out_dir.empty() && !o.to_pacs) return invalid_argument_error("--query needs --out-dir DIR, --to-pacs or both");
+  pacs::DicomWebOptions options;
+  options.base_url = o.pacs;
+  options.username = o.pacs_user;
+  options.verify_tls = !o.pacs_insecure;
+  options.ca_file = o.pacs_ca;
+  if (!o.pacs_password_file.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(o.pacs_password_file, "secret file", 1 << 16));
+    while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
+    options.password = secret;
+  }
+  if (!o.pacs_token_file.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(o.pacs_token_file, "secret file", 1 << 16));
+    while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
+    options.bearer_token = secret;
+  }
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<pacs::DicomWebRecord> studies,
+                            pacs::DicomWebClient(options).search_studies(o.query));
+  std::vector<Row> rows;
+  for (const pacs::DicomWebRecord& study : studies) {
+    Row row;
+    row.pacs_study = study.count("StudyInstanceUID") ? study.at("StudyInstanceUID") : "";
+    if (row.pacs_study.empty()) continue;
+    row.id = "study-" + row.pacs_study;
+    row.pose = o.pose;
+    row.animation = o.animation;
+    row.method = o.method;
+    row.to_pacs = o.to_pacs;
+    if (!o.out_dir.empty()) row.out_dir = (fs::path(o.out_dir) / row.pacs_study).string();
+    POSEWARP_RETURN_IF_ERROR(check_row(row, "--query row for study " + row.pacs_study));
+    rows.push_back(row);
+  }
+  if (rows.empty()) return not_found_error("the query '" + o.query + "' found no studies in the PACS");
+  return rows;
+}
+
+}  // namespace
+
+void add_batch_command(CLI::App& app) {
+  auto o = std::make_shared<BatchOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "batch",
+      "Pose many studies: the rows of a manifest (JSON or CSV: id, labels, ct, label_map, preset | dicom_ct, dicom_seg | "
+      "pacs_study, ct_series, seg_series; pose | animation; method; out_dir; to_pacs), or one row per study a PACS query "
+      "finds. Rows run in parallel (--jobs); each study's rig is built once and cached; a state file makes a rerun "
+      "skip finished rows; a summary (JSON and CSV) gives each row's status, outputs and quality figures. Exit 0 when "
+      "every row succeeded, 1 otherwise");
+  cmd->add_option("manifest", o->manifest, "Manifest file (.json or .csv); paths in it are relative to it");
+  cmd->add_option("--jobs", o->jobs, "Rows at once")->check(CLI::Range(1, 64))->capture_default_str();
+  cmd->add_option("--state", o->state, "State file of finished rows (default: MANIFEST.state.jsonl)");
+  cmd->add_option("--summary", o->summary, "Summary files PREFIX.json and PREFIX.csv (default: MANIFEST.summary)");
+  cmd->add_option("--rig-cache", o->rig_cache, "Directory of built rigs, one per study (default: MANIFEST.rigs)");
+  cmd->add_option("--pacs", o->pacs, "The PACS's DICOMweb root, e.g. http://host:8042/dicom-web");
+  cmd->add_option("--pacs-user", o->pacs_user, "HTTP basic auth user");
+  cmd->add_option("--pacs-password-file", o->pacs_password_file, "File holding the password");
+  cmd->add_option("--pacs-token-file", o->pacs_token_file, "File holding a bearer token instead");
+  cmd->add_option("--pacs-ca", o->pacs_ca, "CA certificate bundle of an HTTPS PACS");
+  cmd->add_flag("--pacs-insecure", o->pacs_insecure, "Do not verify the PACS's TLS certificate (a test PACS only)");
+  cmd->add_option("--uid-root", o->uid_root, "Root of the derived series' UIDs")->capture_default_str();
+  cmd->add_option("--query", o->query, "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
+  cmd->add_option("--pose", o->pose, "With --query: the pose for every study");
+  cmd->add_option("--animation", o->animation, "With --query: an animation instead");
+  cmd->add_option("--method", o->method, "With --query: cor, dqs or lbs")->capture_default_str();
+  cmd->add_option("--out-dir", o->out_dir, "With --query: a directory per study under this one");
+  cmd->add_flag("--to-pacs", o->to_pacs, "With --query: store the derived CT series and SEG back into each study");
+  cmd->callback([o] {
+    BatchOptions options = *o;
+    Result<std::vector<Row>> rows = invalid_argument_error("give a MANIFEST, or --pacs URL --query Q --pose POSE.json");
+    std::string base = fs::path(options.manifest).replace_extension("").string();
+    if (!options.query.empty()) {
+      rows = rows_from_query(options);
+      if (base.empty()) base = (fs::path(options.out_dir.empty() ? "." : options.out_dir) / "query").string();
+    } else if (!options.manifest.empty()) {
+      rows = read_manifest(options.manifest);
+    }
+    if (!rows.ok()) throw CLI::RuntimeError(report(rows.status()));
+    if (options.state.empty()) options.state = base + ".state.jsonl";
+    if (options.summary.empty()) options.summary = base + ".summary";
+    if (options.rig_cache.empty()) options.rig_cache = base + ".rigs";
+    const int code = Batch(options, std::move(rows).value()).run();
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+}  // namespace posewarp::cli
