@@ -58,7 +58,9 @@ Status set_field(Row& row, const std::string& key, const std::string& value, con
                            &row.out_dir};
   for (size_t i = 0; i < std::size(fields); ++i) {
     if (key == kColumns[i]) {
-      if (!value.empty()) *fields[i] = value;
+      // An empty value clears a default (a row of files in a manifest whose defaults name DICOM), except for the
+      // method and the preset, which keep theirs.
+      if (!value.empty() || (key != "method" && key != "preset")) *fields[i] = value;
       return ok_status();
     }
   }
@@ -178,10 +180,10 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
   return rows;
 }
 
-// What a row's result depends on: its fields, its pose's text and its input files' sizes and times. A rerun skips a
-// row whose key the state file holds.
-std::string row_key(const Row& row) {
-  json key{{"study", row.study_key()}, {"method", row.method}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}};
+// What a row's result depends on: its study, its pose's text, its method and its input files' sizes and times. The
+// same result is the same derived series (its UIDs are derived from this key), whichever batch asks for it.
+std::string result_key(const Row& row) {
+  nlohmann::json key{{"study", row.study_key()}, {"method", row.method}};
   for (const std::string& file : {row.pose, row.animation}) {
     if (file.empty()) continue;
     Result<std::string> text = api::read_text_input(file, "pose");
@@ -194,6 +196,11 @@ std::string row_key(const Row& row) {
                 std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
   }
   return api::sha256_hex(key.dump());
+}
+
+// A row done: its result, written where the row says. A rerun skips a row whose key the state file holds.
+std::string row_key(const Row& row) {
+  return api::sha256_hex(nlohmann::json{{"result", result_key(row)}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}}.dump());
 }
 
 struct BatchOptions {
@@ -242,6 +249,7 @@ class Batch {
     std::vector<size_t> todo;
     for (size_t i = 0; i < rows_.size(); ++i) {
       keys_.push_back(row_key(rows_[i]));
+      result_keys_.push_back(result_key(rows_[i]));
       if (done.count(keys_[i])) {
         results_[i].status = "skipped";
       } else {
@@ -265,7 +273,7 @@ class Batch {
         for (size_t n; (n = next++) < todo.size();) {
           const size_t i = todo[n];
           ++running_;
-          results_[i] = run_row(rows_[i], keys_[i]);
+          results_[i] = run_row(rows_[i], keys_[i], result_keys_[i]);
           --running_;
           (results_[i].status == "done" ? finished_ok_ : failed_)++;
           if (results_[i].status != "done") say("row '" + rows_[i].id + "' failed: " + results_[i].error);
@@ -420,7 +428,7 @@ class Batch {
     return api::read_dicom_study(instances, seg, map);
   }
 
-  RowResult run_row(const Row& row, const std::string& key) {
+  RowResult run_row(const Row& row, const std::string& key, const std::string& uid_key) {
     RowResult result;
     Result<std::shared_ptr<Study>> study = study_of(row);
     if (!study.ok()) {
@@ -468,7 +476,7 @@ class Batch {
       if (s.dicom) {
         api::DerivedSeriesOptions options;
         options.uid_root = o_.uid_root;
-        options.uid_seed = key + "/" + frame;  // a rerun writes the same UIDs: nothing stored twice
+        options.uid_seed = uid_key + "/" + frame;  // the same result has the same UIDs: nothing stored twice
         options.series_description = "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
         options.derivation_description = "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " +
                                          s.dicom->series_instance_uid;
@@ -551,7 +559,7 @@ class Batch {
 
   BatchOptions o_;
   std::vector<Row> rows_;
-  std::vector<std::string> keys_;
+  std::vector<std::string> keys_, result_keys_;
   std::vector<RowResult> results_;
   std::unique_ptr<pacs::DicomWebClient> pacs_;
   std::mutex studies_mutex_, state_mutex_;

@@ -234,6 +234,62 @@ TEST_F(Orthanc, APoseOfAStudyInThePacsIsStoredBackIntoThatStudy) {
   EXPECT_EQ(seg->referenced_series_uid, outputs->ct.series_instance_uid);
 }
 
+// posewarp batch against the PACS: two poses of a study stored into it; a rerun that forgot its state (as after a
+// crash before the state was written) and a query-made batch of the same pose store nothing twice.
+TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
+  DicomWebClient client(orthanc_->options());
+  ASSERT_TRUE(client.store(study_.ct_files).ok());
+  ASSERT_TRUE(client.store({study_.seg_file}).ok());
+  const std::string study_uid = study_.ct.study_instance_uid;
+  std::ofstream(dir_ / "password") << "s3cret\n";
+  const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
+  std::ofstream(dir_ / "rows.csv") << "id,pacs_study,pose,method,to_pacs\n"
+                                   << "cor," << study_uid << "," << poses << "/sample_hip_flexion.json,cor,true\n"
+                                   << "dqs," << study_uid << "," << poses << "/sample_hip_flexion.json,dqs,true\n";
+  const std::vector<std::string> pacs{"--pacs", orthanc_->options().base_url, "--pacs-user", "posewarp",
+                                      "--pacs-password-file", (dir_ / "password").string()};
+  const auto batch = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), POSEWARP_CLI);
+    args.insert(args.end(), pacs.begin(), pacs.end());
+    std::string command;
+    for (const std::string& a : args) command += "'" + a + "' ";
+    return std::system((command + "> '" + (dir_ / "batch.log").string() + "' 2>&1").c_str());
+  };
+  const auto log = [&] {
+    std::ifstream in(dir_ / "batch.log");
+    return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  };
+  const auto count = [&](const std::string& modality) {
+    Result<std::vector<pacs::DicomWebRecord>> series = client.search_series(study_uid, "Modality=" + modality);
+    return series.ok() ? series->size() : size_t{999};
+  };
+  ASSERT_EQ(batch({"batch", (dir_ / "rows.csv").string(), "--jobs", "2"}), 0) << log();
+  EXPECT_EQ(count("CT"), 3u);   // the original and two derived
+  EXPECT_EQ(count("SEG"), 3u);
+  Result<std::vector<pacs::DicomWebRecord>> series = client.search_series(study_uid, "Modality=CT");
+  size_t derived_instances = 0;
+  for (const auto& s : *series) {
+    if (s.at("SeriesInstanceUID") != study_.ct.series_instance_uid) derived_instances += std::stoul(s.at("NumberOfSeriesRelatedInstances"));
+  }
+  EXPECT_EQ(derived_instances, 2 * study_.ct_files.size());
+  // The summary says where each went.
+  std::ifstream summary_file(dir_ / "rows.summary.csv");
+  const std::string summary((std::istreambuf_iterator<char>(summary_file)), std::istreambuf_iterator<char>());
+  EXPECT_NE(summary.find("pacs:"), std::string::npos) << summary;
+  // Run again without its state, then as a query for the same pose: the same series, stored once.
+  fs::remove(dir_ / "rows.state.jsonl");
+  ASSERT_EQ(batch({"batch", (dir_ / "rows.csv").string()}), 0) << log();
+  ASSERT_EQ(batch({"batch", "--query", "PatientID=PW-ORTHANC", "--pose", poses + "/sample_hip_flexion.json", "--to-pacs",
+                   "--out-dir", (dir_ / "query").string()}), 0) << log();
+  EXPECT_NE(log().find("1 done"), std::string::npos) << log();
+  EXPECT_EQ(count("CT"), 3u);
+  EXPECT_EQ(count("SEG"), 3u);
+  EXPECT_TRUE(fs::exists(dir_ / "query" / study_uid / "report.json"));
+  // A query that finds nothing: a clear error.
+  EXPECT_EQ(batch({"batch", "--query", "PatientID=NOBODY", "--pose", poses + "/sample_hip_flexion.json", "--to-pacs"}) >> 8, 2)
+      << log();
+}
+
 // The multipart splitter on its own: parts whose bytes hold boundary-like text, split in 1 MiB blocks.
 TEST(Multipart, PartsAreSplitAtTheirBoundariesOnly) {
   const fs::path dir = fs::temp_directory_path() / ("posewarp-multipart-" + std::to_string(::getpid()));
