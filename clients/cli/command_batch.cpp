@@ -17,6 +17,7 @@
 #include <thread>
 
 #include "cli_support.h"
+#include "pacs_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
@@ -206,9 +207,8 @@ std::string row_key(const Row& row) {
 struct BatchOptions {
   std::string manifest, state, summary, rig_cache;
   int jobs = 1;
-  // The PACS.
-  std::string pacs, pacs_user, pacs_password_file, pacs_token_file, pacs_ca, uid_root = "2.25";
-  bool pacs_insecure = false;
+  PacsOptions pacs;
+  std::string uid_root = "2.25";
   // Rows from a query instead of a manifest.
   std::string query, pose, animation, method = "cor", out_dir;
   bool to_pacs = false;
@@ -292,7 +292,7 @@ class Batch {
 
  private:
   Status open_pacs() {
-    if (o_.pacs.empty()) {
+    if (o_.pacs.url.empty()) {
       for (const Row& row : rows_) {
         if (!row.pacs_study.empty() || row.to_pacs) {
           return invalid_argument_error("row '" + row.id + "' uses the PACS: give --pacs URL (its DICOMweb root)");
@@ -300,17 +300,7 @@ class Batch {
       }
       return ok_status();
     }
-    pacs::DicomWebOptions options;
-    options.base_url = o_.pacs;
-    options.username = o_.pacs_user;
-    options.verify_tls = !o_.pacs_insecure;
-    options.ca_file = o_.pacs_ca;
-    for (auto [file, field] : {std::pair{&o_.pacs_password_file, &options.password}, {&o_.pacs_token_file, &options.bearer_token}}) {
-      if (file->empty()) continue;
-      POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(*file, "secret file", 1 << 16));
-      while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
-      *field = secret;
-    }
+    POSEWARP_ASSIGN_OR_RETURN(const pacs::DicomWebOptions options, dicomweb_options(o_.pacs));
     pacs_ = std::make_unique<pacs::DicomWebClient>(options);
     return ok_status();
   }
@@ -570,24 +560,10 @@ class Batch {
 
 // Rows from a QIDO-RS query: one per study found, posed with the given pose.
 Result<std::vector<Row>> rows_from_query(const BatchOptions& o) {
-  if (o.pacs.empty()) return invalid_argument_error("--query searches a PACS: give --pacs URL");
+  if (o.pacs.url.empty()) return invalid_argument_error("--query searches a PACS: give --pacs URL");
   if (o.pose.empty() == o.animation.empty()) return invalid_argument_error("--query needs --pose or --animation");
   if (o.out_dir.empty() && !o.to_pacs) return invalid_argument_error("--query needs --out-dir DIR, --to-pacs or both");
-  pacs::DicomWebOptions options;
-  options.base_url = o.pacs;
-  options.username = o.pacs_user;
-  options.verify_tls = !o.pacs_insecure;
-  options.ca_file = o.pacs_ca;
-  if (!o.pacs_password_file.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(o.pacs_password_file, "secret file", 1 << 16));
-    while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
-    options.password = secret;
-  }
-  if (!o.pacs_token_file.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(std::string secret, api::read_text_input(o.pacs_token_file, "secret file", 1 << 16));
-    while (!secret.empty() && (secret.back() == '\n' || secret.back() == '\r')) secret.pop_back();
-    options.bearer_token = secret;
-  }
+  POSEWARP_ASSIGN_OR_RETURN(const pacs::DicomWebOptions options, dicomweb_options(o.pacs));
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<pacs::DicomWebRecord> studies,
                             pacs::DicomWebClient(options).search_studies(o.query));
   std::vector<Row> rows;
@@ -624,12 +600,7 @@ void add_batch_command(CLI::App& app) {
   cmd->add_option("--state", o->state, "State file of finished rows (default: MANIFEST.state.jsonl)");
   cmd->add_option("--summary", o->summary, "Summary files PREFIX.json and PREFIX.csv (default: MANIFEST.summary)");
   cmd->add_option("--rig-cache", o->rig_cache, "Directory of built rigs, one per study (default: MANIFEST.rigs)");
-  cmd->add_option("--pacs", o->pacs, "The PACS's DICOMweb root, e.g. http://host:8042/dicom-web");
-  cmd->add_option("--pacs-user", o->pacs_user, "HTTP basic auth user");
-  cmd->add_option("--pacs-password-file", o->pacs_password_file, "File holding the password");
-  cmd->add_option("--pacs-token-file", o->pacs_token_file, "File holding a bearer token instead");
-  cmd->add_option("--pacs-ca", o->pacs_ca, "CA certificate bundle of an HTTPS PACS");
-  cmd->add_flag("--pacs-insecure", o->pacs_insecure, "Do not verify the PACS's TLS certificate (a test PACS only)");
+  add_pacs_options(cmd, o->pacs);
   cmd->add_option("--uid-root", o->uid_root, "Root of the derived series' UIDs")->capture_default_str();
   cmd->add_option("--query", o->query, "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
   cmd->add_option("--pose", o->pose, "With --query: the pose for every study");

@@ -1,8 +1,10 @@
 // DICOM commands: export (a study that never was DICOM as a CT series and its SEG, for a PACS or a test) and info
 // (what a CT series or SEG holds, as posewarp reads it).
+#include <algorithm>
 #include <filesystem>
 
 #include "cli_support.h"
+#include "pacs_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 
@@ -66,6 +68,40 @@ int run_dicom_info(const InfoOptions& o) {
   return 0;
 }
 
+struct StoreOptions {
+  PacsOptions pacs;
+  std::vector<std::string> paths;
+};
+
+// Each path (a DICOM file, or a directory of them) stored with one STOW-RS request.
+int run_store(const StoreOptions& o) {
+  Result<pacs::DicomWebOptions> options = dicomweb_options(o.pacs);
+  if (!options.ok()) return report(options.status());
+  const pacs::DicomWebClient client(*options);
+  for (const std::string& path : o.paths) {
+    std::vector<std::string> files;
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) {
+      for (const auto& entry : fs::directory_iterator(path, ec)) {
+        if (api::is_dicom_file(entry.path().string())) files.push_back(entry.path().string());
+      }
+    } else if (api::is_dicom_file(path)) {
+      files.push_back(path);
+    }
+    if (files.empty()) return report(invalid_argument_error("'" + path + "' is not a DICOM file or a directory holding some"));
+    std::sort(files.begin(), files.end());
+    std::vector<std::string> instances;
+    for (const std::string& file : files) {
+      Result<std::string> bytes = api::read_text_input(file, "DICOM file", int64_t{1} << 31);
+      if (!bytes.ok()) return report(bytes.status());
+      instances.push_back(std::move(bytes).value());
+    }
+    if (Status s = client.store(instances); !s.ok()) return report(s.with_context(path));
+    say("stored " + std::to_string(instances.size()) + " instances from " + path);
+  }
+  return 0;
+}
+
 }  // namespace
 
 void add_dicom_commands(CLI::App& app) {
@@ -86,6 +122,15 @@ void add_dicom_commands(CLI::App& app) {
     cmd->add_option("-o,--out", o->out, "Output directory (new or empty)")->required();
     cmd->callback([o] {
       if (int code = run_export(*o); code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto o = std::make_shared<StoreOptions>();
+    CLI::App* cmd = dicom->add_subcommand("store", "Store DICOM files (or directories of them) in a PACS through STOW-RS");
+    cmd->add_option("paths", o->paths, "DICOM files or directories (one request each)")->required();
+    add_pacs_options(cmd, o->pacs);
+    cmd->callback([o] {
+      if (int code = run_store(*o); code != 0) throw CLI::RuntimeError(code);
     });
   }
   {

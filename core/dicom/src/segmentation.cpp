@@ -274,6 +274,7 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
   std::vector<Uint8> pixels(per_frame);
   FGSegmentation identification;
+  std::vector<std::unique_ptr<FGDerivationImage>> derivations(static_cast<size_t>(g.size[2]));
   FGFrameContent content_fg;
   FGPlanePosPatient position;
   for (const auto& [value, number] : number_of) {
@@ -289,11 +290,15 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
       identification.setReferencedSegmentNumber(number);
       content_fg.setDimensionIndexValues(number, 0);
       content_fg.setDimensionIndexValues(static_cast<Uint32>((reverse ? g.size[2] - 1 - k : k) + 1), 1);
+      // The CT slice this frame derives from: one functional group per slice, made once and shared by its frames.
       const size_t ct_index = static_cast<size_t>(reverse ? g.size[2] - 1 - k : k);
-      OFVector<ImageSOPInstanceReferenceMacro> sources(1);
-      sources[0].setReferencedSOPClassUID(ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
-      sources[0].setReferencedSOPInstanceUID(ct.sop_instance_uids[ct_index].c_str());
-      std::unique_ptr<FGDerivationImage> derivation(DcmSegmentation::createDerivationImageFG(sources, "posewarp posed labels"));
+      std::unique_ptr<FGDerivationImage>& derivation = derivations[ct_index];
+      if (!derivation) {
+        OFVector<ImageSOPInstanceReferenceMacro> sources(1);
+        sources[0].setReferencedSOPClassUID(ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
+        sources[0].setReferencedSOPInstanceUID(ct.sop_instance_uids[ct_index].c_str());
+        derivation.reset(DcmSegmentation::createDerivationImageFG(sources, "posewarp posed labels"));
+      }
       OFVector<FGBase*> per_frame_groups{&identification, &content_fg, &position};
       if (derivation) per_frame_groups.push_back(derivation.get());
       ok = seg->addFrame(pixels.data(), number, per_frame_groups);

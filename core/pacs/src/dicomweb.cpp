@@ -234,7 +234,8 @@ Status DicomWebClient::store(const std::vector<std::string>& instances, const st
       const Response r,
       request("POST", url,
               {"Content-Type: multipart/related; type=\"application/dicom\"; boundary=" + boundary,
-               "Accept: application/dicom+json"},
+               "Accept: application/dicom+json",
+               "Expect:"},  // no "100-continue" wait: the body goes at once
               payload));
   // 200: all stored; 202: some failed (FailedSOPSequence, 0008,1198); 409: none stored.
   const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);

@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "../support/free_port.h"
+#include "../support/orthanc_process.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
@@ -25,67 +26,8 @@ namespace {
 namespace fs = std::filesystem;
 using pacs::DicomWebClient;
 using pacs::DicomWebOptions;
-
-constexpr const char* kPlugin = "/usr/share/orthanc/plugins/libOrthancDicomWeb.so";
-
-// Orthanc with its own storage, HTTP on a free loopback port, user posewarp / s3cret, DICOMweb under /dicom-web/.
-class OrthancProcess {
- public:
-  explicit OrthancProcess(const fs::path& dir) : dir_(dir), port_(testing_support::free_port()) {
-    fs::create_directories(dir / "storage");
-    std::ofstream(dir / "orthanc.json") << R"({
-      "Name": "posewarp-test", "StorageDirectory": ")" << (dir / "storage").string() << R"(",
-      "IndexDirectory": ")" << (dir / "storage").string() << R"(",
-      "HttpPort": )" << port_ << R"(, "DicomServerEnabled": false, "RemoteAccessAllowed": false,
-      "AuthenticationEnabled": true, "RegisteredUsers": {"posewarp": "s3cret"},
-      "Plugins": [")" << kPlugin << R"("], "DicomWeb": {"Enable": true, "Root": "/dicom-web/"}})";
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      const std::string log = (dir / "orthanc.log").string();
-      FILE* out = std::freopen(log.c_str(), "w", stdout);
-      FILE* err = std::freopen(log.c_str(), "a", stderr);
-      (void)out, (void)err;
-      ::execlp("Orthanc", "Orthanc", (dir / "orthanc.json").c_str(), static_cast<char*>(nullptr));
-      ::_exit(127);
-    }
-    // Ready when DICOMweb answers a search.
-    DicomWebClient client(options());
-    for (int i = 0; i < 150 && !ready_; ++i) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(200));
-      ready_ = client.search_studies("").ok();
-    }
-  }
-  ~OrthancProcess() {
-    if (pid_ > 0) {
-      ::kill(pid_, SIGTERM);
-      int status = 0;
-      for (int i = 0; i < 100 && ::waitpid(pid_, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
-      if (::waitpid(pid_, &status, WNOHANG) == 0) {
-        ::kill(pid_, SIGKILL);
-        ::waitpid(pid_, &status, 0);
-      }
-    }
-  }
-  DicomWebOptions options(const std::string& password = "s3cret") const {
-    DicomWebOptions o;
-    o.base_url = "http://127.0.0.1:" + std::to_string(port_) + "/dicom-web";
-    o.username = "posewarp";
-    o.password = password;
-    o.retries = 1;
-    return o;
-  }
-  bool ready() const { return ready_; }
-  std::string log() const {
-    std::ifstream in(dir_ / "orthanc.log");
-    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  }
-
- private:
-  fs::path dir_;
-  int port_ = 0;
-  pid_t pid_ = -1;
-  bool ready_ = false;
-};
+using testing_support::kOrthancDicomWebPlugin;
+using testing_support::OrthancProcess;
 
 std::vector<std::string> files_of(const std::vector<std::string>& paths) {
   std::vector<std::string> bytes;
@@ -99,7 +41,7 @@ std::vector<std::string> files_of(const std::vector<std::string>& paths) {
 class Orthanc : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (!fs::exists(kPlugin) || std::system("command -v Orthanc >/dev/null 2>&1") != 0) {
+    if (!fs::exists(kOrthancDicomWebPlugin) || std::system("command -v Orthanc >/dev/null 2>&1") != 0) {
       GTEST_SKIP() << "Orthanc and its DICOMweb plugin are not installed (scripts/setup installs orthanc and "
                       "orthanc-dicomweb)";
     }
@@ -238,8 +180,6 @@ TEST_F(Orthanc, APoseOfAStudyInThePacsIsStoredBackIntoThatStudy) {
 // crash before the state was written) and a query-made batch of the same pose store nothing twice.
 TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
   DicomWebClient client(orthanc_->options());
-  ASSERT_TRUE(client.store(study_.ct_files).ok());
-  ASSERT_TRUE(client.store({study_.seg_file}).ok());
   const std::string study_uid = study_.ct.study_instance_uid;
   std::ofstream(dir_ / "password") << "s3cret\n";
   const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
@@ -263,6 +203,10 @@ TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
     Result<std::vector<pacs::DicomWebRecord>> series = client.search_series(study_uid, "Modality=" + modality);
     return series.ok() ? series->size() : size_t{999};
   };
+  // The study goes in as a user would put it there: its files, then posewarp dicom store.
+  ASSERT_TRUE(api::write_dicom_outputs(study_, (dir_ / "study").string()).ok());
+  ASSERT_EQ(batch({"dicom", "store", (dir_ / "study/ct").string(), (dir_ / "study/seg.dcm").string()}), 0) << log();
+  EXPECT_NE(log().find("stored " + std::to_string(study_.ct_files.size()) + " instances"), std::string::npos) << log();
   ASSERT_EQ(batch({"batch", (dir_ / "rows.csv").string(), "--jobs", "2"}), 0) << log();
   EXPECT_EQ(count("CT"), 3u);   // the original and two derived
   EXPECT_EQ(count("SEG"), 3u);

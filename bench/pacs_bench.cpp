@@ -1,0 +1,108 @@
+// PACS-side batch repositioning measured end to end: a real Orthanc (DICOMweb, authentication on) holding copies of
+// the sample as separate studies, and `posewarp batch` posing each study twice and storing the derived CT series
+// and SEG back. Per row, from the batch's summary: fetch (WADO-RS of the CT series and SEG, read), rig (built once
+// per study: the first row of a study pays), pose, encode (NIfTI files, derived series and SEG) and store (STOW-RS).
+// Budget: fetch + encode + store no more than the pose itself on the sample.
+// Usage: posewarp_bench_pacs [--studies N (5)] [--jobs J (1)]
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cstring>
+#include <iostream>
+
+#include "orthanc_process.h"
+#include "posewarp/api/dicom.h"
+#include "posewarp/api/files.h"
+
+namespace {
+
+using namespace posewarp;
+namespace fs = std::filesystem;
+
+std::string file_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int studies = 5, jobs = 1;
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--studies") && i + 1 < argc) {
+      studies = std::max(1, std::atoi(argv[++i]));
+    } else if (!std::strcmp(argv[i], "--jobs") && i + 1 < argc) {
+      jobs = std::max(1, std::atoi(argv[++i]));
+    } else {
+      std::fprintf(stderr, "usage: %s [--studies N (5)] [--jobs J (1)]\n", argv[0]);
+      return 2;
+    }
+  }
+  if (!fs::exists(testing_support::kOrthancDicomWebPlugin)) {
+    std::fprintf(stderr, "posewarp_bench_pacs: Orthanc's DICOMweb plugin is not installed (scripts/setup installs it)\n");
+    return 1;
+  }
+  const fs::path work = fs::temp_directory_path() / ("posewarp-bench-pacs-" + std::to_string(::getpid()));
+  fs::remove_all(work);
+  fs::create_directories(work);
+  try {
+    testing_support::OrthancProcess orthanc(work / "orthanc");
+    if (!orthanc.ready()) throw std::runtime_error("Orthanc did not start:\n" + orthanc.log());
+    pacs::DicomWebClient client(orthanc.options());
+    // The sample as N studies (new UIDs each), stored in the PACS.
+    const std::string sample = POSEWARP_SAMPLE_DIR;
+    const IntensityVolume ct = *api::read_intensity_volume(sample + "/ct.nii.gz");
+    const LabelVolume labels = *api::read_label_volume(sample + "/seg_total.nii.gz");
+    const labels::LabelMap map = *api::preset_by_name("totalsegmentator");
+    std::string csv = "id,pacs_study,pose,method,to_pacs\n";
+    const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
+    size_t stored_bytes = 0;
+    for (int s = 0; s < studies; ++s) {
+      Result<api::DicomOutputs> study =
+          api::encode_new_dicom_study(ct, labels, map, "Bench^Patient" + std::to_string(s), "BENCH-" + std::to_string(s), {});
+      if (!study.ok()) throw std::runtime_error(study.status().to_string());
+      for (const std::string& f : study->ct_files) stored_bytes += f.size();
+      if (Status st = client.store(study->ct_files); !st.ok()) throw std::runtime_error(st.to_string());
+      if (Status st = client.store({study->seg_file}); !st.ok()) throw std::runtime_error(st.to_string());
+      const std::string uid = study->ct.study_instance_uid;
+      // Stored back into the PACS only (no local files): the PACS path alone.
+      csv += "s" + std::to_string(s) + "-hip," + uid + "," + poses + "/sample_hip_flexion.json,cor,true\n";
+      csv += "s" + std::to_string(s) + "-rest," + uid + "," + poses + "/identity.json,cor,true\n";
+    }
+    std::ofstream(work / "rows.csv") << csv;
+    std::ofstream(work / "password") << "s3cret\n";
+    const std::string command = std::string("'") + POSEWARP_CLI + "' -q batch '" + (work / "rows.csv").string() +
+                                "' --jobs " + std::to_string(jobs) + " --pacs '" + orthanc.options().base_url +
+                                "' --pacs-user posewarp --pacs-password-file '" + (work / "password").string() + "' > '" +
+                                (work / "batch.log").string() + "' 2>&1";
+    const auto start = std::chrono::steady_clock::now();
+    const int code = std::system(command.c_str());
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (code != 0) throw std::runtime_error("the batch failed:\n" + file_text(work / "batch.log"));
+    const nlohmann::json summary = nlohmann::json::parse(file_text(work / "rows.summary.json"));
+    std::printf("%d studies of the sample (%.1f MB of CT each) in Orthanc, %zu rows, --jobs %d: %.1f s wall, %.2f s per row\n",
+                studies, static_cast<double>(stored_bytes) / studies / 1e6, summary["rows"].size(), jobs, wall,
+                wall / static_cast<double>(summary["rows"].size()));
+    std::printf("%-10s %8s %8s %8s %8s %8s   (seconds)\n", "row", "fetch", "rig", "pose", "encode", "store");
+    std::vector<double> overhead, pose;
+    for (const nlohmann::json& row : summary["rows"]) {
+      const nlohmann::json& t = row["seconds"];
+      std::printf("%-10s %8.3f %8.3f %8.3f %8.3f %8.3f\n", row["id"].get<std::string>().c_str(), t["fetch"].get<double>(),
+                  t["rig"].get<double>(), t["pose"].get<double>(), t["encode"].get<double>(), t["store"].get<double>());
+      overhead.push_back(t["fetch"].get<double>() + t["encode"].get<double>() + t["store"].get<double>());
+      pose.push_back(t["pose"].get<double>());
+    }
+    // A study's fetch is charged to its first row: compare the sums (per row on average).
+    double overhead_sum = 0, pose_sum = 0;
+    for (size_t i = 0; i < pose.size(); ++i) overhead_sum += overhead[i], pose_sum += pose[i];
+    const double rows = static_cast<double>(pose.size());
+    std::printf("per row on average: fetch + encode + store %.3f s, pose %.3f s (ratio %.2f; budget <= 1)\n",
+                overhead_sum / rows, pose_sum / rows, overhead_sum / pose_sum);
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "posewarp_bench_pacs: %s\n", error.what());
+    fs::remove_all(work);
+    return 1;
+  }
+  fs::remove_all(work);
+  return 0;
+}
