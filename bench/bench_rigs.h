@@ -18,7 +18,8 @@ namespace posewarp::bench {
 inline double percentile(std::vector<double> values, double p) {
   if (values.empty()) return 0.0;
   std::sort(values.begin(), values.end());
-  const size_t at = std::min(values.size() - 1, static_cast<size_t>(p / 100.0 * static_cast<double>(values.size() - 1) + 0.5));
+  const size_t at =
+      std::min(values.size() - 1, static_cast<size_t>(p / 100.0 * static_cast<double>(values.size() - 1) + 0.5));
   return values[at];
 }
 
@@ -56,7 +57,8 @@ inline std::string mannequin_rig_bytes(double mvoxels, const std::filesystem::pa
   std::string bytes = api::rig_to_bytes(*rig);
   if (!cached.empty()) {
     std::filesystem::create_directories(cache);
-    if (Status s = api::write_file_atomically(cached.string(), bytes, "bench rig"); !s.ok()) throw std::runtime_error(s.to_string());
+    if (Status s = api::write_file_atomically(cached.string(), bytes, "bench rig"); !s.ok())
+      throw std::runtime_error(s.to_string());
   }
   return bytes;
 }

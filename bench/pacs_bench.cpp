@@ -39,7 +39,8 @@ int main(int argc, char** argv) {
     }
   }
   if (!fs::exists(testing_support::kOrthancDicomWebPlugin)) {
-    std::fprintf(stderr, "posewarp_bench_pacs: Orthanc's DICOMweb plugin is not installed (scripts/setup installs it)\n");
+    std::fprintf(stderr,
+                 "posewarp_bench_pacs: Orthanc's DICOMweb plugin is not installed (scripts/setup installs it)\n");
     return 1;
   }
   const fs::path work = fs::temp_directory_path() / ("posewarp-bench-pacs-" + std::to_string(::getpid()));
@@ -58,8 +59,8 @@ int main(int argc, char** argv) {
     const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
     size_t stored_bytes = 0;
     for (int s = 0; s < studies; ++s) {
-      Result<api::DicomOutputs> study =
-          api::encode_new_dicom_study(ct, labels, map, "Bench^Patient" + std::to_string(s), "BENCH-" + std::to_string(s), {});
+      Result<api::DicomOutputs> study = api::encode_new_dicom_study(
+          ct, labels, map, "Bench^Patient" + std::to_string(s), "BENCH-" + std::to_string(s), {});
       if (!study.ok()) throw std::runtime_error(study.status().to_string());
       for (const std::string& f : study->ct_files) stored_bytes += f.size();
       if (Status st = client.store(study->ct_files); !st.ok()) throw std::runtime_error(st.to_string());
@@ -73,22 +74,24 @@ int main(int argc, char** argv) {
     std::ofstream(work / "password") << "s3cret\n";
     const std::string command = std::string("'") + POSEWARP_CLI + "' -q batch '" + (work / "rows.csv").string() +
                                 "' --jobs " + std::to_string(jobs) + " --pacs '" + orthanc.options().base_url +
-                                "' --pacs-user posewarp --pacs-password-file '" + (work / "password").string() + "' > '" +
-                                (work / "batch.log").string() + "' 2>&1";
+                                "' --pacs-user posewarp --pacs-password-file '" + (work / "password").string() +
+                                "' > '" + (work / "batch.log").string() + "' 2>&1";
     const auto start = std::chrono::steady_clock::now();
     const int code = std::system(command.c_str());
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     if (code != 0) throw std::runtime_error("the batch failed:\n" + file_text(work / "batch.log"));
     const nlohmann::json summary = nlohmann::json::parse(file_text(work / "rows.summary.json"));
-    std::printf("%d studies of the sample (%.1f MB of CT each) in Orthanc, %zu rows, --jobs %d: %.1f s wall, %.2f s per row\n",
-                studies, static_cast<double>(stored_bytes) / studies / 1e6, summary["rows"].size(), jobs, wall,
-                wall / static_cast<double>(summary["rows"].size()));
+    std::printf(
+        "%d studies of the sample (%.1f MB of CT each) in Orthanc, %zu rows, --jobs %d: %.1f s wall, %.2f s per row\n",
+        studies, static_cast<double>(stored_bytes) / studies / 1e6, summary["rows"].size(), jobs, wall,
+        wall / static_cast<double>(summary["rows"].size()));
     std::printf("%-10s %8s %8s %8s %8s %8s   (seconds)\n", "row", "fetch", "rig", "pose", "encode", "store");
     std::vector<double> overhead, pose;
     for (const nlohmann::json& row : summary["rows"]) {
       const nlohmann::json& t = row["seconds"];
-      std::printf("%-10s %8.3f %8.3f %8.3f %8.3f %8.3f\n", row["id"].get<std::string>().c_str(), t["fetch"].get<double>(),
-                  t["rig"].get<double>(), t["pose"].get<double>(), t["encode"].get<double>(), t["store"].get<double>());
+      std::printf("%-10s %8.3f %8.3f %8.3f %8.3f %8.3f\n", row["id"].get<std::string>().c_str(),
+                  t["fetch"].get<double>(), t["rig"].get<double>(), t["pose"].get<double>(), t["encode"].get<double>(),
+                  t["store"].get<double>());
       overhead.push_back(t["fetch"].get<double>() + t["encode"].get<double>() + t["store"].get<double>());
       pose.push_back(t["pose"].get<double>());
     }

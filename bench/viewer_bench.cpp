@@ -21,7 +21,9 @@ using namespace posewarp;
 using namespace posewarp::testing_server;
 using Clock = std::chrono::steady_clock;
 
-double ms_since(Clock::time_point start) { return std::chrono::duration<double, std::milli>(Clock::now() - start).count(); }
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
 
 using bench::percentile;
 
@@ -121,14 +123,16 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
                      {"unchanged_render_p50_ms", percentile(still_ms, 50)},
                      {"drag_sent_per_s", sent / drag_s},
                      {"drag_frames_per_s", frames / drag_s}};
-  std::printf("%-12s %zu surfaces, %lld vertices, %lld triangles (skin %lld), %s: step p50 %.1f ms p99 %.1f ms (%.1f frames/s; round trip p50 "
-              "%.1f, render p50 %.1f ms, unchanged frame %.1f ms); drag at %.0f Hz: %.1f frames/s\n",
-              name.c_str(), assets.surfaces.size(), static_cast<long long>(vertices), static_cast<long long>(triangles),
-              static_cast<long long>(skin_triangles), row["window"].get<std::string>().c_str(),
-              row["step_p50_ms"].get<double>(), row["step_p99_ms"].get<double>(), row["steps_per_s"].get<double>(),
-              row["round_trip_p50_ms"].get<double>(), row["render_p50_ms"].get<double>(),
-              row["unchanged_render_p50_ms"].get<double>(), row["drag_sent_per_s"].get<double>(),
-              row["drag_frames_per_s"].get<double>());
+  std::printf(
+      "%-12s %zu surfaces, %lld vertices, %lld triangles (skin %lld), %s: step p50 %.1f ms p99 %.1f ms (%.1f frames/s; "
+      "round trip p50 "
+      "%.1f, render p50 %.1f ms, unchanged frame %.1f ms); drag at %.0f Hz: %.1f frames/s\n",
+      name.c_str(), assets.surfaces.size(), static_cast<long long>(vertices), static_cast<long long>(triangles),
+      static_cast<long long>(skin_triangles), row["window"].get<std::string>().c_str(),
+      row["step_p50_ms"].get<double>(), row["step_p99_ms"].get<double>(), row["steps_per_s"].get<double>(),
+      row["round_trip_p50_ms"].get<double>(), row["render_p50_ms"].get<double>(),
+      row["unchanged_render_p50_ms"].get<double>(), row["drag_sent_per_s"].get<double>(),
+      row["drag_frames_per_s"].get<double>());
   std::fflush(stdout);
   session_owner.reset();
   server.stop();
@@ -148,11 +152,14 @@ int main(int argc, char** argv) {
       steps = std::max(10, std::atoi(argv[++i]));
     } else if (!std::strcmp(argv[i], "--rig-cache") && i + 1 < argc) {
       rig_cache = argv[++i];
-    } else if (!std::strcmp(argv[i], "--size") && i + 1 < argc && std::sscanf(argv[i + 1], "%dx%d", &width, &height) == 2) {
+    } else if (!std::strcmp(argv[i], "--size") && i + 1 < argc &&
+               std::sscanf(argv[i + 1], "%dx%d", &width, &height) == 2) {
       ++i;
     } else {
-      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--steps N] [--rig-cache DIR] [--size WxH]\n"
-                           "(offscreen: run it under xvfb-run -a without a display)\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--mannequin-mvoxels M (0 = skip)] [--steps N] [--rig-cache DIR] [--size WxH]\n"
+                   "(offscreen: run it under xvfb-run -a without a display)\n",
+                   argv[0]);
       return 2;
     }
   }
@@ -160,8 +167,8 @@ int main(int argc, char** argv) {
   fs::create_directories(work);
   nlohmann::json out;
   try {
-    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(POSEWARP_SAMPLE_DIR), "hip_left", steps,
-                                      width, height));
+    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(POSEWARP_SAMPLE_DIR), "hip_left",
+                                      steps, width, height));
     if (mannequin_mvoxels > 0.0) {
       // The same cache file as posewarp_bench_server's --rig-cache.
       const std::string rig_bytes = bench::mannequin_rig_bytes(mannequin_mvoxels, rig_cache);

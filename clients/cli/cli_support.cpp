@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <iostream>
+#include <mutex>
 
 namespace posewarp::cli {
 
@@ -110,7 +111,10 @@ ProgressHooks progress_bar() {
 }
 
 void say(const std::string& line) {
-  if (!global_options().quiet) std::cout << line << '\n';
+  static std::mutex mutex;  // a batch's workers say things at once: whole lines each
+  if (global_options().quiet) return;
+  std::lock_guard<std::mutex> lock(mutex);
+  std::cout << line << '\n';
 }
 
 }  // namespace posewarp::cli

@@ -31,32 +31,38 @@ namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 using json = nlohmann::json;
 
-double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
 
 // One row: where the study comes from, what to do, where the results go.
 struct Row {
   std::string id;
   std::string labels, ct, label_map, preset = "totalsegmentator";  // files
-  std::string dicom_ct, dicom_seg;                                  // a DICOM series directory and its SEG
-  std::string pacs_study, ct_series, seg_series;                    // a study in the PACS
+  std::string dicom_ct, dicom_seg;                                 // a DICOM series directory and its SEG
+  std::string pacs_study, ct_series, seg_series;                   // a study in the PACS
   std::string pose, animation;
   std::string method = "cor";
   std::string out_dir;
   bool to_pacs = false;
   std::string study_key() const {
-    return json{{"labels", labels}, {"ct", ct}, {"label_map", label_map}, {"preset", preset}, {"dicom_ct", dicom_ct},
-                {"dicom_seg", dicom_seg}, {"pacs_study", pacs_study}, {"ct_series", ct_series}, {"seg_series", seg_series}}
+    return json{{"labels", labels},         {"ct", ct},
+                {"label_map", label_map},   {"preset", preset},
+                {"dicom_ct", dicom_ct},     {"dicom_seg", dicom_seg},
+                {"pacs_study", pacs_study}, {"ct_series", ct_series},
+                {"seg_series", seg_series}}
         .dump();
   }
 };
 
-constexpr const char* kColumns[] = {"id", "labels", "ct", "label_map", "preset", "dicom_ct", "dicom_seg", "pacs_study",
-                                    "ct_series", "seg_series", "pose", "animation", "method", "out_dir", "to_pacs"};
+constexpr const char* kColumns[] = {"id",       "labels",    "ct",         "label_map", "preset",
+                                    "dicom_ct", "dicom_seg", "pacs_study", "ct_series", "seg_series",
+                                    "pose",     "animation", "method",     "out_dir",   "to_pacs"};
 
 Status set_field(Row& row, const std::string& key, const std::string& value, const std::string& where) {
-  std::string* fields[] = {&row.id, &row.labels, &row.ct, &row.label_map, &row.preset, &row.dicom_ct, &row.dicom_seg,
-                           &row.pacs_study, &row.ct_series, &row.seg_series, &row.pose, &row.animation, &row.method,
-                           &row.out_dir};
+  std::string* fields[] = {&row.id,       &row.labels,    &row.ct,         &row.label_map, &row.preset,
+                           &row.dicom_ct, &row.dicom_seg, &row.pacs_study, &row.ct_series, &row.seg_series,
+                           &row.pose,     &row.animation, &row.method,     &row.out_dir};
   for (size_t i = 0; i < std::size(fields); ++i) {
     if (key == kColumns[i]) {
       // An empty value clears a default (a row of files in a manifest whose defaults name DICOM), except for the
@@ -69,7 +75,8 @@ Status set_field(Row& row, const std::string& key, const std::string& value, con
     row.to_pacs = value == "true" || value == "1" || value == "yes";
     return ok_status();
   }
-  return invalid_argument_error(where + ": unknown field '" + key + "'; a row has: id, labels, ct, label_map, preset, "
+  return invalid_argument_error(where + ": unknown field '" + key +
+                                "'; a row has: id, labels, ct, label_map, preset, "
                                 "dicom_ct, dicom_seg, pacs_study, ct_series, seg_series, pose, animation, method, "
                                 "out_dir, to_pacs");
 }
@@ -103,9 +110,10 @@ std::string csv_field(const std::string& value) {
 
 // Paths in a manifest are relative to the manifest's directory.
 void resolve(Row& row, const fs::path& base) {
-  for (std::string* path : {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose,
-                            &row.animation, &row.out_dir}) {
+  for (std::string* path :
+       {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose, &row.animation, &row.out_dir}) {
     if (!path->empty() && fs::path(*path).is_relative()) *path = (base / *path).lexically_normal().string();
+    while (path->size() > 1 && path->back() == '/') path->pop_back();
   }
 }
 
@@ -114,14 +122,16 @@ Status check_row(const Row& row, const std::string& where) {
   if (sources != 1) {
     return invalid_argument_error(where + ": give one input: labels (+ ct), dicom_ct + dicom_seg, or pacs_study");
   }
-  if (!row.dicom_seg.empty() && row.dicom_ct.empty()) return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
+  if (!row.dicom_seg.empty() && row.dicom_ct.empty())
+    return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
   if (row.pose.empty() == row.animation.empty()) return invalid_argument_error(where + ": give a pose or an animation");
   if (row.method != "cor" && row.method != "dqs" && row.method != "lbs") {
     return invalid_argument_error(where + ": method must be cor, dqs or lbs, not '" + row.method + "'");
   }
   if (row.out_dir.empty() && !row.to_pacs) return invalid_argument_error(where + ": give out_dir, to_pacs or both");
   if (row.to_pacs && !row.labels.empty()) {
-    return invalid_argument_error(where + ": to_pacs stores a derived series into the study it came from; a row "
+    return invalid_argument_error(where +
+                                  ": to_pacs stores a derived series into the study it came from; a row "
                                   "from files has none (export it with posewarp dicom export first)");
   }
   return ok_status();
@@ -136,7 +146,8 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
   if (is_json) {
     const json doc = json::parse(text, nullptr, false);
     if (doc.is_discarded() || !doc.is_object() || !doc.contains("rows") || !doc["rows"].is_array()) {
-      return invalid_argument_error("manifest '" + path + "' is not JSON with \"rows\": [...] (or a CSV with a header)");
+      return invalid_argument_error("manifest '" + path +
+                                    "' is not JSON with \"rows\": [...] (or a CSV with a header)");
     }
     const json defaults = doc.value("defaults", json::object());
     for (size_t i = 0; i < doc["rows"].size(); ++i) {
@@ -145,7 +156,9 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
       for (const json* source : {&defaults, &doc["rows"][i]}) {
         if (!source->is_object()) return invalid_argument_error(where + " is not an object");
         for (const auto& [key, value] : source->items()) {
-          const std::string v = value.is_string() ? value.get<std::string>() : value.is_boolean() ? (value.get<bool>() ? "true" : "false") : value.dump();
+          const std::string v = value.is_string()    ? value.get<std::string>()
+                                : value.is_boolean() ? (value.get<bool>() ? "true" : "false")
+                                                     : value.dump();
           POSEWARP_RETURN_IF_ERROR(set_field(row, key, v, where));
         }
       }
@@ -169,20 +182,24 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
       rows.push_back(row);
     }
   }
-  std::set<std::string> ids;
+  std::set<std::string> ids, outs;
   for (size_t i = 0; i < rows.size(); ++i) {
     Row& row = rows[i];
     if (row.id.empty()) row.id = "row" + std::to_string(i + 1);
-    if (!ids.insert(row.id).second) return invalid_argument_error("manifest '" + path + "': two rows are called '" + row.id + "'");
+    if (!ids.insert(row.id).second)
+      return invalid_argument_error("manifest '" + path + "': two rows are called '" + row.id + "'");
     resolve(row, base);
     POSEWARP_RETURN_IF_ERROR(check_row(row, "manifest '" + path + "' row '" + row.id + "'"));
+    if (!row.out_dir.empty() && !outs.insert(row.out_dir).second) {
+      return invalid_argument_error("manifest '" + path + "': two rows write to '" + row.out_dir +
+                                    "'; give each its own out_dir");
+    }
   }
   if (rows.empty()) return invalid_argument_error("manifest '" + path + "' has no rows");
   return rows;
 }
 
-// What a row's result depends on: its study, its pose's text, its method and its input files' sizes and times. The
-// same result is the same derived series (its UIDs are derived from this key), whichever batch asks for it.
+// What a row's result depends on: its study, its pose's text, its method and its input files' sizes and times.
 std::string result_key(const Row& row) {
   nlohmann::json key{{"study", row.study_key()}, {"method", row.method}};
   for (const std::string& file : {row.pose, row.animation}) {
@@ -199,9 +216,32 @@ std::string result_key(const Row& row) {
   return api::sha256_hex(key.dump());
 }
 
+// What a study's rig depends on: its inputs and their files' sizes and times (the rig cache's key).
+std::string study_content_key(const Row& row) {
+  nlohmann::json key{{"study", row.study_key()}, {"version", POSEWARP_VERSION}};
+  std::vector<std::string> files{row.labels, row.ct, row.dicom_seg, row.label_map};
+  std::error_code ec;
+  if (!row.dicom_ct.empty() && fs::is_directory(row.dicom_ct, ec)) {
+    for (const auto& entry : fs::directory_iterator(row.dicom_ct, ec)) files.push_back(entry.path().string());
+  }
+  for (const std::string& file : files) {
+    if (file.empty() || !fs::is_regular_file(file, ec)) continue;
+    key[file] = std::to_string(fs::file_size(file, ec)) + "@" +
+                std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
+  }
+  return api::sha256_hex(key.dump());
+}
+
+std::string pose_hash(const Row& row) {
+  const std::string& file = row.pose.empty() ? row.animation : row.pose;
+  Result<std::string> text = api::read_text_input(file, "pose");
+  return text.ok() ? api::sha256_hex(*text) : file;
+}
+
 // A row done: its result, written where the row says. A rerun skips a row whose key the state file holds.
 std::string row_key(const Row& row) {
-  return api::sha256_hex(nlohmann::json{{"result", result_key(row)}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}}.dump());
+  return api::sha256_hex(
+      nlohmann::json{{"result", result_key(row)}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}}.dump());
 }
 
 struct BatchOptions {
@@ -249,7 +289,6 @@ class Batch {
     std::vector<size_t> todo;
     for (size_t i = 0; i < rows_.size(); ++i) {
       keys_.push_back(row_key(rows_[i]));
-      result_keys_.push_back(result_key(rows_[i]));
       if (done.count(keys_[i])) {
         results_[i].status = "skipped";
       } else {
@@ -273,7 +312,12 @@ class Batch {
         for (size_t n; (n = next++) < todo.size();) {
           const size_t i = todo[n];
           ++running_;
-          results_[i] = run_row(rows_[i], keys_[i], result_keys_[i]);
+          try {
+            results_[i] = run_row(rows_[i], keys_[i]);
+          } catch (const std::exception& error) {
+            results_[i] = RowResult{};
+            results_[i].error = std::string("INTERNAL: ") + error.what();
+          }
           --running_;
           (results_[i].status == "done" ? finished_ok_ : failed_)++;
           if (results_[i].status != "done") say("row '" + rows_[i].id + "' failed: " + results_[i].error);
@@ -285,8 +329,8 @@ class Batch {
     progress.join();
     if (Status s = write_summary(); !s.ok()) return report(s);
     say("batch: " + std::to_string(finished_ok_) + " done, " + std::to_string(failed_) + " failed, " +
-        std::to_string(rows_.size() - todo.size()) + " skipped in " + std::to_string(static_cast<int>(seconds_since(start))) +
-        " s; summary in " + o_.summary + ".json and .csv");
+        std::to_string(rows_.size() - todo.size()) + " skipped in " +
+        std::to_string(static_cast<int>(seconds_since(start))) + " s; summary in " + o_.summary + ".json and .csv");
     return failed_ == 0 ? 0 : 1;
   }
 
@@ -332,7 +376,13 @@ class Batch {
         mine = true;
       }
     }
-    if (mine) promise.set_value(load_study(row));
+    if (mine) {
+      try {
+        promise.set_value(load_study(row));
+      } catch (const std::exception& error) {  // out of memory, or a library's exception: the row fails, not the batch
+        promise.set_value(internal_error(std::string("loading the study failed: ") + error.what()));
+      }
+    }
     return future.get();
   }
 
@@ -340,7 +390,9 @@ class Batch {
     auto study = std::make_shared<Study>();
     const auto fetch_start = Clock::now();
     api::BuildInputs inputs;
-    POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map, api::load_label_map(row.label_map, row.preset));
+    // A map of one's own replaces the preset.
+    POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
+                              api::load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string()));
     if (!row.labels.empty()) {
       POSEWARP_ASSIGN_OR_RETURN(inputs.labels, api::read_label_volume(row.labels, read_options()));
       if (!row.ct.empty()) {
@@ -363,13 +415,14 @@ class Batch {
     study->fetch_s = seconds_since(fetch_start);
     const auto rig_start = Clock::now();
     // The rig cache: one file per study (its inputs' key), kept between runs.
-    const std::string cached = (fs::path(o_.rig_cache) / (api::sha256_hex(row.study_key()).substr(0, 32) + ".rig")).string();
+    const std::string cached = (fs::path(o_.rig_cache) / (study_content_key(row).substr(0, 32) + ".rig")).string();
     std::optional<api::Rig> rig;
     if (std::error_code ec; fs::exists(cached, ec)) {
       Result<api::Rig> loaded = api::load_rig(cached);
       if (loaded.ok()) rig = std::move(loaded).value(), study->rig_cached = true;
     }
     if (!rig) {
+      say("row '" + row.id + "': building the rig of its study");
       POSEWARP_ASSIGN_OR_RETURN(api::Rig built, api::build_rig(inputs, {}, {}));
       std::error_code ec;
       fs::create_directories(o_.rig_cache, ec);
@@ -390,35 +443,51 @@ class Batch {
       size_t most = 0;
       for (const pacs::DicomWebRecord& s : series) {
         const std::string modality = s.count("Modality") ? s.at("Modality") : "";
-        const size_t count = s.count("NumberOfSeriesRelatedInstances") ? std::stoul("0" + s.at("NumberOfSeriesRelatedInstances")) : 0;
+        const size_t count =
+            s.count("NumberOfSeriesRelatedInstances") ? std::stoul("0" + s.at("NumberOfSeriesRelatedInstances")) : 0;
         const std::string description = s.count("SeriesDescription") ? s.at("SeriesDescription") : "";
         if (description.rfind("posewarp", 0) == 0) continue;  // our own derived series are not inputs
-        if (ct_series.empty() && modality == "CT" && count >= most) most = count, ct_series = s.at("SeriesInstanceUID");
-        if (row.seg_series.empty() && modality == "SEG" && seg_series.empty()) seg_series = s.at("SeriesInstanceUID");
+        if (row.ct_series.empty() && modality == "CT" && count >= most && s.count("SeriesInstanceUID")) {
+          most = count, ct_series = s.at("SeriesInstanceUID");  // the largest CT series
+        }
+        if (row.seg_series.empty() && modality == "SEG" && seg_series.empty() && s.count("SeriesInstanceUID")) {
+          seg_series = s.at("SeriesInstanceUID");
+        }
       }
       if (ct_series.empty() || seg_series.empty()) {
         return not_found_error("study " + row.pacs_study + " in the PACS has no CT series or no SEG to pose");
       }
     }
-    const fs::path scratch = fs::path(o_.rig_cache) / ("fetch-" + api::sha256_hex(row.id + row.pacs_study).substr(0, 16));
+    const fs::path scratch =
+        fs::path(o_.rig_cache) / ("fetch-" + api::sha256_hex(row.id + row.pacs_study).substr(0, 16));
     std::error_code ec;
     fs::remove_all(scratch, ec);
+    // The fetched files go whatever happens next.
+    struct Cleanup {
+      fs::path path;
+      ~Cleanup() {
+        std::error_code ignored;
+        fs::remove_all(path, ignored);
+      }
+    } cleanup{scratch};
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> ct_files,
                               pacs_->retrieve_series(row.pacs_study, ct_series, (scratch / "ct").string()));
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> seg_files,
                               pacs_->retrieve_series(row.pacs_study, seg_series, (scratch / "seg").string()));
-    if (seg_files.size() != 1) return invalid_argument_error("the SEG series " + seg_series + " holds " + std::to_string(seg_files.size()) + " instances, not one");
+    if (seg_files.size() != 1)
+      return invalid_argument_error("the SEG series " + seg_series + " holds " + std::to_string(seg_files.size()) +
+                                    " instances, not one");
     std::vector<std::string> instances;
     for (const std::string& f : ct_files) {
       POSEWARP_ASSIGN_OR_RETURN(std::string bytes, api::read_text_input(f, "DICOM file", int64_t{1} << 31));
       instances.push_back(std::move(bytes));
     }
-    POSEWARP_ASSIGN_OR_RETURN(const std::string seg, api::read_text_input(seg_files.front(), "DICOM SEG", int64_t{1} << 32));
-    fs::remove_all(scratch, ec);
+    POSEWARP_ASSIGN_OR_RETURN(const std::string seg,
+                              api::read_text_input(seg_files.front(), "DICOM SEG", int64_t{1} << 32));
     return api::read_dicom_study(instances, seg, map);
   }
 
-  RowResult run_row(const Row& row, const std::string& key, const std::string& uid_key) {
+  RowResult run_row(const Row& row, const std::string& key) {
     RowResult result;
     Result<std::shared_ptr<Study>> study = study_of(row);
     if (!study.ok()) {
@@ -457,19 +526,25 @@ class Batch {
       result.pose_s += seconds_since(pose_start);
       if (!posed.ok()) return result.error = posed.status().to_string(), result;
       const report::QualityReport& q = posed->report;
-      result.figures = {{"inverted_tets", q.mesh.inverted_tets}, {"bone_rigidity_error_mm", q.bone_rigidity_error_mm},
-                        {"volume_change", q.mesh.body_volume_change}, {"new_labels", q.labels.appeared},
-                        {"lost_labels", q.labels.vanished}, {"warnings", q.warnings.size()}};
+      result.figures = {
+          {"inverted_tets", q.mesh.inverted_tets},      {"bone_rigidity_error_mm", q.bone_rigidity_error_mm},
+          {"volume_change", q.mesh.body_volume_change}, {"new_labels", q.labels.appeared},
+          {"lost_labels", q.labels.vanished},           {"warnings", q.warnings.size()}};
       // Everything is made first; files land through a partial directory, the PACS gets each series whole.
       const auto encode_start = Clock::now();
       std::optional<api::DicomOutputs> dicom;
       if (s.dicom) {
         api::DerivedSeriesOptions options;
         options.uid_root = o_.uid_root;
-        options.uid_seed = uid_key + "/" + frame;  // the same result has the same UIDs: nothing stored twice
-        options.series_description = "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
-        options.derivation_description = "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " +
-                                         s.dicom->series_instance_uid;
+        // The same result has the same UIDs (nothing stored twice): seeded by the source series' content (its series
+        // and instance UIDs), the pose and the method.
+        std::string source = s.dicom->series_instance_uid;
+        for (const std::string& uid : s.dicom->sop_instance_uids) source += "\n" + uid;
+        options.uid_seed = api::sha256_hex(source) + "/" + pose_hash(row) + "/" + row.method + "/" + frame;
+        options.series_description =
+            "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
+        options.derivation_description =
+            "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " + s.dicom->series_instance_uid;
         Result<api::DicomOutputs> encoded =
             api::encode_dicom_outputs(*posed->ct, *posed->labels, s.engine->rig().label_map, *s.dicom, options);
         if (!encoded.ok()) return result.error = encoded.status().to_string(), result;
@@ -497,7 +572,8 @@ class Batch {
   }
 
   // OUT.partial filled, then renamed to OUT: a row killed midway leaves no OUT that looks finished.
-  static Status write_directory(const fs::path& out, const api::PoseResult& posed, const std::optional<api::DicomOutputs>& dicom) {
+  static Status write_directory(const fs::path& out, const api::PoseResult& posed,
+                                const std::optional<api::DicomOutputs>& dicom) {
     const fs::path partial = out.string() + ".partial";
     std::error_code ec;
     fs::remove_all(partial, ec);
@@ -505,9 +581,16 @@ class Batch {
     if (ec) return invalid_argument_error("cannot make '" + partial.string() + "': " + ec.message());
     POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.labels, (partial / "labels.nii.gz").string()));
     POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.ct, (partial / "ct.nii.gz").string()));
-    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically((partial / "report.json").string(), report::to_json(posed.report), "report"));
+    POSEWARP_RETURN_IF_ERROR(
+        api::write_file_atomically((partial / "report.json").string(), report::to_json(posed.report), "report"));
     if (dicom) {
       POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(*dicom, (partial / "dicom").string()));
+    }
+    // An earlier result of this row (a rerun) is replaced; a directory holding anything else is not touched.
+    if (fs::exists(out, ec) && !fs::is_empty(out, ec) && !fs::exists(out / "report.json", ec)) {
+      fs::remove_all(partial, ec);
+      return already_exists_error("'" + out.string() +
+                                  "' holds files that are not a posewarp result; choose another out_dir");
     }
     fs::remove_all(out, ec);
     fs::rename(partial, out, ec);
@@ -519,25 +602,49 @@ class Batch {
   void record(const Row& row, const std::string& key, const RowResult& result) {
     const json entry{{"key", key}, {"id", row.id}, {"status", "done"}, {"outputs", result.outputs}};
     std::lock_guard<std::mutex> lock(state_mutex_);
+    // A line cut short by a kill is ended first, so this entry stands on its own line.
+    bool ends_cleanly = true;
+    {
+      std::ifstream in(o_.state, std::ios::binary | std::ios::ate);
+      if (in && in.tellg() > 0) {
+        in.seekg(-1, std::ios::end);
+        ends_cleanly = in.get() == '\n';
+      }
+    }
     std::ofstream out(o_.state, std::ios::app);
+    if (!ends_cleanly) out << "\n";
     out << entry.dump() << "\n";
     out.flush();
-    if (!out) say("warning: cannot append to the state file '" + o_.state + "'; a rerun will redo row '" + row.id + "'");
+    if (!out)
+      say("warning: cannot append to the state file '" + o_.state + "'; a rerun will redo row '" + row.id + "'");
   }
 
   Status write_summary() const {
     json rows = json::array();
-    std::string csv = "id,status,error,outputs,inverted_tets,bone_rigidity_error_mm,volume_change,warnings,fetch_s,rig_s,pose_s,encode_s,store_s\n";
+    std::string csv =
+        "id,status,error,outputs,inverted_tets,bone_rigidity_error_mm,volume_change,warnings,fetch_s,rig_s,pose_s,"
+        "encode_s,store_s\n";
     for (size_t i = 0; i < rows_.size(); ++i) {
       const RowResult& r = results_[i];
-      rows.push_back({{"id", rows_[i].id}, {"status", r.status}, {"error", r.error}, {"outputs", r.outputs},
+      rows.push_back({{"id", rows_[i].id},
+                      {"status", r.status},
+                      {"error", r.error},
+                      {"outputs", r.outputs},
                       {"report", r.figures},
-                      {"seconds", {{"fetch", r.fetch_s}, {"rig", r.rig_s}, {"pose", r.pose_s}, {"encode", r.encode_s}, {"store", r.store_s}}}});
+                      {"seconds",
+                       {{"fetch", r.fetch_s},
+                        {"rig", r.rig_s},
+                        {"pose", r.pose_s},
+                        {"encode", r.encode_s},
+                        {"store", r.store_s}}}});
       std::string outputs;
       for (const std::string& out : r.outputs) outputs += (outputs.empty() ? "" : ";") + out;
-      const auto figure = [&](const char* name) { return r.figures.contains(name) ? r.figures[name].dump() : std::string(); };
+      const auto figure = [&](const char* name) {
+        return r.figures.contains(name) ? r.figures[name].dump() : std::string();
+      };
       char times[160];
-      std::snprintf(times, sizeof times, "%.3f,%.3f,%.3f,%.3f,%.3f", r.fetch_s, r.rig_s, r.pose_s, r.encode_s, r.store_s);
+      std::snprintf(times, sizeof times, "%.3f,%.3f,%.3f,%.3f,%.3f", r.fetch_s, r.rig_s, r.pose_s, r.encode_s,
+                    r.store_s);
       csv += csv_field(rows_[i].id) + "," + r.status + "," + csv_field(r.error) + "," + csv_field(outputs) + "," +
              figure("inverted_tets") + "," + figure("bone_rigidity_error_mm") + "," + figure("volume_change") + "," +
              figure("warnings") + "," + times + "\n";
@@ -549,7 +656,7 @@ class Batch {
 
   BatchOptions o_;
   std::vector<Row> rows_;
-  std::vector<std::string> keys_, result_keys_;
+  std::vector<std::string> keys_;
   std::vector<RowResult> results_;
   std::unique_ptr<pacs::DicomWebClient> pacs_;
   std::mutex studies_mutex_, state_mutex_;
@@ -590,8 +697,10 @@ void add_batch_command(CLI::App& app) {
   auto o = std::make_shared<BatchOptions>();
   CLI::App* cmd = app.add_subcommand(
       "batch",
-      "Pose many studies: the rows of a manifest (JSON or CSV: id, labels, ct, label_map, preset | dicom_ct, dicom_seg | "
-      "pacs_study, ct_series, seg_series; pose | animation; method; out_dir; to_pacs), or one row per study a PACS query "
+      "Pose many studies: the rows of a manifest (JSON or CSV: id, labels, ct, label_map, preset | dicom_ct, dicom_seg "
+      "| "
+      "pacs_study, ct_series, seg_series; pose | animation; method; out_dir; to_pacs), or one row per study a PACS "
+      "query "
       "finds. Rows run in parallel (--jobs); each study's rig is built once and cached; a state file makes a rerun "
       "skip finished rows; a summary (JSON and CSV) gives each row's status, outputs and quality figures. Exit 0 when "
       "every row succeeded, 1 otherwise");
@@ -602,7 +711,8 @@ void add_batch_command(CLI::App& app) {
   cmd->add_option("--rig-cache", o->rig_cache, "Directory of built rigs, one per study (default: MANIFEST.rigs)");
   add_pacs_options(cmd, o->pacs);
   cmd->add_option("--uid-root", o->uid_root, "Root of the derived series' UIDs")->capture_default_str();
-  cmd->add_option("--query", o->query, "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
+  cmd->add_option("--query", o->query,
+                  "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
   cmd->add_option("--pose", o->pose, "With --query: the pose for every study");
   cmd->add_option("--animation", o->animation, "With --query: an animation instead");
   cmd->add_option("--method", o->method, "With --query: cor, dqs or lbs")->capture_default_str();

@@ -19,21 +19,26 @@ struct ExportOptions {
 };
 
 int run_export(const ExportOptions& o) {
-  if (Status s = refuse_overwriting_inputs({o.out}, {o.ct_path, o.labels_path, o.label_map_path}); !s.ok()) return report(s);
-  Result<labels::LabelMap> map = api::load_label_map(o.label_map_path, o.preset);
+  if (Status s = refuse_overwriting_inputs({o.out}, {o.ct_path, o.labels_path, o.label_map_path}); !s.ok())
+    return report(s);
+  // A map of one's own replaces the preset.
+  Result<labels::LabelMap> map =
+      api::load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
   if (!map.ok()) return report(map.status());
   Result<IntensityVolume> ct = api::read_intensity_volume(o.ct_path, read_options());
   if (!ct.ok()) return report(ct.status());
   Result<LabelVolume> labels = api::read_label_volume(o.labels_path, read_options());
   if (!labels.ok()) return report(labels.status());
   if (!labels->geometry().same_grid(ct->geometry())) {
-    return report(invalid_argument_error("the labels '" + o.labels_path + "' are not on the CT's grid; a SEG must lie "
+    return report(invalid_argument_error("the labels '" + o.labels_path +
+                                         "' are not on the CT's grid; a SEG must lie "
                                          "on its CT series' grid"));
   }
   api::DerivedSeriesOptions options;
   options.uid_root = o.uid_root;
   options.series_description = "CT (" + fs::path(o.ct_path).filename().string() + ")";
-  Result<api::DicomOutputs> outputs = api::encode_new_dicom_study(*ct, *labels, *map, o.patient_name, o.patient_id, options);
+  Result<api::DicomOutputs> outputs =
+      api::encode_new_dicom_study(*ct, *labels, *map, o.patient_name, o.patient_id, options);
   if (!outputs.ok()) return report(outputs.status());
   if (Status s = api::write_dicom_outputs(*outputs, o.out); !s.ok()) return report(s);
   say("wrote a CT series of " + std::to_string(outputs->ct_files.size()) + " images (" + o.out + "/ct/) and its SEG (" +
@@ -53,9 +58,12 @@ int run_dicom_info(const InfoOptions& o) {
   std::printf("study %s, series %s (%s), %zu images\n", i.study_instance_uid.c_str(), i.series_instance_uid.c_str(),
               i.series_description.c_str(), i.sop_instance_uids.size());
   std::printf("grid %lld x %lld x %lld, spacing %.3f x %.3f x %.3f mm\n", static_cast<long long>(g.size[0]),
-              static_cast<long long>(g.size[1]), static_cast<long long>(g.size[2]), g.spacing[0], g.spacing[1], g.spacing[2]);
+              static_cast<long long>(g.size[1]), static_cast<long long>(g.size[2]), g.spacing[0], g.spacing[1],
+              g.spacing[2]);
   if (o.seg_path.empty()) return 0;
-  Result<labels::LabelMap> map = api::load_label_map(o.label_map_path, o.preset);
+  // A map of one's own replaces the preset.
+  Result<labels::LabelMap> map =
+      api::load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
   if (!map.ok()) return report(map.status());
   Result<api::DicomStudy> study = api::read_dicom_study(o.ct_dir, o.seg_path, *map);
   if (!study.ok()) return report(study.status());
@@ -88,7 +96,8 @@ int run_store(const StoreOptions& o) {
     } else if (api::is_dicom_file(path)) {
       files.push_back(path);
     }
-    if (files.empty()) return report(invalid_argument_error("'" + path + "' is not a DICOM file or a directory holding some"));
+    if (files.empty())
+      return report(invalid_argument_error("'" + path + "' is not a DICOM file or a directory holding some"));
     std::sort(files.begin(), files.end());
     std::vector<std::string> instances;
     for (const std::string& file : files) {
@@ -110,13 +119,15 @@ void add_dicom_commands(CLI::App& app) {
   {
     auto o = std::make_shared<ExportOptions>();
     CLI::App* cmd = dicom->add_subcommand(
-        "export", "Write a CT and its labels (NIfTI, NRRD, ...) as a new DICOM study: a CT series (OUT/ct/) and a SEG "
-                  "(OUT/seg.dcm) whose segments carry the label map's names");
+        "export",
+        "Write a CT and its labels (NIfTI, NRRD, ...) as a new DICOM study: a CT series (OUT/ct/) and a SEG "
+        "(OUT/seg.dcm) whose segments carry the label map's names");
     cmd->add_option("--ct", o->ct_path, "CT volume")->required();
     cmd->add_option("--labels", o->labels_path, "Label volume on the CT's grid")->required();
     cmd->add_option("--preset", o->preset, "Built-in label map naming the labels")->capture_default_str();
     cmd->add_option("--label-map", o->label_map_path, "A label map of one's own instead");
-    cmd->add_option("--patient-name", o->patient_name, "Patient's Name (DICOM PN, e.g. Doe^Jane)")->capture_default_str();
+    cmd->add_option("--patient-name", o->patient_name, "Patient's Name (DICOM PN, e.g. Doe^Jane)")
+        ->capture_default_str();
     cmd->add_option("--patient-id", o->patient_id, "Patient ID")->capture_default_str();
     cmd->add_option("--uid-root", o->uid_root, "Root of the new UIDs (2.25: UUID-derived)")->capture_default_str();
     cmd->add_option("-o,--out", o->out, "Output directory (new or empty)")->required();
@@ -126,7 +137,8 @@ void add_dicom_commands(CLI::App& app) {
   }
   {
     auto o = std::make_shared<StoreOptions>();
-    CLI::App* cmd = dicom->add_subcommand("store", "Store DICOM files (or directories of them) in a PACS through STOW-RS");
+    CLI::App* cmd =
+        dicom->add_subcommand("store", "Store DICOM files (or directories of them) in a PACS through STOW-RS");
     cmd->add_option("paths", o->paths, "DICOM files or directories (one request each)")->required();
     add_pacs_options(cmd, o->pacs);
     cmd->callback([o] {
@@ -135,10 +147,13 @@ void add_dicom_commands(CLI::App& app) {
   }
   {
     auto o = std::make_shared<InfoOptions>();
-    CLI::App* cmd = dicom->add_subcommand("info", "What a DICOM CT series (and a SEG made on it) holds, as posewarp reads it");
+    CLI::App* cmd =
+        dicom->add_subcommand("info", "What a DICOM CT series (and a SEG made on it) holds, as posewarp reads it");
     cmd->add_option("ct", o->ct_dir, "Directory of the CT series' files")->required();
-    cmd->add_option("--seg", o->seg_path, "A SEG made on that series: its segments and the roles the label map gives them");
-    cmd->add_option("--preset", o->preset, "Built-in label map the segments' names are looked up in")->capture_default_str();
+    cmd->add_option("--seg", o->seg_path,
+                    "A SEG made on that series: its segments and the roles the label map gives them");
+    cmd->add_option("--preset", o->preset, "Built-in label map the segments' names are looked up in")
+        ->capture_default_str();
     cmd->add_option("--label-map", o->label_map_path, "A label map of one's own instead");
     cmd->callback([o] {
       if (int code = run_dicom_info(*o); code != 0) throw CLI::RuntimeError(code);

@@ -158,6 +158,26 @@ Result<api::PoseEngine> load_engine(const std::string& path) {
   return api::PoseEngine::create(std::move(rig), progress_bar());
 }
 
+// Two grids over the same voxels (one may run an axis the other way, as a DICOM series stacks its slices).
+bool same_place(const ImageGeometry& a, const ImageGeometry& b) {
+  if (a.size != b.size) return false;
+  for (int axis = 0; axis < 3; ++axis) {
+    if (std::abs(a.spacing[static_cast<size_t>(axis)] - b.spacing[static_cast<size_t>(axis)]) > 1e-3) return false;
+  }
+  // The corners of one are corners of the other.
+  for (int corner = 0; corner < 8; ++corner) {
+    const Vec3 index{corner & 1 ? static_cast<double>(a.size[0] - 1) : 0.0, corner & 2 ? static_cast<double>(a.size[1] - 1) : 0.0,
+                     corner & 4 ? static_cast<double>(a.size[2] - 1) : 0.0};
+    const Vec3 at = b.physical_to_index(a.index_to_physical(index));
+    for (int axis = 0; axis < 3; ++axis) {
+      const double c = at[static_cast<size_t>(axis)], last = static_cast<double>(b.size[static_cast<size_t>(axis)] - 1);
+      const bool on_a_corner = std::abs(c) < 1e-2 || std::abs(c - last) < 1e-2;
+      if (!on_a_corner) return false;
+    }
+  }
+  return true;
+}
+
 // The posed CT and labels as a derived CT series and a SEG of the source series' study (--dicom-out).
 Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const api::PoseResult& result,
                    const labels::LabelMap& map, const std::string& pose_name) {
@@ -187,6 +207,7 @@ int run_pose(const PoseOptions& o) {
   if (!pose.ok()) return report(pose.status());
   // DICOM out needs the source series: its patient, study and images are what the derived series refer to.
   std::optional<api::SeriesInfo> dicom_source;
+  std::optional<ImageGeometry> dicom_grid;
   if (std::error_code ec; !o.dicom_out.empty() && fs::exists(o.dicom_out, ec) && !fs::is_empty(o.dicom_out, ec)) {
     return report(already_exists_error("--dicom-out '" + o.dicom_out + "' is not empty; choose a new directory"));
   }
@@ -198,6 +219,7 @@ int run_pose(const PoseOptions& o) {
     Result<api::CtSeries> source = api::read_ct_directory(o.dicom_source);
     if (!source.ok()) return report(source.status().with_context("--dicom-source"));
     dicom_source = source->info;
+    dicom_grid = source->ct.geometry();
   }
   const std::string pose_name = fs::path(o.pose_path).stem().string();
   Result<api::PoseRequest> request = make_request(o.output);
@@ -226,6 +248,11 @@ int run_pose(const PoseOptions& o) {
   }
   Result<api::PoseEngine> engine = load_engine(o.rig_path);
   if (!engine.ok()) return report(engine.status());
+  // The derived series is filed in --dicom-source's study: that series must be the one the rig was built from.
+  if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
+    return report(invalid_argument_error("--dicom-source '" + o.dicom_source + "' is not the CT series the rig was built "
+                                         "from (its grid differs): the derived series would be filed in another study"));
+  }
   // Checked here too (pose() checks again) so that a pose that does not fit the rig names its file.
   if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
     return report(fits.with_context("pose file '" + o.pose_path + "'"));

@@ -23,7 +23,9 @@ v1::Method method_named(const std::string& name) {
   return name == "dqs" ? v1::METHOD_DQS : name == "lbs" ? v1::METHOD_LBS : v1::METHOD_COR;
 }
 
-v1::GridPolicy grid_named(const std::string& name) { return name == "grow" ? v1::GRID_POLICY_GROW : v1::GRID_POLICY_INPUT; }
+v1::GridPolicy grid_named(const std::string& name) {
+  return name == "grow" ? v1::GRID_POLICY_GROW : v1::GRID_POLICY_INPUT;
+}
 
 std::optional<Pose> read_pose(const std::string& path, std::string* error) {
   std::ifstream in(path);
@@ -52,7 +54,8 @@ std::string megabytes(uint64_t bytes) {
 std::string progress_text(const std::string& what, const VolumeRequest& request) {
   const auto [received, expected] = request.progress();
   if (received == 0) return what + ": posing on the server...";
-  return what + ": received " + megabytes(received) + (expected > 0 ? " of " + megabytes(expected) : "") + " (Esc cancels)";
+  return what + ": received " + megabytes(received) + (expected > 0 ? " of " + megabytes(expected) : "") +
+         " (Esc cancels)";
 }
 
 namespace {
@@ -78,13 +81,16 @@ std::vector<std::string> pose_files_in(const std::string& dir) {
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir, ec)) {
     std::string ignored;
-    if (entry.path().extension() == ".json" && read_pose(entry.path().string(), &ignored)) files.push_back(entry.path().string());
+    if (entry.path().extension() == ".json" && read_pose(entry.path().string(), &ignored))
+      files.push_back(entry.path().string());
   }
   std::sort(files.begin(), files.end());
   return files;
 }
 
-void App::status(const std::string& text) { scene->set_status(text); }
+void App::status(const std::string& text) {
+  scene->set_status(text);
+}
 
 std::vector<std::string> App::joint_list() const {
   std::vector<std::string> names{"root"};
@@ -108,7 +114,8 @@ void App::show_joint() {
 void App::layout(Scene::Layout layout) {
   scene->set_layout(layout);
   // The sliders sit in the bottom right corner of the 3D view; the slices leave it too small for them (v returns).
-  const double right = layout == Scene::Layout::kSingle ? 0.97 : 0.48, width = layout == Scene::Layout::kSingle ? 0.25 : 0.2;
+  const double right = layout == Scene::Layout::kSingle ? 0.97 : 0.48,
+               width = layout == Scene::Layout::kSingle ? 0.25 : 0.2;
   for (int i = 0; i < 3 && sliders[i] != nullptr; ++i) {
     auto* rep = static_cast<vtkSliderRepresentation2D*>(sliders[i]->GetRepresentation());
     rep->GetPoint1Coordinate()->SetValue(right - width, 0.06 + 0.07 * (2 - i));
@@ -130,8 +137,8 @@ void App::choose(int index) {
 
 void App::full_volume() {
   if (volume_request || converting.valid()) return status("a full volume is on its way already (Esc cancels)");
-  volume_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(), true,
-                                                   grid_named(options.grid));
+  volume_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(),
+                                                   true, grid_named(options.grid));
   requested_pose = pose_json(controller->pose()) + method_name(controller->method());
   status(progress_text("full volume", *volume_request));
 }
@@ -139,8 +146,8 @@ void App::full_volume() {
 void App::save_volumes() {
   if (save_request) return status("a save is running already (Esc cancels)");
   save_dir = (fs::path(options.out_dir) / ("posewarp-view-" + stamp())).string();
-  save_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(), false,
-                                                 grid_named(options.grid));
+  save_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(),
+                                                 false, grid_named(options.grid));
   status(progress_text("saving", *save_request));
 }
 
@@ -240,7 +247,8 @@ bool App::tick() {
     } else {
       scene->slices().set_volume(std::move(converted));
       shown_pose = requested_pose, shown_report = arrived.report, stale = false;
-      shown_title = "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
+      shown_title =
+          "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
       scene->set_report(shown_title, shown_report);
       if (compare) toggle_compare();
       layout(Scene::Layout::kSlices);
@@ -319,7 +327,8 @@ void App::key(const std::string& k) {
   } else if (k == "plus" || k == "equal" || k == "KP_Add" || k == "minus" || k == "KP_Subtract") {
     const bool up = k == "plus" || k == "equal" || k == "KP_Add";
     scene->slices().set_label_opacity(scene->slices().label_opacity() + (up ? 0.1 : -0.1));
-    status("label opacity " + std::to_string(static_cast<int>(std::lround(100 * scene->slices().label_opacity()))) + "%");
+    status("label opacity " + std::to_string(static_cast<int>(std::lround(100 * scene->slices().label_opacity()))) +
+           "%");
   } else if ((k == "Up" || k == "Down") && interactor != nullptr) {
     int* at_mouse = interactor->GetEventPosition();
     for (int v = 0; v < 3; ++v) {

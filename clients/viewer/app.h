@@ -20,13 +20,13 @@ namespace posewarp::view {
 struct Options {
   ServerAddress address;
   std::string rig_id, pose_path, poses_dir, method = "cor", compare, view = "anterior", snapshot, save, out_dir = ".",
-                                           size = "1024x768", window = "soft", cursor, grid = "input";
+                                            size = "1024x768", window = "soft", cursor, grid = "input";
   bool list = false, tissue = false, slices = false;
   double label_opacity = 0.4;
   int64_t triangles = Scene::kTriangleBudget;
 };
 
-v1::Method method_named(const std::string& name);  // "cor", "dqs" or "lbs"
+v1::Method method_named(const std::string& name);    // "cor", "dqs" or "lbs"
 v1::GridPolicy grid_named(const std::string& name);  // "input" or "grow"
 // A pose file; an error naming it when it cannot be read or is not a pose the viewer reads.
 std::optional<Pose> read_pose(const std::string& path, std::string* error);
@@ -41,7 +41,7 @@ struct App {
   Scene* scene = nullptr;
   std::unique_ptr<PreviewSession> session, compare;
   Controller* controller = nullptr;
-  vtkRenderWindowInteractor* interactor = nullptr;  // optional
+  vtkRenderWindowInteractor* interactor = nullptr;            // optional
   vtkSliderWidget* sliders[3] = {nullptr, nullptr, nullptr};  // optional
   bool tissue = false, stream_lost = false;
   // The full volume (for the slices) and a save, each a Pose call on its own thread; the conversion of a finished
@@ -54,7 +54,7 @@ struct App {
   std::string requested_pose, shown_pose;  // the pose JSON and method of the volume asked for and of the one shown
   std::string shown_title;
   v1::QualityReport shown_report;
-  bool stale = false;  // the pose changed since the volume shown
+  bool stale = false;    // the pose changed since the volume shown
   std::string save_dir;  // of the save running or last done
   std::vector<std::string> pose_files;
   size_t next_pose_file = 0;

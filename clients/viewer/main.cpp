@@ -1,6 +1,5 @@
 // posewarp-view: previews poses of a rig held by posewarp-server, live (sliders) or as offscreen snapshots, and
 // shows the posed volume as slices with its quality report.
-#include <CLI/CLI.hpp>
 #include <vtkCallbackCommand.h>
 #include <vtkCommand.h>
 #include <vtkInteractorStyleTrackballCamera.h>
@@ -11,9 +10,10 @@
 #include <vtkSliderRepresentation2D.h>
 #include <vtkSliderWidget.h>
 #include <vtkTextProperty.h>
+#include <CLI/CLI.hpp>
 
-#include <cmath>
 #include <unistd.h>
+#include <cmath>
 
 #include <cstdio>
 #include <filesystem>
@@ -62,8 +62,7 @@ CallError finish(VolumeRequest& request, const std::string& what, PosedVolumes* 
 class ViewerStyle : public vtkInteractorStyleTrackballCamera {
  public:
   static ViewerStyle* New();
-  vtkTypeMacro(ViewerStyle, vtkInteractorStyleTrackballCamera)
-  App* app = nullptr;
+  vtkTypeMacro(ViewerStyle, vtkInteractorStyleTrackballCamera) App* app = nullptr;
   void OnChar() override {}
   void OnLeftButtonDown() override {
     const int* at = GetInteractor()->GetEventPosition();
@@ -149,7 +148,8 @@ constexpr const char* kHelp =
     "In the window: n/p (or a click on a joint's sphere) choose the joint, the first entry being the root; the three "
     "sliders set its flexion, abduction and axial rotation (degrees, the joint's own frame; the root's turn about "
     "L-R, A-P and S-I). 1/2/3 CoR/DQS/LBS, c two methods side by side, r/R reset the joint/all, u undo, "
-    "a/l/s anterior/lateral/superior view, t tissue surfaces, T one tissue surface at a time, w save the pose JSON, o load the next pose of --poses, "
+    "a/l/s anterior/lateral/superior view, t tissue surfaces, T one tissue surface at a time, w save the pose JSON, o "
+    "load the next pose of --poses, "
     "f full volume (posed CT and labels as three slices with the quality report; a click moves the cursor, arrows or "
     "the wheel step a slice, b bone/soft-tissue window, +/- label opacity, v back to 3D), d save the posed volumes, "
     "surfaces and report, k save a picture of the window, Esc cancel a running request, x reconnect the preview, "
@@ -169,7 +169,9 @@ int main(int argc, char** argv) {
   app.add_option("--rig", o.rig_id, "Rig id to open (default: the only rig, or one chosen from a list at a terminal)");
   app.add_option("--pose", o.pose_path, "Pose JSON to start from (the CLI's; joints in angles_deg)");
   app.add_option("--poses", o.poses_dir, "Directory of pose JSONs that o steps through (default: --pose's directory)");
-  app.add_option("--method", o.method, "Skinning: cor, dqs or lbs")->check(CLI::IsMember({"cor", "dqs", "lbs"}))->capture_default_str();
+  app.add_option("--method", o.method, "Skinning: cor, dqs or lbs")
+      ->check(CLI::IsMember({"cor", "dqs", "lbs"}))
+      ->capture_default_str();
   app.add_option("--compare", o.compare, "Show this method side by side with --method")
       ->check(CLI::IsMember({"cor", "dqs", "lbs"}));
   app.add_option("--view", o.view, "Camera: anterior, lateral or superior")
@@ -184,7 +186,8 @@ int main(int argc, char** argv) {
   app.add_option("--label-opacity", o.label_opacity, "Opacity of the labels over the CT, 0 to 1")
       ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
-  app.add_option("--grid", o.grid, "Grid of the full volume and saved files: input (the study's, as the CLI) or grow "
+  app.add_option("--grid", o.grid,
+                 "Grid of the full volume and saved files: input (the study's, as the CLI) or grow "
                  "(grown to hold the posed body)")
       ->check(CLI::IsMember({"input", "grow"}))
       ->capture_default_str();
@@ -203,9 +206,8 @@ int main(int argc, char** argv) {
     return fail("--size takes WxH between 64x64 and 8192x8192, not '" + o.size + "'", 2);
   }
   std::array<double, 3> cursor{};
-  if (!o.cursor.empty() &&
-      (std::sscanf(o.cursor.c_str(), "%lf,%lf,%lf", &cursor[0], &cursor[1], &cursor[2]) != 3 ||
-       !std::isfinite(cursor[0] + cursor[1] + cursor[2]))) {
+  if (!o.cursor.empty() && (std::sscanf(o.cursor.c_str(), "%lf,%lf,%lf", &cursor[0], &cursor[1], &cursor[2]) != 3 ||
+                            !std::isfinite(cursor[0] + cursor[1] + cursor[2]))) {
     return fail("--cursor takes X,Y,Z in millimetres, not '" + o.cursor + "'", 2);
   }
   if (o.compare == o.method) return fail("--compare names the method --method shows already; choose another", 2);
@@ -216,8 +218,8 @@ int main(int argc, char** argv) {
   if (CallError e = client->list_rigs(&rigs); e.failed()) return fail(e.message, exit_code(e));
   if (o.list) {
     for (const v1::Rig& rig : rigs) {
-      std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(), static_cast<double>(rig.size_bytes()) / 1e6,
-                  rig.created().c_str());
+      std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
+                  static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
     }
     return 0;
   }
@@ -235,7 +237,8 @@ int main(int argc, char** argv) {
       if (std::scanf("%zu", &chosen) != 1 || chosen < 1 || chosen > rigs.size()) return fail("no rig chosen", 2);
       o.rig_id = rigs[chosen - 1].id();
     } else if (rigs.size() != 1) {
-      return fail("the server holds " + std::to_string(rigs.size()) + " rigs; choose one with --rig ID (--list lists them)", 2);
+      return fail(
+          "the server holds " + std::to_string(rigs.size()) + " rigs; choose one with --rig ID (--list lists them)", 2);
     } else {
       o.rig_id = rigs.front().id();
     }
@@ -282,7 +285,8 @@ int main(int argc, char** argv) {
   const auto answered = [&](PreviewSession& s, uint64_t sequence) -> std::optional<int> {
     if (s.wait_for(sequence, 30000)) return std::nullopt;
     const CallError e = s.ended();
-    return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s", e.failed() ? exit_code(e) : 1);
+    return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s",
+                e.failed() ? exit_code(e) : 1);
   };
   if (std::optional<int> failed = answered(*session, controller.last_sent())) return *failed;
   if (compare) {
@@ -290,7 +294,8 @@ int main(int argc, char** argv) {
   }
   controller.poll();
   v1::QualityReport shown_report;
-  if (const CallError& e = controller.last_error(); e.failed()) return fail("the server refused the pose: " + e.message, exit_code(e));
+  if (const CallError& e = controller.last_error(); e.failed())
+    return fail("the server refused the pose: " + e.message, exit_code(e));
   if (o.slices) {
     VolumeRequest request(*client, o.rig_id, start, method, true, grid_named(o.grid));
     PosedVolumes posed;
@@ -325,7 +330,7 @@ int main(int argc, char** argv) {
   ui.scene = &scene;
   ui.session = std::move(session);
   ui.compare = std::move(compare);
-  const std::string poses_dir = !o.poses_dir.empty()         ? o.poses_dir
+  const std::string poses_dir = !o.poses_dir.empty()   ? o.poses_dir
                                 : !o.pose_path.empty() ? fs::path(o.pose_path).parent_path().string()
                                                        : std::string(".");
   ui.options.poses_dir = poses_dir.empty() ? "." : poses_dir;

@@ -60,7 +60,8 @@ struct Scene::Parts {
   vtkSmartPointer<vtkRenderer> compare_renderer = vtkSmartPointer<vtkRenderer>::New();
   std::vector<vtkSmartPointer<vtkPolyData>> compare_surfaces;
   std::vector<vtkSmartPointer<vtkActor>> compare_actors;
-  vtkSmartPointer<vtkTextActor> method_names[2] = {vtkSmartPointer<vtkTextActor>::New(), vtkSmartPointer<vtkTextActor>::New()};
+  vtkSmartPointer<vtkTextActor> method_names[2] = {vtkSmartPointer<vtkTextActor>::New(),
+                                                   vtkSmartPointer<vtkTextActor>::New()};
   vtkSmartPointer<vtkTextActor> report = vtkSmartPointer<vtkTextActor>::New();
   vtkSmartPointer<vtkTextActor> warnings = vtkSmartPointer<vtkTextActor>::New();
   vtkSmartPointer<vtkTextActor> joint_list = vtkSmartPointer<vtkTextActor>::New();
@@ -165,10 +166,16 @@ Scene::Scene(int width, int height, bool offscreen) : parts_(new Parts) {
   slices_ = std::make_unique<SliceViews>(p.window);
 }
 
-Scene::~Scene() { delete parts_; }
+Scene::~Scene() {
+  delete parts_;
+}
 
-vtkRenderWindow* Scene::window() const { return parts_->window; }
-vtkRenderer* Scene::renderer() const { return parts_->renderer; }
+vtkRenderWindow* Scene::window() const {
+  return parts_->window;
+}
+vtkRenderer* Scene::renderer() const {
+  return parts_->renderer;
+}
 
 namespace {
 
@@ -186,7 +193,8 @@ vtkSmartPointer<vtkPolyData> fewer_triangles(vtkPolyData* mesh, double keep, std
   for (vtkIdType i = 0; i < all->GetNumberOfPoints(); ++i) {
     double x[3];
     all->GetPoint(i, x);
-    index.emplace(std::array<float, 3>{static_cast<float>(x[0]), static_cast<float>(x[1]), static_cast<float>(x[2])}, i);
+    index.emplace(std::array<float, 3>{static_cast<float>(x[0]), static_cast<float>(x[1]), static_cast<float>(x[2])},
+                  i);
   }
   source_index->clear();
   for (vtkIdType i = 0; i < fewer->GetNumberOfPoints(); ++i) {
@@ -216,13 +224,15 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
     auto points = vtkSmartPointer<vtkPoints>::New();
     for (int i = 0; i + 2 < s.vertices_size(); i += 3) {
       points->InsertNextPoint(s.vertices(i), s.vertices(i + 1), s.vertices(i + 2));
-      for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
+      for (int a = 0; a < 3; ++a)
+        lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
     }
     auto triangles = vtkSmartPointer<vtkCellArray>::New();
     const int vertices = s.vertices_size() / 3;
     for (int i = 0; i + 2 < s.triangles_size(); i += 3) {
       const vtkIdType ids[3] = {s.triangles(i), s.triangles(i + 1), s.triangles(i + 2)};
-      if (std::any_of(ids, ids + 3, [&](vtkIdType id) { return id < 0 || id >= vertices; })) continue;  // not a triangle
+      if (std::any_of(ids, ids + 3, [&](vtkIdType id) { return id < 0 || id >= vertices; }))
+        continue;  // not a triangle
       triangles->InsertNextCell(3, ids);
     }
     auto mesh = vtkSmartPointer<vtkPolyData>::New();
@@ -320,12 +330,14 @@ void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {
   centres_ = centres;
   vtkPoints* points = p.skeleton->GetPoints();
   const vtkIdType sphere_points = static_cast<vtkIdType>(p.sphere_template.size());
-  const vtkIdType expected = static_cast<vtkIdType>(centres.size()) * sphere_points + 2 * static_cast<vtkIdType>(sticks_.size());
+  const vtkIdType expected =
+      static_cast<vtkIdType>(centres.size()) * sphere_points + 2 * static_cast<vtkIdType>(sticks_.size());
   if (points != nullptr && sphere_points > 0 && points->GetNumberOfPoints() == expected) {
     // The same spheres and sticks moved: only the points change.
     vtkIdType at = 0;
     for (const std::array<double, 3>& c : centres) {
-      for (const std::array<double, 3>& t : p.sphere_template) points->SetPoint(at++, c[0] + t[0], c[1] + t[1], c[2] + t[2]);
+      for (const std::array<double, 3>& t : p.sphere_template)
+        points->SetPoint(at++, c[0] + t[0], c[1] + t[1], c[2] + t[2]);
     }
     for (const auto& [a, b] : sticks_) {
       points->SetPoint(at++, centres[static_cast<size_t>(a)].data());
@@ -455,7 +467,9 @@ void Scene::set_report(const std::string& title, const v1::QualityReport& report
     warnings.append("\n");
   }
   if (report.warnings_size() > kShown) {
-    warnings.append("and ").append(std::to_string(report.warnings_size() - kShown)).append(" more warnings (d saves report.json)\n");
+    warnings.append("and ")
+        .append(std::to_string(report.warnings_size() - kShown))
+        .append(" more warnings (d saves report.json)\n");
   }
   if (!warnings.empty()) warnings.pop_back();
   parts_->warnings->SetInput(warnings.c_str());
@@ -496,15 +510,16 @@ bool Scene::set_view(const std::string& preset) {
   if (preset == "anterior") {
     direction[0] = 0, direction[1] = -1, direction[2] = 0;  // the camera in front of the patient (anterior is -y)
   } else if (preset == "lateral") {
-    direction[0] = 1, direction[1] = 0, direction[2] = 0;   // from the patient's left
+    direction[0] = 1, direction[1] = 0, direction[2] = 0;  // from the patient's left
   } else if (preset == "superior") {
-    direction[0] = 0, direction[1] = 0, direction[2] = 1;   // from above the head, anterior up
+    direction[0] = 0, direction[1] = 0, direction[2] = 1;  // from above the head, anterior up
     up[0] = 0, up[1] = -1, up[2] = 0;
   } else {
     return false;
   }
   parts_->view = preset;
-  const double centre[3] = {(bounds_[0] + bounds_[1]) / 2, (bounds_[2] + bounds_[3]) / 2, (bounds_[4] + bounds_[5]) / 2};
+  const double centre[3] = {(bounds_[0] + bounds_[1]) / 2, (bounds_[2] + bounds_[3]) / 2,
+                            (bounds_[4] + bounds_[5]) / 2};
   vtkCamera* camera = parts_->renderer->GetActiveCamera();
   camera->SetFocalPoint(centre);
   camera->SetPosition(centre[0] + direction[0], centre[1] + direction[1], centre[2] + direction[2]);
@@ -513,7 +528,9 @@ bool Scene::set_view(const std::string& preset) {
   return true;
 }
 
-void Scene::set_status(const std::string& text) { parts_->status->SetInput(text.c_str()); }
+void Scene::set_status(const std::string& text) {
+  parts_->status->SetInput(text.c_str());
+}
 
 void Scene::show_tissue(bool shown) {
   for (size_t i = 0; i < parts_->roles.size(); ++i) {
@@ -530,7 +547,8 @@ std::string Scene::next_tissue() {
     if (p.roles[i] == "tissue") tissue.push_back(static_cast<int>(i));
   }
   const auto at = std::find(tissue.begin(), tissue.end(), tissue_shown_);
-  tissue_shown_ = at == tissue.end() ? (tissue.empty() ? -1 : tissue.front()) : (at + 1 == tissue.end() ? -1 : *(at + 1));
+  tissue_shown_ =
+      at == tissue.end() ? (tissue.empty() ? -1 : tissue.front()) : (at + 1 == tissue.end() ? -1 : *(at + 1));
   for (int i : tissue) {
     p.surface_actors[static_cast<size_t>(i)]->SetVisibility(i == tissue_shown_);
     p.compare_actors[static_cast<size_t>(i)]->SetVisibility(i == tissue_shown_);
@@ -538,7 +556,9 @@ std::string Scene::next_tissue() {
   return tissue_shown_ < 0 ? "" : p.surface_names[static_cast<size_t>(tissue_shown_)];
 }
 
-void Scene::render() { parts_->window->Render(); }
+void Scene::render() {
+  parts_->window->Render();
+}
 
 bool Scene::snapshot(const std::string& png_path, std::string* error) {
   render();
@@ -553,7 +573,8 @@ bool Scene::snapshot(const std::string& png_path, std::string* error) {
   writer->SetInputConnection(grab->GetOutputPort());
   writer->Write();
   std::error_code ec;
-  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(partial, ec) || std::filesystem::file_size(partial, ec) == 0) {
+  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(partial, ec) ||
+      std::filesystem::file_size(partial, ec) == 0) {
     std::filesystem::remove(partial, ec);
     *error = "cannot write the snapshot '" + png_path + "' (is its directory there and writable?)";
     return false;
@@ -694,8 +715,8 @@ bool Controller::poll() {
   const char* names = at_root_ ? "L-R %.0f  A-P %.0f  S-I %.0f" : "flexion %.0f  abduction %.0f  rotation %.0f";
   char angles[96], text[320];
   std::snprintf(angles, sizeof angles, names, a[0], a[1], a[2]);
-  std::snprintf(text, sizeof text, "%s  %s: %s   round trip %.1f ms, %zu fps", method_name(method_), joint_.c_str(), angles,
-                round_trip_ms_, drawn_.size());
+  std::snprintf(text, sizeof text, "%s  %s: %s   round trip %.1f ms, %zu fps", method_name(method_), joint_.c_str(),
+                angles, round_trip_ms_, drawn_.size());
   scene_.set_status(text);
   return true;
 }

@@ -55,7 +55,8 @@ std::array<unsigned char, 3> label_colour(int32_t label) {
     case 5: r = v, g = p, b = q; break;
     default: break;
   }
-  return {static_cast<unsigned char>(255 * r), static_cast<unsigned char>(255 * g), static_cast<unsigned char>(255 * b)};
+  return {static_cast<unsigned char>(255 * r), static_cast<unsigned char>(255 * g),
+          static_cast<unsigned char>(255 * b)};
 }
 
 template <typename T>
@@ -120,8 +121,8 @@ bool slice_volume(const PosedVolumes& posed, SliceVolume* volume, std::string* e
   }
   const size_t voxels = static_cast<size_t>(n[0] * n[1] * n[2]);
   const v1::PixelType label_type = posed.header.label_sample_type(), ct_type = posed.header.ct_sample_type();
-  if (sample_size(label_type) == 0 || sample_size(ct_type) == 0 || posed.labels.size() != voxels * sample_size(label_type) ||
-      posed.ct.size() != voxels * sample_size(ct_type)) {
+  if (sample_size(label_type) == 0 || sample_size(ct_type) == 0 ||
+      posed.labels.size() != voxels * sample_size(label_type) || posed.ct.size() != voxels * sample_size(ct_type)) {
     *error = "the server's volumes do not match their header (sizes or sample types)";
     return false;
   }
@@ -155,7 +156,8 @@ bool slice_volume(const PosedVolumes& posed, SliceVolume* volume, std::string* e
   }
   for (int a = 0; a < 3; ++a) {
     double p = grid.origin(a);
-    for (int c = 0; c < 3; ++c) p += grid.direction(3 * a + c) * grid.spacing(c) * static_cast<double>(first[static_cast<size_t>(c)]);
+    for (int c = 0; c < 3; ++c)
+      p += grid.direction(3 * a + c) * grid.spacing(c) * static_cast<double>(first[static_cast<size_t>(c)]);
     volume->origin[static_cast<size_t>(a)] = p;
   }
   // Source strides per new axis (negative where the axis runs backwards).
@@ -194,10 +196,12 @@ struct SliceViews::Parts {
     vtkSmartPointer<vtkRenderer> renderer = vtkSmartPointer<vtkRenderer>::New();
     vtkSmartPointer<vtkImageData> image = vtkSmartPointer<vtkImageData>::New();
     vtkSmartPointer<vtkImageActor> actor = vtkSmartPointer<vtkImageActor>::New();
-    vtkSmartPointer<vtkLineSource> lines[2] = {vtkSmartPointer<vtkLineSource>::New(), vtkSmartPointer<vtkLineSource>::New()};
+    vtkSmartPointer<vtkLineSource> lines[2] = {vtkSmartPointer<vtkLineSource>::New(),
+                                               vtkSmartPointer<vtkLineSource>::New()};
     vtkSmartPointer<vtkActor> line_actors[2] = {vtkSmartPointer<vtkActor>::New(), vtkSmartPointer<vtkActor>::New()};
     vtkSmartPointer<vtkTextActor> title = vtkSmartPointer<vtkTextActor>::New();
-    vtkSmartPointer<vtkTextActor> sides[3] = {vtkSmartPointer<vtkTextActor>::New(), vtkSmartPointer<vtkTextActor>::New(),
+    vtkSmartPointer<vtkTextActor> sides[3] = {vtkSmartPointer<vtkTextActor>::New(),
+                                              vtkSmartPointer<vtkTextActor>::New(),
                                               vtkSmartPointer<vtkTextActor>::New()};
     bool camera_placed = false;
   };
@@ -244,9 +248,13 @@ SliceViews::SliceViews(vtkRenderWindow* window) : parts_(new Parts) {
   }
 }
 
-SliceViews::~SliceViews() { delete parts_; }
+SliceViews::~SliceViews() {
+  delete parts_;
+}
 
-vtkRenderer* SliceViews::renderer(int view) const { return parts_->views[view].renderer; }
+vtkRenderer* SliceViews::renderer(int view) const {
+  return parts_->views[view].renderer;
+}
 
 void SliceViews::set_volume(SliceVolume volume) {
   volume_ = std::move(volume);
@@ -270,7 +278,8 @@ void SliceViews::set_viewports(const std::array<std::array<double, 4>, 3>& viewp
 void SliceViews::set_cursor_mm(const std::array<double, 3>& point) {
   for (size_t a = 0; a < 3; ++a) {
     const double index = std::round((point[a] - volume_.origin[a]) / volume_.spacing[a]);
-    cursor_[a] = static_cast<int>(std::clamp(std::isfinite(index) ? index : 0.0, 0.0, std::max(0.0, volume_.size[a] - 1.0)));
+    cursor_[a] =
+        static_cast<int>(std::clamp(std::isfinite(index) ? index : 0.0, 0.0, std::max(0.0, volume_.size[a] - 1.0)));
   }
 }
 
@@ -339,7 +348,8 @@ void SliceViews::update() {
     view.image->SetSpacing(vol.spacing[0], vol.spacing[1], vol.spacing[2]);
     view.image->AllocateScalars(VTK_UNSIGNED_CHAR, 4);
     auto* rgba = static_cast<unsigned char*>(view.image->GetScalarPointer());
-    const size_t stride[3] = {1, static_cast<size_t>(vol.size[0]), static_cast<size_t>(vol.size[0]) * static_cast<size_t>(vol.size[1])};
+    const size_t stride[3] = {1, static_cast<size_t>(vol.size[0]),
+                              static_cast<size_t>(vol.size[0]) * static_cast<size_t>(vol.size[1])};
     const size_t base = static_cast<size_t>(cursor_[normal]) * stride[normal];
     // VTK's order in the slice image: x fastest, then y, then z, with the normal axis flat.
     const size_t inner = std::min(across, up), outer = std::max(across, up);
@@ -353,7 +363,8 @@ void SliceViews::update() {
           const std::array<unsigned char, 3> c = label_colour(label);
           for (int k = 0; k < 3; ++k) rgb[k] = (1.0 - opacity_) * rgb[k] + opacity_ * c[static_cast<size_t>(k)];
         }
-        for (int k = 0; k < 3; ++k) rgba[out + static_cast<size_t>(k)] = static_cast<unsigned char>(std::lround(rgb[k]));
+        for (int k = 0; k < 3; ++k)
+          rgba[out + static_cast<size_t>(k)] = static_cast<unsigned char>(std::lround(rgb[k]));
         rgba[out + 3] = 255;
       }
     }

@@ -26,7 +26,9 @@ struct SliceVolume {
   std::vector<float> ct;
   std::vector<int32_t> labels;
   bool oblique = false;  // the grid was not along the axes: shown on its nearest axes
-  size_t voxels() const { return static_cast<size_t>(size[0]) * static_cast<size_t>(size[1]) * static_cast<size_t>(size[2]); }
+  size_t voxels() const {
+    return static_cast<size_t>(size[0]) * static_cast<size_t>(size[1]) * static_cast<size_t>(size[2]);
+  }
 };
 
 // From the Pose call's raw samples (the header's sample types and grid); false with a message for an answer that

@@ -14,8 +14,10 @@ namespace {
 CallError error_of(const grpc::Status& status, const std::string& server) {
   if (status.ok()) return {};
   if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-    return {status.error_code(), "cannot reach posewarp-server at " + server + " (is it running, and is the address "
-                                 "right?): " + status.error_message()};
+    return {status.error_code(), "cannot reach posewarp-server at " + server +
+                                     " (is it running, and is the address "
+                                     "right?): " +
+                                     status.error_message()};
   }
   return {status.error_code(), status.error_message()};
 }
@@ -84,7 +86,8 @@ std::string pose_json(const Pose& pose, const std::string& name) {
   }
   for (const auto& [joint, a] : pose.joints) {
     if (a.is_zero()) continue;
-    doc["joints"][joint] = {{"angles_deg", {{"flexion", a.flexion}, {"abduction", a.abduction}, {"rotation", a.rotation}}}};
+    doc["joints"][joint] = {
+        {"angles_deg", {{"flexion", a.flexion}, {"abduction", a.abduction}, {"rotation", a.rotation}}}};
   }
   return doc.dump();
 }
@@ -119,8 +122,10 @@ std::optional<Pose> pose_from_json(const std::string& text, std::string* error) 
                  r["axis_angle"]["degrees"].is_number()) {
         const nlohmann::json& axis = r["axis_angle"]["axis"];
         const double x = axis[0].get<double>(), y = axis[1].get<double>(), z = axis[2].get<double>();
-        const double length = std::sqrt(x * x + y * y + z * z), half = r["axis_angle"]["degrees"].get<double>() * M_PI / 360;
-        if (length > 0) q = {std::cos(half), std::sin(half) * x / length, std::sin(half) * y / length, std::sin(half) * z / length};
+        const double length = std::sqrt(x * x + y * y + z * z),
+                     half = r["axis_angle"]["degrees"].get<double>() * M_PI / 360;
+        if (length > 0)
+          q = {std::cos(half), std::sin(half) * x / length, std::sin(half) * y / length, std::sin(half) * z / length};
       } else {
         *error = "root rotation: the viewer reads a \"quaternion\" [w, x, y, z] or an \"axis_angle\"";
         return std::nullopt;
@@ -140,7 +145,8 @@ std::optional<Pose> pose_from_json(const std::string& text, std::string* error) 
     }
     const nlohmann::json& a = value["angles_deg"];
     JointAngles& j = pose.joints[joint];
-    for (auto [key, field] : {std::pair{"flexion", &j.flexion}, {"abduction", &j.abduction}, {"rotation", &j.rotation}}) {
+    for (auto [key, field] :
+         {std::pair{"flexion", &j.flexion}, {"abduction", &j.abduction}, {"rotation", &j.rotation}}) {
       if (!a.contains(key)) continue;
       if (!a[key].is_number()) {
         *error = "joint '" + joint + "': " + key + " must be a number of degrees";
@@ -282,12 +288,14 @@ void PreviewSession::read_loop() {
       answer.vertices.emplace_back(s.vertices().begin(), s.vertices().end());
     }
     for (int i = 0; i + 2 < response.joint_centres_size(); i += 3) {
-      answer.joint_centres.push_back({response.joint_centres(i), response.joint_centres(i + 1), response.joint_centres(i + 2)});
+      answer.joint_centres.push_back(
+          {response.joint_centres(i), response.joint_centres(i + 1), response.joint_centres(i + 2)});
     }
     std::lock_guard<std::mutex> lock(mutex_);
     const auto sent = sent_at_.find(answer.sequence);
     if (sent != sent_at_.end()) {
-      answer.round_trip_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - sent->second).count();
+      answer.round_trip_ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - sent->second).count();
     }
     sent_at_.erase(sent_at_.begin(), sent_at_.upper_bound(answer.sequence));
     ++answers_;
@@ -311,9 +319,9 @@ std::optional<PreviewSession::Answer> PreviewSession::take() {
 
 bool PreviewSession::wait_for(uint64_t sequence, int timeout_ms) {
   std::unique_lock<std::mutex> lock(mutex_);
-  return answered_.wait_for(lock, std::chrono::milliseconds(timeout_ms),
-                            [&] { return last_answered_ >= sequence || closed_; }) &&
-         last_answered_ >= sequence;
+  return answered_.wait_for(lock, std::chrono::milliseconds(timeout_ms), [&] {
+    return last_answered_ >= sequence || closed_;
+  }) && last_answered_ >= sequence;
 }
 
 uint64_t PreviewSession::answers() const {
@@ -385,7 +393,8 @@ void VolumeRequest::run(v1::PoseRequest request) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (!error_.failed()) {
     if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-      error_ = {status.error_code(), "cannot reach posewarp-server at " + client_.server() + ": " + status.error_message()};
+      error_ = {status.error_code(),
+                "cannot reach posewarp-server at " + client_.server() + ": " + status.error_message()};
     } else if (!status.ok()) {
       error_ = {status.error_code(), status.error_message()};
     } else if (result.labels.empty() || result.ct.empty() ||

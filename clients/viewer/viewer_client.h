@@ -89,7 +89,7 @@ class PreviewSession {
     double server_ms = 0.0;
     std::vector<std::vector<float>> vertices;  // per surface, x y z per vertex
     std::vector<std::array<double, 3>> joint_centres;
-    CallError error;                           // a refused update (the stream goes on)
+    CallError error;  // a refused update (the stream goes on)
   };
 
   PreviewSession(const ViewerClient& client, const std::string& rig_id);

@@ -57,7 +57,8 @@ Result<DicomStudy> read_dicom_study(const std::vector<std::string>& ct_instances
   std::vector<std::string> unknown;
   POSEWARP_ASSIGN_OR_RETURN(study.label_map, labels::relabel_by_name(map, names, &unknown));
   for (const std::string& name : unknown) {
-    study.warnings.push_back("segment '" + name + "' is not in the label map '" + map.name() + "': taken as soft tissue");
+    study.warnings.push_back("segment '" + name + "' is not in the label map '" + map.name() +
+                             "': taken as soft tissue");
   }
   study.labels = std::move(seg.labels);
   study.segments = std::move(seg.segments);
@@ -74,7 +75,7 @@ Result<DicomStudy> read_dicom_study(const std::string& ct_directory, const std::
   std::string seg_bytes;
   POSEWARP_ASSIGN_OR_RETURN(seg_bytes, read_text_input(seg_path, "DICOM SEG file", int64_t{1} << 32));
   std::vector<std::string> instances;
-  for (const auto& entry : fs::directory_iterator(ct_directory)) {
+  for (const auto& entry : fs::directory_iterator(ct_directory, ec)) {
     if (is_dicom_file(entry.path().string())) {
       std::string bytes;
       POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(entry.path().string(), "DICOM file", int64_t{1} << 31));
@@ -94,8 +95,10 @@ Result<DicomOutputs> encode_dicom_outputs(const IntensityVolume& ct, const Label
   POSEWARP_ASSIGN_OR_RETURN(out.ct_files, encode_derived_ct(ct, source, options, &out.ct));
   DerivedSeriesOptions seg_options = options;
   seg_options.series_number = std::atoi(out.ct.series_number.c_str()) + 1;
-  seg_options.series_description = (options.series_description.empty() ? std::string("posewarp") : options.series_description) + " labels";
-  POSEWARP_ASSIGN_OR_RETURN(out.seg_file, encode_segmentation(labels, segments_named_by(labels, map), out.ct, seg_options, &out.seg));
+  seg_options.series_description =
+      (options.series_description.empty() ? std::string("posewarp") : options.series_description) + " labels";
+  POSEWARP_ASSIGN_OR_RETURN(out.seg_file,
+                            encode_segmentation(labels, segments_named_by(labels, map), out.ct, seg_options, &out.seg));
   return out;
 }
 
@@ -109,7 +112,8 @@ Status write_dicom_outputs(const DicomOutputs& outputs, const std::string& dir) 
   for (size_t i = 0; i < outputs.ct_files.size(); ++i) {
     char name[32];
     std::snprintf(name, sizeof name, "CT%06zu.dcm", i + 1);
-    POSEWARP_RETURN_IF_ERROR(write_file_atomically((fs::path(dir) / "ct" / name).string(), outputs.ct_files[i], "DICOM slice"));
+    POSEWARP_RETURN_IF_ERROR(
+        write_file_atomically((fs::path(dir) / "ct" / name).string(), outputs.ct_files[i], "DICOM slice"));
   }
   return write_file_atomically((fs::path(dir) / "seg.dcm").string(), outputs.seg_file, "DICOM SEG");
 }

@@ -42,8 +42,12 @@ using Vec = std::array<double, 3>;
 Vec cross(const Vec& a, const Vec& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
-double dot(const Vec& a, const Vec& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-double norm(const Vec& a) { return std::sqrt(dot(a, a)); }
+double dot(const Vec& a, const Vec& b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+double norm(const Vec& a) {
+  return std::sqrt(dot(a, a));
+}
 
 // The decoders of compressed pixel data DCMTK has (RLE, JPEG, JPEG-LS), registered once.
 void register_decoders() {
@@ -115,16 +119,19 @@ Status check_slice(Slice& slice) {
                                   " frames); posewarp reads single-frame CT series (convert enhanced CT first)");
   }
   double orientation[6];
-  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) || !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
+  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) ||
+      !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
       !numbers(d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
-    return invalid_argument_error(name + " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
+    return invalid_argument_error(name +
+                                  " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
                                   "its place in the patient is unknown");
   }
   slice.row = {orientation[0], orientation[1], orientation[2]};
   slice.column = {orientation[3], orientation[4], orientation[5]};
   if (std::abs(norm(slice.row) - 1) > 1e-3 || std::abs(norm(slice.column) - 1) > 1e-3 ||
       std::abs(dot(slice.row, slice.column)) > 1e-3 || slice.pixel_spacing[0] <= 0 || slice.pixel_spacing[1] <= 0) {
-    return invalid_argument_error(name + " has an orientation that is not two unit, orthogonal vectors, or a "
+    return invalid_argument_error(name +
+                                  " has an orientation that is not two unit, orthogonal vectors, or a "
                                   "spacing that is not positive");
   }
   Uint16 rows = 0, columns = 0, bits = 0, samples = 1;
@@ -133,8 +140,9 @@ Status check_slice(Slice& slice) {
   d.findAndGetUint16(DCM_BitsAllocated, bits);
   d.findAndGetUint16(DCM_SamplesPerPixel, samples);
   if (rows == 0 || columns == 0 || bits != 16 || samples != 1) {
-    return invalid_argument_error(name + " is not a 16-bit greyscale image (rows " + std::to_string(rows) + ", columns " +
-                                  std::to_string(columns) + ", bits allocated " + std::to_string(bits) + ")");
+    return invalid_argument_error(name + " is not a 16-bit greyscale image (rows " + std::to_string(rows) +
+                                  ", columns " + std::to_string(columns) + ", bits allocated " + std::to_string(bits) +
+                                  ")");
   }
   slice.rows = rows, slice.columns = columns;
   Float64 slope = 1, intercept = 0;
@@ -223,12 +231,14 @@ std::string date_now(const char* format) {
 
 Result<std::string> new_uid(const std::string& root) {
   if (!valid_uid_root(root)) {
-    return invalid_argument_error("'" + root + "' is not a UID root: digits in dot-separated components without "
+    return invalid_argument_error("'" + root +
+                                  "' is not a UID root: digits in dot-separated components without "
                                   "leading zeros, at most 40 characters (e.g. 2.25 or your organisation's root)");
   }
   std::string uid = root + "." + uuid_decimal(random_bits(), 4);
   if (uid.size() > 64) uid.resize(64);
-  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.')) uid.pop_back();
+  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.'))
+    uid.pop_back();
   return uid;
 }
 
@@ -237,7 +247,8 @@ Result<std::string> uid_for(const DerivedSeriesOptions& options, const std::stri
   if (!valid_uid_root(options.uid_root)) return new_uid(options.uid_root);  // its message
   std::string uid = options.uid_root + "." + uuid_decimal(bits_of(options.uid_seed + "\n" + purpose), 8);
   if (uid.size() > 64) uid.resize(64);
-  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.')) uid.pop_back();
+  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.'))
+    uid.pop_back();
   return uid;
 }
 
@@ -269,11 +280,13 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
   const Slice& first = slices.front();
   const Vec normal = cross(first.row, first.column);
   for (const Slice& s : slices) {
-    if (norm(cross(s.row, first.row)) > 1e-4 || norm(cross(s.column, first.column)) > 1e-4 || dot(s.row, first.row) < 0) {
-      return invalid_argument_error("series " + uid + " mixes image orientations (instance " + std::to_string(s.index + 1) +
-                                    "); posewarp reads one stack of parallel slices");
+    if (norm(cross(s.row, first.row)) > 1e-4 || norm(cross(s.column, first.column)) > 1e-4 ||
+        dot(s.row, first.row) < 0 || dot(s.column, first.column) < 0) {
+      return invalid_argument_error("series " + uid + " mixes image orientations (instance " +
+                                    std::to_string(s.index + 1) + "); posewarp reads one stack of parallel slices");
     }
-    if (s.rows != first.rows || s.columns != first.columns || std::abs(s.pixel_spacing[0] - first.pixel_spacing[0]) > 1e-4 ||
+    if (s.rows != first.rows || s.columns != first.columns ||
+        std::abs(s.pixel_spacing[0] - first.pixel_spacing[0]) > 1e-4 ||
         std::abs(s.pixel_spacing[1] - first.pixel_spacing[1]) > 1e-4) {
       return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (instance " +
                                     std::to_string(s.index + 1) + ")");
@@ -291,33 +304,37 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
     std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
     spacing = sorted[sorted.size() / 2];
     if (spacing <= 1e-6) {
-      return invalid_argument_error("series " + uid + " has several images at the same position (a repeated "
+      return invalid_argument_error("series " + uid +
+                                    " has several images at the same position (a repeated "
                                     "acquisition or a localizer mixed in); keep one stack");
     }
     for (size_t i = 0; i < steps.size(); ++i) {
       const double at = slices[i].along;
       if (steps[i] < 1e-3 * spacing) {
-        return invalid_argument_error("series " + uid + " has two images at the same position (" +
-                                      std::to_string(at) + " mm along the slice normal)");
+        return invalid_argument_error("series " + uid + " has two images at the same position (" + std::to_string(at) +
+                                      " mm along the slice normal)");
       }
       if (std::abs(steps[i] - spacing) > std::max(0.01, 0.01 * spacing)) {
         const double missing = std::round(steps[i] / spacing) - 1;
         if (missing >= 1 && std::abs(steps[i] - (missing + 1) * spacing) <= std::max(0.01, 0.01 * spacing)) {
           return invalid_argument_error("series " + uid + " misses " + std::to_string(static_cast<int>(missing)) +
                                         " slice(s) between " + std::to_string(at) + " and " +
-                                        std::to_string(at + steps[i]) + " mm along the slice normal; fetch the "
+                                        std::to_string(at + steps[i]) +
+                                        " mm along the slice normal; fetch the "
                                         "whole series");
         }
         return invalid_argument_error("series " + uid + " has uneven slice spacing (" + std::to_string(steps[i]) +
                                       " mm where the others are " + std::to_string(spacing) +
                                       " mm); resample it to even slices first");
       }
-      const Vec step{slices[i + 1].position[0] - slices[i].position[0], slices[i + 1].position[1] - slices[i].position[1],
+      const Vec step{slices[i + 1].position[0] - slices[i].position[0],
+                     slices[i + 1].position[1] - slices[i].position[1],
                      slices[i + 1].position[2] - slices[i].position[2]};
       const Vec sideways = cross(step, normal);
       if (norm(sideways) > 1e-3 * norm(step) + 1e-3) {
         const double degrees = std::atan2(norm(sideways), dot(step, normal)) * 180.0 / M_PI;
-        return invalid_argument_error("series " + uid + " is tilted: its slices are stacked " + std::to_string(degrees) +
+        return invalid_argument_error("series " + uid + " is tilted: its slices are stacked " +
+                                      std::to_string(degrees) +
                                       " degrees off their normal (gantry tilt); posewarp needs an untilted stack "
                                       "(resample the series onto an orthogonal grid first)");
       }
@@ -350,7 +367,8 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
     }
     float* out_slice = out.ct.data() + k * per_slice;
     for (size_t i = 0; i < per_slice; ++i) {
-      const double stored = representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
+      const double stored =
+          representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
       out_slice[i] = static_cast<float>(stored * slices[k].slope + slices[k].intercept);
     }
     out.info.sop_instance_uids.push_back(text(d, DCM_SOPInstanceUID));
@@ -395,7 +413,8 @@ Result<CtSeries> read_ct_directory(const std::string& directory, const std::stri
     POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(path.string(), "DICOM file", int64_t{1} << 31));
     if (bytes.size() >= 132 && bytes.compare(128, 4, "DICM") == 0) instances.push_back(std::move(bytes));
   }
-  if (instances.empty()) return not_found_error("no DICOM files (Part 10, with a DICM preamble) in '" + directory + "'");
+  if (instances.empty())
+    return not_found_error("no DICOM files (Part 10, with a DICM preamble) in '" + directory + "'");
   return read_ct_series(instances, series_uid);
 }
 
@@ -476,7 +495,8 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
     // series with its instances (Common Instance Reference).
     const char* source_class = source.sop_class_uid.empty() ? UID_CTImageStorage : source.sop_class_uid.c_str();
     DcmItem* series_item = nullptr;
-    if (!source.sop_instance_uids.empty() && d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
+    if (!source.sop_instance_uids.empty() &&
+        d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
       series_item->putAndInsertString(DCM_SeriesInstanceUID, source.series_instance_uid.c_str());
     }
     for (const std::string& source_uid : source.sop_instance_uids) {
@@ -494,7 +514,8 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
     const Vec position{g.origin[0] + offset * slice_axis[0], g.origin[1] + offset * slice_axis[1],
                        g.origin[2] + offset * slice_axis[2]};
     char value[256];
-    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f\\%.6f\\%.6f\\%.6f", row[0], row[1], row[2], column[0], column[1], column[2]);
+    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f\\%.6f\\%.6f\\%.6f", row[0], row[1], row[2], column[0],
+                  column[1], column[2]);
     put(DCM_ImageOrientationPatient, value);
     std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f", position[0], position[1], position[2]);
     put(DCM_ImagePositionPatient, value);
@@ -539,7 +560,8 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
       written = file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr);
       file.transferEnd();
     }
-    if (written.bad()) return internal_error("encoding DICOM slice " + std::to_string(n + 1) + " failed: " + written.text());
+    if (written.bad())
+      return internal_error("encoding DICOM slice " + std::to_string(n + 1) + " failed: " + written.text());
     void* buffer = nullptr;
     offile_off_t used = 0;
     out.flushBuffer(buffer, used);
@@ -548,7 +570,8 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
     info.sop_instance_uids.push_back(sop_uid);
   }
   if (clipped > 0) {
-    return out_of_range_error(std::to_string(clipped) + " CT values do not fit int16 (-32768..32767); a DICOM CT "
+    return out_of_range_error(std::to_string(clipped) +
+                              " CT values do not fit int16 (-32768..32767); a DICOM CT "
                               "series cannot hold them");
   }
   if (info_out != nullptr) *info_out = info;

@@ -21,13 +21,16 @@
 #include <cmath>
 #include <map>
 #include <memory>
+#include <set>
 
 namespace posewarp::dicom {
 namespace {
 
 using Vec = std::array<double, 3>;
 
-std::string text(const OFString& s) { return s.c_str(); }
+std::string text(const OFString& s) {
+  return s.c_str();
+}
 
 Code code_of(CodeSequenceMacro& code) {
   OFString value, scheme, meaning;
@@ -71,7 +74,8 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
   DcmSegmentation* loaded = nullptr;
   const OFCondition loading = DcmSegmentation::loadDataset(d, loaded);
   std::unique_ptr<DcmSegmentation> seg(loaded);
-  if (loading.bad() || !seg) return invalid_argument_error(std::string("cannot read the segmentation: ") + loading.text());
+  if (loading.bad() || !seg)
+    return invalid_argument_error(std::string("cannot read the segmentation: ") + loading.text());
   const bool binary = seg->getSegmentationType() == DcmSegTypes::ST_BINARY;
   if (!binary && seg->getSegmentationType() != DcmSegTypes::ST_FRACTIONAL) {
     return invalid_argument_error("the segmentation is neither BINARY nor FRACTIONAL");
@@ -82,9 +86,9 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
   d.findAndGetUint16(DCM_Rows, rows);
   d.findAndGetUint16(DCM_Columns, columns);
   if (rows != grid.size[1] || columns != grid.size[0]) {
-    return invalid_argument_error("the segmentation's frames are " + std::to_string(columns) + " x " + std::to_string(rows) +
-                                  " pixels, the CT's slices " + std::to_string(grid.size[0]) + " x " +
-                                  std::to_string(grid.size[1]) + ": it was not made on this CT");
+    return invalid_argument_error("the segmentation's frames are " + std::to_string(columns) + " x " +
+                                  std::to_string(rows) + " pixels, the CT's slices " + std::to_string(grid.size[0]) +
+                                  " x " + std::to_string(grid.size[1]) + ": it was not made on this CT");
   }
   Segmentation out;
   out.labels = LabelVolume(grid, 0);
@@ -108,24 +112,37 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
     segment.type = code_of(s->getSegmentedPropertyTypeCode());
     out.segments.push_back(segment);
   }
-  // Each frame onto its slice: its orientation must be the grid's, its position one of the grid's slice origins.
+  // Each frame onto its slice: its orientation must be the grid's, its position one of the grid's slice origins, its
+  // pixels the grid's size.
   FGInterface& groups = seg->getFunctionalGroups();
+  if (auto* measures = static_cast<FGPixelMeasures*>(groups.get(0, DcmFGTypes::EFG_PIXELMEASURES))) {
+    Float64 between_rows = 0, between_columns = 0;
+    if (measures->getPixelSpacing(between_rows, 0).good() && measures->getPixelSpacing(between_columns, 1).good() &&
+        (std::abs(between_rows - grid.spacing[1]) > 1e-3 || std::abs(between_columns - grid.spacing[0]) > 1e-3)) {
+      return invalid_argument_error("the segmentation's pixel spacing (" + format("%.3f", between_columns) + " x " +
+                                    format("%.3f", between_rows) + " mm) is not the CT's: it was not made on this CT");
+    }
+  }
   const Vec row{grid.direction[0], grid.direction[3], grid.direction[6]};
   const Vec column{grid.direction[1], grid.direction[4], grid.direction[7]};
   const size_t per_frame = static_cast<size_t>(rows) * columns;
   int64_t overlaps = 0, thresholded = 0;
   for (size_t f = 0; f < seg->getNumberOfFrames(); ++f) {
     const std::string name = "segmentation frame " + std::to_string(f + 1);
-    auto* position = static_cast<FGPlanePosPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEPOSPATIENT));
-    auto* orientation = static_cast<FGPlaneOrientationPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEORIENTPATIENT));
-    auto* identification = static_cast<FGSegmentation*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_SEGMENTATION));
+    auto* position =
+        static_cast<FGPlanePosPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEPOSPATIENT));
+    auto* orientation =
+        static_cast<FGPlaneOrientationPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEORIENTPATIENT));
+    auto* identification =
+        static_cast<FGSegmentation*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_SEGMENTATION));
     Float64 x = 0, y = 0, z = 0;
     Uint16 number = 0;
     if (position == nullptr || identification == nullptr || position->getImagePositionPatient(x, y, z).bad() ||
         identification->getReferencedSegmentNumber(number).bad() || number == 0) {
       return invalid_argument_error(name + " has no position or segment number");
     }
-    if (orientation != nullptr) {
+    if (orientation == nullptr) return invalid_argument_error(name + " has no orientation");
+    {
       Float64 o[6];
       for (int i = 0; i < 6; ++i) {
         OFString component;
@@ -133,7 +150,8 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
         o[i] = std::atof(component.c_str());
       }
       for (int i = 0; i < 3; ++i) {
-        if (std::abs(o[i] - row[static_cast<size_t>(i)]) > 1e-3 || std::abs(o[i + 3] - column[static_cast<size_t>(i)]) > 1e-3) {
+        if (std::abs(o[i] - row[static_cast<size_t>(i)]) > 1e-3 ||
+            std::abs(o[i + 3] - column[static_cast<size_t>(i)]) > 1e-3) {
           return invalid_argument_error(name + " is not oriented as the CT's slices: it was not made on this CT");
         }
       }
@@ -142,8 +160,9 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
     const double k = std::round(index[2]);
     if (std::abs(index[0]) > 0.01 || std::abs(index[1]) > 0.01 || std::abs(index[2] - k) > 0.01 || k < 0 ||
         k >= static_cast<double>(grid.size[2])) {
-      return invalid_argument_error(name + " lies off the CT's slices (at " + format("%.2f", x) + ", " + format("%.2f", y) +
-                                    ", " + format("%.2f", z) + " mm): it was not made on this CT's grid");
+      return invalid_argument_error(name + " lies off the CT's slices (at " + format("%.2f", x) + ", " +
+                                    format("%.2f", y) + ", " + format("%.2f", z) +
+                                    " mm): it was not made on this CT's grid");
     }
     const DcmIODTypes::Frame* frame = seg->getFrame(f);
     if (frame == nullptr) return data_loss_error(name + " has no pixel data");
@@ -172,7 +191,8 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
                            " voxels with partial values were thresholded at one half");
   }
   if (overlaps > 0) {
-    out.warnings.push_back(std::to_string(overlaps) + " voxels belong to more than one segment; each took the "
+    out.warnings.push_back(std::to_string(overlaps) +
+                           " voxels belong to more than one segment; each took the "
                            "highest-numbered one");
   }
   return out;
@@ -186,9 +206,11 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   POSEWARP_RETURN_IF_ERROR(g.validate());
   if (ct.sop_instance_uids.size() != static_cast<size_t>(g.size[2])) {
     return invalid_argument_error("the labels have " + std::to_string(g.size[2]) + " slices and the CT series " +
-                                  std::to_string(ct.sop_instance_uids.size()) + " images: the SEG must be on the CT's grid");
+                                  std::to_string(ct.sop_instance_uids.size()) +
+                                  " images: the SEG must be on the CT's grid");
   }
-  if (g.size[0] > 65535 || g.size[1] > 65535) return invalid_argument_error("a SEG frame has at most 65535 rows and columns");
+  if (g.size[0] > 65535 || g.size[1] > 65535)
+    return invalid_argument_error("a SEG frame has at most 65535 rows and columns");
   std::map<Label, int64_t> present;
   for (Label v : labels.voxels()) {
     if (v != 0) ++present[v];
@@ -198,8 +220,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     return invalid_argument_error("label values must be 1..65535 to be segment numbers");
   }
   IODGeneralEquipmentModule::EquipmentInfo equipment("posewarp", "posewarp", "0", "1");
-  ContentIdentificationMacro content("1", "POSEWARP", options.series_description.empty() ? "posed labels" : options.series_description,
-                                     "posewarp");
+  ContentIdentificationMacro content(
+      "1", "POSEWARP", options.series_description.empty() ? "posed labels" : options.series_description, "posewarp");
   DcmSegmentation* created = nullptr;
   OFCondition ok = DcmSegmentation::createBinarySegmentation(created, static_cast<Uint16>(g.size[1]),
                                                              static_cast<Uint16>(g.size[0]), equipment, content);
@@ -212,7 +234,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   info.modality = "SEG";
   info.sop_class_uid = UID_SegmentationStorage;
   info.sop_instance_uids = {sop_uid};
-  info.series_number = std::to_string(options.series_number > 0 ? options.series_number : std::atoi(ct.series_number.c_str()) + 1);
+  info.series_number =
+      std::to_string(options.series_number > 0 ? options.series_number : std::atoi(ct.series_number.c_str()) + 1);
   info.series_description = options.series_description.empty() ? "posewarp labels" : options.series_description;
   seg->getPatient().setPatientName(ct.patient_name.c_str(), OFFalse);
   seg->getPatient().setPatientID(ct.patient_id.c_str(), OFFalse);
@@ -229,7 +252,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   seg->getSeries().setSeriesNumber(info.series_number.c_str(), OFFalse);
   seg->getSeries().setSeriesDescription(info.series_description.c_str(), OFFalse);
   seg->getSOPCommon().setSOPInstanceUID(sop_uid.c_str(), OFFalse);
-  if (!ct.specific_character_set.empty()) seg->getSOPCommon().setSpecificCharacterSet(ct.specific_character_set.c_str(), OFFalse);
+  if (!ct.specific_character_set.empty())
+    seg->getSOPCommon().setSpecificCharacterSet(ct.specific_character_set.c_str(), OFFalse);
   // Shared: the CT's pixel spacing and orientation.
   FGPixelMeasures measures;
   measures.setPixelSpacing((format("%.6f", g.spacing[1]) + "\\" + format("%.6f", g.spacing[0])).c_str());
@@ -237,7 +261,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   FGPlaneOrientationPatient orientation;
   orientation.setImageOrientationPatient(format("%.6f", g.direction[0]).c_str(), format("%.6f", g.direction[3]).c_str(),
                                          format("%.6f", g.direction[6]).c_str(), format("%.6f", g.direction[1]).c_str(),
-                                         format("%.6f", g.direction[4]).c_str(), format("%.6f", g.direction[7]).c_str());
+                                         format("%.6f", g.direction[4]).c_str(),
+                                         format("%.6f", g.direction[7]).c_str());
   if (seg->addForAllFrames(measures).bad() || seg->addForAllFrames(orientation).bad()) {
     return internal_error("cannot set the segmentation's shared geometry");
   }
@@ -253,9 +278,11 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     const Code category = given && !given->category.value.empty() ? given->category : Code{"85756007", "SCT", "Tissue"};
     const Code type = given && !given->type.value.empty() ? given->type : Code{"85756007", "SCT", "Tissue"};
     DcmSegment* segment = nullptr;
-    ok = DcmSegment::create(segment, label.c_str(), CodeSequenceMacro(category.value.c_str(), category.scheme.c_str(), category.meaning.c_str()),
-                            CodeSequenceMacro(type.value.c_str(), type.scheme.c_str(), type.meaning.c_str()),
-                            DcmSegTypes::SAT_AUTOMATIC, "posewarp");
+    ok =
+        DcmSegment::create(segment, label.c_str(),
+                           CodeSequenceMacro(category.value.c_str(), category.scheme.c_str(), category.meaning.c_str()),
+                           CodeSequenceMacro(type.value.c_str(), type.scheme.c_str(), type.meaning.c_str()),
+                           DcmSegTypes::SAT_AUTOMATIC, "posewarp");
     if (ok.bad() || segment == nullptr) return internal_error("cannot describe segment '" + label + "': " + ok.text());
     if (given && !given->description.empty()) segment->setSegmentDescription(given->description.c_str(), OFFalse);
     Uint16 number = 0;
@@ -277,12 +304,19 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   std::vector<std::unique_ptr<FGDerivationImage>> derivations(static_cast<size_t>(g.size[2]));
   FGFrameContent content_fg;
   FGPlanePosPatient position;
+  // The slices each label appears on, in one pass over the volume.
+  std::map<Label, std::vector<int64_t>> slices_of;
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    std::set<Label> here(labels.data() + static_cast<size_t>(k) * per_frame,
+                         labels.data() + static_cast<size_t>(k + 1) * per_frame);
+    for (Label v : here) {
+      if (v != 0) slices_of[v].push_back(k);
+    }
+  }
   for (const auto& [value, number] : number_of) {
-    for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (const int64_t k : slices_of[value]) {
       const Label* slice = labels.data() + static_cast<size_t>(k) * per_frame;
-      bool any = false;
-      for (size_t i = 0; i < per_frame; ++i) any |= (pixels[i] = slice[i] == value ? 1 : 0) != 0;
-      if (!any) continue;
+      for (size_t i = 0; i < per_frame; ++i) pixels[i] = slice[i] == value ? 1 : 0;
       const double offset = static_cast<double>(k) * g.spacing[2];
       position.setImagePositionPatient(format("%.6f", g.origin[0] + offset * axis[0]).c_str(),
                                        format("%.6f", g.origin[1] + offset * axis[1]).c_str(),
@@ -324,7 +358,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     for (const std::string& uid : ct.sop_instance_uids) {
       DcmItem* item = nullptr;
       if (series_item->findOrCreateSequenceItem(DCM_ReferencedInstanceSequence, item, -2).good()) {
-        item->putAndInsertString(DCM_ReferencedSOPClassUID, ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
+        item->putAndInsertString(DCM_ReferencedSOPClassUID,
+                                 ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
         item->putAndInsertString(DCM_ReferencedSOPInstanceUID, uid.c_str());
       }
     }

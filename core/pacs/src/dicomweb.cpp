@@ -33,25 +33,36 @@ size_t to_file(char* data, size_t size, size_t count, void* out) {
 
 // The keywords of the attributes a search answers with (the rest keep their tag, e.g. "00200011").
 const std::map<std::string, std::string>& keywords() {
-  static const std::map<std::string, std::string> table{
-      {"0020000D", "StudyInstanceUID"},  {"0020000E", "SeriesInstanceUID"}, {"00080060", "Modality"},
-      {"00080020", "StudyDate"},         {"00080030", "StudyTime"},         {"00100020", "PatientID"},
-      {"00100010", "PatientName"},       {"00081030", "StudyDescription"},  {"0008103E", "SeriesDescription"},
-      {"00200011", "SeriesNumber"},      {"00201209", "NumberOfSeriesRelatedInstances"},
-      {"00201208", "NumberOfStudyRelatedInstances"},                         {"00080050", "AccessionNumber"},
-      {"00080016", "SOPClassUID"},       {"00080018", "SOPInstanceUID"},    {"00080061", "ModalitiesInStudy"}};
+  static const std::map<std::string, std::string> table{{"0020000D", "StudyInstanceUID"},
+                                                        {"0020000E", "SeriesInstanceUID"},
+                                                        {"00080060", "Modality"},
+                                                        {"00080020", "StudyDate"},
+                                                        {"00080030", "StudyTime"},
+                                                        {"00100020", "PatientID"},
+                                                        {"00100010", "PatientName"},
+                                                        {"00081030", "StudyDescription"},
+                                                        {"0008103E", "SeriesDescription"},
+                                                        {"00200011", "SeriesNumber"},
+                                                        {"00201209", "NumberOfSeriesRelatedInstances"},
+                                                        {"00201208", "NumberOfStudyRelatedInstances"},
+                                                        {"00080050", "AccessionNumber"},
+                                                        {"00080016", "SOPClassUID"},
+                                                        {"00080018", "SOPInstanceUID"},
+                                                        {"00080061", "ModalitiesInStudy"}};
   return table;
 }
 
 std::string first_value(const nlohmann::json& attribute) {
-  if (!attribute.is_object() || !attribute.contains("Value") || !attribute["Value"].is_array() || attribute["Value"].empty()) {
+  if (!attribute.is_object() || !attribute.contains("Value") || !attribute["Value"].is_array() ||
+      attribute["Value"].empty()) {
     return "";
   }
   const nlohmann::json& v = attribute["Value"][0];
   if (v.is_string()) return v.get<std::string>();
   if (v.is_number_integer()) return std::to_string(v.get<int64_t>());
   if (v.is_number()) return std::to_string(v.get<double>());
-  if (v.is_object() && v.contains("Alphabetic") && v["Alphabetic"].is_string()) return v["Alphabetic"].get<std::string>();
+  if (v.is_object() && v.contains("Alphabetic") && v["Alphabetic"].is_string())
+    return v["Alphabetic"].get<std::string>();
   return "";
 }
 
@@ -97,7 +108,8 @@ DicomWebClient::DicomWebClient(DicomWebOptions options) : options_(std::move(opt
 
 Result<DicomWebClient::Response> DicomWebClient::request(const std::string& method, const std::string& url,
                                                          const std::vector<std::string>& headers,
-                                                         const std::string& payload, const std::string& body_file) const {
+                                                         const std::string& payload,
+                                                         const std::string& body_file) const {
   std::string last_error;
   for (int attempt = 0; attempt <= std::max(0, options_.retries); ++attempt) {
     if (attempt > 0) std::this_thread::sleep_for(std::chrono::milliseconds(500 << std::min(attempt - 1, 5)));
@@ -105,14 +117,17 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
     if (!curl) return internal_error("cannot start an HTTP request (libcurl)");
     struct curl_slist* list = nullptr;
     for (const std::string& h : headers) list = curl_slist_append(list, h.c_str());
-    if (!options_.bearer_token.empty()) list = curl_slist_append(list, ("Authorization: Bearer " + options_.bearer_token).c_str());
+    if (!options_.bearer_token.empty())
+      list = curl_slist_append(list, ("Authorization: Bearer " + options_.bearer_token).c_str());
     std::unique_ptr<curl_slist, void (*)(curl_slist*)> header_list(list, curl_slist_free_all);
     CURL* c = curl.get();
     curl_easy_setopt(c, CURLOPT_URL, url.c_str());
     curl_easy_setopt(c, CURLOPT_HTTPHEADER, header_list.get());
     curl_easy_setopt(c, CURLOPT_NOSIGNAL, 1L);
     curl_easy_setopt(c, CURLOPT_CONNECTTIMEOUT, static_cast<long>(options_.connect_timeout_s));
-    curl_easy_setopt(c, CURLOPT_TIMEOUT, static_cast<long>(options_.timeout_s));
+    // A transfer that stalls (under 1 kB/s for timeout_s) ends; a large one that keeps moving is not cut off.
+    curl_easy_setopt(c, CURLOPT_LOW_SPEED_LIMIT, 1024L);
+    curl_easy_setopt(c, CURLOPT_LOW_SPEED_TIME, static_cast<long>(options_.timeout_s));
     curl_easy_setopt(c, CURLOPT_SSL_VERIFYPEER, options_.verify_tls ? 1L : 0L);
     curl_easy_setopt(c, CURLOPT_SSL_VERIFYHOST, options_.verify_tls ? 2L : 0L);
     if (!options_.ca_file.empty()) curl_easy_setopt(c, CURLOPT_CAINFO, options_.ca_file.c_str());
@@ -139,6 +154,9 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
     }
     const CURLcode code = curl_easy_perform(c);
     if (file && std::fflush(file.get()) != 0) return data_loss_error("cannot write '" + body_file + "' (disk full?)");
+    if (code == CURLE_WRITE_ERROR) {
+      return data_loss_error("cannot keep what the PACS sent in '" + body_file + "' (disk full?)");
+    }
     if (code != CURLE_OK) {
       last_error = std::string(curl_easy_strerror(code));
       if (transient(code)) continue;
@@ -171,7 +189,8 @@ Result<std::vector<DicomWebRecord>> DicomWebClient::search(const std::string& pa
                                   (query.empty() ? "" : "?" + query));
   }
   const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);
-  if (doc.is_discarded() || !doc.is_array()) return data_loss_error("the PACS's search answer is not a DICOM JSON array");
+  if (doc.is_discarded() || !doc.is_array())
+    return data_loss_error("the PACS's search answer is not a DICOM JSON array");
   std::vector<DicomWebRecord> records;
   for (const nlohmann::json& item : doc) {
     if (!item.is_object()) continue;
@@ -189,7 +208,8 @@ Result<std::vector<DicomWebRecord>> DicomWebClient::search_studies(const std::st
   return search("/studies", query);
 }
 
-Result<std::vector<DicomWebRecord>> DicomWebClient::search_series(const std::string& study_uid, const std::string& query) const {
+Result<std::vector<DicomWebRecord>> DicomWebClient::search_series(const std::string& study_uid,
+                                                                  const std::string& query) const {
   return search("/studies/" + study_uid + "/series", query);
 }
 
@@ -209,8 +229,8 @@ Result<std::vector<std::string>> DicomWebClient::retrieve_series(const std::stri
   if (r->status != 200) {
     fs::remove(body, ec);
     if (r->status == 404) return not_found_error("the PACS has no series " + series_uid + " in study " + study_uid);
-    return invalid_argument_error("the PACS answered HTTP " + std::to_string(r->status) + " to the retrieval of series " +
-                                  series_uid);
+    return invalid_argument_error("the PACS answered HTTP " + std::to_string(r->status) +
+                                  " to the retrieval of series " + series_uid);
   }
   Result<std::vector<std::string>> parts = split_multipart_file(body, r->content_type, directory);
   fs::remove(body, ec);
@@ -234,8 +254,7 @@ Status DicomWebClient::store(const std::vector<std::string>& instances, const st
       const Response r,
       request("POST", url,
               {"Content-Type: multipart/related; type=\"application/dicom\"; boundary=" + boundary,
-               "Accept: application/dicom+json",
-               "Expect:"},  // no "100-continue" wait: the body goes at once
+               "Accept: application/dicom+json", "Expect:"},  // no "100-continue" wait: the body goes at once
               payload));
   // 200: all stored; 202: some failed (FailedSOPSequence, 0008,1198); 409: none stored.
   const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);
@@ -285,7 +304,8 @@ Result<std::vector<std::string>> split_multipart_file(const std::string& file, c
         if (at == std::string::npos) {
           // Keep what could be the start of a delimiter; the rest belongs to the current part (or the preamble).
           const size_t keep = std::min(pending.size(), delimiter.size());
-          if (state == State::kBody && pending.size() > keep) part->write(pending.data(), static_cast<std::streamsize>(pending.size() - keep));
+          if (state == State::kBody && pending.size() > keep)
+            part->write(pending.data(), static_cast<std::streamsize>(pending.size() - keep));
           pending.erase(0, pending.size() - keep);
           break;
         }
@@ -319,11 +339,16 @@ Result<std::vector<std::string>> split_multipart_file(const std::string& file, c
     }
     if (eof && !finished) {
       if (state != State::kPreamble) {
+        part.reset();
+        std::error_code ec;
+        for (const std::string& p : written) fs::remove(p, ec);
+        fs::remove(part_path, ec);
         return data_loss_error("the PACS's answer ended inside a part (a truncated transfer); try again");
       }
       break;
     }
   }
+  if (written.empty()) return data_loss_error("the PACS's answer holds no DICOM parts (boundary " + boundary + ")");
   return written;
 }
 

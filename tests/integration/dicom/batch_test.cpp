@@ -1,12 +1,12 @@
 // posewarp batch, run as a process: rows of a JSON and a CSV manifest (files and a DICOM series with its SEG), a
 // failing row recorded while the others finish, a rig built once per study, the summary, a rerun that skips what is
 // done, and a batch killed in the middle that a rerun completes without redoing finished rows.
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include <nlohmann/json.hpp>
 
 #include <chrono>
 #include <filesystem>
@@ -56,8 +56,11 @@ class Batch : public ::testing::Test {
 
 TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
   const fs::path log = dir_ / "log.txt";
-  ASSERT_EQ(run({POSEWARP_CLI, "dicom", "export", "--ct", sample_ + "/ct.nii.gz", "--labels", sample_ + "/seg_total.nii.gz",
-                 "-o", (dir_ / "study").string()}, log), 0) << text(log);
+  ASSERT_EQ(run({POSEWARP_CLI, "dicom", "export", "--ct", sample_ + "/ct.nii.gz", "--labels",
+                 sample_ + "/seg_total.nii.gz", "-o", (dir_ / "study").string()},
+                log),
+            0)
+      << text(log);
   const nlohmann::json manifest{
       {"format", "posewarp.batch"},
       {"version", 1},
@@ -66,12 +69,22 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
        {{{"id", "cor"}, {"pose", poses_ + "/sample_hip_flexion.json"}, {"out_dir", "out/cor"}},
         {{"id", "dqs"}, {"pose", poses_ + "/sample_hip_flexion.json"}, {"method", "dqs"}, {"out_dir", "out/dqs"}},
         {{"id", "wrong-joint"}, {"pose", poses_ + "/knee_bent.json"}, {"out_dir", "out/wrong"}},
-        {{"id", "from-dicom"}, {"labels", ""}, {"ct", ""}, {"dicom_ct", "study/ct"}, {"dicom_seg", "study/seg.dcm"},
-         {"pose", poses_ + "/sample_hip_flexion.json"}, {"out_dir", "out/dicom"}}}}};
+        {{"id", "from-dicom"},
+         {"labels", ""},
+         {"ct", ""},
+         {"dicom_ct", "study/ct"},
+         {"dicom_seg", "study/seg.dcm"},
+         {"pose", poses_ + "/sample_hip_flexion.json"},
+         {"out_dir", "out/dicom"}}}}};
   std::ofstream(dir_ / "batch.json") << manifest.dump(2);
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "batch.json").string(), "--jobs", "2"}, log) >> 8, 1) << text(log);
   const std::string said = text(log);
   EXPECT_NE(said.find("row 'wrong-joint' failed"), std::string::npos) << said;
+  // Two studies (the files, and the DICOM series): two rig builds for four rows.
+  size_t builds = 0;
+  for (size_t at = said.find("building the rig"); at != std::string::npos; at = said.find("building the rig", at + 1))
+    ++builds;
+  EXPECT_EQ(builds, 2u) << said;
   EXPECT_NE(said.find("3 done, 1 failed"), std::string::npos) << said;
   // The summary: each row's status, outputs and figures; the study's rig paid for once.
   const nlohmann::json summary = nlohmann::json::parse(text(dir_ / "batch.summary.json"));
@@ -89,7 +102,8 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
   EXPECT_EQ(std::distance(fs::directory_iterator(dir_ / "batch.rigs"), fs::directory_iterator()), 2);  // two studies
   // The outputs: volumes and a report per row; the DICOM row also a derived series and SEG of its study.
   for (const char* out : {"out/cor", "out/dqs", "out/dicom"}) {
-    for (const char* file : {"labels.nii.gz", "ct.nii.gz", "report.json"}) EXPECT_TRUE(fs::exists(dir_ / out / file)) << out << "/" << file;
+    for (const char* file : {"labels.nii.gz", "ct.nii.gz", "report.json"})
+      EXPECT_TRUE(fs::exists(dir_ / out / file)) << out << "/" << file;
   }
   EXPECT_FALSE(fs::exists(dir_ / "out/wrong"));
   Result<api::CtSeries> derived = api::read_ct_directory((dir_ / "out/dicom/dicom/ct").string());
@@ -119,7 +133,8 @@ TEST_F(Batch, ACsvManifestKilledInTheMiddleIsCompletedByARerun) {
     const int null = ::open("/dev/null", O_WRONLY);
     ::dup2(null, 1);
     ::dup2(null, 2);
-    ::execl(POSEWARP_CLI, POSEWARP_CLI, "batch", (dir_ / "rows.csv").c_str(), "--jobs", "1", static_cast<char*>(nullptr));
+    ::execl(POSEWARP_CLI, POSEWARP_CLI, "batch", (dir_ / "rows.csv").c_str(), "--jobs", "1",
+            static_cast<char*>(nullptr));
     ::_exit(127);
   }
   const fs::path state = dir_ / "rows.state.jsonl";
@@ -136,7 +151,8 @@ TEST_F(Batch, ACsvManifestKilledInTheMiddleIsCompletedByARerun) {
   ASSERT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "rows.csv").string(), "--jobs", "2"}, log), 0) << text(log);
   EXPECT_NE(text(log).find(std::to_string(finished) + " done before (skipped)"), std::string::npos) << text(log);
   EXPECT_EQ(lines_of(state), 3u);  // each row recorded once
-  for (const char* method : {"cor", "dqs", "lbs"}) EXPECT_TRUE(fs::exists(dir_ / "out" / method / "report.json")) << method;
+  for (const char* method : {"cor", "dqs", "lbs"})
+    EXPECT_TRUE(fs::exists(dir_ / "out" / method / "report.json")) << method;
   for (const auto& entry : fs::directory_iterator(dir_ / "out")) EXPECT_NE(entry.path().extension(), ".partial");
 }
 
@@ -145,7 +161,8 @@ TEST_F(Batch, BadManifestsAreRefusedBeforeAnyWork) {
   std::ofstream(dir_ / "empty.json") << R"({"rows": []})";
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "empty.json").string()}, log) >> 8, 2);
   EXPECT_NE(text(log).find("has no rows"), std::string::npos) << text(log);
-  std::ofstream(dir_ / "two.json") << R"({"rows": [{"labels": "a.nii.gz", "dicom_ct": "d", "dicom_seg": "s.dcm", "pose": "p.json", "out_dir": "o"}]})";
+  std::ofstream(dir_ / "two.json")
+      << R"({"rows": [{"labels": "a.nii.gz", "dicom_ct": "d", "dicom_seg": "s.dcm", "pose": "p.json", "out_dir": "o"}]})";
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "two.json").string()}, log) >> 8, 2);
   EXPECT_NE(text(log).find("give one input"), std::string::npos) << text(log);
   std::ofstream(dir_ / "field.csv") << "id,labels,colour\nx,a.nii.gz,red\n";

@@ -35,15 +35,23 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   const std::string sample = std::string(POSEWARP_SOURCE_DIR) + "/data/totalsegmentator_example";
   const std::string pose = std::string(POSEWARP_SOURCE_DIR) + "/data/poses/sample_hip_flexion.json";
   const fs::path log = dir / "log.txt";
-  ASSERT_EQ(run({POSEWARP_CLI, "dicom", "export", "--ct", sample + "/ct.nii.gz", "--labels", sample + "/seg_total.nii.gz",
-                 "--patient-name", "Sample^Phantom", "--patient-id", "PW-7", "-o", (dir / "study").string()}, log), 0)
+  ASSERT_EQ(
+      run({POSEWARP_CLI, "dicom", "export", "--ct", sample + "/ct.nii.gz", "--labels", sample + "/seg_total.nii.gz",
+           "--patient-name", "Sample^Phantom", "--patient-id", "PW-7", "-o", (dir / "study").string()},
+          log),
+      0)
       << text(log);
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "rig", "build", "--labels", (dir / "study/seg.dcm").string(), "--ct",
-                 (dir / "study/ct").string(), "-o", (dir / "sample.rig").string()}, log), 0)
+                 (dir / "study/ct").string(), "-o", (dir / "sample.rig").string()},
+                log),
+            0)
       << text(log);
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
-                 (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string(), "--uid-root", "1.2.826.0.1.3680043.10.42",
-                 "--labels-out", (dir / "labels.nii.gz").string(), "--ct-out", (dir / "ct.nii.gz").string()}, log), 0)
+                 (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string(), "--uid-root",
+                 "1.2.826.0.1.3680043.10.42", "--labels-out", (dir / "labels.nii.gz").string(), "--ct-out",
+                 (dir / "ct.nii.gz").string()},
+                log),
+            0)
       << text(log);
   EXPECT_EQ(text(log).find("W: "), std::string::npos) << "DCMTK's own log leaked: " << text(log);
   // The derived CT series: the same voxels as the NIfTI CT of the same pose, in the source's study.
@@ -55,7 +63,8 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   ASSERT_TRUE(nifti_ct.ok() && nifti_labels.ok());
   const ImageGeometry &a = nifti_ct->geometry(), &b = posed->ct.geometry();
   const auto original_index = [&](int64_t i, int64_t j, int64_t k) {
-    const Vec3 at = a.physical_to_index(b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
+    const Vec3 at = a.physical_to_index(
+        b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
     return std::array<int64_t, 3>{std::lround(at[0]), std::lround(at[1]), std::lround(at[2])};
   };
   for (int64_t k = 0; k < b.size[2]; ++k) {
@@ -101,11 +110,32 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   }
   EXPECT_GT(labelled, 5000);
   // An output directory that holds something is refused before any work.
-  EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out", (dir / "posed").string(),
-                 "--dicom-source", (dir / "study/ct").string()}, log) >> 8, 2);
+  EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
+                 (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string()},
+                log) >>
+                8,
+            2);
   EXPECT_NE(text(log).find("not empty"), std::string::npos) << text(log);
-  EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out", (dir / "other").string()}, log) >> 8, 2);
+  EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
+                 (dir / "other").string()},
+                log) >>
+                8,
+            2);
   EXPECT_NE(text(log).find("--dicom-source"), std::string::npos) << text(log);
+  // A --dicom-source that is not the rig's series (another grid) is refused: its study is not the rig's.
+  ASSERT_EQ(run({POSEWARP_CLI, "phantom", "bar", "-o", (dir / "bar").string()}, log), 0);
+  ASSERT_EQ(run({POSEWARP_CLI, "dicom", "export", "--ct", (dir / "bar/ct.nii.gz").string(), "--labels",
+                 (dir / "bar/labels.nii.gz").string(), "--label-map", (dir / "bar/label_map.json").string(), "-o",
+                 (dir / "bar-study").string()},
+                log),
+            0)
+      << text(log);
+  EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
+                 (dir / "wrong").string(), "--dicom-source", (dir / "bar-study/ct").string()},
+                log) >>
+                8,
+            2);
+  EXPECT_NE(text(log).find("is not the CT series the rig was built from"), std::string::npos) << text(log);
   fs::remove_all(dir);
 }
 

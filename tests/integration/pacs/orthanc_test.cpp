@@ -55,7 +55,8 @@ class Orthanc : public ::testing::Test {
     ct_ = *api::read_intensity_volume(dir + "/ct.nii.gz");
     labels_ = *api::read_label_volume(dir + "/seg_total.nii.gz");
     map_ = *api::preset_by_name("totalsegmentator");
-    Result<api::DicomOutputs> study = api::encode_new_dicom_study(ct_, labels_, map_, "Sample^Phantom", "PW-ORTHANC", {});
+    Result<api::DicomOutputs> study =
+        api::encode_new_dicom_study(ct_, labels_, map_, "Sample^Phantom", "PW-ORTHANC", {});
     ASSERT_TRUE(study.ok()) << study.status().to_string();
     study_ = *study;
   }
@@ -87,8 +88,8 @@ TEST_F(Orthanc, StoresFindsAndRetrievesASeriesVoxelForVoxel) {
   ASSERT_EQ(cts->size(), 1u);
   EXPECT_EQ(cts->front().at("SeriesInstanceUID"), study_.ct.series_instance_uid);
   // WADO-RS: the series streamed to disk, part by part, reads as what was stored.
-  Result<std::vector<std::string>> paths =
-      client.retrieve_series(study_.ct.study_instance_uid, study_.ct.series_instance_uid, (dir_ / "retrieved").string());
+  Result<std::vector<std::string>> paths = client.retrieve_series(
+      study_.ct.study_instance_uid, study_.ct.series_instance_uid, (dir_ / "retrieved").string());
   ASSERT_TRUE(paths.ok()) << paths.status().to_string();
   EXPECT_EQ(paths->size(), study_.ct_files.size());
   Result<api::CtSeries> retrieved = api::read_ct_directory((dir_ / "retrieved").string());
@@ -186,8 +187,8 @@ TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
   std::ofstream(dir_ / "rows.csv") << "id,pacs_study,pose,method,to_pacs\n"
                                    << "cor," << study_uid << "," << poses << "/sample_hip_flexion.json,cor,true\n"
                                    << "dqs," << study_uid << "," << poses << "/sample_hip_flexion.json,dqs,true\n";
-  const std::vector<std::string> pacs{"--pacs", orthanc_->options().base_url, "--pacs-user", "posewarp",
-                                      "--pacs-password-file", (dir_ / "password").string()};
+  const std::vector<std::string> pacs{"--pacs",   orthanc_->options().base_url, "--pacs-user",
+                                      "posewarp", "--pacs-password-file",       (dir_ / "password").string()};
   const auto batch = [&](std::vector<std::string> args) {
     args.insert(args.begin(), POSEWARP_CLI);
     args.insert(args.end(), pacs.begin(), pacs.end());
@@ -208,12 +209,13 @@ TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
   ASSERT_EQ(batch({"dicom", "store", (dir_ / "study/ct").string(), (dir_ / "study/seg.dcm").string()}), 0) << log();
   EXPECT_NE(log().find("stored " + std::to_string(study_.ct_files.size()) + " instances"), std::string::npos) << log();
   ASSERT_EQ(batch({"batch", (dir_ / "rows.csv").string(), "--jobs", "2"}), 0) << log();
-  EXPECT_EQ(count("CT"), 3u);   // the original and two derived
+  EXPECT_EQ(count("CT"), 3u);  // the original and two derived
   EXPECT_EQ(count("SEG"), 3u);
   Result<std::vector<pacs::DicomWebRecord>> series = client.search_series(study_uid, "Modality=CT");
   size_t derived_instances = 0;
   for (const auto& s : *series) {
-    if (s.at("SeriesInstanceUID") != study_.ct.series_instance_uid) derived_instances += std::stoul(s.at("NumberOfSeriesRelatedInstances"));
+    if (s.at("SeriesInstanceUID") != study_.ct.series_instance_uid)
+      derived_instances += std::stoul(s.at("NumberOfSeriesRelatedInstances"));
   }
   EXPECT_EQ(derived_instances, 2 * study_.ct_files.size());
   // The summary says where each went.
@@ -223,14 +225,18 @@ TEST_F(Orthanc, ABatchStoresEachPoseOnceEvenWhenRunAgain) {
   // Run again without its state, then as a query for the same pose: the same series, stored once.
   fs::remove(dir_ / "rows.state.jsonl");
   ASSERT_EQ(batch({"batch", (dir_ / "rows.csv").string()}), 0) << log();
-  ASSERT_EQ(batch({"batch", "--query", "PatientID=PW-ORTHANC", "--pose", poses + "/sample_hip_flexion.json", "--to-pacs",
-                   "--out-dir", (dir_ / "query").string()}), 0) << log();
+  ASSERT_EQ(batch({"batch", "--query", "PatientID=PW-ORTHANC", "--pose", poses + "/sample_hip_flexion.json",
+                   "--to-pacs", "--out-dir", (dir_ / "query").string()}),
+            0)
+      << log();
   EXPECT_NE(log().find("1 done"), std::string::npos) << log();
   EXPECT_EQ(count("CT"), 3u);
   EXPECT_EQ(count("SEG"), 3u);
   EXPECT_TRUE(fs::exists(dir_ / "query" / study_uid / "report.json"));
   // A query that finds nothing: a clear error.
-  EXPECT_EQ(batch({"batch", "--query", "PatientID=NOBODY", "--pose", poses + "/sample_hip_flexion.json", "--to-pacs"}) >> 8, 2)
+  EXPECT_EQ(
+      batch({"batch", "--query", "PatientID=NOBODY", "--pose", poses + "/sample_hip_flexion.json", "--to-pacs"}) >> 8,
+      2)
       << log();
 }
 
@@ -239,23 +245,31 @@ TEST(Multipart, PartsAreSplitAtTheirBoundariesOnly) {
   const fs::path dir = fs::temp_directory_path() / ("posewarp-multipart-" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
-  std::string big(3 << 20, 'x');
-  big[(1 << 20) - 3] = '\r';  // a delimiter's start across a block edge
-  const std::vector<std::string> parts{"first\r\n--notit", big, std::string("\0\1\2", 3)};
-  std::string body = "preamble\r\n";
-  for (const std::string& p : parts) body += "--B0UND\r\nContent-Type: application/dicom\r\n\r\n" + p + "\r\n";
-  body += "--B0UND--\r\nepilogue";
-  std::ofstream(dir / "body", std::ios::binary) << body;
-  Result<std::vector<std::string>> written =
-      pacs::split_multipart_file((dir / "body").string(), "multipart/related; type=\"application/dicom\"; boundary=B0UND",
-                                 dir.string());
-  ASSERT_TRUE(written.ok()) << written.status().to_string();
-  ASSERT_EQ(written->size(), parts.size());
-  for (size_t i = 0; i < parts.size(); ++i) EXPECT_EQ(files_of({(*written)[i]}).front(), parts[i]) << i;
+  // Parts sized so that a delimiter starts at every offset around the first 1 MiB block's edge.
+  const std::string header = "--B0UND\r\nContent-Type: application/dicom\r\n\r\n";
+  for (int shift = -12; shift <= 12; ++shift) {
+    std::string body = "preamble\r\n";
+    const std::vector<std::string> parts{
+        "first\r\n--notit", std::string(static_cast<size_t>((1 << 20) - 80 + shift), 'x'), std::string("\0\1\2", 3)};
+    for (const std::string& p : parts) body += header + p + "\r\n";
+    body += "--B0UND--\r\nepilogue";
+    std::ofstream(dir / "body", std::ios::binary | std::ios::trunc) << body;
+    Result<std::vector<std::string>> written = pacs::split_multipart_file(
+        (dir / "body").string(), "multipart/related; type=\"application/dicom\"; boundary=B0UND", dir.string());
+    ASSERT_TRUE(written.ok()) << written.status().to_string();
+    ASSERT_EQ(written->size(), parts.size()) << "shift " << shift;
+    for (size_t i = 0; i < parts.size(); ++i)
+      EXPECT_EQ(files_of({(*written)[i]}).front(), parts[i]) << "shift " << shift << " part " << i;
+  }
+  std::string body = "preamble\r\n" + header + "only\r\n--B0UND--\r\n";
   // Cut short: an error, not a silently short part.
   std::ofstream(dir / "short", std::ios::binary) << body.substr(0, body.size() / 2);
-  EXPECT_FALSE(pacs::split_multipart_file((dir / "short").string(), "multipart/related; boundary=B0UND", dir.string()).ok());
+  EXPECT_FALSE(
+      pacs::split_multipart_file((dir / "short").string(), "multipart/related; boundary=B0UND", dir.string()).ok());
   EXPECT_FALSE(pacs::split_multipart_file((dir / "body").string(), "application/dicom", dir.string()).ok());
+  std::ofstream(dir / "none", std::ios::binary) << "no parts here";
+  EXPECT_FALSE(
+      pacs::split_multipart_file((dir / "none").string(), "multipart/related; boundary=B0UND", dir.string()).ok());
   fs::remove_all(dir);
 }
 

@@ -29,11 +29,14 @@ class OrthancProcess {
   explicit OrthancProcess(const fs::path& dir) : dir_(dir), port_(free_port()) {
     fs::create_directories(dir / "storage");
     std::ofstream(dir / "orthanc.json") << R"({
-      "Name": "posewarp-test", "StorageDirectory": ")" << (dir / "storage").string() << R"(",
-      "IndexDirectory": ")" << (dir / "storage").string() << R"(",
+      "Name": "posewarp-test", "StorageDirectory": ")"
+                                        << (dir / "storage").string() << R"(",
+      "IndexDirectory": ")" << (dir / "storage").string()
+                                        << R"(",
       "HttpPort": )" << port_ << R"(, "DicomServerEnabled": false, "RemoteAccessAllowed": false,
       "AuthenticationEnabled": true, "RegisteredUsers": {"posewarp": "s3cret"},
-      "Plugins": [")" << kOrthancDicomWebPlugin << R"("], "DicomWeb": {"Enable": true, "Root": "/dicom-web/"}})";
+      "Plugins": [")" << kOrthancDicomWebPlugin
+                                        << R"("], "DicomWeb": {"Enable": true, "Root": "/dicom-web/"}})";
     pid_ = ::fork();
     if (pid_ == 0) {
       const std::string log = (dir / "orthanc.log").string();
@@ -54,7 +57,8 @@ class OrthancProcess {
     if (pid_ > 0) {
       ::kill(pid_, SIGTERM);
       int status = 0;
-      for (int i = 0; i < 100 && ::waitpid(pid_, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      for (int i = 0; i < 100 && ::waitpid(pid_, &status, WNOHANG) == 0; ++i)
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
       if (::waitpid(pid_, &status, WNOHANG) == 0) {
         ::kill(pid_, SIGKILL);
         ::waitpid(pid_, &status, 0);

@@ -144,7 +144,8 @@ class Viewer : public ::testing::Test {
     fs::remove_all(dir_);
   }
   static int snapshot(const fs::path& png, const std::vector<std::string>& more = {}) {
-    std::vector<std::string> args{POSEWARP_VIEW, "--server", server_->address(), "--rig", rig_id_, "--snapshot", png.string()};
+    std::vector<std::string> args{POSEWARP_VIEW, "--server",   server_->address(), "--rig",
+                                  rig_id_,       "--snapshot", png.string()};
     if (std::find(more.begin(), more.end(), "--size") == more.end()) args.insert(args.end(), {"--size", "480x360"});
     args.insert(args.end(), more.begin(), more.end());
     return run(args);
@@ -173,7 +174,9 @@ TEST_F(Viewer, SnapshotsAtRestAndPosedDifferWhereTheBarBentAndTheRestOneMatchesI
   EXPECT_LT(differing(rest, reference, 0, rest.height), 0.01);
   // A wrong rig id: a clear error, exit code 2.
   EXPECT_EQ(run({POSEWARP_VIEW, "--server", server_->address(), "--rig", std::string(64, '0'), "--snapshot",
-                 (dir_ / "none.png").string()}) >> 8, 2);
+                 (dir_ / "none.png").string()}) >>
+                8,
+            2);
   EXPECT_FALSE(fs::exists(dir_ / "none.png"));
 }
 
@@ -235,10 +238,10 @@ TEST_F(Viewer, TheControlsDriveThePreviewStreamAndTheSceneFollows) {
   EXPECT_GE(session.answers(), 2u);
 }
 
-
 TEST_F(Viewer, TheSlicesSnapshotShowsLabelsOverTheCtWithTheReport) {
   const std::string bend = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
-  ASSERT_EQ(snapshot(dir_ / "slices.png", {"--pose", bend, "--slices", "--size", "960x720", "--label-opacity", "0.5"}), 0);
+  ASSERT_EQ(snapshot(dir_ / "slices.png", {"--pose", bend, "--slices", "--size", "960x720", "--label-opacity", "0.5"}),
+            0);
   ASSERT_EQ(snapshot(dir_ / "plain.png", {"--pose", bend, "--slices", "--size", "960x720", "--label-opacity", "0"}), 0);
   const Image labelled = read_png(dir_ / "slices.png"), plain = read_png(dir_ / "plain.png");
   ASSERT_EQ(labelled.width, 960);
@@ -248,7 +251,8 @@ TEST_F(Viewer, TheSlicesSnapshotShowsLabelsOverTheCtWithTheReport) {
   const int quadrants[3][4] = {{480, 960, 360, 720}, {0, 480, 0, 360}, {480, 960, 0, 360}};
   for (const auto& q : quadrants) {
     const int64_t area = static_cast<int64_t>(q[1] - q[0]) * (q[3] - q[2]);
-    EXPECT_GT(grey_pixels(plain, q[0], q[1], q[2], q[3]), area / 50) << "no CT in the view at x " << q[0] << ", y " << q[2];
+    EXPECT_GT(grey_pixels(plain, q[0], q[1], q[2], q[3]), area / 50)
+        << "no CT in the view at x " << q[0] << ", y " << q[2];
     EXPECT_GT(labels_over_ct(labelled, plain, q[0], q[1], q[2], q[3]), area / 50)
         << "no labels over the CT in the view at x " << q[0] << ", y " << q[2];
   }
@@ -263,11 +267,13 @@ TEST_F(Viewer, SavesThePosedFilesAsTheCliWritesThem) {
   const std::string bend = (fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json").string();
   const fs::path saved = dir_ / "saved", cli = dir_ / "cli";
   ASSERT_EQ(run({POSEWARP_VIEW, "--server", server_->address(), "--rig", rig_id_, "--pose", bend, "--method", "dqs",
-                 "--save", saved.string()}), 0);
+                 "--save", saved.string()}),
+            0);
   fs::create_directories(cli);
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", rig_id_, "--server", server_->address(), "--pose", bend, "--method", "dqs",
                  "--labels-out", (cli / "labels.nii.gz").string(), "--ct-out", (cli / "ct.nii.gz").string(),
-                 "--surfaces-out", (cli / "surfaces").string(), "--report", (cli / "report.json").string()}), 0);
+                 "--surfaces-out", (cli / "surfaces").string(), "--report", (cli / "report.json").string()}),
+            0);
   auto ours = api::read_label_volume((saved / "labels.nii.gz").string());
   auto theirs = api::read_label_volume((cli / "labels.nii.gz").string());
   ASSERT_TRUE(ours.ok() && theirs.ok());
@@ -303,8 +309,8 @@ TEST_F(Viewer, BadAddressesPosesAndRigsGetClearErrorsAndNoSnapshot) {
     ServerProcess gone(dir_ / "gone-store");
     return gone.port();
   }();
-  const std::string message = stderr_of({POSEWARP_VIEW, "--server", "127.0.0.1:" + std::to_string(port), "--snapshot",
-                                         (dir_ / "x.png").string()});
+  const std::string message = stderr_of(
+      {POSEWARP_VIEW, "--server", "127.0.0.1:" + std::to_string(port), "--snapshot", (dir_ / "x.png").string()});
   EXPECT_NE(message.find("cannot reach posewarp-server"), std::string::npos) << message;
   // A server that needs a token: without one, or with a wrong one, exit 2 and a message that says so.
   {
@@ -323,7 +329,8 @@ TEST_F(Viewer, BadAddressesPosesAndRigsGetClearErrorsAndNoSnapshot) {
   }
   // A joint the rig does not have: the server refuses the pose, the viewer says so and writes nothing.
   const fs::path wrong = dir_ / "wrong_joint.json";
-  std::ofstream(wrong) << R"({"format": "posewarp.pose", "version": 1, "joints": {"knee_left": {"angles_deg": {"flexion": 30}}}})";
+  std::ofstream(wrong)
+      << R"({"format": "posewarp.pose", "version": 1, "joints": {"knee_left": {"angles_deg": {"flexion": 30}}}})";
   EXPECT_EQ(snapshot(dir_ / "refused.png", {"--pose", wrong.string()}) >> 8, 2);
   EXPECT_FALSE(fs::exists(dir_ / "refused.png"));
   // A pose file the viewer cannot read: exit 2 before any call.
@@ -468,7 +475,8 @@ TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
   // w writes the pose JSON; o loads the pose files of --poses.
   app.key("w");
   bool wrote_pose = false;
-  for (const auto& entry : fs::directory_iterator(app.options.out_dir)) wrote_pose |= entry.path().extension() == ".json";
+  for (const auto& entry : fs::directory_iterator(app.options.out_dir))
+    wrote_pose |= entry.path().extension() == ".json";
   EXPECT_TRUE(wrote_pose);
   app.pose_files = {(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_twist_90.json").string()};
   app.key("o");
@@ -504,8 +512,8 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
     "joints": {"L2_L3": {"angles_deg": {"abduction": 12}}, "L1_L2": {"angles_deg": {"abduction": 12}},
                "thoracolumbar": {"angles_deg": {"abduction": 10}}, "hip_left": {"angles_deg": {"flexion": 40}}}})";
   const auto shot = [&](const std::string& name, std::vector<std::string> more) {
-    std::vector<std::string> args{POSEWARP_VIEW, "--server", server_->address(), "--rig", rig, "--size", "800x600",
-                                  "--snapshot", (dir_ / name).string()};
+    std::vector<std::string> args{POSEWARP_VIEW, "--server",   server_->address(),    "--rig", rig, "--size",
+                                  "800x600",     "--snapshot", (dir_ / name).string()};
     args.insert(args.end(), more.begin(), more.end());
     EXPECT_EQ(run(args), 0) << name;
     return read_png(dir_ / name);
@@ -532,7 +540,8 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
 // flexion slider dragged with the mouse, the pose saved, side by side on and off, the full volume shown and pictured,
 // the posed files saved, and q quits cleanly.
 TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
-  if (std::system("command -v xdotool >/dev/null 2>&1") != 0) GTEST_SKIP() << "xdotool is not installed (scripts/setup installs it)";
+  if (std::system("command -v xdotool >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "xdotool is not installed (scripts/setup installs it)";
   const fs::path out = dir_ / "window-out";
   fs::create_directories(out);
   const pid_t viewer = ::fork();
@@ -545,7 +554,9 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
     ::_exit(127);
   }
   ASSERT_GT(viewer, 0);
-  const auto xdotool = [](const std::string& arguments) { return std::system(("xdotool " + arguments + " >/dev/null 2>&1").c_str()); };
+  const auto xdotool = [](const std::string& arguments) {
+    return std::system(("xdotool " + arguments + " >/dev/null 2>&1").c_str());
+  };
   std::string window;
   for (int i = 0; i < 100 && window.empty(); ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
@@ -564,7 +575,8 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
   key("n");
   // The flexion slider: the top one in the bottom right corner (y = 0.20 of the height from the bottom).
   EXPECT_EQ(xdotool("mousemove --window " + window + " 760 560 mousedown 1 sleep 0.2 mousemove --window " + window +
-                    " 800 560 sleep 0.2 mousemove --window " + window + " 840 560 mouseup 1"), 0);
+                    " 800 560 sleep 0.2 mousemove --window " + window + " 840 560 mouseup 1"),
+            0);
   // What the window writes tells how far it got; each step waits for it (up to 60 s) instead of guessing a time.
   const auto written = [&](const std::function<bool(const fs::path&)>& test) {
     for (int i = 0; i < 300; ++i) {
@@ -582,7 +594,8 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
     flexed = written([](const fs::path& p) {
       std::string why;
       const auto pose = p.extension() == ".json" ? view::pose_from_json(file_text(p), &why) : std::nullopt;
-      return pose && std::any_of(pose->joints.begin(), pose->joints.end(), [](const auto& j) { return j.second.flexion > 10.0; });
+      return pose && std::any_of(pose->joints.begin(), pose->joints.end(),
+                                 [](const auto& j) { return j.second.flexion > 10.0; });
     });
   }
   EXPECT_TRUE(flexed) << "the slider drag did not reach the saved pose";
@@ -595,7 +608,8 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
     const Image picture = read_png(p);
     int64_t lit = 0;
     for (int y = 100; y < 330 && picture.width == 900; ++y) {
-      for (int x = 160; x < 400; ++x) lit += std::max({picture.at(x, y)[0], picture.at(x, y)[1], picture.at(x, y)[2]}) > 60;
+      for (int x = 160; x < 400; ++x)
+        lit += std::max({picture.at(x, y)[0], picture.at(x, y)[1], picture.at(x, y)[2]}) > 60;
     }
     return lit > 2000;
   };
@@ -608,12 +622,14 @@ TEST_F(Viewer, TheRealWindowAnswersKeysAndTheMouse) {
   key("v", 300);
   key("d", 300);
   const bool saved = written([](const fs::path& p) {
-    return fs::is_directory(p) && fs::exists(p / "labels.nii.gz") && fs::exists(p / "ct.nii.gz") && fs::exists(p / "report.json");
+    return fs::is_directory(p) && fs::exists(p / "labels.nii.gz") && fs::exists(p / "ct.nii.gz") &&
+           fs::exists(p / "report.json");
   });
   EXPECT_TRUE(saved) << "the posed files were not saved";
   xdotool("key --window " + window + " q");  // may fail on the key's release: the window is gone by then
   int status = -1;
-  for (int i = 0; i < 100 && ::waitpid(viewer, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  for (int i = 0; i < 100 && ::waitpid(viewer, &status, WNOHANG) == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
   if (::waitpid(viewer, &status, WNOHANG) == 0) {
     ::kill(viewer, SIGKILL);
     ::waitpid(viewer, &status, 0);

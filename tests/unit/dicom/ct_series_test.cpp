@@ -110,8 +110,7 @@ TEST_F(DicomCt, TheSampleGoesThroughADerivedSeriesAndBackExactly) {
         const Vec3 p = b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
         const Vec3 at = a.physical_to_index(p);
         for (double c : at) ASSERT_NEAR(c, std::round(c), 1e-4);
-        ASSERT_EQ(back->ct.at(i, j, k),
-                  ct.at(std::lround(at[0]), std::lround(at[1]), std::lround(at[2])));
+        ASSERT_EQ(back->ct.at(i, j, k), ct.at(std::lround(at[0]), std::lround(at[1]), std::lround(at[2])));
         ++compared;
       }
     }
@@ -264,13 +263,15 @@ TEST(DicomUid, NewUidsAreValidAndUnderTheirRoot) {
 
 // dicom3tools' dciodvfy checks a written slice against the CT Image IOD (skipped where it is not installed).
 TEST_F(DicomCt, DciodvfyFindsNoErrorsInADerivedSlice) {
-  if (std::system("command -v dciodvfy >/dev/null 2>&1") != 0) GTEST_SKIP() << "dciodvfy (dicom3tools) is not installed";
+  if (std::system("command -v dciodvfy >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "dciodvfy (dicom3tools) is not installed";
   // A derived series of a derived series: it references source instances, as one from a PACS does.
   const std::vector<std::string> original = *encode_derived_ct(sample_ct(), made_up_source(), {});
   const CtSeries source = *read_ct_series(original);
   ASSERT_TRUE(write_derived_ct(source.ct, source.info, {}, (dir_ / "series").string()).ok());
   const fs::path report = dir_ / "dciodvfy.txt";
-  std::system(("dciodvfy '" + (dir_ / "series" / "CT000010.dcm").string() + "' > '" + report.string() + "' 2>&1").c_str());
+  std::system(
+      ("dciodvfy '" + (dir_ / "series" / "CT000010.dcm").string() + "' > '" + report.string() + "' 2>&1").c_str());
   std::ifstream in(report);
   std::string line, errors;
   while (std::getline(in, line)) {

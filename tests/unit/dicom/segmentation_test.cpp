@@ -79,7 +79,8 @@ TEST(DicomSeg, TheSampleLabelsGoThroughASegAndBack) {
   for (int64_t k = 0; k < b.size[2]; ++k) {
     for (int64_t j = 0; j < b.size[1]; ++j) {
       for (int64_t i = 0; i < b.size[0]; ++i) {
-        const Vec3 at = a.physical_to_index(b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
+        const Vec3 at = a.physical_to_index(
+            b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)}));
         const Label original = w.labels.at(std::lround(at[0]), std::lround(at[1]), std::lround(at[2]));
         const Label expected = original == 0 ? 0 : w.numbers.at(original);
         ASSERT_EQ(back->labels.at(i, j, k), expected) << "at " << i << ", " << j << ", " << k;
@@ -100,7 +101,8 @@ TEST(DicomSeg, TheSampleLabelsGoThroughASegAndBack) {
 }
 
 TEST(DicomSeg, DciodvfyFindsNoErrorsInTheSeg) {
-  if (std::system("command -v dciodvfy >/dev/null 2>&1") != 0) GTEST_SKIP() << "dciodvfy (dicom3tools) is not installed";
+  if (std::system("command -v dciodvfy >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "dciodvfy (dicom3tools) is not installed";
   const Written w = sample_seg();
   const fs::path file = fs::temp_directory_path() / ("posewarp-seg-" + std::to_string(::getpid()) + ".dcm");
   std::ofstream(file, std::ios::binary) << w.seg;
@@ -140,7 +142,8 @@ TEST(DicomSeg, AFractionalSegIsThresholdedAtOneHalfWithAWarning) {
   ContentIdentificationMacro content("1", "TEST", "fractional", "test");
   DcmSegmentation* created = nullptr;
   ASSERT_TRUE(DcmSegmentation::createFractionalSegmentation(created, 4, 4, DcmSegTypes::SFT_PROBABILITY, 255, equipment,
-                                                            content).good());
+                                                            content)
+                  .good());
   std::unique_ptr<DcmSegmentation> seg(created);
   seg->getPatient().setPatientID("X");
   seg->getStudy().setStudyInstanceUID(new_uid("2.25")->c_str());
@@ -156,7 +159,8 @@ TEST(DicomSeg, AFractionalSegIsThresholdedAtOneHalfWithAWarning) {
   ASSERT_TRUE(seg->addForAllFrames(orientation).good());
   DcmSegment* segment = nullptr;
   ASSERT_TRUE(DcmSegment::create(segment, "liver", CodeSequenceMacro("123037004", "SCT", "Anatomical Structure"),
-                                 CodeSequenceMacro("10200004", "SCT", "Liver"), DcmSegTypes::SAT_AUTOMATIC, "test").good());
+                                 CodeSequenceMacro("10200004", "SCT", "Liver"), DcmSegTypes::SAT_AUTOMATIC, "test")
+                  .good());
   Uint16 number = 0;
   ASSERT_TRUE(seg->addSegment(segment, number).good());
   FGSegmentation identification;
@@ -170,7 +174,8 @@ TEST(DicomSeg, AFractionalSegIsThresholdedAtOneHalfWithAWarning) {
   OFVector<FGBase*> groups{&identification, &position, &frame_content};
   ASSERT_TRUE(seg->addFrame(pixels, number, groups).good());
   const std::string uid = *new_uid("2.25");
-  seg->getDimensions().addDimensionIndex(DCM_ReferencedSegmentNumber, uid.c_str(), DCM_SegmentIdentificationSequence, "segment");
+  seg->getDimensions().addDimensionIndex(DCM_ReferencedSegmentNumber, uid.c_str(), DCM_SegmentIdentificationSequence,
+                                         "segment");
   seg->getDimensions().addDimensionIndex(DCM_ImagePositionPatient, uid.c_str(), DCM_PlanePositionSequence, "position");
   DcmFileFormat file;
   const OFCondition wrote = seg->writeDataset(*file.getDataset());

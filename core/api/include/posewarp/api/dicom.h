@@ -26,11 +26,11 @@ using dicom::SeriesInfo;
 using dicom::write_derived_ct;
 
 struct DicomStudy {
-  CtSeries ct;                          // the CT (HU) and its series: patient, study, instances
-  LabelVolume labels;                   // on the CT's grid; each voxel its segment's number
-  labels::LabelMap label_map;           // the map given, following the segments' names to their numbers
+  CtSeries ct;                 // the CT (HU) and its series: patient, study, instances
+  LabelVolume labels;          // on the CT's grid; each voxel its segment's number
+  labels::LabelMap label_map;  // the map given, following the segments' names to their numbers
   std::vector<Segment> segments;
-  std::vector<std::string> warnings;    // fractional segments thresholded, overlaps, names the map does not know
+  std::vector<std::string> warnings;  // fractional segments thresholded, overlaps, names the map does not know
 };
 
 // True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").

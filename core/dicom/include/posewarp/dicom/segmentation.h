@@ -34,7 +34,8 @@ struct Segmentation {
 };
 
 // A SEG's bytes (Part 10) read onto `grid` (the CT's), each frame placed by its position. Refused with a reason:
-// not a SEG, frames whose orientation or spacing is not the grid's, frames off the grid's slices. Where segments
+// not a SEG, frames without an orientation or whose orientation, pixel spacing or size is not the grid's, frames off
+// the grid's slices. Where segments
 // overlap the highest-numbered wins (a warning says how many voxels).
 Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeometry& grid);
 
