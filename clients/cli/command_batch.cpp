@@ -199,23 +199,6 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
   return rows;
 }
 
-// What a row's result depends on: its study, its pose's text, its method and its input files' sizes and times.
-std::string result_key(const Row& row) {
-  nlohmann::json key{{"study", row.study_key()}, {"method", row.method}};
-  for (const std::string& file : {row.pose, row.animation}) {
-    if (file.empty()) continue;
-    Result<std::string> text = api::read_text_input(file, "pose");
-    key["pose"] = text.ok() ? api::sha256_hex(*text) : file;
-  }
-  for (const std::string& file : {row.labels, row.ct, row.dicom_seg, row.label_map}) {
-    std::error_code ec;
-    if (file.empty() || !fs::is_regular_file(file, ec)) continue;
-    key[file] = std::to_string(fs::file_size(file, ec)) + "@" +
-                std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
-  }
-  return api::sha256_hex(key.dump());
-}
-
 // What a study's rig depends on: its inputs and their files' sizes and times (the rig cache's key).
 std::string study_content_key(const Row& row) {
   nlohmann::json key{{"study", row.study_key()}, {"version", POSEWARP_VERSION}};
@@ -238,10 +221,15 @@ std::string pose_hash(const Row& row) {
   return text.ok() ? api::sha256_hex(*text) : file;
 }
 
-// A row done: its result, written where the row says. A rerun skips a row whose key the state file holds.
+// A row done: its study's content, its pose, its method, and where its result goes. A rerun skips a row whose key
+// the state file holds.
 std::string row_key(const Row& row) {
-  return api::sha256_hex(
-      nlohmann::json{{"result", result_key(row)}, {"out_dir", row.out_dir}, {"to_pacs", row.to_pacs}}.dump());
+  return api::sha256_hex(nlohmann::json{{"study", study_content_key(row)},
+                                        {"pose", pose_hash(row)},
+                                        {"method", row.method},
+                                        {"out_dir", row.out_dir},
+                                        {"to_pacs", row.to_pacs}}
+                             .dump());
 }
 
 struct BatchOptions {

@@ -87,26 +87,10 @@ int run_store(const StoreOptions& o) {
   if (!options.ok()) return report(options.status());
   const pacs::DicomWebClient client(*options);
   for (const std::string& path : o.paths) {
-    std::vector<std::string> files;
-    std::error_code ec;
-    if (fs::is_directory(path, ec)) {
-      for (const auto& entry : fs::directory_iterator(path, ec)) {
-        if (api::is_dicom_file(entry.path().string())) files.push_back(entry.path().string());
-      }
-    } else if (api::is_dicom_file(path)) {
-      files.push_back(path);
-    }
-    if (files.empty())
-      return report(invalid_argument_error("'" + path + "' is not a DICOM file or a directory holding some"));
-    std::sort(files.begin(), files.end());
-    std::vector<std::string> instances;
-    for (const std::string& file : files) {
-      Result<std::string> bytes = api::read_text_input(file, "DICOM file", int64_t{1} << 31);
-      if (!bytes.ok()) return report(bytes.status());
-      instances.push_back(std::move(bytes).value());
-    }
-    if (Status s = client.store(instances); !s.ok()) return report(s.with_context(path));
-    say("stored " + std::to_string(instances.size()) + " instances from " + path);
+    Result<std::vector<std::string>> instances = api::read_dicom_files(path);
+    if (!instances.ok()) return report(instances.status());
+    if (Status s = client.store(*instances); !s.ok()) return report(s.with_context(path));
+    say("stored " + std::to_string(instances->size()) + " instances from " + path);
   }
   return 0;
 }

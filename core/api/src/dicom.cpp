@@ -35,14 +35,6 @@ std::vector<Segment> segments_named_by(const LabelVolume& labels, const labels::
 
 }  // namespace
 
-bool is_dicom_file(const std::string& path) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) return false;
-  std::ifstream in(path, std::ios::binary);
-  char head[132];
-  return in.read(head, sizeof head) && std::string(head + 128, 4) == "DICM";
-}
-
 Result<DicomStudy> read_dicom_study(const std::vector<std::string>& ct_instances, const std::string& seg_bytes,
                                     const labels::LabelMap& map) {
   DicomStudy study;
@@ -74,14 +66,7 @@ Result<DicomStudy> read_dicom_study(const std::string& ct_directory, const std::
   }
   std::string seg_bytes;
   POSEWARP_ASSIGN_OR_RETURN(seg_bytes, read_text_input(seg_path, "DICOM SEG file", int64_t{1} << 32));
-  std::vector<std::string> instances;
-  for (const auto& entry : fs::directory_iterator(ct_directory, ec)) {
-    if (is_dicom_file(entry.path().string())) {
-      std::string bytes;
-      POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(entry.path().string(), "DICOM file", int64_t{1} << 31));
-      instances.push_back(std::move(bytes));
-    }
-  }
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> instances, read_dicom_files(ct_directory));
   return read_dicom_study(instances, seg_bytes, map);
 }
 
@@ -127,8 +112,8 @@ Result<DicomOutputs> encode_new_dicom_study(const IntensityVolume& ct, const Lab
   POSEWARP_ASSIGN_OR_RETURN(study.study_instance_uid, new_uid(options.uid_root));
   POSEWARP_ASSIGN_OR_RETURN(study.series_instance_uid, new_uid(options.uid_root));
   POSEWARP_ASSIGN_OR_RETURN(study.frame_of_reference_uid, new_uid(options.uid_root));
-  study.study_id = "1";
-  study.series_number = "0";
+  study.study_id = std::string(1, '1');  // (a one-character literal here trips GCC 12's -Wrestrict)
+  study.series_number = std::string(1, '0');
   study.patient_position = "HFS";
   DerivedSeriesOptions first = options;
   first.series_number = options.series_number > 0 ? options.series_number : 1;

@@ -4,8 +4,6 @@
 #include <dcmtk/config/osconfig.h>  // before any other DCMTK header
 #include <dcmtk/dcmdata/dcdeftag.h>
 #include <dcmtk/dcmdata/dcfilefo.h>
-#include <dcmtk/dcmdata/dcistrmb.h>
-#include <dcmtk/dcmdata/dcostrmb.h>
 #include <dcmtk/dcmdata/dcrledrg.h>
 #include <dcmtk/dcmdata/dcuid.h>
 #include <dcmtk/dcmjpeg/djdecode.h>
@@ -18,6 +16,7 @@
 #include <cstring>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <random>
@@ -25,6 +24,7 @@
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
 #include "posewarp/common/sha256.h"
+#include "part10.h"
 
 namespace posewarp::dicom {
 namespace fs = std::filesystem;
@@ -91,14 +91,7 @@ Result<Slice> parse(const std::string& bytes, int index) {
   const std::string name = "instance " + std::to_string(index + 1);
   Slice slice;
   slice.index = index;
-  slice.file = std::make_unique<DcmFileFormat>();
-  DcmInputBufferStream stream;
-  stream.setBuffer(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-  stream.setEos();
-  slice.file->transferInit();
-  const OFCondition read = slice.file->read(stream);
-  slice.file->transferEnd();
-  if (read.bad()) return data_loss_error(name + " is not a readable DICOM file: " + read.text());
+  POSEWARP_ASSIGN_OR_RETURN(slice.file, parse_part10(bytes, name));
   DcmDataset& d = *slice.file->getDataset();
   slice.series_uid = text(d, DCM_SeriesInstanceUID);
   if (slice.series_uid.empty()) return invalid_argument_error(name + " has no SeriesInstanceUID");
@@ -398,23 +391,41 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
   return out;
 }
 
-Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid) {
+bool is_dicom_file(const std::string& path) {
   std::error_code ec;
-  if (!fs::is_directory(directory, ec)) return not_found_error("'" + directory + "' is not a directory of DICOM files");
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(directory, ec)) {
-    if (entry.is_regular_file(ec)) files.push_back(entry.path());
+  if (!fs::is_regular_file(path, ec)) return false;
+  std::ifstream in(path, std::ios::binary);
+  char head[132];
+  return in.read(head, sizeof head) && std::string(head + 128, 4) == "DICM";
+}
+
+Result<std::vector<std::string>> read_dicom_files(const std::string& path) {
+  std::error_code ec;
+  std::vector<std::string> files;
+  if (fs::is_directory(path, ec)) {
+    for (const auto& entry : fs::directory_iterator(path, ec)) {
+      if (is_dicom_file(entry.path().string())) files.push_back(entry.path().string());
+    }
+  } else if (is_dicom_file(path)) {
+    files.push_back(path);
+  }
+  if (files.empty()) {
+    return not_found_error("'" + path + "' is not a DICOM file (Part 10, with a DICM preamble) or a directory holding some");
   }
   std::sort(files.begin(), files.end());
   std::vector<std::string> instances;
-  for (const fs::path& path : files) {
-    // Part 10 files: 128 bytes of preamble, then "DICM".
+  for (const std::string& file : files) {
     std::string bytes;
-    POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(path.string(), "DICOM file", int64_t{1} << 31));
-    if (bytes.size() >= 132 && bytes.compare(128, 4, "DICM") == 0) instances.push_back(std::move(bytes));
+    POSEWARP_ASSIGN_OR_RETURN(bytes, read_text_input(file, "DICOM file", int64_t{1} << 31));
+    instances.push_back(std::move(bytes));
   }
-  if (instances.empty())
-    return not_found_error("no DICOM files (Part 10, with a DICM preamble) in '" + directory + "'");
+  return instances;
+}
+
+Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid) {
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec)) return not_found_error("'" + directory + "' is not a directory of DICOM files");
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> instances, read_dicom_files(directory));
   return read_ct_series(instances, series_uid);
 }
 
@@ -550,22 +561,8 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
     std::vector<Uint16> words(per_slice);
     std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
     d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(per_slice));
-    // Part 10 bytes, little-endian explicit.
-    OFCondition written = file.validateMetaInfo(EXS_LittleEndianExplicit);
-    const Uint32 length = file.calcElementLength(EXS_LittleEndianExplicit, EET_ExplicitLength);
-    std::string bytes(static_cast<size_t>(length) + 4096, '\0');
-    DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-    if (written.good()) {
-      file.transferInit();
-      written = file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr);
-      file.transferEnd();
-    }
-    if (written.bad())
-      return internal_error("encoding DICOM slice " + std::to_string(n + 1) + " failed: " + written.text());
-    void* buffer = nullptr;
-    offile_off_t used = 0;
-    out.flushBuffer(buffer, used);
-    bytes.resize(static_cast<size_t>(used));
+    std::string bytes;
+    POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "DICOM slice " + std::to_string(n + 1)));
     files.push_back(std::move(bytes));
     info.sop_instance_uids.push_back(sop_uid);
   }

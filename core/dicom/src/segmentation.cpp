@@ -4,8 +4,6 @@
 #include <dcmtk/config/osconfig.h>  // before any other DCMTK header
 #include <dcmtk/dcmdata/dcdeftag.h>
 #include <dcmtk/dcmdata/dcfilefo.h>
-#include <dcmtk/dcmdata/dcistrmb.h>
-#include <dcmtk/dcmdata/dcostrmb.h>
 #include <dcmtk/dcmdata/dcuid.h>
 #include <dcmtk/dcmfg/fgderimg.h>
 #include <dcmtk/dcmfg/fgfracon.h>
@@ -22,6 +20,8 @@
 #include <map>
 #include <memory>
 #include <set>
+
+#include "part10.h"
 
 namespace posewarp::dicom {
 namespace {
@@ -46,26 +46,13 @@ std::string format(const char* f, double a) {
   return out;
 }
 
-Result<DcmFileFormat*> parse(const std::string& bytes, std::unique_ptr<DcmFileFormat>& owner) {
-  owner = std::make_unique<DcmFileFormat>();
-  DcmInputBufferStream stream;
-  stream.setBuffer(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-  stream.setEos();
-  owner->transferInit();
-  const OFCondition read = owner->read(stream);
-  owner->transferEnd();
-  if (read.bad()) return data_loss_error(std::string("the segmentation is not a readable DICOM file: ") + read.text());
-  return owner.get();
-}
-
 }  // namespace
 
 Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeometry& grid) {
   quiet_dcmtk();
   POSEWARP_RETURN_IF_ERROR(grid.validate());
-  std::unique_ptr<DcmFileFormat> file;
-  POSEWARP_ASSIGN_OR_RETURN(DcmFileFormat * parsed, parse(bytes, file));
-  DcmDataset& d = *parsed->getDataset();
+  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmFileFormat> file, parse_part10(bytes, "the segmentation"));
+  DcmDataset& d = *file->getDataset();
   OFString sop_class;
   d.findAndGetOFString(DCM_SOPClassUID, sop_class);
   if (sop_class != UID_SegmentationStorage) {
@@ -364,20 +351,8 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
       }
     }
   }
-  ok = file.validateMetaInfo(EXS_LittleEndianExplicit);
-  const Uint32 length = file.calcElementLength(EXS_LittleEndianExplicit, EET_ExplicitLength);
-  std::string bytes(static_cast<size_t>(length) + 4096, '\0');
-  DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-  if (ok.good()) {
-    file.transferInit();
-    ok = file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr);
-    file.transferEnd();
-  }
-  if (ok.bad()) return internal_error(std::string("encoding the segmentation failed: ") + ok.text());
-  void* buffer = nullptr;
-  offile_off_t used = 0;
-  out.flushBuffer(buffer, used);
-  bytes.resize(static_cast<size_t>(used));
+  std::string bytes;
+  POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "the segmentation"));
   if (info_out != nullptr) *info_out = info;
   if (numbers != nullptr) numbers->insert(number_of.begin(), number_of.end());
   return bytes;

@@ -13,6 +13,7 @@
 #include <fstream>
 #include <thread>
 
+#include "../support/logged_run.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 
@@ -20,24 +21,9 @@ namespace posewarp {
 namespace {
 
 namespace fs = std::filesystem;
-
-int run(const std::vector<std::string>& args, const fs::path& log) {
-  std::string command;
-  for (const std::string& a : args) command += "'" + a + "' ";
-  return std::system((command + "> '" + log.string() + "' 2>&1").c_str());
-}
-
-std::string text(const fs::path& path) {
-  std::ifstream in(path);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-size_t lines_of(const fs::path& path) {
-  std::ifstream in(path);
-  size_t n = 0;
-  for (std::string line; std::getline(in, line);) n += !line.empty();
-  return n;
-}
+using testing_support::run;
+using testing_support::text;
+using testing_support::lines_of;
 
 class Batch : public ::testing::Test {
  protected:

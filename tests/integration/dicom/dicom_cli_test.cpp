@@ -9,6 +9,7 @@
 #include <fstream>
 #include <map>
 
+#include "../support/logged_run.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 
@@ -16,17 +17,8 @@ namespace posewarp {
 namespace {
 
 namespace fs = std::filesystem;
-
-int run(const std::vector<std::string>& args, const fs::path& log) {
-  std::string command;
-  for (const std::string& a : args) command += "'" + a + "' ";
-  return std::system((command + "> '" + log.string() + "' 2>&1").c_str());
-}
-
-std::string text(const fs::path& path) {
-  std::ifstream in(path);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using testing_support::run;
+using testing_support::text;
 
 TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   const fs::path dir = fs::temp_directory_path() / ("posewarp-dicom-cli-" + std::to_string(::getpid()));

@@ -15,29 +15,13 @@
 #include <set>
 
 #include "posewarp/dicom/ct_series.h"
+#include "made_up_source.h"
 #include "posewarp/io/volume_io.h"
 
 namespace posewarp::dicom {
 namespace {
 
 namespace fs = std::filesystem;
-
-// A made-up source series for a volume that never was DICOM (the sample is NIfTI).
-SeriesInfo made_up_source() {
-  SeriesInfo s;
-  s.patient_name = "Sample^Phantom";
-  s.patient_id = "PW-0001";
-  s.patient_sex = "O";
-  s.patient_position = "HFS";
-  s.study_instance_uid = *new_uid("2.25");
-  s.study_date = "20250101";
-  s.study_time = "120000";
-  s.study_id = "1";
-  s.series_instance_uid = *new_uid("2.25");
-  s.series_number = "3";
-  s.frame_of_reference_uid = *new_uid("2.25");
-  return s;
-}
 
 IntensityVolume sample_ct() {
   Result<IntensityVolume> ct = io::read_intensity_volume(std::string(POSEWARP_SAMPLE_DIR) + "/ct.nii.gz");

@@ -19,24 +19,13 @@
 #include <memory>
 
 #include "posewarp/dicom/segmentation.h"
+#include "made_up_source.h"
 #include "posewarp/io/volume_io.h"
 
 namespace posewarp::dicom {
 namespace {
 
 namespace fs = std::filesystem;
-
-SeriesInfo study() {
-  SeriesInfo s;
-  s.patient_name = "Sample^Phantom";
-  s.patient_id = "PW-0002";
-  s.study_instance_uid = *new_uid("2.25");
-  s.series_instance_uid = *new_uid("2.25");
-  s.series_number = "3";
-  s.frame_of_reference_uid = *new_uid("2.25");
-  s.patient_position = "HFS";
-  return s;
-}
 
 struct Written {
   LabelVolume labels;
@@ -52,7 +41,7 @@ Written sample_seg(const std::vector<Segment>& described = {}) {
   const IntensityVolume ct = *io::read_intensity_volume(dir + "/ct.nii.gz");
   w.labels = *io::read_label_volume(dir + "/seg_total.nii.gz");
   SeriesInfo info;
-  const std::vector<std::string> files = *encode_derived_ct(ct, study(), {}, &info);
+  const std::vector<std::string> files = *encode_derived_ct(ct, made_up_source(), {}, &info);
   w.ct = *read_ct_series(files);
   Result<std::string> seg = encode_segmentation(w.labels, described, info, {}, nullptr, &w.numbers);
   EXPECT_TRUE(seg.ok()) << seg.status().to_string();

@@ -16,9 +16,11 @@ using dicom::CtSeries;
 using dicom::DerivedSeriesOptions;
 using dicom::encode_derived_ct;
 using dicom::encode_segmentation;
+using dicom::is_dicom_file;
 using dicom::new_uid;
 using dicom::read_ct_directory;
 using dicom::read_ct_series;
+using dicom::read_dicom_files;
 using dicom::read_segmentation;
 using dicom::Segment;
 using dicom::Segmentation;
@@ -32,9 +34,6 @@ struct DicomStudy {
   std::vector<Segment> segments;
   std::vector<std::string> warnings;  // fractional segments thresholded, overlaps, names the map does not know
 };
-
-// True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
-bool is_dicom_file(const std::string& path);
 
 // A CT series (a directory of its files) and a SEG (a file) made on it; `map` (a preset or one's own) is
 // relabelled by the segments' names (labels::relabel_by_name).

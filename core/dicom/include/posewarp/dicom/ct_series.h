@@ -34,7 +34,12 @@ struct CtSeries {
 // modalities, mixed orientations or sizes, gantry tilt, missing or duplicated slices, uneven slice spacing,
 // compressed pixel data without a decoder.
 Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid = "");
-// The same from a directory (files that are not DICOM are skipped, subdirectories are not read).
+// True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
+bool is_dicom_file(const std::string& path);
+// The bytes of a DICOM file, or of a directory's DICOM files in name order (other files and subdirectories are
+// skipped); NOT_FOUND when there are none.
+Result<std::vector<std::string>> read_dicom_files(const std::string& path);
+// read_ct_series from a directory's DICOM files.
 Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid = "");
 
 // How a derived series is named and numbered.
