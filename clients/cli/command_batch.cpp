@@ -1,6 +1,7 @@
 // posewarp batch: the rows of a manifest (JSON or CSV), or of a PACS query, posed in parallel: each study's rig built
 // once and reused by every pose of that study, results written to directories and/or stored back into the PACS,
-// progress on the way, a state file that makes a rerun skip what is done, and a summary (JSON and CSV).
+// progress on the way, a state file that makes a rerun skip what is done, and a summary (JSON and CSV). With
+// --server the rigs are built and the poses answered by posewarp-server; reading and writing DICOM stay here.
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -23,6 +24,7 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/pacs/dicomweb.h"
+#include "remote.h"
 
 namespace posewarp::cli {
 namespace {
@@ -224,28 +226,33 @@ std::string pose_hash(const Row& row) {
 // A row done: its study's content, its pose, its method, and where its result goes. A rerun skips a row whose key
 // the state file holds.
 std::string row_key(const Row& row) {
-  return api::sha256_hex(nlohmann::json{{"study", study_content_key(row)},
-                                        {"pose", pose_hash(row)},
-                                        {"method", row.method},
-                                        {"out_dir", row.out_dir},
-                                        {"to_pacs", row.to_pacs}}
-                             .dump());
+  return api::sha256_hex(nlohmann::json{
+      {"study", study_content_key(row)},
+      {"pose", pose_hash(row)},
+      {"method", row.method},
+      {"out_dir", row.out_dir},
+      {"to_pacs",
+       row.to_pacs}}.dump());
 }
 
 struct BatchOptions {
   std::string manifest, state, summary, rig_cache;
   int jobs = 1;
   PacsOptions pacs;
+  Connection server;  // rows posed by posewarp-server (one rig per study built there) instead of in this process
   std::string uid_root = "2.25";
   // Rows from a query instead of a manifest.
   std::string query, pose, animation, method = "cor", out_dir;
   bool to_pacs = false;
 };
 
-// A study ready to pose: its engine (poses of one study run one at a time on it) and where it came from.
+// A study ready to pose: its engine (poses of one study run one at a time on it) or its rig on the server, and where
+// it came from.
 struct Study {
   std::unique_ptr<api::PoseEngine> engine;
   std::mutex posing;
+  std::optional<RemotePoser> remote;     // with --server: the study's rig there (the server runs poses side by side)
+  labels::LabelMap label_map;            // the rig's, naming the segments of a SEG
   std::optional<api::SeriesInfo> dicom;  // the source CT series, for derived series
   double fetch_s = 0, rig_s = 0;
   bool rig_cached = false;
@@ -375,6 +382,7 @@ class Batch {
   }
 
   Result<std::shared_ptr<Study>> load_study(const Row& row) {
+    if (!o_.server.server.empty()) return load_remote_study(row);
     auto study = std::make_shared<Study>();
     const auto fetch_start = Clock::now();
     api::BuildInputs inputs;
@@ -388,13 +396,7 @@ class Batch {
       }
       inputs.label_map = map;
     } else {
-      api::DicomStudy dicom;
-      if (!row.dicom_seg.empty()) {
-        POSEWARP_ASSIGN_OR_RETURN(dicom, api::read_dicom_study(row.dicom_ct, row.dicom_seg, map));
-      } else {
-        POSEWARP_ASSIGN_OR_RETURN(dicom, fetch_from_pacs(row, map));
-      }
-      for (const std::string& w : dicom.warnings) say("row '" + row.id + "': " + w);
+      POSEWARP_ASSIGN_OR_RETURN(api::DicomStudy dicom, read_dicom(row, map));
       inputs.labels = std::move(dicom.labels);
       inputs.ct = std::move(dicom.ct.ct);
       inputs.label_map = std::move(dicom.label_map);
@@ -419,8 +421,70 @@ class Batch {
     }
     POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, api::PoseEngine::create(std::move(*rig)));
     study->engine = std::make_unique<api::PoseEngine>(std::move(engine));
+    study->label_map = study->engine->rig().label_map;
     study->rig_s = seconds_since(rig_start);
     return study;
+  }
+
+  // With --server: the study's volumes uploaded (files as they are; a DICOM study as NIfTI), its rig built there
+  // (the server's store is the rig cache: the same inputs are built once, and a rerun finds the rig at once).
+  Result<std::shared_ptr<Study>> load_remote_study(const Row& row) {
+    auto study = std::make_shared<Study>();
+    const auto fetch_start = Clock::now();
+    RemoteRigInputs inputs;
+    if (!row.labels.empty()) {
+      const auto file = [](const std::string& path) -> Result<RemoteVolumeFile> {
+        POSEWARP_ASSIGN_OR_RETURN(std::string bytes, api::read_text_input(path, "volume", int64_t{8} << 30));
+        return RemoteVolumeFile{path, std::move(bytes)};
+      };
+      POSEWARP_ASSIGN_OR_RETURN(inputs.labels, file(row.labels));
+      if (!row.ct.empty()) {
+        POSEWARP_ASSIGN_OR_RETURN(inputs.ct, file(row.ct));
+      }
+      if (!row.label_map.empty()) {
+        POSEWARP_ASSIGN_OR_RETURN(inputs.label_map_json, api::read_text_input(row.label_map, "label map"));
+      } else {
+        inputs.preset = row.preset;
+      }
+      inputs.name = fs::path(row.labels).filename().string();
+    } else {
+      POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
+                                api::load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string()));
+      POSEWARP_ASSIGN_OR_RETURN(api::DicomStudy dicom, read_dicom(row, map));
+      POSEWARP_ASSIGN_OR_RETURN(std::string labels, api::encode_volume(dicom.labels, api::VolumeFormat::kNifti, true));
+      inputs.labels = RemoteVolumeFile{"labels.nii.gz", std::move(labels)};
+      // HU as whole numbers in 16 bits where they are (the usual CT); a fractional rescale keeps floats.
+      const float* hu = dicom.ct.ct.data();
+      const bool whole = std::all_of(hu, hu + dicom.ct.ct.voxel_count(),
+                                     [](float v) { return v == std::nearbyint(v) && v >= -32768.0f && v <= 32767.0f; });
+      POSEWARP_ASSIGN_OR_RETURN(std::string ct, api::encode_volume(dicom.ct.ct, api::VolumeFormat::kNifti, true,
+                                                                   whole ? PixelType::kInt16 : PixelType::kFloat32));
+      inputs.ct = RemoteVolumeFile{"ct.nii.gz", std::move(ct)};
+      inputs.label_map_json = api::label_map_to_json(dicom.label_map);
+      inputs.name = "series " + dicom.ct.info.series_instance_uid;
+      study->label_map = std::move(dicom.label_map);
+      study->dicom = dicom.ct.info;
+    }
+    study->fetch_s = seconds_since(fetch_start);
+    const auto rig_start = Clock::now();
+    say("row '" + row.id + "': the rig of its study on " + o_.server.server);
+    POSEWARP_ASSIGN_OR_RETURN(const std::string rig_id, build_rig_remote(o_.server, inputs));
+    POSEWARP_ASSIGN_OR_RETURN(RemotePoser poser, RemotePoser::open(o_.server, rig_id));
+    study->remote = std::move(poser);
+    study->rig_s = seconds_since(rig_start);
+    return study;
+  }
+
+  // A row's DICOM study: from a directory and a SEG file, or fetched from the PACS.
+  Result<api::DicomStudy> read_dicom(const Row& row, const labels::LabelMap& map) {
+    api::DicomStudy dicom;
+    if (!row.dicom_seg.empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(dicom, api::read_dicom_study(row.dicom_ct, row.dicom_seg, map));
+    } else {
+      POSEWARP_ASSIGN_OR_RETURN(dicom, fetch_from_pacs(row, map));
+    }
+    for (const std::string& w : dicom.warnings) say("row '" + row.id + "': " + w);
+    return dicom;
   }
 
   // The CT series and SEG of a study in the PACS (the series named by the row, else its CT and its SEG).
@@ -507,21 +571,15 @@ class Batch {
       Result<skinning::Method> method = skinning::method_from_name(row.method);
       request.method = *method;
       const auto pose_start = Clock::now();
-      Result<api::PoseResult> posed = [&] {
-        std::lock_guard<std::mutex> lock(s.posing);
-        return s.engine->pose(request);
-      }();
+      Result<Posed> posed = pose(s, request);
       result.pose_s += seconds_since(pose_start);
       if (!posed.ok()) return result.error = posed.status().to_string(), result;
-      const report::QualityReport& q = posed->report;
-      result.figures = {
-          {"inverted_tets", q.mesh.inverted_tets},      {"bone_rigidity_error_mm", q.bone_rigidity_error_mm},
-          {"volume_change", q.mesh.body_volume_change}, {"new_labels", q.labels.appeared},
-          {"lost_labels", q.labels.vanished},           {"warnings", q.warnings.size()}};
+      result.figures = key_figures(posed->report_json);
       // Everything is made first; files land through a partial directory, the PACS gets each series whole.
       const auto encode_start = Clock::now();
       std::optional<api::DicomOutputs> dicom;
       if (s.dicom) {
+        if (!posed->result.ct) return result.error = "DATA_LOSS: the posed study has no CT to store", result;
         api::DerivedSeriesOptions options;
         options.uid_root = o_.uid_root;
         // The same result has the same UIDs (nothing stored twice): seeded by the source series' content (its series
@@ -534,7 +592,7 @@ class Batch {
         options.derivation_description =
             "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " + s.dicom->series_instance_uid;
         Result<api::DicomOutputs> encoded =
-            api::encode_dicom_outputs(*posed->ct, *posed->labels, s.engine->rig().label_map, *s.dicom, options);
+            api::encode_dicom_outputs(*posed->result.ct, *posed->result.labels, s.label_map, *s.dicom, options);
         if (!encoded.ok()) return result.error = encoded.status().to_string(), result;
         dicom = std::move(encoded).value();
       }
@@ -559,18 +617,58 @@ class Batch {
     return result;
   }
 
+  // A pose's volumes and its report as report.json holds it, from this process's engine or from the server.
+  struct Posed {
+    api::PoseResult result;
+    std::string report_json;
+  };
+
+  static Result<Posed> pose(Study& s, const api::PoseRequest& request) {
+    Posed posed;
+    if (s.remote) {
+      POSEWARP_ASSIGN_OR_RETURN(RemotePoseResult answer, s.remote->pose(request));
+      if (!answer.result.labels) return data_loss_error("the server's answer holds no labels; run the batch again");
+      posed.result = std::move(answer.result);
+      posed.report_json = std::move(answer.report_json);
+      return posed;
+    }
+    {
+      std::lock_guard<std::mutex> lock(s.posing);
+      POSEWARP_ASSIGN_OR_RETURN(posed.result, s.engine->pose(request));
+    }
+    posed.report_json = report::to_json(posed.result.report);
+    return posed;
+  }
+
+  // The summary's figures of a quality report (report.json's fields).
+  static json key_figures(const std::string& report_json) {
+    const json r = json::parse(report_json, nullptr, false);
+    if (!r.is_object()) return json::object();
+    const auto at = [&r](const char* section, const char* key) {
+      return r.contains(section) && r[section].is_object() && r[section].contains(key) ? r[section][key] : json();
+    };
+    return {{"inverted_tets", at("tets", "inverted")},
+            {"bone_rigidity_error_mm", at("bone_rigidity", "max_error_mm")},
+            {"volume_change", at("volume_change", "body")},
+            {"new_labels", r.value("new_labels", json::array())},
+            {"lost_labels", r.value("vanished_labels", json::array())},
+            {"warnings", r.contains("warnings") && r["warnings"].is_array() ? r["warnings"].size() : 0}};
+  }
+
   // OUT.partial filled, then renamed to OUT: a row killed midway leaves no OUT that looks finished.
-  static Status write_directory(const fs::path& out, const api::PoseResult& posed,
+  static Status write_directory(const fs::path& out, const Posed& posed,
                                 const std::optional<api::DicomOutputs>& dicom) {
     const fs::path partial = out.string() + ".partial";
     std::error_code ec;
     fs::remove_all(partial, ec);
     fs::create_directories(partial, ec);
     if (ec) return invalid_argument_error("cannot make '" + partial.string() + "': " + ec.message());
-    POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.labels, (partial / "labels.nii.gz").string()));
-    POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.ct, (partial / "ct.nii.gz").string()));
+    POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.result.labels, (partial / "labels.nii.gz").string()));
+    if (posed.result.ct) {  // a study given as labels alone has none
+      POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.result.ct, (partial / "ct.nii.gz").string()));
+    }
     POSEWARP_RETURN_IF_ERROR(
-        api::write_file_atomically((partial / "report.json").string(), report::to_json(posed.report), "report"));
+        api::write_file_atomically((partial / "report.json").string(), posed.report_json, "report"));
     if (dicom) {
       POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(*dicom, (partial / "dicom").string()));
     }
@@ -690,7 +788,9 @@ void add_batch_command(CLI::App& app) {
       "pacs_study, ct_series, seg_series; pose | animation; method; out_dir; to_pacs), or one row per study a PACS "
       "query "
       "finds. Rows run in parallel (--jobs); each study's rig is built once and cached; a state file makes a rerun "
-      "skip finished rows; a summary (JSON and CSV) gives each row's status, outputs and quality figures. Exit 0 when "
+      "skip finished rows; a summary (JSON and CSV) gives each row's status, outputs and quality figures. With "
+      "--server "
+      "the rigs are built and the poses run on posewarp-server. Exit 0 when "
       "every row succeeded, 1 otherwise");
   cmd->add_option("manifest", o->manifest, "Manifest file (.json or .csv); paths in it are relative to it");
   cmd->add_option("--jobs", o->jobs, "Rows at once")->check(CLI::Range(1, 64))->capture_default_str();
@@ -698,6 +798,10 @@ void add_batch_command(CLI::App& app) {
   cmd->add_option("--summary", o->summary, "Summary files PREFIX.json and PREFIX.csv (default: MANIFEST.summary)");
   cmd->add_option("--rig-cache", o->rig_cache, "Directory of built rigs, one per study (default: MANIFEST.rigs)");
   add_pacs_options(cmd, o->pacs);
+  cmd->add_option("--server", o->server.server,
+                  "Pose through posewarp-server at HOST:PORT: each study's volumes are uploaded once and its rig built "
+                  "there (the server keeps it; a rerun finds it), the rows' poses answered by the server");
+  add_connection_options(cmd, o->server);
   cmd->add_option("--uid-root", o->uid_root, "Root of the derived series' UIDs")->capture_default_str();
   cmd->add_option("--query", o->query,
                   "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");

@@ -5,8 +5,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstring>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <thread>
@@ -25,7 +25,9 @@ namespace fs = std::filesystem;
 
 // A failed call as the local commands report it: the server's code is the core's, so the exit code table holds.
 Status status_of(const grpc::Status& status, const std::string& server);
-int report_rpc(const grpc::Status& status, const std::string& server) { return report(status_of(status, server)); }
+int report_rpc(const grpc::Status& status, const std::string& server) {
+  return report(status_of(status, server));
+}
 
 // The channel and what every call carries: the bearer token, and the rig id (so a load balancer can keep each rig
 // on one replica).
@@ -76,8 +78,8 @@ class Remote {
       say("posewarp-server at " + server_ + " is unavailable (" + status.error_message() + "); trying again within " +
           std::to_string(wait_s).substr(0, 3) + " s");
       // Connecting meanwhile: the next try starts as soon as the server is back, or when the wait is over.
-      const auto until = std::chrono::system_clock::now() + std::chrono::duration_cast<std::chrono::milliseconds>(
-                                                                 std::chrono::duration<double>(wait_s));
+      const auto until = std::chrono::system_clock::now() +
+                         std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::duration<double>(wait_s));
       if (!channel_->WaitForConnected(until)) std::this_thread::sleep_until(until);
       wait_s *= 2.0;
       status = attempt();
@@ -105,8 +107,10 @@ class Remote {
 // A rig id where --server wants one (a rig path there is the usual slip).
 Status check_rig_id(const std::string& rig_id) {
   if (api::is_hex_id(rig_id)) return ok_status();
-  return invalid_argument_error("with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
-                                "--server` or `posewarp rig list --server`), not '" + rig_id + "'");
+  return invalid_argument_error(
+      "with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
+      "--server` or `posewarp rig list --server`), not '" +
+      rig_id + "'");
 }
 
 // A failed call as a Status: the server's code is the core's; UNAVAILABLE says where it tried.
@@ -130,14 +134,15 @@ v1::FileFormat format_of(const std::string& path) {
   return v1::FILE_FORMAT_UNSPECIFIED;
 }
 
-Result<std::string> upload(const Remote& stub, const std::string& path, v1::VolumeKind kind) {
+Result<std::string> upload(const Remote& stub, const RemoteVolumeFile& file, v1::VolumeKind kind) {
   const std::string& server = stub.server();
-  const v1::FileFormat format = format_of(path);
+  const v1::FileFormat format = format_of(file.name);
   if (format == v1::FILE_FORMAT_UNSPECIFIED) {
-    return invalid_argument_error("'" + path + "': the server takes .nii.gz, .nii, .nrrd or .mha files (convert "
+    return invalid_argument_error("'" + file.name +
+                                  "': the server takes .nii.gz, .nii, .nrrd or .mha files (convert "
                                   "others with `posewarp convert`)");
   }
-  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, api::read_text_input(path, "volume", int64_t{8} << 30));
+  const std::string& bytes = file.bytes;
   v1::Volume volume;
   const grpc::Status status = stub.with_retries([&] {
     const auto context = stub.context();
@@ -159,13 +164,13 @@ Result<std::string> upload(const Remote& stub, const std::string& path, v1::Volu
   });
   if (!status.ok()) {
     if (status.error_code() == grpc::StatusCode::UNAVAILABLE) return status_of(status, server);
-    return Status(static_cast<StatusCode>(status.error_code()), "'" + path + "': " + status.error_message());
+    return Status(static_cast<StatusCode>(status.error_code()), "'" + file.name + "': " + status.error_message());
   }
   if (volume.already_stored()) {
-    say(path + " is on the server already (volume " + volume.id().substr(0, 12) + ")");
+    say(file.name + " is on the server already (volume " + volume.id().substr(0, 12) + ")");
     return volume.id();
   }
-  say("uploaded " + path + " as volume " + volume.id().substr(0, 12));
+  say("uploaded " + file.name + " as volume " + volume.id().substr(0, 12));
   return volume.id();
 }
 
@@ -206,54 +211,75 @@ Result<Volume<T>> volume_from_samples(const std::string& bytes, v1::PixelType sa
 
 }  // namespace
 
-int run_build_remote(const RemoteBuild& o) {
-  Result<Remote> remote = Remote::open(o.connection);
-  if (!remote.ok()) return report(remote.status());
-  const Remote& stub = *remote;
-  const std::string& server = o.connection.server;
+Result<std::string> build_rig_remote(const Connection& connection, const RemoteRigInputs& inputs,
+                                     const std::function<void(const std::string&, double)>& on_stage) {
+  POSEWARP_ASSIGN_OR_RETURN(const Remote stub, Remote::open(connection));
+  const std::string& server = connection.server;
   v1::BuildRigRequest request;
-  Result<std::string> labels = upload(stub, o.labels_path, v1::VOLUME_KIND_LABELS);
-  if (!labels.ok()) return report(labels.status());
-  request.set_labels_volume_id(*labels);
-  if (!o.ct_path.empty()) {
-    Result<std::string> ct = upload(stub, o.ct_path, v1::VOLUME_KIND_INTENSITY);
-    if (!ct.ok()) return report(ct.status());
-    request.set_ct_volume_id(*ct);
+  POSEWARP_ASSIGN_OR_RETURN(*request.mutable_labels_volume_id(), upload(stub, inputs.labels, v1::VOLUME_KIND_LABELS));
+  if (inputs.ct) {
+    POSEWARP_ASSIGN_OR_RETURN(*request.mutable_ct_volume_id(), upload(stub, *inputs.ct, v1::VOLUME_KIND_INTENSITY));
   }
-  if (!o.label_map_path.empty()) {
-    Result<std::string> map = api::read_text_input(o.label_map_path, "label map");
-    if (!map.ok()) return report(map.status());
-    request.set_label_map_json(*map);
-  }
-  request.set_preset(o.preset);
-  if (!o.spec_path.empty()) {
-    Result<std::string> spec = api::read_text_input(o.spec_path, "rig spec");
-    if (!spec.ok()) return report(spec.status());
-    request.set_rig_spec_json(*spec);
-  }
-  request.set_name(o.name.empty() ? fs::path(o.labels_path).filename().string() : o.name);
+  request.set_label_map_json(inputs.label_map_json);
+  request.set_preset(inputs.preset);
+  request.set_rig_spec_json(inputs.rig_spec_json);
+  request.set_name(inputs.name.empty() ? inputs.labels.name : inputs.name);
   v1::Operation operation;
   if (grpc::Status s = stub.unary(&v1::Posewarp::Stub::BuildRig, request, &operation); !s.ok()) {
-    return report_rpc(s, server);  // a build request is idempotent: the same inputs share one operation
+    return status_of(s, server);  // a build request is idempotent: the same inputs share one operation
   }
-  // Progress as the local build shows it, from the operation's stream.
-  const ProgressHooks bar = progress_bar();
-  const auto context = stub.context();
-  v1::GetOperationRequest watch;
-  watch.set_operation_id(operation.id());
-  auto reader = stub->WatchOperation(context.get(), watch);
-  v1::Operation state;
-  while (reader->Read(&state)) {
-    operation = state;
-    if (bar.on_progress && !state.stage().empty()) bar.on_progress(state.stage(), state.stage_fraction());
-  }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return report_rpc(s, server);
+  // The operation's stream until it ends; a stream cut by a restarting server is watched again.
+  const grpc::Status watched = stub.with_retries([&] {
+    const auto context = stub.context();
+    v1::GetOperationRequest watch;
+    watch.set_operation_id(operation.id());
+    auto reader = stub->WatchOperation(context.get(), watch);
+    v1::Operation state;
+    while (reader->Read(&state)) {
+      operation = state;
+      if (on_stage && !state.stage().empty()) on_stage(state.stage(), state.stage_fraction());
+    }
+    return reader->Finish();
+  });
+  if (!watched.ok()) return status_of(watched, server);
   if (operation.state() != v1::Operation::SUCCEEDED) {
-    return report(Status(static_cast<StatusCode>(operation.error_code() == 0 ? 2 : operation.error_code()),
-                         "the build failed on the server: " + operation.error_message()));
+    return Status(static_cast<StatusCode>(operation.error_code() == 0 ? 2 : operation.error_code()),
+                  "the build failed on the server: " + operation.error_message());
   }
   say("rig " + operation.rig_id() + " built on " + server + " in " + std::to_string(operation.elapsed_s()) + " s");
-  std::printf("%s\n", operation.rig_id().c_str());
+  return operation.rig_id();
+}
+
+int run_build_remote(const RemoteBuild& o) {
+  RemoteRigInputs inputs;
+  inputs.labels.name = o.labels_path;
+  Result<std::string> bytes = api::read_text_input(o.labels_path, "volume", int64_t{8} << 30);
+  if (!bytes.ok()) return report(bytes.status());
+  inputs.labels.bytes = std::move(bytes).value();
+  if (!o.ct_path.empty()) {
+    bytes = api::read_text_input(o.ct_path, "volume", int64_t{8} << 30);
+    if (!bytes.ok()) return report(bytes.status());
+    inputs.ct = RemoteVolumeFile{o.ct_path, std::move(bytes).value()};
+  }
+  if (!o.label_map_path.empty()) {
+    bytes = api::read_text_input(o.label_map_path, "label map");
+    if (!bytes.ok()) return report(bytes.status());
+    inputs.label_map_json = std::move(bytes).value();
+  }
+  inputs.preset = o.preset;
+  if (!o.spec_path.empty()) {
+    bytes = api::read_text_input(o.spec_path, "rig spec");
+    if (!bytes.ok()) return report(bytes.status());
+    inputs.rig_spec_json = std::move(bytes).value();
+  }
+  inputs.name = o.name.empty() ? fs::path(o.labels_path).filename().string() : o.name;
+  // Progress as the local build shows it, from the operation's stream.
+  const ProgressHooks bar = progress_bar();
+  Result<std::string> rig_id = build_rig_remote(o.connection, inputs, [&bar](const std::string& stage, double f) {
+    if (bar.on_progress) bar.on_progress(stage, f);
+  });
+  if (!rig_id.ok()) return report(rig_id.status());
+  std::printf("%s\n", rig_id->c_str());
   return 0;
 }
 
@@ -265,7 +291,8 @@ int run_list_remote(const Connection& connection) {
   request.set_page_size(1000);
   for (;;) {
     v1::ListRigsResponse page;
-    if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::ListRigs, request, &page); !s.ok()) return report_rpc(s, server);
+    if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::ListRigs, request, &page); !s.ok())
+      return report_rpc(s, server);
     for (const v1::Rig& rig : page.rigs()) {
       std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
                   static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
@@ -400,8 +427,8 @@ Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest& core) const {
                                                                                header.label_pixel_type()));
   }
   if (core.want_ct && !ct.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(answer.result.ct, volume_from_samples<float>(ct, header.ct_sample_type(), grid,
-                                                                           header.ct_pixel_type()));
+    POSEWARP_ASSIGN_OR_RETURN(answer.result.ct,
+                              volume_from_samples<float>(ct, header.ct_sample_type(), grid, header.ct_pixel_type()));
   }
   answer.result.inverse_field = floats_of(inverse);
   answer.result.forward_field = floats_of(forward);
@@ -464,12 +491,21 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
     return report_rpc(s, connection.server);
   }
   if (as_json) {
-    nlohmann::json out = {{"id", rig.id()}, {"name", rig.name()}, {"size_bytes", rig.size_bytes()},
-                          {"created", rig.created()}, {"last_used", rig.last_used()},
-                          {"tet_vertices", rig.tet_vertices()}, {"tets", rig.tets()}, {"has_ct", rig.has_ct()},
-                          {"software_version", rig.software_version()}, {"segments", rig.segments()}};
+    nlohmann::json out = {{"id", rig.id()},
+                          {"name", rig.name()},
+                          {"size_bytes", rig.size_bytes()},
+                          {"created", rig.created()},
+                          {"last_used", rig.last_used()},
+                          {"tet_vertices", rig.tet_vertices()},
+                          {"tets", rig.tets()},
+                          {"has_ct", rig.has_ct()},
+                          {"software_version", rig.software_version()},
+                          {"segments", rig.segments()}};
     for (const v1::Joint& j : rig.joints()) {
-      out["joints"].push_back({{"name", j.name()}, {"parent", j.parent()}, {"child", j.child()}, {"kind", j.kind()},
+      out["joints"].push_back({{"name", j.name()},
+                               {"parent", j.parent()},
+                               {"child", j.child()},
+                               {"kind", j.kind()},
                                {"centre_mm", j.centre_mm()}});
     }
     for (const v1::StageTime& t : rig.stage_seconds()) out["stage_seconds"][t.stage()] = t.seconds();

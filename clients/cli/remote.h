@@ -6,7 +6,9 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -26,9 +28,10 @@ struct Connection {
 inline void add_connection_options(CLI::App* command, Connection& c) {
   command->add_option("--token-file", c.token_file, "File holding the server's bearer token (with --server)");
   command->add_option("--tls-ca", c.tls_ca, "CA certificate (PEM) of a TLS server (with --server)");
-  command->add_option("--retries", c.retries,
-                      "Tries again this many times, waiting 0.5, 1, 2, ... s, while the server is unavailable "
-                      "(restarting, or not up yet)")
+  command
+      ->add_option("--retries", c.retries,
+                   "Tries again this many times, waiting 0.5, 1, 2, ... s, while the server is unavailable "
+                   "(restarting, or not up yet)")
       ->check(CLI::Range(0, 10))
       ->capture_default_str();
 }
@@ -36,6 +39,18 @@ inline void add_connection_options(CLI::App* command, Connection& c) {
 struct RemoteBuild {
   Connection connection;
   std::string labels_path, ct_path, label_map_path, preset, spec_path, name;
+};
+
+// A volume file to upload: its name's extension gives the format (.nii.gz, .nii, .nrrd, .mha), `bytes` its content.
+struct RemoteVolumeFile {
+  std::string name, bytes;
+};
+
+// What a rig is built from on the server, held in memory (a batch's study read from DICOM, or its files).
+struct RemoteRigInputs {
+  RemoteVolumeFile labels;
+  std::optional<RemoteVolumeFile> ct;
+  std::string label_map_json, preset, rig_spec_json, name;
 };
 
 // A pose answered by the server, in the local engine's types: the local command's writers write the same files.
@@ -70,6 +85,10 @@ class RemotePoser {
 // rig id. Exit codes as the local commands.
 #ifdef POSEWARP_REMOTE
 int run_build_remote(const RemoteBuild& options);
+// Uploads what the server does not hold yet, asks for the build (the server builds the same inputs once; a rig it
+// has answers at once) and waits for it, reporting its stages to `on_stage` when given. Returns the rig id.
+Result<std::string> build_rig_remote(const Connection& connection, const RemoteRigInputs& inputs,
+                                     const std::function<void(const std::string&, double)>& on_stage = {});
 int run_list_remote(const Connection& connection);
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json);
 int run_delete_remote(const Connection& connection, const std::string& rig_id);
@@ -80,7 +99,13 @@ inline int remote_unavailable() {
   std::fprintf(stderr, "error: this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)\n");
   return 2;
 }
-inline int run_build_remote(const RemoteBuild&) { return remote_unavailable(); }
+inline int run_build_remote(const RemoteBuild&) {
+  return remote_unavailable();
+}
+inline Result<std::string> build_rig_remote(const Connection&, const RemoteRigInputs&,
+                                            const std::function<void(const std::string&, double)>& = {}) {
+  return unimplemented_error("this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)");
+}
 struct RemotePoser::State {};
 inline RemotePoser::RemotePoser(std::unique_ptr<State> state) : state_(std::move(state)) {}
 inline RemotePoser::RemotePoser(RemotePoser&&) noexcept = default;
@@ -89,12 +114,24 @@ inline RemotePoser::~RemotePoser() = default;
 inline Result<RemotePoser> RemotePoser::open(const Connection&, const std::string&) {
   return unimplemented_error("this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)");
 }
-inline Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest&) const { return unimplemented_error("no remote mode"); }
-inline Result<rig::Skeleton> RemotePoser::skeleton() const { return unimplemented_error("no remote mode"); }
-inline int run_list_remote(const Connection&) { return remote_unavailable(); }
-inline int run_info_remote(const Connection&, const std::string&, bool) { return remote_unavailable(); }
-inline int run_delete_remote(const Connection&, const std::string&) { return remote_unavailable(); }
-inline int run_export_remote(const Connection&, const std::string&, const std::string&) { return remote_unavailable(); }
+inline Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest&) const {
+  return unimplemented_error("no remote mode");
+}
+inline Result<rig::Skeleton> RemotePoser::skeleton() const {
+  return unimplemented_error("no remote mode");
+}
+inline int run_list_remote(const Connection&) {
+  return remote_unavailable();
+}
+inline int run_info_remote(const Connection&, const std::string&, bool) {
+  return remote_unavailable();
+}
+inline int run_delete_remote(const Connection&, const std::string&) {
+  return remote_unavailable();
+}
+inline int run_export_remote(const Connection&, const std::string&, const std::string&) {
+  return remote_unavailable();
+}
 #endif
 
 }  // namespace posewarp::cli

@@ -23,7 +23,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string in_quotes(const std::string& path) { return "'" + path + "'"; }
+std::string in_quotes(const std::string& path) {
+  return "'" + path + "'";
+}
 
 template <typename T>
 T read_field(const unsigned char* header, size_t offset, bool swap) {
@@ -38,12 +40,19 @@ T read_field(const unsigned char* header, size_t offset, bool swap) {
 // Bytes per voxel of a NIfTI datatype code; 0 when unknown.
 int nifti_bits(int16_t datatype) {
   switch (datatype) {
-    case 2: case 256: return 8;                       // uint8, int8
-    case 4: case 512: return 16;                      // int16, uint16
-    case 8: case 16: case 768: return 32;             // int32, float32, uint32
-    case 64: case 1024: case 1280: case 32: return 64;  // float64, int64, uint64, complex64
-    case 128: return 24;                              // rgb24
-    case 2304: return 32;                             // rgba32
+    case 2:
+    case 256: return 8;  // uint8, int8
+    case 4:
+    case 512: return 16;  // int16, uint16
+    case 8:
+    case 16:
+    case 768: return 32;  // int32, float32, uint32
+    case 64:
+    case 1024:
+    case 1280:
+    case 32: return 64;    // float64, int64, uint64, complex64
+    case 128: return 24;   // rgb24
+    case 2304: return 32;  // rgba32
     default: return 0;
   }
 }
@@ -147,7 +156,8 @@ Result<std::optional<bool>> nifti1_byte_order(const unsigned char (&header)[348]
   // niftilib reads whatever it is handed; ITK then aborts on the NaN it finds in the orientation. Only NIfTI-1's
   // 348-byte header is checked here, so only it is read.
   if (read_field<int32_t>(header, 0, false) == 540 || read_field<int32_t>(header, 0, true) == 540) {
-    return invalid_argument_error(in_quotes(path) + " is NIfTI-2, which posewarp does not read; save it as NIfTI-1 "
+    return invalid_argument_error(in_quotes(path) +
+                                  " is NIfTI-2, which posewarp does not read; save it as NIfTI-1 "
                                   "(.nii or .nii.gz)");
   }
   return invalid_argument_error(in_quotes(path) + " has a sizeof_hdr of " +
@@ -246,7 +256,7 @@ Status check_nifti_geometry_fields(const std::string& path) {
     int count;
     const char* name;
   };
-  constexpr Field kFields[] = {{76, 8, "pixdim"},       {108, 1, "vox_offset"}, {256, 3, "quatern_b/c/d"},
+  constexpr Field kFields[] = {{76, 8, "pixdim"},         {108, 1, "vox_offset"}, {256, 3, "quatern_b/c/d"},
                                {268, 3, "qoffset_x/y/z"}, {280, 4, "srow_x"},     {296, 4, "srow_y"},
                                {312, 4, "srow_z"}};
   for (const Field& field : kFields) {
@@ -266,7 +276,8 @@ Status check_nifti_geometry_fields(const std::string& path) {
     }
   }
   if (read_field<float>(header, 108, swap) < 0.0f) {
-    return invalid_argument_error(in_quotes(path) + " has a negative vox_offset in its NIfTI header; the header is "
+    return invalid_argument_error(in_quotes(path) +
+                                  " has a negative vox_offset in its NIfTI header; the header is "
                                   "corrupt (fix or regenerate the file)");
   }
   const int16_t sform_code = read_field<int16_t>(header, 254, swap);
@@ -309,11 +320,12 @@ Status check_nrrd_file(const std::string& path) {
   const bool gzip = encoding == "gzip" || encoding == "gz";
   if (!gzip && encoding != "raw") return ok_status();  // text, hex, bzip2: ITK reads and checks them
   static const std::map<std::string, int> kTypeBytes{
-      {"uchar", 1},  {"unsigned char", 1}, {"uint8", 1},  {"uint8_t", 1}, {"signed char", 1}, {"int8", 1},
-      {"int8_t", 1}, {"char", 1},          {"short", 2},  {"int16", 2},   {"int16_t", 2},     {"ushort", 2},
-      {"uint16", 2}, {"uint16_t", 2},      {"unsigned short", 2}, {"int", 4}, {"int32", 4}, {"int32_t", 4},
-      {"uint", 4},   {"uint32", 4},        {"uint32_t", 4}, {"unsigned int", 4}, {"float", 4}, {"double", 8},
-      {"longlong", 8}, {"int64", 8}, {"int64_t", 8}, {"ulonglong", 8}, {"uint64", 8}, {"uint64_t", 8}};
+      {"uchar", 1},    {"unsigned char", 1}, {"uint8", 1},     {"uint8_t", 1},  {"signed char", 1},
+      {"int8", 1},     {"int8_t", 1},        {"char", 1},      {"short", 2},    {"int16", 2},
+      {"int16_t", 2},  {"ushort", 2},        {"uint16", 2},    {"uint16_t", 2}, {"unsigned short", 2},
+      {"int", 4},      {"int32", 4},         {"int32_t", 4},   {"uint", 4},     {"uint32", 4},
+      {"uint32_t", 4}, {"unsigned int", 4},  {"float", 4},     {"double", 8},   {"longlong", 8},
+      {"int64", 8},    {"int64_t", 8},       {"ulonglong", 8}, {"uint64", 8},   {"uint64_t", 8}};
   const auto type = kTypeBytes.find(fields["type"]);
   if (type == kTypeBytes.end() || !fields.count("sizes")) return ok_status();
   int64_t promised = type->second;
@@ -321,7 +333,7 @@ Status check_nrrd_file(const std::string& path) {
     std::istringstream sizes(fields["sizes"]);
     int64_t size = 0;
     while (sizes >> size) {
-      if (size < 1) return ok_status();  // the header check refuses it
+      if (size < 1) return ok_status();                              // the header check refuses it
       if (size > (int64_t{1} << 40) / promised) return ok_status();  // the voxel limit refuses it (no overflow here)
       promised *= size;
     }
@@ -331,7 +343,8 @@ Status check_nrrd_file(const std::string& path) {
   const std::string detached = fields.count("data file") ? fields["data file"] : fields["datafile"];
   if (!detached.empty()) {
     if (detached.find(' ') != std::string::npos || detached == "LIST" || detached.find('%') != std::string::npos) {
-      return invalid_argument_error(in_quotes(path) + " names its voxel data as a list of files (data file); posewarp " +
+      return invalid_argument_error(in_quotes(path) +
+                                    " names its voxel data as a list of files (data file); posewarp " +
                                     "reads NRRD with its data inline (.nrrd) or in one file beside the header (.nhdr)");
     }
     POSEWARP_RETURN_IF_ERROR(check_data_file_name(path, detached, "data file", ""));
@@ -422,17 +435,31 @@ Status check_metaimage_header(const std::string& path) {
     return count == expected;
   };
   if (!numbers(fields["DimSize"], ndims, true)) return corrupt("needs DimSize as " + ndims_text + " whole numbers");
-  const std::pair<const char*, int> counted[] = {
-      {"ElementSpacing", ndims}, {"ElementSize", ndims},  {"Offset", ndims},        {"Position", ndims},
-      {"Origin", ndims},         {"CenterOfRotation", ndims}, {"TransformMatrix", ndims * ndims},
-      {"Rotation", ndims * ndims}, {"Orientation", ndims * ndims}};
+  const std::pair<const char*, int> counted[] = {{"ElementSpacing", ndims},
+                                                 {"ElementSize", ndims},
+                                                 {"Offset", ndims},
+                                                 {"Position", ndims},
+                                                 {"Origin", ndims},
+                                                 {"CenterOfRotation", ndims},
+                                                 {"TransformMatrix", ndims * ndims},
+                                                 {"Rotation", ndims * ndims},
+                                                 {"Orientation", ndims * ndims}};
   for (const auto& [key, count] : counted) {
     if (fields.count(key) && !numbers(fields[key], count, false)) {
       return corrupt("needs " + std::string(key) + " as " + std::to_string(count) + " finite numbers");
     }
   }
   for (const char* key : {"HeaderSize", "CompressedDataSize", "ElementNumberOfChannels"}) {
-    if (fields.count(key) && !numbers(fields[key], 1, true)) return corrupt("needs " + std::string(key) + " as a number");
+    if (fields.count(key) && !numbers(fields[key], 1, true))
+      return corrupt("needs " + std::string(key) + " as a number");
+  }
+  // MetaIO allocates CompressedDataSize bytes as given: a negative size became a 2^64-byte allocation (found by
+  // fuzzing). HeaderSize -1 means "the data ends the file"; other negative sizes mean nothing.
+  if (fields.count("CompressedDataSize") && std::atof(fields["CompressedDataSize"].c_str()) < 0) {
+    return corrupt("declares a negative CompressedDataSize");
+  }
+  if (fields.count("HeaderSize") && std::atof(fields["HeaderSize"].c_str()) < -1) {
+    return corrupt("declares a negative HeaderSize other than -1");
   }
   if (fields.count("ElementNumberOfChannels") && std::abs(std::atof(fields["ElementNumberOfChannels"].c_str())) > 16) {
     return corrupt("declares more than 16 channels per voxel");
@@ -469,10 +496,10 @@ Status check_metaimage_file(const std::string& path) {
     return invalid_argument_error(in_quotes(path) + " is not a complete MetaImage header (it needs DimSize, " +
                                   "ElementType and an ElementDataFile line ending the header); the file is damaged");
   }
-  static const std::map<std::string, int> kElementBytes{
-      {"MET_UCHAR", 1}, {"MET_CHAR", 1},   {"MET_USHORT", 2}, {"MET_SHORT", 2},  {"MET_UINT", 4},
-      {"MET_INT", 4},   {"MET_FLOAT", 4},  {"MET_ULONG", 8},  {"MET_LONG", 8},   {"MET_DOUBLE", 8},
-      {"MET_ULONG_LONG", 8}, {"MET_LONG_LONG", 8}};
+  static const std::map<std::string, int> kElementBytes{{"MET_UCHAR", 1},  {"MET_CHAR", 1},       {"MET_USHORT", 2},
+                                                        {"MET_SHORT", 2},  {"MET_UINT", 4},       {"MET_INT", 4},
+                                                        {"MET_FLOAT", 4},  {"MET_ULONG", 8},      {"MET_LONG", 8},
+                                                        {"MET_DOUBLE", 8}, {"MET_ULONG_LONG", 8}, {"MET_LONG_LONG", 8}};
   auto element = kElementBytes.find(fields["ElementType"]);
   if (element == kElementBytes.end()) return ok_status();
   int64_t voxels = 1;
@@ -533,17 +560,17 @@ Status check_metaimage_file(const std::string& path) {
     // The stream must inflate to every voxel the header promises, checked before anything is allocated: ITK
     // allocates the whole grid first and only prints "Uncompress failed" when the data runs out.
     const int64_t promised = voxels * channels * element->second;
-    const std::string data_path =
-        data_file == "LOCAL" ? path : (fs::path(path).parent_path() / data_file).string();
-    const int64_t inflated = inflated_size(data_path, data_file == "LOCAL" ? static_cast<int64_t>(data_offset) : 0,
-                                           promised);
+    const std::string data_path = data_file == "LOCAL" ? path : (fs::path(path).parent_path() / data_file).string();
+    const int64_t inflated =
+        inflated_size(data_path, data_file == "LOCAL" ? static_cast<int64_t>(data_offset) : 0, promised);
     if (inflated < 0) {
-      return data_loss_error("the compressed data of " + in_quotes(path) + " is corrupt or truncated; copy the file again");
+      return data_loss_error("the compressed data of " + in_quotes(path) +
+                             " is corrupt or truncated; copy the file again");
     }
     if (inflated < promised) {
       return data_loss_error("the compressed data of " + in_quotes(path) + " holds " + std::to_string(inflated) +
-                             " bytes, but its header promises " + std::to_string(promised) +
-                             " (DimSize " + fields["DimSize"] + "); the file is damaged or not what it claims");
+                             " bytes, but its header promises " + std::to_string(promised) + " (DimSize " +
+                             fields["DimSize"] + "); the file is damaged or not what it claims");
     }
   }
   const int64_t needed = compressed && fields.count("CompressedDataSize")
