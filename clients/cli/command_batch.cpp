@@ -604,8 +604,13 @@ class Batch {
       result.encode_s += seconds_since(encode_start);
       if (row.to_pacs && dicom) {
         const auto store_start = Clock::now();
+        // The series and its SEG side by side (the PACS ingests them in two of its workers); a row that fails here
+        // is stored again whole by a rerun, under the same UIDs.
+        std::future<Status> seg = std::async(
+            std::launch::async, [&] { return pacs_->store({dicom->seg_file}, s.dicom->study_instance_uid); });
         Status stored = pacs_->store(dicom->ct_files, s.dicom->study_instance_uid);
-        if (stored.ok()) stored = pacs_->store({dicom->seg_file}, s.dicom->study_instance_uid);
+        const Status seg_stored = seg.get();
+        if (stored.ok()) stored = seg_stored;
         if (!stored.ok()) return result.error = stored.to_string(), result;
         result.store_s += seconds_since(store_start);
         result.outputs.push_back("pacs:" + dicom->ct.series_instance_uid);

@@ -87,10 +87,10 @@ int run_store(const StoreOptions& o) {
   if (!options.ok()) return report(options.status());
   const pacs::DicomWebClient client(*options);
   for (const std::string& path : o.paths) {
-    Result<std::vector<std::string>> instances = api::read_dicom_files(path);
-    if (!instances.ok()) return report(instances.status());
-    if (Status s = client.store(*instances); !s.ok()) return report(s.with_context(path));
-    say("stored " + std::to_string(instances->size()) + " instances from " + path);
+    Result<std::vector<std::string>> files = api::list_dicom_files(path);
+    if (!files.ok()) return report(files.status());
+    if (Status s = client.store_files(*files); !s.ok()) return report(s.with_context(path));
+    say("stored " + std::to_string(files->size()) + " instances from " + path);
   }
   return 0;
 }

@@ -21,10 +21,10 @@
 #include <mutex>
 #include <random>
 
+#include "part10.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
 #include "posewarp/common/sha256.h"
-#include "part10.h"
 
 namespace posewarp::dicom {
 namespace fs = std::filesystem;
@@ -399,7 +399,7 @@ bool is_dicom_file(const std::string& path) {
   return in.read(head, sizeof head) && std::string(head + 128, 4) == "DICM";
 }
 
-Result<std::vector<std::string>> read_dicom_files(const std::string& path) {
+Result<std::vector<std::string>> list_dicom_files(const std::string& path) {
   std::error_code ec;
   std::vector<std::string> files;
   if (fs::is_directory(path, ec)) {
@@ -410,9 +410,15 @@ Result<std::vector<std::string>> read_dicom_files(const std::string& path) {
     files.push_back(path);
   }
   if (files.empty()) {
-    return not_found_error("'" + path + "' is not a DICOM file (Part 10, with a DICM preamble) or a directory holding some");
+    return not_found_error("'" + path +
+                           "' is not a DICOM file (Part 10, with a DICM preamble) or a directory holding some");
   }
   std::sort(files.begin(), files.end());
+  return files;
+}
+
+Result<std::vector<std::string>> read_dicom_files(const std::string& path) {
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<std::string> files, list_dicom_files(path));
   std::vector<std::string> instances;
   for (const std::string& file : files) {
     std::string bytes;

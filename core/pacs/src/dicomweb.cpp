@@ -4,8 +4,10 @@
 #include <curl/curl.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -87,6 +89,44 @@ std::string new_boundary() {
   return text;
 }
 
+// Where a request body stands: the piece being sent and how much of it has gone.
+struct BodyCursor {
+  const std::vector<DicomWebClient::BodyPiece>* pieces = nullptr;
+  size_t index = 0;
+  uint64_t offset = 0;
+  std::ifstream file;
+  std::string failed;  // the file that could not be read as announced
+};
+
+size_t read_body(char* out, size_t size, size_t count, void* data) {
+  BodyCursor& c = *static_cast<BodyCursor*>(data);
+  const size_t room = size * count;
+  size_t written = 0;
+  while (written < room && c.index < c.pieces->size()) {
+    const DicomWebClient::BodyPiece& piece = (*c.pieces)[c.index];
+    const size_t n = static_cast<size_t>(std::min<uint64_t>(room - written, piece.size() - c.offset));
+    if (!piece.path.empty()) {
+      if (!c.file.is_open()) c.file.open(piece.path, std::ios::binary);
+      c.file.read(out + written, static_cast<std::streamsize>(n));
+      if (!c.file || static_cast<size_t>(c.file.gcount()) != n) {  // gone, unreadable, or shorter than announced
+        c.failed = piece.path;
+        return CURL_READFUNC_ABORT;
+      }
+    } else {
+      const std::string& bytes = piece.bytes != nullptr ? *piece.bytes : piece.text;
+      std::memcpy(out + written, bytes.data() + c.offset, n);
+    }
+    written += n;
+    c.offset += n;
+    if (c.offset == piece.size()) {
+      ++c.index;
+      c.offset = 0;
+      if (c.file.is_open()) c.file.close();
+    }
+  }
+  return written;
+}
+
 bool transient(CURLcode code) {
   switch (code) {
     case CURLE_COULDNT_CONNECT:
@@ -108,7 +148,7 @@ DicomWebClient::DicomWebClient(DicomWebOptions options) : options_(std::move(opt
 
 Result<DicomWebClient::Response> DicomWebClient::request(const std::string& method, const std::string& url,
                                                          const std::vector<std::string>& headers,
-                                                         const std::string& payload,
+                                                         const std::vector<BodyPiece>* body,
                                                          const std::string& body_file) const {
   std::string last_error;
   for (int attempt = 0; attempt <= std::max(0, options_.retries); ++attempt) {
@@ -136,10 +176,17 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
       curl_easy_setopt(c, CURLOPT_USERNAME, options_.username.c_str());
       curl_easy_setopt(c, CURLOPT_PASSWORD, options_.password.c_str());
     }
+    BodyCursor cursor;  // from the start on every attempt
+    const std::vector<BodyPiece> no_body;
     if (method == "POST") {
+      if (body == nullptr) body = &no_body;
+      uint64_t total = 0;
+      for (const BodyPiece& piece : *body) total += piece.size();
+      cursor.pieces = body;
       curl_easy_setopt(c, CURLOPT_POST, 1L);
-      curl_easy_setopt(c, CURLOPT_POSTFIELDS, payload.data());
-      curl_easy_setopt(c, CURLOPT_POSTFIELDSIZE_LARGE, static_cast<curl_off_t>(payload.size()));
+      curl_easy_setopt(c, CURLOPT_READFUNCTION, read_body);
+      curl_easy_setopt(c, CURLOPT_READDATA, &cursor);
+      curl_easy_setopt(c, CURLOPT_POSTFIELDSIZE_LARGE, static_cast<curl_off_t>(total));
     }
     Response response;
     std::unique_ptr<FILE, int (*)(FILE*)> file(nullptr, std::fclose);
@@ -156,6 +203,10 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
     if (file && std::fflush(file.get()) != 0) return data_loss_error("cannot write '" + body_file + "' (disk full?)");
     if (code == CURLE_WRITE_ERROR) {
       return data_loss_error("cannot keep what the PACS sent in '" + body_file + "' (disk full?)");
+    }
+    if (code == CURLE_ABORTED_BY_CALLBACK && !cursor.failed.empty()) {
+      return data_loss_error("'" + cursor.failed +
+                             "' could not be read as it was sent (changed or removed meanwhile?)");
     }
     if (code != CURLE_OK) {
       last_error = std::string(curl_easy_strerror(code));
@@ -182,7 +233,7 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
 
 Result<std::vector<DicomWebRecord>> DicomWebClient::search(const std::string& path, const std::string& query) const {
   const std::string url = options_.base_url + path + (query.empty() ? "" : "?" + query);
-  POSEWARP_ASSIGN_OR_RETURN(const Response r, request("GET", url, {"Accept: application/dicom+json"}, ""));
+  POSEWARP_ASSIGN_OR_RETURN(const Response r, request("GET", url, {"Accept: application/dicom+json"}, nullptr));
   if (r.status == 204) return std::vector<DicomWebRecord>{};
   if (r.status != 200) {
     return invalid_argument_error("the PACS answered HTTP " + std::to_string(r.status) + " to the search " + path +
@@ -221,7 +272,7 @@ Result<std::vector<std::string>> DicomWebClient::retrieve_series(const std::stri
   if (ec) return invalid_argument_error("cannot make the directory '" + directory + "': " + ec.message());
   const std::string body = (fs::path(directory) / ".wado-body.partial").string();
   const std::string url = options_.base_url + "/studies/" + study_uid + "/series/" + series_uid;
-  Result<Response> r = request("GET", url, {"Accept: multipart/related; type=\"application/dicom\""}, "", body);
+  Result<Response> r = request("GET", url, {"Accept: multipart/related; type=\"application/dicom\""}, nullptr, body);
   if (!r.ok()) {
     fs::remove(body, ec);
     return r.status();
@@ -238,24 +289,43 @@ Result<std::vector<std::string>> DicomWebClient::retrieve_series(const std::stri
 }
 
 Status DicomWebClient::store(const std::vector<std::string>& instances, const std::string& study_uid) const {
-  if (instances.empty()) return ok_status();
-  const std::string boundary = new_boundary();
-  std::string payload;
-  size_t total = 0;
-  for (const std::string& i : instances) total += i.size() + 100;
-  payload.reserve(total);
-  for (const std::string& instance : instances) {
-    payload.append("--").append(boundary).append("\r\nContent-Type: application/dicom\r\n\r\n");
-    payload.append(instance).append("\r\n");
+  std::vector<BodyPiece> parts(instances.size());
+  for (size_t i = 0; i < instances.size(); ++i) parts[i].bytes = &instances[i];
+  return stow(std::move(parts), study_uid);
+}
+
+Status DicomWebClient::store_files(const std::vector<std::string>& paths, const std::string& study_uid) const {
+  std::vector<BodyPiece> parts(paths.size());
+  for (size_t i = 0; i < paths.size(); ++i) {
+    std::error_code ec;
+    parts[i].path = paths[i];
+    parts[i].file_size = fs::file_size(paths[i], ec);
+    if (ec) return not_found_error("cannot read '" + paths[i] + "': " + ec.message());
   }
-  payload.append("--").append(boundary).append("--\r\n");
+  return stow(std::move(parts), study_uid);
+}
+
+Status DicomWebClient::stow(std::vector<BodyPiece> parts, const std::string& study_uid) const {
+  if (parts.empty()) return ok_status();
+  const std::string boundary = new_boundary();
+  std::vector<BodyPiece> body;
+  body.reserve(2 * parts.size() + 1);
+  for (size_t i = 0; i < parts.size(); ++i) {
+    BodyPiece head;
+    head.text = std::string(i == 0 ? "" : "\r\n") + "--" + boundary + "\r\nContent-Type: application/dicom\r\n\r\n";
+    body.push_back(std::move(head));
+    body.push_back(std::move(parts[i]));
+  }
+  BodyPiece tail;
+  tail.text = "\r\n--" + boundary + "--\r\n";
+  body.push_back(std::move(tail));
   const std::string url = options_.base_url + "/studies" + (study_uid.empty() ? "" : "/" + study_uid);
   POSEWARP_ASSIGN_OR_RETURN(
       const Response r,
       request("POST", url,
               {"Content-Type: multipart/related; type=\"application/dicom\"; boundary=" + boundary,
                "Accept: application/dicom+json", "Expect:"},  // no "100-continue" wait: the body goes at once
-              payload));
+              &body));
   // 200: all stored; 202: some failed (FailedSOPSequence, 0008,1198); 409: none stored.
   const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);
   const bool failures = !doc.is_discarded() && doc.is_object() && doc.contains("00081198") &&

@@ -20,6 +20,7 @@ using dicom::is_dicom_file;
 using dicom::new_uid;
 using dicom::read_ct_directory;
 using dicom::read_ct_series;
+using dicom::list_dicom_files;
 using dicom::read_dicom_files;
 using dicom::read_segmentation;
 using dicom::Segment;

@@ -36,8 +36,10 @@ struct CtSeries {
 Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid = "");
 // True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
 bool is_dicom_file(const std::string& path);
-// The bytes of a DICOM file, or of a directory's DICOM files in name order (other files and subdirectories are
-// skipped); NOT_FOUND when there are none.
+// A DICOM file, or a directory's DICOM files in name order (other files and subdirectories are skipped); NOT_FOUND
+// when there are none.
+Result<std::vector<std::string>> list_dicom_files(const std::string& path);
+// The bytes of those files.
 Result<std::vector<std::string>> read_dicom_files(const std::string& path);
 // read_ct_series from a directory's DICOM files.
 Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid = "");

@@ -41,15 +41,29 @@ class DicomWebClient {
                                                    const std::string& directory) const;
   // STOW-RS: instances (Part 10 bytes) stored in one request (to /studies/{study} when a study is given).
   Status store(const std::vector<std::string>& instances, const std::string& study_uid = "") const;
+  // The same from files, read as the request goes (a series of any size is never held in memory).
+  Status store_files(const std::vector<std::string>& paths, const std::string& study_uid = "") const;
+
+  // A request body sent piece by piece: text, bytes the caller keeps alive, or a file read in blocks.
+  struct BodyPiece {
+    std::string text;
+    const std::string* bytes = nullptr;
+    std::string path;
+    uint64_t file_size = 0;
+    uint64_t size() const { return !path.empty() ? file_size : bytes != nullptr ? bytes->size() : text.size(); }
+  };
 
  private:
   struct Response {
     long status = 0;
     std::string body, content_type;
   };
-  // One request with retries; `body_file` (optional) receives the body instead of Response::body.
+  // One request with retries; `body` (optional) is sent (a POST), `body_file` (optional) receives the answer's body
+  // instead of Response::body.
   Result<Response> request(const std::string& method, const std::string& url, const std::vector<std::string>& headers,
-                           const std::string& payload, const std::string& body_file = "") const;
+                           const std::vector<BodyPiece>* body, const std::string& body_file = "") const;
+  // STOW-RS of parts (each an instance), framed as multipart/related.
+  Status stow(std::vector<BodyPiece> parts, const std::string& study_uid) const;
   Result<std::vector<DicomWebRecord>> search(const std::string& path, const std::string& query) const;
   DicomWebOptions options_;
 };
