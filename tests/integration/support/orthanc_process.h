@@ -13,6 +13,7 @@
 #include <iterator>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "free_port.h"
 #include "posewarp/pacs/dicomweb.h"
@@ -26,7 +27,12 @@ constexpr const char* kOrthancDicomWebPlugin = "/usr/share/orthanc/plugins/libOr
 // Orthanc with its own storage, HTTP on a free loopback port, user posewarp / s3cret, DICOMweb under /dicom-web/.
 class OrthancProcess {
  public:
-  explicit OrthancProcess(const fs::path& dir) : dir_(dir), port_(free_port()) {
+  // `extra_json`: more members of the configuration object (e.g. "\"StableAge\": 1"); `plugins`: more plugins.
+  explicit OrthancProcess(const fs::path& dir, const std::string& extra_json = "",
+                          const std::vector<std::string>& plugins = {})
+      : dir_(dir), port_(free_port()) {
+    std::string plugin_list = std::string("\"") + kOrthancDicomWebPlugin + "\"";
+    for (const std::string& p : plugins) plugin_list += ", \"" + p + "\"";
     fs::create_directories(dir / "storage");
     std::ofstream(dir / "orthanc.json") << R"({
       "Name": "posewarp-test", "StorageDirectory": ")"
@@ -35,8 +41,8 @@ class OrthancProcess {
                                         << R"(",
       "HttpPort": )" << port_ << R"(, "DicomServerEnabled": false, "RemoteAccessAllowed": false,
       "AuthenticationEnabled": true, "RegisteredUsers": {"posewarp": "s3cret"},
-      "Plugins": [")" << kOrthancDicomWebPlugin
-                                        << R"("], "DicomWeb": {"Enable": true, "Root": "/dicom-web/"}})";
+      "Plugins": [)" << plugin_list << R"(], "DicomWeb": {"Enable": true, "Root": "/dicom-web/"})"
+                                        << (extra_json.empty() ? "" : ", " + extra_json) << "}";
     pid_ = ::fork();
     if (pid_ == 0) {
       const std::string log = (dir / "orthanc.log").string();
@@ -74,6 +80,8 @@ class OrthancProcess {
     return o;
   }
   bool ready() const { return ready_; }
+  int port() const { return port_; }
+  const fs::path& directory() const { return dir_; }
   std::string log() const {
     std::ifstream in(dir_ / "orthanc.log");
     return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
