@@ -272,22 +272,31 @@ class Batch {
   int run() {
     if (Status s = open_pacs(); !s.ok()) return report(s);
     // Rows the state file says are done are skipped.
-    std::set<std::string> done;
+    std::map<std::string, std::vector<std::string>> done;  // row key -> its outputs
     {
       std::ifstream in(o_.state);
       for (std::string line; std::getline(in, line);) {
         const json entry = json::parse(line, nullptr, false);
-        if (entry.is_object() && entry.value("status", "") == "done") done.insert(entry.value("key", ""));
+        if (entry.is_object() && entry.value("status", "") == "done") {
+          std::vector<std::string>& outputs = done[entry.value("key", "")];
+          if (entry.contains("outputs") && entry["outputs"].is_array()) {
+            for (const json& out : entry["outputs"]) {
+              if (out.is_string()) outputs.push_back(out.get<std::string>());
+            }
+          }
+        }
       }
     }
     results_.resize(rows_.size());
     std::vector<size_t> todo;
     for (size_t i = 0; i < rows_.size(); ++i) {
       keys_.push_back(row_key(rows_[i]));
-      if (done.count(keys_[i])) {
+      if (const auto found = done.find(keys_[i]); found != done.end()) {
         results_[i].status = "skipped";
+        results_[i].outputs = found->second;  // as the run that did it recorded them
       } else {
         todo.push_back(i);
+        ++rows_left_[rows_[i].study_key()];
       }
     }
     say("batch: " + std::to_string(rows_.size()) + " rows, " + std::to_string(rows_.size() - todo.size()) +
@@ -314,6 +323,7 @@ class Batch {
             results_[i].error = std::string("INTERNAL: ") + error.what();
           }
           --running_;
+          release_study(rows_[i]);
           (results_[i].status == "done" ? finished_ok_ : failed_)++;
           if (results_[i].status != "done") say("row '" + rows_[i].id + "' failed: " + results_[i].error);
         }
@@ -353,6 +363,13 @@ class Batch {
       line += ", about " + std::to_string(static_cast<int>(eta)) + " s left";
     }
     return line;
+  }
+
+  // A study whose last row has finished is let go (its engine, volumes and rig), so a batch of many studies holds
+  // only those still being posed.
+  void release_study(const Row& row) {
+    std::lock_guard<std::mutex> lock(studies_mutex_);
+    if (--rows_left_[row.study_key()] == 0) studies_.erase(row.study_key());
   }
 
   // The study of a row, loaded once: its rig from the cache, or built (other rows of the study wait for it).
@@ -753,6 +770,7 @@ class Batch {
   std::mutex studies_mutex_, state_mutex_;
   std::map<std::string, std::shared_future<Result<std::shared_ptr<Study>>>> studies_;
   std::set<std::string> charged_;
+  std::map<std::string, int> rows_left_;  // rows of each study still to run
   std::atomic<int> running_{0}, finished_ok_{0}, failed_{0};
 };
 

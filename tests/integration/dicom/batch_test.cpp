@@ -102,6 +102,13 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "batch.json").string()}, log) >> 8, 1);
   EXPECT_NE(text(log).find("3 done before (skipped)"), std::string::npos) << text(log);
   EXPECT_EQ(lines_of(dir_ / "batch.state.jsonl"), 3u);
+  // The skipped rows' outputs are those the run that did them recorded.
+  const nlohmann::json rerun = nlohmann::json::parse(text(dir_ / "batch.summary.json"));
+  for (const auto& row : rerun["rows"]) {
+    if (row["id"] == "wrong-joint") continue;
+    EXPECT_EQ(row["status"], "skipped") << row.dump();
+    EXPECT_EQ(row["outputs"], by_id[row["id"]]["outputs"]) << row.dump();
+  }
 }
 
 TEST_F(Batch, ACsvManifestKilledInTheMiddleIsCompletedByARerun) {
