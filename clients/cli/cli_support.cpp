@@ -62,8 +62,8 @@ Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const 
     for (const std::string& input : inputs) {
       if (input.empty()) continue;
       std::error_code ec_in;
-      const bool same = fs::exists(output, ec) ? fs::equivalent(output, input, ec_in)
-                                               : fs::weakly_canonical(input, ec_in) == out;
+      const bool same =
+          fs::exists(output, ec) ? fs::equivalent(output, input, ec_in) : fs::weakly_canonical(input, ec_in) == out;
       if (same && !ec_in) {
         return invalid_argument_error("the output '" + output + "' is the input '" + input +
                                       "'; writing it would destroy the input. Choose another output path");

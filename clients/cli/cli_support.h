@@ -7,9 +7,9 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/api/files.h"
 #include "posewarp/common/progress.h"
 #include "posewarp/common/status.h"
-#include "posewarp/api/files.h"
 
 namespace posewarp::cli {
 

@@ -44,7 +44,8 @@ int write_phantom(const api::Phantom& p, const PhantomOptions& options) {
 
 void add_phantom_commands(CLI::App& app) {
   CLI::App* group = app.add_subcommand(
-      "phantom", "Write a synthetic body with exactly known joint centres (label + CT volumes, label map, joints.json)");
+      "phantom",
+      "Write a synthetic body with exactly known joint centres (label + CT volumes, label map, joints.json)");
   group->require_subcommand(1);
   const std::vector<std::string> extensions{".nii.gz", ".nii", ".nrrd", ".mha"};
   {
@@ -102,8 +103,8 @@ void add_phantom_commands(CLI::App& app) {
         "cervical spine, skull; clavicles, scapulae lying on the ribs with an acromion and a shallow glenoid,\n"
         "humerus (head r 22, trochlea), forearm (notch round the trochlea), hand. Hips and shoulders are balls,\n"
         "knees, elbows and ankles hinges about +x (axis in joints.json), the rest flat ends across a soft gap.\n"
-        "Default grid: anisotropic (" + spacing_text(options->body.spacing_mm) +
-            " mm) and oblique (8 deg about (1, 2, 6)), about 16M voxels.");
+        "Default grid: anisotropic (" +
+            spacing_text(options->body.spacing_mm) + " mm) and oblique (8 deg about (1, 2, 6)), about 16M voxels.");
     cmd->add_option("-o,--out-dir", options->out_dir, "Output directory")->required();
     cmd->add_option("--spacing", options->spacing, "Voxel spacing X,Y,Z along the index axes, mm")
         ->delimiter(',')

@@ -1,19 +1,19 @@
 // Pose commands: pose (one pose of a rig, written as volumes, surfaces, fields and a report) and animate (a BVH
 // range, frame by frame).
 #include <chrono>
-#include <optional>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include "cli_support.h"
-#include "remote.h"
-#include "posewarp/api/pose_engine.h"
-#include "posewarp/api/rig_file.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "remote.h"
 
 namespace posewarp::cli {
 namespace {
@@ -130,8 +130,9 @@ void summarize(const api::PoseResult& result) {
   say(line);
   if (r.bone_voxels > 0 || !r.voxel_rigidity.empty()) {
     say("bones: " + std::to_string(r.bone_voxels) + " voxels mapped rigidly, largest voxel deviation " +
-        fixed(r.bone_voxel_deviation_mm, 2) + " mm, " + std::to_string(r.bone_overlaps.size()) + " overlapping pairs; " +
-        std::to_string(r.skin_contact_voxels) + " voxels kept from showing tissue across a skin contact");
+        fixed(r.bone_voxel_deviation_mm, 2) + " mm, " + std::to_string(r.bone_overlaps.size()) +
+        " overlapping pairs; " + std::to_string(r.skin_contact_voxels) +
+        " voxels kept from showing tissue across a skin contact");
   }
   for (const report::JointRegionChange& c : r.joint_regions) {
     say("  " + c.joint + " within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm: soft tissue " +
@@ -149,13 +150,19 @@ void summarize(const api::PoseResult& result) {
   }
   std::string timings = "timings:";
   double total = 0.0;
-  for (const auto& [stage, seconds] : r.stage_seconds) timings += " " + stage + " " + fixed(1000.0 * seconds, 1) + " ms,", total += seconds;
+  for (const auto& [stage, seconds] : r.stage_seconds)
+    timings += " " + stage + " " + fixed(1000.0 * seconds, 1) + " ms,", total += seconds;
   say(timings + " total " + fixed(1000.0 * total, 1) + " ms");
 }
 
 Result<api::PoseEngine> load_engine(const std::string& path) {
   POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::load_rig(path));
   return api::PoseEngine::create(std::move(rig), progress_bar());
+}
+
+Status foreign_dicom_source(const std::string& path) {
+  return invalid_argument_error("--dicom-source '" + path + "' is not the CT series the rig was built from (its grid " +
+                                "differs): the derived series would be filed in another study");
 }
 
 // Two grids over the same voxels (one may run an axis the other way, as a DICOM series stacks its slices).
@@ -166,7 +173,8 @@ bool same_place(const ImageGeometry& a, const ImageGeometry& b) {
   }
   // The corners of one are corners of the other.
   for (int corner = 0; corner < 8; ++corner) {
-    const Vec3 index{corner & 1 ? static_cast<double>(a.size[0] - 1) : 0.0, corner & 2 ? static_cast<double>(a.size[1] - 1) : 0.0,
+    const Vec3 index{corner & 1 ? static_cast<double>(a.size[0] - 1) : 0.0,
+                     corner & 2 ? static_cast<double>(a.size[1] - 1) : 0.0,
                      corner & 4 ? static_cast<double>(a.size[2] - 1) : 0.0};
     const Vec3 at = b.physical_to_index(a.index_to_physical(index));
     for (int axis = 0; axis < 3; ++axis) {
@@ -184,15 +192,15 @@ Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const ap
   if (!result.ct || !result.labels) return internal_error("the pose returned no CT or labels for the DICOM output");
   api::DerivedSeriesOptions options;
   options.uid_root = o.uid_root;
-  options.series_description = o.series_description.empty()
-                                   ? "posewarp: " + pose_name + " (" + o.output.method + ")"
-                                   : o.series_description;
-  options.derivation_description = "re-posed by posewarp (" + pose_name + ", " + o.output.method + ") from series " +
-                                   source.series_instance_uid;
+  options.series_description =
+      o.series_description.empty() ? "posewarp: " + pose_name + " (" + o.output.method + ")" : o.series_description;
+  options.derivation_description =
+      "re-posed by posewarp (" + pose_name + ", " + o.output.method + ") from series " + source.series_instance_uid;
   POSEWARP_ASSIGN_OR_RETURN(const api::DicomOutputs outputs,
                             api::encode_dicom_outputs(*result.ct, *result.labels, map, source, options));
   POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(outputs, o.dicom_out));
-  say("wrote the derived CT series (" + std::to_string(outputs.ct_files.size()) + " images) and its SEG to " + o.dicom_out);
+  say("wrote the derived CT series (" + std::to_string(outputs.ct_files.size()) + " images) and its SEG to " +
+      o.dicom_out);
   return ok_status();
 }
 
@@ -213,8 +221,9 @@ int run_pose(const PoseOptions& o) {
   }
   if (!o.dicom_out.empty()) {
     if (o.dicom_source.empty()) {
-      return report(invalid_argument_error("--dicom-out needs --dicom-source DIR: the CT series the rig was built "
-                                           "from (its patient, study and images are referenced)"));
+      return report(
+          invalid_argument_error("--dicom-out needs --dicom-source DIR: the CT series the rig was built "
+                                 "from (its patient, study and images are referenced)"));
     }
     Result<api::CtSeries> source = api::read_ct_directory(o.dicom_source);
     if (!source.ok()) return report(source.status().with_context("--dicom-source"));
@@ -232,6 +241,14 @@ int run_pose(const PoseOptions& o) {
   if (!o.connection.server.empty()) {
     Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
     if (!poser.ok()) return report(poser.status());
+    // For DICOM out, the rig (its label map names the segments; its grid must be --dicom-source's), before posing.
+    std::optional<labels::LabelMap> map;
+    if (dicom_source) {
+      Result<api::Rig> rig = poser->rig();
+      if (!rig.ok()) return report(rig.status());
+      if (!same_place(*dicom_grid, rig->source_geometry)) return report(foreign_dicom_source(o.dicom_source));
+      map = std::move(rig->label_map);
+    }
     Result<RemotePoseResult> answer = poser->pose(*request);
     if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
     for (const std::string& warning : answer->warnings) say("warning: " + warning);
@@ -239,8 +256,6 @@ int run_pose(const PoseOptions& o) {
                                    o.report_out, answer->source_grid);
     if (!written.ok()) return report(written);
     if (dicom_source) {
-      Result<labels::LabelMap> map = poser->label_map();
-      if (!map.ok()) return report(map.status());
       if (Status s = write_dicom(o, *dicom_source, answer->result, *map, pose_name); !s.ok()) return report(s);
     }
     Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
@@ -250,8 +265,7 @@ int run_pose(const PoseOptions& o) {
   if (!engine.ok()) return report(engine.status());
   // The derived series is filed in --dicom-source's study: that series must be the one the rig was built from.
   if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
-    return report(invalid_argument_error("--dicom-source '" + o.dicom_source + "' is not the CT series the rig was built "
-                                         "from (its grid differs): the derived series would be filed in another study"));
+    return report(foreign_dicom_source(o.dicom_source));
   }
   // Checked here too (pose() checks again) so that a pose that does not fit the rig names its file.
   if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
@@ -264,7 +278,8 @@ int run_pose(const PoseOptions& o) {
                                  o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
   if (dicom_source) {
-    if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok()) return report(s);
+    if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok())
+      return report(s);
   }
   Status surfaces = write_surfaces(*result, o.surfaces_out, o.output.surface_format);
   if (!surfaces.ok()) return report(surfaces);
@@ -344,8 +359,9 @@ int run_animate(const AnimateOptions& o) {
     char stem[32];
     std::snprintf(stem, sizeof(stem), "frame_%04zu", f);
     const fs::path dir(o.out_dir);
-    if (Status s = write_surfaces(answer->result, o.surfaces_dir.empty() ? "" : (fs::path(o.surfaces_dir) / stem).string(),
-                                  o.output.surface_format);
+    if (Status s =
+            write_surfaces(answer->result, o.surfaces_dir.empty() ? "" : (fs::path(o.surfaces_dir) / stem).string(),
+                           o.output.surface_format);
         !s.ok()) {
       return report(s);
     }
@@ -375,7 +391,8 @@ void add_output_options(CLI::App* cmd, OutputOptions& o) {
   cmd->add_option("--surface-format", o.surface_format, "Format of written surfaces")
       ->check(CLI::IsMember({"vtp", "stl", "obj", "ply"}))
       ->capture_default_str();
-  cmd->add_option("--surface", o.extra_surfaces, "A mesh of your own in rest space (.stl, .obj, .ply, .vtp) to deform too")
+  cmd->add_option("--surface", o.extra_surfaces,
+                  "A mesh of your own in rest space (.stl, .obj, .ply, .vtp) to deform too")
       ->check(CLI::ExistingFile);
 }
 
@@ -397,17 +414,21 @@ void add_pose_commands(CLI::App& app) {
                     "Inverse displacement field (output grid, for ITK/ANTs/elastix); the forward field goes beside it "
                     "as *_forward");
     cmd->add_option("--report", o->report_out, "Quality report JSON");
-    cmd->add_option("--dicom-out", o->dicom_out,
-                    "Directory for the posed CT as a derived DICOM series (ct/) and the labels as a DICOM SEG (seg.dcm), "
-                    "in the study of --dicom-source");
-    cmd->add_option("--dicom-source", o->dicom_source, "The CT series (a directory of DICOM files) the rig was built from");
-    cmd->add_option("--uid-root", o->uid_root, "Root of the new DICOM UIDs (2.25: UUID-derived, no registration needed)")
+    cmd->add_option(
+        "--dicom-out", o->dicom_out,
+        "Directory for the posed CT as a derived DICOM series (ct/) and the labels as a DICOM SEG (seg.dcm), "
+        "in the study of --dicom-source");
+    cmd->add_option("--dicom-source", o->dicom_source,
+                    "The CT series (a directory of DICOM files) the rig was built from");
+    cmd->add_option("--uid-root", o->uid_root,
+                    "Root of the new DICOM UIDs (2.25: UUID-derived, no registration needed)")
         ->capture_default_str();
     cmd->add_option("--series-description", o->series_description,
                     "Series Description of the derived series (default: posewarp: POSE (METHOD))");
     add_connection_options(cmd, o->connection);
-    cmd->add_option("--server", o->connection.server,
-                    "Pose on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written here");
+    cmd->add_option(
+        "--server", o->connection.server,
+        "Pose on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written here");
     add_output_options(cmd, o->output);
     cmd->callback([o] {
       const int code = run_pose(*o);
@@ -424,7 +445,8 @@ void add_pose_commands(CLI::App& app) {
     cmd->add_option("--frames", o->frames, "Frames A:B, 0-based inclusive (B = -1: to the end)")->capture_default_str();
     cmd->add_option("--out-dir", o->out_dir, "Directory for frame_NNNN_{labels,ct,report} files")->required();
     cmd->add_flag("!--no-ct", o->ct, "Skip the CT");
-    cmd->add_option("--surfaces-out", o->surfaces_dir, "Also write each frame's deformed surfaces under DIR/frame_NNNN/");
+    cmd->add_option("--surfaces-out", o->surfaces_dir,
+                    "Also write each frame's deformed surfaces under DIR/frame_NNNN/");
     add_connection_options(cmd, o->connection);
     cmd->add_option("--server", o->connection.server,
                     "Animate on posewarp-server at HOST:PORT: RIG is then a rig id there; the same files are written "

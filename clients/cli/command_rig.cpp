@@ -8,12 +8,12 @@
 #include <sstream>
 
 #include "cli_support.h"
-#include "remote.h"
 #include "posewarp/api/dicom.h"
+#include "posewarp/api/files.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
-#include "posewarp/api/files.h"
+#include "remote.h"
 
 namespace posewarp::cli {
 namespace {
@@ -56,7 +56,8 @@ int run_build(BuildOptions& options) {
   if (api::is_dicom_file(options.labels_path)) {
     // A DICOM SEG on a DICOM CT series: the labels are the segments' numbers, the map follows their names.
     if (options.ct_path.empty()) {
-      return report(invalid_argument_error("'" + options.labels_path + "' is a DICOM file: give the CT series it was "
+      return report(invalid_argument_error("'" + options.labels_path +
+                                           "' is a DICOM file: give the CT series it was "
                                            "made on with --ct DIR (a directory of DICOM files)"));
     }
     Result<api::DicomStudy> study = api::read_dicom_study(options.ct_path, options.labels_path, inputs.label_map);
@@ -90,7 +91,8 @@ int run_build(BuildOptions& options) {
     inputs.spec = std::move(spec).value();
   }
   options.params.mesh.parallel = !options.sequential;
-  options.params.weights.islands = options.islands_fail ? weights::IslandPolicy::kFail : weights::IslandPolicy::kAttachNearest;
+  options.params.weights.islands =
+      options.islands_fail ? weights::IslandPolicy::kFail : weights::IslandPolicy::kAttachNearest;
   const double read_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   Result<api::Rig> rig = api::build_rig(inputs, options.params, progress_bar());
@@ -99,9 +101,9 @@ int run_build(BuildOptions& options) {
   const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   say("rig " + rig->id() + " written to " + options.out);
-  say("  " + std::to_string(rig->skeleton.segments.size()) + " segments, " + std::to_string(rig->skeleton.joints.size()) +
-      " joints, " + std::to_string(rig->mesh.vertex_count()) + " vertices, " + std::to_string(rig->mesh.tet_count()) +
-      " tets");
+  say("  " + std::to_string(rig->skeleton.segments.size()) + " segments, " +
+      std::to_string(rig->skeleton.joints.size()) + " joints, " + std::to_string(rig->mesh.vertex_count()) +
+      " vertices, " + std::to_string(rig->mesh.tet_count()) + " tets");
   for (const std::string& note : rig->skeleton.notes) say("  note: " + note);
   if (!rig->skeleton.missing_segments.empty()) {
     std::string missing;
@@ -109,7 +111,8 @@ int run_build(BuildOptions& options) {
     say("  not in this study: " + missing);
   }
   std::string timings = "  timings: read " + fixed(read_seconds, 2) + " s";
-  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) timings += ", " + stage + " " + fixed(seconds, 2) + " s";
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds)
+    timings += ", " + stage + " " + fixed(seconds, 2) + " s";
   say(timings + "; total " + fixed(total, 2) + " s");
   return 0;
 }
@@ -126,32 +129,37 @@ int run_info(const std::string& path, bool as_json) {
   doc["id"] = rig->id();
   doc["content_hash"] = api::content_hash(*rig);
   doc["load_seconds"] = load_seconds;
-  doc["source_grid"] = {{"size", rig->source_geometry.size}, {"spacing_mm", rig->source_geometry.spacing},
-                        {"origin_mm", rig->source_geometry.origin}, {"direction", rig->source_geometry.direction}};
+  doc["source_grid"] = {{"size", rig->source_geometry.size},
+                        {"spacing_mm", rig->source_geometry.spacing},
+                        {"origin_mm", rig->source_geometry.origin},
+                        {"direction", rig->source_geometry.direction}};
   json segments = json::array();
   for (const rig::Segment& segment : s.segments) {
-    segments.push_back({{"name", segment.name}, {"labels", segment.labels}, {"voxels", segment.voxels},
+    segments.push_back({{"name", segment.name},
+                        {"labels", segment.labels},
+                        {"voxels", segment.voxels},
                         {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
   }
   json joints = json::array();
   auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
   for (const rig::Joint& joint : s.joints) {
-    json entry{{"name", joint.name},
-               {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
-               {"child", s.segments[static_cast<size_t>(joint.child)].name},
-               {"centre_mm", triple(joint.centre_mm)},
-               {"method", joint.method},
-               {"kind", labels::joint_kind_name(joint.kind)},
-               {"side", rig::body_side_name(joint.side)},
-               {"declared", joint.declared},
-               {"contact_area_mm2", joint.contact_area_mm2},
-               // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
-               {"flexion_axis", triple(joint.frame.col(0))},
-               {"flexion_moves_child", labels::flexion_direction_name(joint.flexion)},
-               {"abduction_axis", triple(joint.frame.col(1))},
-               {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
-               {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
-               {"internal_rotation_sign", joint.internal_rotation_sign}};
+    json entry{
+        {"name", joint.name},
+        {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
+        {"child", s.segments[static_cast<size_t>(joint.child)].name},
+        {"centre_mm", triple(joint.centre_mm)},
+        {"method", joint.method},
+        {"kind", labels::joint_kind_name(joint.kind)},
+        {"side", rig::body_side_name(joint.side)},
+        {"declared", joint.declared},
+        {"contact_area_mm2", joint.contact_area_mm2},
+        // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
+        {"flexion_axis", triple(joint.frame.col(0))},
+        {"flexion_moves_child", labels::flexion_direction_name(joint.flexion)},
+        {"abduction_axis", triple(joint.frame.col(1))},
+        {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
+        {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
+        {"internal_rotation_sign", joint.internal_rotation_sign}};
     if (joint.method == "sphere-fit" || joint.method == "cylinder-fit") {
       entry["fit_radius_mm"] = joint.sphere_radius_mm;
       entry["fit_rms_mm"] = joint.sphere_rms_mm;
@@ -179,14 +187,15 @@ int run_info(const std::string& path, bool as_json) {
     std::cout << doc.dump(2) << '\n';
     return 0;
   }
-  std::cout << "rig " << doc["id"].get<std::string>() << " (" << path << ", loaded in " << fixed(load_seconds, 3) << " s)\n"
-            << "  built by posewarp " << rig->provenance.software_version << " from " << rig->provenance.labels_source
-            << (rig->provenance.ct_source.empty() ? "" : " + " + rig->provenance.ct_source) << "\n"
-            << "  mesh: " << rig->mesh.vertex_count() << " vertices, " << rig->mesh.tet_count() << " tets\n"
-            << "  root: " << doc["root"].get<std::string>() << "\n"
-            << "  joints (axes in LPS: x patient left, y posterior, z superior; a positive angle turns the child about\n"
-            << "  the axis by the right-hand rule: flexion moves the child's far end the way shown, abduction away\n"
-            << "  from the midline (midline joints: toward the left), internal rotation turns its front medially):\n";
+  std::cout
+      << "rig " << doc["id"].get<std::string>() << " (" << path << ", loaded in " << fixed(load_seconds, 3) << " s)\n"
+      << "  built by posewarp " << rig->provenance.software_version << " from " << rig->provenance.labels_source
+      << (rig->provenance.ct_source.empty() ? "" : " + " + rig->provenance.ct_source) << "\n"
+      << "  mesh: " << rig->mesh.vertex_count() << " vertices, " << rig->mesh.tet_count() << " tets\n"
+      << "  root: " << doc["root"].get<std::string>() << "\n"
+      << "  joints (axes in LPS: x patient left, y posterior, z superior; a positive angle turns the child about\n"
+      << "  the axis by the right-hand rule: flexion moves the child's far end the way shown, abduction away\n"
+      << "  from the midline (midline joints: toward the left), internal rotation turns its front medially):\n";
   auto axis_text = [](const json& v) {
     return "(" + fixed(v[0], 2) + ", " + fixed(v[1], 2) + ", " + fixed(v[2], 2) + ")";
   };
@@ -209,7 +218,8 @@ int run_info(const std::string& path, bool as_json) {
               << w.value("solver", std::string("?")) << "\n";
   }
   std::cout << "  timings:";
-  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) std::cout << " " << stage << " " << fixed(seconds, 2) << " s";
+  for (const auto& [stage, seconds] : rig->provenance.stage_seconds)
+    std::cout << " " << stage << " " << fixed(seconds, 2) << " s";
   std::cout << "\n";
   for (const std::string& note : s.notes) std::cout << "  note: " << note << "\n";
   return 0;
@@ -235,27 +245,31 @@ int run_export(const std::string& path, const std::string& mesh_out, const std::
 }  // namespace
 
 void add_rig_commands(CLI::App& app) {
-  CLI::App* group = app.add_subcommand("rig", "Build a rig once per study (skeleton, tet mesh, weights, centres), inspect and export it");
+  CLI::App* group = app.add_subcommand(
+      "rig", "Build a rig once per study (skeleton, tet mesh, weights, centres), inspect and export it");
   group->require_subcommand(1);
   {
     auto o = std::make_shared<BuildOptions>();
-    CLI::App* cmd = group->add_subcommand(
-        "build",
-        "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the body, Laplace skinning weights and\n"
-        "centres of rotation, written as one checksummed file");
-    cmd->add_option("--labels", o->labels_path, "Label volume (segmentation), or a DICOM SEG made on --ct (a DICOM series)")
+    CLI::App* cmd = group->add_subcommand("build",
+                                          "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the "
+                                          "body, Laplace skinning weights and\n"
+                                          "centres of rotation, written as one checksummed file");
+    cmd->add_option("--labels", o->labels_path,
+                    "Label volume (segmentation), or a DICOM SEG made on --ct (a DICOM series)")
         ->required();
     cmd->add_option("--ct", o->ct_path, "CT on the same grid (joins the body mask; kept for posing)");
     cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
     cmd->add_option("--label-map", o->label_map_path, "Label map JSON");
     cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
         ->check(CLI::IsMember(api::preset_names()));
-    cmd->add_option("--rig-spec", o->spec_path, "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
+    cmd->add_option("--rig-spec", o->spec_path,
+                    "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
     cmd->add_option("-o,--out", o->out, "Rig file to write (local builds)");
     add_connection_options(cmd, o->connection);
-    cmd->add_option("--server", o->connection.server,
-                    "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
-                    "prints the rig id (default parameters; the mesh options here apply to local builds)");
+    cmd->add_option(
+        "--server", o->connection.server,
+        "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
+        "prints the rig id (default parameters; the mesh options here apply to local builds)");
     cmd->add_option("--name", o->name, "Name of the rig on the server (default: the labels' file name)");
     auto& p = o->params;
     cmd->add_option("--contact-distance", p.skeleton.contact_distance_mm, "Bone contact distance, mm (0 = 3.5 voxels)")
@@ -263,9 +277,12 @@ void add_rig_commands(CLI::App& app) {
     cmd->add_option("--facet-size", p.mesh.facet_size_mm, "Largest boundary triangle, mm")->capture_default_str();
     cmd->add_option("--facet-distance", p.mesh.facet_distance_mm, "Largest boundary approximation error, mm")
         ->capture_default_str();
-    cmd->add_option("--bone-size", p.mesh.bone_cell_size_mm, "Largest tet size in and near bone, mm")->capture_default_str();
-    cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")->capture_default_str();
-    cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")->capture_default_str();
+    cmd->add_option("--bone-size", p.mesh.bone_cell_size_mm, "Largest tet size in and near bone, mm")
+        ->capture_default_str();
+    cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")
+        ->capture_default_str();
+    cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
+        ->capture_default_str();
     cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");
     cmd->add_option("--seed", p.mesh.seed, "Seed of the sequential mesher")->capture_default_str();
     cmd->add_option("--influences", p.weights.max_influences, "Bones kept per vertex")->capture_default_str();
@@ -275,11 +292,12 @@ void add_rig_commands(CLI::App& app) {
       int code = 0;
       if (!o->connection.server.empty()) {
         if (!o->out.empty() || !o->body_path.empty()) {
-          throw CLI::ValidationError("--server", "a remote build keeps its rig on the server (no -o) and takes no "
-                                                 "--body mask yet");
+          throw CLI::ValidationError("--server",
+                                     "a remote build keeps its rig on the server (no -o) and takes no "
+                                     "--body mask yet");
         }
-        code = run_build_remote({o->connection, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path,
-                                 o->name});
+        code = run_build_remote(
+            {o->connection, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path, o->name});
       } else {
         if (o->out.empty()) throw CLI::RequiredError("-o,--out (or --server)");
         code = run_build(*o);
@@ -300,14 +318,15 @@ void add_rig_commands(CLI::App& app) {
     auto path = std::make_shared<std::string>();
     auto as_json = std::make_shared<bool>(false);
     auto connection = std::make_shared<Connection>();
-    CLI::App* cmd = group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
+    CLI::App* cmd =
+        group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
     cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
     cmd->add_flag("--json", *as_json, "Machine-readable output");
     cmd->add_option("--server", connection->server, "Describe a rig that posewarp-server at HOST:PORT holds");
     add_connection_options(cmd, *connection);
     cmd->callback([path, as_json, connection] {
-      const int code = connection->server.empty() ? run_info(*path, *as_json)
-                                                  : run_info_remote(*connection, *path, *as_json);
+      const int code =
+          connection->server.empty() ? run_info(*path, *as_json) : run_info_remote(*connection, *path, *as_json);
       if (code != 0) throw CLI::RuntimeError(code);
     });
   }
@@ -328,8 +347,9 @@ void add_rig_commands(CLI::App& app) {
     auto skeleton_out = std::make_shared<std::string>();
     auto rig_out = std::make_shared<std::string>();
     auto connection = std::make_shared<Connection>();
-    CLI::App* cmd = group->add_subcommand("export", "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for "
-                                                    "ParaView; with --server, download the rig file (--rig-out)");
+    CLI::App* cmd = group->add_subcommand("export",
+                                          "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for "
+                                          "ParaView; with --server, download the rig file (--rig-out)");
     cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
     cmd->add_option("--mesh", *mesh_out, "Tet mesh with labels and per-bone weights (.vtu)");
     cmd->add_option("--skeleton", *skeleton_out, "Skeleton as lines (.vtp)");
@@ -340,8 +360,9 @@ void add_rig_commands(CLI::App& app) {
       int code = 0;
       if (!connection->server.empty()) {
         if (rig_out->empty() || !mesh_out->empty() || !skeleton_out->empty()) {
-          throw CLI::ValidationError("--server", "a remote export downloads the rig file: give --rig-out F (then "
-                                                 "`posewarp rig export F --mesh ...` locally)");
+          throw CLI::ValidationError("--server",
+                                     "a remote export downloads the rig file: give --rig-out F (then "
+                                     "`posewarp rig export F --mesh ...` locally)");
         }
         code = run_export_remote(*connection, *path, *rig_out);
       } else {

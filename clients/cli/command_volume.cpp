@@ -50,14 +50,15 @@ std::string fixed(double value, int digits) {
 }
 
 std::optional<PixelType> parse_pixel_type(const std::string& name) {
-  for (PixelType type : {PixelType::kUInt8, PixelType::kInt8, PixelType::kUInt16, PixelType::kInt16,
-                         PixelType::kUInt32, PixelType::kInt32, PixelType::kFloat32, PixelType::kFloat64}) {
+  for (PixelType type : {PixelType::kUInt8, PixelType::kInt8, PixelType::kUInt16, PixelType::kInt16, PixelType::kUInt32,
+                         PixelType::kInt32, PixelType::kFloat32, PixelType::kFloat64}) {
     if (pixel_type_name(type) == name) return type;
   }
   return std::nullopt;
 }
 
-const std::vector<std::string> kPixelTypeNames{"uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64"};
+const std::vector<std::string> kPixelTypeNames{"uint8",  "int8",  "uint16",  "int16",
+                                               "uint32", "int32", "float32", "float64"};
 
 // ---- info -------------------------------------------------------------------------------------------------
 
@@ -204,15 +205,14 @@ int run_inspect(const InspectOptions& options) {
   std::cout << "study        " << options.labels_path << (ct ? " + " + options.ct_path : std::string()) << "\n"
             << "grid         " << g.describe() << ", axes point " << orientation_code(g) << "\n"
             << "label map    " << map->name() << " (" << map->entries().size() << " labels)\n"
-            << "body         " << body_voxels << " voxels, " << fixed(study->body_volume_ml, 1)
-            << " ml" << (ct ? " (labels joined with CT > " + fixed(options.body.ct_threshold_hu, 0) + " HU)" : "")
-            << "\n"
+            << "body         " << body_voxels << " voxels, " << fixed(study->body_volume_ml, 1) << " ml"
+            << (ct ? " (labels joined with CT > " + fixed(options.body.ct_threshold_hu, 0) + " HU)" : "") << "\n"
             << "bone segments found: " << bones.size() << "\n";
   for (const json& bone : bones) {
     const auto& c = bone["centroid_mm"];
-    std::cout << "  " << std::left << std::setw(18) << bone["segment"].get<std::string>() << std::right
-              << std::setw(8) << bone["voxels"].get<int64_t>() << " voxels  centroid (" << fixed(c[0], 1) << ", "
-              << fixed(c[1], 1) << ", " << fixed(c[2], 1) << ") mm\n";
+    std::cout << "  " << std::left << std::setw(18) << bone["segment"].get<std::string>() << std::right << std::setw(8)
+              << bone["voxels"].get<int64_t>() << " voxels  centroid (" << fixed(c[0], 1) << ", " << fixed(c[1], 1)
+              << ", " << fixed(c[2], 1) << ") mm\n";
   }
   if (!census.absent_bone_segments.empty()) {
     std::cout << "bone segments of the map not in this study (outside the field of view?): "
@@ -236,7 +236,8 @@ int run_inspect(const InspectOptions& options) {
 void add_volume_commands(CLI::App& app) {
   {
     auto options = std::make_shared<InfoOptions>();
-    CLI::App* cmd = app.add_subcommand("info", "Print a volume's header (grid, orientation, voxel type) and value range");
+    CLI::App* cmd =
+        app.add_subcommand("info", "Print a volume's header (grid, orientation, voxel type) and value range");
     cmd->add_option("volume", options->path, "Volume file or DICOM directory")->required();
     cmd->add_flag("--json", options->as_json, "Machine-readable output");
     cmd->callback([options] {

@@ -474,10 +474,9 @@ Result<rig::Skeleton> RemotePoser::skeleton() const {
   return std::move(rig.skeleton);
 }
 
-Result<labels::LabelMap> RemotePoser::label_map() const {
+Result<api::Rig> RemotePoser::rig() const {
   POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, download_rig(state_->remote, state_->rig_id));
-  POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::rig_from_bytes(bytes, "rig " + state_->rig_id));
-  return std::move(rig.label_map);
+  return api::rig_from_bytes(bytes, "rig " + state_->rig_id);
 }
 
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {

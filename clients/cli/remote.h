@@ -72,8 +72,8 @@ class RemotePoser {
   Result<RemotePoseResult> pose(const api::PoseRequest& request) const;
   // The rig's skeleton (BVH retargeting needs it): the rig file downloaded, checked and read.
   Result<rig::Skeleton> skeleton() const;
-  // The rig's label map (naming the segments of a DICOM SEG), the same way.
-  Result<labels::LabelMap> label_map() const;
+  // The whole rig, the same way (its source grid, and the label map naming the segments of a DICOM SEG).
+  Result<api::Rig> rig() const;
 
  private:
   struct State;
@@ -118,6 +118,9 @@ inline Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest&) const
   return unimplemented_error("no remote mode");
 }
 inline Result<rig::Skeleton> RemotePoser::skeleton() const {
+  return unimplemented_error("no remote mode");
+}
+inline Result<api::Rig> RemotePoser::rig() const {
   return unimplemented_error("no remote mode");
 }
 inline int run_list_remote(const Connection&) {

@@ -64,7 +64,8 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
   std::ofstream(dir / "password") << "s3cret\n";
   const nlohmann::json settings{
       {"Command", POSEWARP_CLI},
-      {"Poses", {{{"Pose", std::string(POSEWARP_SOURCE_DIR) + "/data/poses/sample_hip_flexion.json"}, {"Method", "cor"}}}},
+      {"Poses",
+       {{{"Pose", std::string(POSEWARP_SOURCE_DIR) + "/data/poses/sample_hip_flexion.json"}, {"Method", "cor"}}}},
       {"Server", server.address()},
       {"PacsUser", "posewarp"},
       {"PacsPasswordFile", (dir / "password").string()},
@@ -129,8 +130,8 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
   // Orthanc stopped with the study queued again (as after a crash between queueing and finishing): on start it is
   // taken up, and the batch stores the same UIDs, so the study still holds four series.
   const nlohmann::json first = nlohmann::json::parse(text(queue).substr(0, text(queue).find('\n')));
-  std::ofstream(queue, std::ios::app) << nlohmann::json{{"event", "queued"}, {"key", first["key"]}, {"study", first["study"]}}.dump()
-                                      << "\n";
+  std::ofstream(queue, std::ios::app)
+      << nlohmann::json{{"event", "queued"}, {"key", first["key"]}, {"study", first["study"]}}.dump() << "\n";
   fs::remove_all(dir / "work" / first["study"].get<std::string>());  // the batch's state too: it is redone
   OrthancProcess again(dir / "orthanc", extra, {kPythonPlugin});
   ASSERT_TRUE(again.ready()) << again.log();

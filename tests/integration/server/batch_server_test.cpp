@@ -143,6 +143,30 @@ TEST(BatchThroughServer, StudiesAreRiggedOnTheServerAndPosedThereAsLocally) {
   EXPECT_EQ(rigs_on(address, dir / "list.txt").size(), 2u);
   EXPECT_EQ(lines_of(dir / "batch.state.jsonl"), 3u);
 
+  // pose --server --dicom-out files the derived series in --dicom-source's study: a series of another grid (the bar
+  // phantom's) is refused before anything is posed or written.
+  ASSERT_EQ(testing_support::run({POSEWARP_CLI, "-q", "phantom", "bar", "-o", (dir / "bar").string()}, log), 0);
+  ASSERT_EQ(testing_support::run({POSEWARP_CLI, "-q", "dicom", "export", "--ct", (dir / "bar/ct.nii.gz").string(),
+                                  "--labels", (dir / "bar/labels.nii.gz").string(), "--label-map",
+                                  (dir / "bar/label_map.json").string(), "-o", (dir / "bar-dicom").string()},
+                                 log),
+            0)
+      << text(log);
+  EXPECT_EQ(testing_support::run({POSEWARP_CLI, "pose", "--server", address, dicom_rig, "--pose", pose, "--dicom-out",
+                                  (dir / "foreign").string(), "--dicom-source", (dir / "bar-dicom/ct").string()},
+                                 log) >>
+                8,
+            2);
+  EXPECT_NE(text(log).find("is not the CT series the rig was built from"), std::string::npos) << text(log);
+  EXPECT_FALSE(fs::exists(dir / "foreign"));
+  // The right series is taken.
+  EXPECT_EQ(testing_support::run({POSEWARP_CLI, "-q", "pose", "--server", address, dicom_rig, "--pose", pose,
+                                  "--dicom-out", (dir / "own").string(), "--dicom-source", (dir / "study/ct").string()},
+                                 log),
+            0)
+      << text(log);
+  EXPECT_TRUE(fs::exists(dir / "own/seg.dcm"));
+
   // An unreachable server fails every row with a message that names it; the batch says so in its exit code.
   fs::remove(dir / "batch.state.jsonl");
   EXPECT_EQ(
