@@ -7,6 +7,8 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <unistd.h>
+
 #include <csignal>
 #include <cstdio>
 #include <memory>
@@ -116,6 +118,17 @@ int main(int argc, char** argv) {
   app.add_option("--metrics-listen", metrics_listen, "HOST:PORT for Prometheus metrics at /metrics (off when empty)");
   app.add_option("--shutdown-grace-s", grace_s, "On SIGTERM, seconds running poses get to finish")->capture_default_str();
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
+  app.add_option("--database", store_options.database,
+                 "PostgreSQL index shared by replicas of one store directory (a libpq connection string or "
+                 "postgresql:// URL; its password in PGPASSFILE or ~/.pgpass). Empty: SQLite in the store, one "
+                 "server");
+  app.add_option("--replica", options.replica,
+                 "This replica's name among those sharing the store (default: host name and process id)");
+  app.add_option("--lease-seconds", options.lease_s,
+                 "With --database: a build whose replica stops renewing its lease this long is failed or taken "
+                 "over by another")
+      ->capture_default_str()
+      ->check(CLI::Range(2, 3600));
   store_options.pause_in_rig_write_s = std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S") != nullptr
                                            ? std::atof(std::getenv("POSEWARP_TEST_PAUSE_IN_RIG_WRITE_S"))
                                            : 0.0;
@@ -147,6 +160,11 @@ int main(int argc, char** argv) {
     return 2;
   }
 
+  if (options.replica == "posewarp") {  // not given: host name and pid, unique among replicas
+    char host[256] = {};
+    ::gethostname(host, sizeof host - 1);
+    options.replica = std::string(host) + ":" + std::to_string(::getpid());
+  }
   // Logs go to stderr (a service manager or container collects them): one line per call, no patient data.
   spdlog::set_default_logger(spdlog::stderr_color_mt("posewarp-server"));
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");

@@ -33,6 +33,11 @@ void Metrics::count(const std::string& name, int64_t by) {
   counters_[name] += by;
 }
 
+void Metrics::count_rig_pose(const std::string& rig_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++rig_poses_[rig_id.substr(0, 16)];
+}
+
 void Metrics::set_gauges(std::function<std::vector<std::pair<std::string, double>>()> sample) {
   std::lock_guard<std::mutex> lock(mutex_);
   gauges_ = std::move(sample);
@@ -63,6 +68,8 @@ std::string Metrics::text() const {
     for (const auto& [name, n] : counters_) {
       out << "# TYPE posewarp_" << name << "_total counter\nposewarp_" << name << "_total " << n << "\n";
     }
+    if (!rig_poses_.empty()) out << "# TYPE posewarp_rig_poses_total counter\n";
+    for (const auto& [rig, n] : rig_poses_) out << "posewarp_rig_poses_total{rig=\"" << rig << "\"} " << n << "\n";
   }
   if (gauges) {
     for (const auto& [name, value] : gauges()) {

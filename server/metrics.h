@@ -22,6 +22,9 @@ class Metrics {
   // One finished call.
   void observe(const std::string& method, const std::string& code, double seconds);
   void count(const std::string& name, int64_t by = 1);  // a counter without labels (posewarp_<name>_total)
+  // Poses answered for a rig (posewarp_rig_poses_total{rig="<first 16 hex digits>"}): behind a load balancer with
+  // rig affinity, each rig's count grows on one replica only.
+  void count_rig_pose(const std::string& rig_id);
   // Gauges sampled at each scrape: name -> value.
   void set_gauges(std::function<std::vector<std::pair<std::string, double>>()> sample);
 
@@ -38,6 +41,7 @@ class Metrics {
   std::map<std::pair<std::string, std::string>, int64_t> requests_;  // (method, code)
   std::map<std::string, Histogram> latency_;                         // method
   std::map<std::string, int64_t> counters_;
+  std::map<std::string, int64_t> rig_poses_;
   std::function<std::vector<std::pair<std::string, double>>()> gauges_;
 };
 

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <future>
 #include <optional>
+#include <random>
 #include <set>
 #include <thread>
 #include <utility>
@@ -186,6 +187,9 @@ class PosewarpService::Call {
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
     const std::string code = status_code_name(static_cast<StatusCode>(status.error_code())).data();
     service_.metrics_.observe(method_, code, seconds);
+    if (status.ok() && std::string_view(method_) == "Pose" && api::is_hex_id(rig_id_)) {
+      service_.metrics_.count_rig_pose(rig_id_);
+    }
     // Ids are hashes and the code is canonical: nothing here names a patient or a client's file.
     const std::string rig = api::is_hex_id(rig_id_) ? " rig=" + rig_id_.substr(0, 16) : "";
     if (status.ok() || status.error_code() == grpc::StatusCode::CANCELLED) {
@@ -213,6 +217,73 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
   if (options_.pose_slots <= 0) options_.pose_slots = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   metrics_.set_gauges([this] { return gauges(); });
   for (int i = 0; i < std::max(1, options_.build_workers); ++i) build_threads_.emplace_back([this] { build_worker(); });
+  if (store_->index().shared()) {
+    lease_thread_ = std::thread([this] { lease_keeper(); });
+    // A rig deleted through any replica leaves every replica's cache; after a lost connection (notifications
+    // missed), each cached rig is looked up again.
+    store_->index().watch_deleted_rigs(
+        [this](const std::string& rig_id) {
+          evict(rig_id);
+          spdlog::info("rig={} deleted by another replica; dropped from the cache", rig_id.substr(0, 16));
+        },
+        [this] {
+          std::vector<std::string> cached;
+          {
+            std::lock_guard<std::mutex> lock(cache_mutex_);
+            for (const auto& [id, entry] : cache_) cached.push_back(id);
+          }
+          for (const std::string& id : cached) {
+            Result<std::optional<RigRecord>> row = store_->index().rig(id);
+            if (row.ok() && !*row) evict(id);
+          }
+        });
+  }
+}
+
+void PosewarpService::persist(const Job& job) {
+  OperationRecord record = record_from(job.operation, job.request);
+  record.owner = options_.replica;
+  record.lease_s = options_.lease_s;
+  if (Status s = store_->index().put_operation(record); !s.ok()) {
+    spdlog::error("operation {}: {}", job.operation.id(), s.message());
+  }
+}
+
+void PosewarpService::lease_keeper() {
+  const auto period = std::chrono::milliseconds(std::max(1, options_.lease_s) * 1000 / 3);
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stopping_) {
+    // Woken early only to stop (changed_ also carries every build's progress).
+    changed_.wait_until(lock, std::chrono::steady_clock::now() + period, [this] { return stopping_; });
+    if (stopping_) break;
+    lock.unlock();
+    if (Status s = store_->index().renew_operations(options_.replica, options_.lease_s); !s.ok()) {
+      spdlog::warn("cannot renew this replica's build leases: {}", s.message());
+    }
+    Result<int> failed = store_->index().fail_expired_operations(
+        static_cast<int>(grpc::StatusCode::ABORTED), "the replica running the build stopped; build again");
+    if (failed.ok() && *failed > 0) spdlog::warn("{} build(s) of a stopped replica marked failed", *failed);
+    lock.lock();
+  }
+}
+
+Result<bool> PosewarpService::claim_build(const std::shared_ptr<Job>& job, const std::string& rig_id) {
+  bool told = false;
+  for (;;) {
+    POSEWARP_ASSIGN_OR_RETURN(const bool mine, store_->index().claim_build(rig_id, options_.replica, options_.lease_s));
+    if (mine) return true;
+    if (!told) {
+      spdlog::info("operation={} rig={} is being built by another replica; waiting for it", job->operation.id(),
+                   rig_id.substr(0, 16));
+      set_operation(job, [](v1::Operation& op) { op.set_stage("waiting for another replica's build"); }, false);
+      metrics_.count("builds_waited_for_another_replica");
+      told = true;
+    }
+    for (int i = 0; i < 5 && !job->cancel.cancelled(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (job->cancel.cancelled()) return cancelled_error("the build was cancelled");
+    // Built by the other replica: done. Its claim released without a rig (it failed or died): tried again above.
+    if (store_->rig(rig_id).ok()) return false;
+  }
 }
 
 PosewarpService::~PosewarpService() {
@@ -251,7 +322,7 @@ void PosewarpService::shutdown() {
         job->operation.set_state(v1::Operation::CANCELLED);
         job->operation.set_error_code(static_cast<int32_t>(grpc::StatusCode::CANCELLED));
         job->operation.set_error_message("the server stopped before the build started; build again");
-        (void)store_->index().put_operation(record_from(job->operation, job->request));
+        persist(*job);
       }
     }
     build_queue_.clear();
@@ -260,6 +331,7 @@ void PosewarpService::shutdown() {
   for (std::thread& t : build_threads_) {
     if (t.joinable()) t.join();
   }
+  if (lease_thread_.joinable()) lease_thread_.join();
 }
 
 grpc::Status PosewarpService::to_grpc(const Status& status) const { return server::to_grpc(status, store_->directory()); }
@@ -382,7 +454,13 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
     return call.done(grpc::Status::OK);
   }
   // A file is read as posing will read it before it gets its name in the store.
-  const fs::path staging = fs::path(store_->directory()) / "volumes" / (".staging-" + header.sha256() + extension);
+  // Named apart per upload: the same bytes may arrive twice at once, on this server or on another replica.
+  static std::atomic<uint64_t> uploads{0};
+  static const std::string process_tag = api::sha256_hex(options_.replica + std::to_string(std::random_device{}()))
+                                             .substr(0, 12);
+  const fs::path staging = fs::path(store_->directory()) / "volumes" /
+                           (".staging-" + header.sha256().substr(0, 16) + "-" + process_tag + "-" +
+                            std::to_string(++uploads) + extension);
   if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return call.done(to_grpc(s));
   Result<api::VolumeHeader> read = [&]() -> Result<api::VolumeHeader> {
     POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staging.string()));
@@ -451,9 +529,10 @@ grpc::Status PosewarpService::BuildRig(grpc::ServerContext* context, const v1::B
                                                                   std::to_string(options_.build_queue) +
                                                                   " waiting); try again when a build has finished"});
     }
-    if (Status s = store_->index().put_operation(record_from(job->operation, job->request)); !s.ok()) {
-      return call.done(to_grpc(s));
-    }
+    OperationRecord record = record_from(job->operation, job->request);
+    record.owner = options_.replica;
+    record.lease_s = options_.lease_s;
+    if (Status s = store_->index().put_operation(record); !s.ok()) return call.done(to_grpc(s));
     operations_[job->operation.id()] = job;
     live_by_key_[key] = job;
     build_queue_.push_back(job);
@@ -475,7 +554,7 @@ void PosewarpService::build_worker() {
       job->operation.set_state(v1::Operation::RUNNING);
       job->started = std::chrono::steady_clock::now();
       ++builds_running_;
-      (void)store_->index().put_operation(record_from(job->operation, job->request));
+      persist(*job);
     }
     changed_.notify_all();
     run_build(job);
@@ -495,9 +574,7 @@ void PosewarpService::set_operation(const std::shared_ptr<Job>& job, const std::
     change(job->operation);
     job->operation.set_elapsed_s(std::chrono::duration<double>(std::chrono::steady_clock::now() - job->started).count());
     if (persist) {
-      if (Status s = store_->index().put_operation(record_from(job->operation, job->request)); !s.ok()) {
-        spdlog::error("operation {}: {}", job->operation.id(), s.message());
-      }
+      this->persist(*job);
     }
   }
   changed_.notify_all();
@@ -538,13 +615,24 @@ void PosewarpService::run_build(const std::shared_ptr<Job>& job) {
     if (!request.ct_volume_id().empty()) inputs.ct_source = "volume " + request.ct_volume_id();
     const api::BuildParams params;
     const std::string id = api::rig_id_of(inputs, params);
-    if (store_->rig(id).ok()) {  // built before from the same inputs: no second build
+    const auto succeeded = [&] {
       set_operation(job, [&](v1::Operation& op) {
         op.set_state(v1::Operation::SUCCEEDED);
         op.set_rig_id(id);
       }, true);
       return ok_status();
-    }
+    };
+    if (store_->rig(id).ok()) return succeeded();  // built before from the same inputs: no second build
+    // Replicas sharing the store build the same rig once: the claim's holder builds, the others wait for its rig.
+    POSEWARP_ASSIGN_OR_RETURN(const bool mine, claim_build(job, id));
+    if (!mine) return succeeded();
+    struct Release {
+      StoreIndex& index;
+      const std::string& rig_id;
+      const std::string& owner;
+      ~Release() { (void)index.release_build(rig_id, owner); }
+    } release{store_->index(), id, options_.replica};
+    if (store_->rig(id).ok()) return succeeded();  // finished by another replica just before the claim
     ProgressHooks hooks;
     hooks.threads = options_.build_threads;
     hooks.cancel_requested = job->cancel.as_hook();
@@ -563,6 +651,7 @@ void PosewarpService::run_build(const std::shared_ptr<Job>& job) {
     record.ct_volume_id = request.ct_volume_id();
     for (const auto& [stage, seconds] : rig.provenance.stage_seconds) record.build_seconds += seconds;
     POSEWARP_RETURN_IF_ERROR(store_->put_rig(record, api::rig_to_bytes(rig)));
+    metrics_.count("rigs_built");  // by this replica (replicas sharing a store build each rig once in all)
     set_operation(job, [&](v1::Operation& op) {
       op.set_state(v1::Operation::SUCCEEDED);
       op.set_rig_id(record.id);
@@ -602,11 +691,21 @@ grpc::Status PosewarpService::WatchOperation(grpc::ServerContext* context, const
     std::lock_guard<std::mutex> lock(mutex_);
     if (const auto it = operations_.find(request->operation_id()); it != operations_.end()) job = it->second;
   }
-  if (!job) {  // an operation of an earlier run: final already
-    Result<v1::Operation> operation = find_operation(request->operation_id());
-    if (!operation.ok()) return call.done(to_grpc(operation.status()));
-    writer->Write(*operation);
-    return call.done(grpc::Status::OK);
+  if (!job) {
+    // An operation of an earlier run (final already), or, with a shared index, one another replica runs: its row
+    // is followed until it ends (its state only; the stages are the running replica's).
+    std::string last;
+    for (;;) {
+      Result<v1::Operation> operation = find_operation(request->operation_id());
+      if (!operation.ok()) return call.done(to_grpc(operation.status()));
+      if (const std::string serialized = operation->SerializeAsString(); serialized != last) {
+        last = serialized;
+        if (!writer->Write(*operation)) return call.done(kClientGone);
+      }
+      if (is_final(operation->state()) || !store_->index().shared()) return call.done(grpc::Status::OK);
+      if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the watch"});
+      std::this_thread::sleep_for(std::chrono::milliseconds(250));
+    }
   }
   std::unique_lock<std::mutex> lock(mutex_);
   std::string last;
@@ -642,7 +741,7 @@ grpc::Status PosewarpService::CancelOperation(grpc::ServerContext* context, cons
         job->operation.set_state(v1::Operation::CANCELLED);
         job->operation.set_error_code(static_cast<int32_t>(grpc::StatusCode::CANCELLED));
         job->operation.set_error_message("cancelled before it started");
-        (void)store_->index().put_operation(record_from(job->operation, job->request));
+        persist(*job);
       }
       *response = job->operation;
       changed_.notify_all();

@@ -40,6 +40,8 @@ struct ServiceOptions {
   int64_t max_output_bytes = 0;                // one pose's outputs (0: half the machine's memory)
   int preview_streams_per_client = 4;          // open preview streams per client address
   double test_pause_in_pose_s = 0.0;           // test hook: a pose holds its slot this long before posing
+  std::string replica = "posewarp";            // this replica's name in a shared index (owner of its builds)
+  int lease_s = 30;                            // a shared index's build leases, renewed every third of it
 };
 
 class PosewarpService final : public v1::Posewarp::Service {
@@ -96,6 +98,11 @@ class PosewarpService final : public v1::Posewarp::Service {
   };
 
   void build_worker();
+  // With a shared index: renews this replica's leases and fails builds whose replica stopped renewing theirs.
+  void lease_keeper();
+  // Waits until this replica holds the build of `rig_id` (true), or another replica's build made it (false).
+  Result<bool> claim_build(const std::shared_ptr<Job>& job, const std::string& rig_id);
+  void persist(const Job& job);
   void run_build(const std::shared_ptr<Job>& job);
   void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
                      bool persist);
@@ -125,6 +132,7 @@ class PosewarpService final : public v1::Posewarp::Service {
   int poses_waiting_ = 0;
   std::map<std::string, int> previews_by_client_;
   std::vector<std::thread> build_threads_;
+  std::thread lease_thread_;
 
   std::mutex cache_mutex_;
   std::map<std::string, CacheEntry> cache_;

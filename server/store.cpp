@@ -38,6 +38,26 @@ std::optional<std::pair<std::string, std::string>> volume_file_name(const std::s
   return std::nullopt;
 }
 
+// A shared store's partial and staging files: another replica may be writing them; after this long, none is.
+constexpr std::chrono::hours kAbandonedAfter{6};
+
+bool older_than(const fs::path& path, std::chrono::hours age) {
+  std::error_code ec;
+  const auto written = fs::last_write_time(path, ec);
+  return !ec && fs::file_time_type::clock::now() - written > age;
+}
+
+int remove_old_partial_files(const std::string& directory) {
+  int removed = 0;
+  std::error_code ec;
+  for (fs::directory_iterator it(directory, ec), end; !ec && it != end; it.increment(ec)) {
+    if (it->path().filename().string().rfind(".posewarp-partial-", 0) != 0) continue;
+    std::error_code removing;
+    if (older_than(it->path(), kAbandonedAfter) && fs::remove(it->path(), removing)) ++removed;
+  }
+  return removed;
+}
+
 }  // namespace
 
 std::string iso_now() {
@@ -59,8 +79,12 @@ Result<std::unique_ptr<RigStore>> RigStore::open(const std::string& directory, c
                                        " (give --store a directory the server may write)");
     }
   }
-  POSEWARP_ASSIGN_OR_RETURN(std::unique_ptr<StoreIndex> index,
-                            open_sqlite_index((fs::path(directory) / "index.sqlite").string()));
+  std::unique_ptr<StoreIndex> index;
+  if (options.database.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(index, open_sqlite_index((fs::path(directory) / "index.sqlite").string()));
+  } else {
+    POSEWARP_ASSIGN_OR_RETURN(index, open_postgres_index(options.database));
+  }
   std::unique_ptr<RigStore> store(new RigStore(directory, options, std::move(index)));
   POSEWARP_RETURN_IF_ERROR(store->reconcile(log));
   return store;
@@ -68,8 +92,12 @@ Result<std::unique_ptr<RigStore>> RigStore::open(const std::string& directory, c
 
 Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
   const fs::path root(directory_);
+  const bool shared = index_->shared();
   for (const char* sub : {"volumes", "rigs"}) {
-    if (const int removed = remove_stale_partial_files((root / sub).string()); removed > 0) {
+    // Shared by replicas (other machines, other pid namespaces): a partial file is judged by its age, not its pid.
+    const int removed = shared ? remove_old_partial_files((root / sub).string())
+                               : remove_stale_partial_files((root / sub).string());
+    if (removed > 0) {
       log("store: removed " + std::to_string(removed) + " partial file(s) of a writer that died in " + sub + "/");
     }
   }
@@ -134,7 +162,8 @@ Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
     const auto parsed = volume_file_name(name);
     if (!parsed) {
       if (name.rfind(".staging-", 0) == 0) {
-        fs::remove(it->path(), ec);  // an upload being checked when the server stopped
+        // An upload being checked when its server stopped (a shared store's may be another replica's, live).
+        if (!shared || older_than(it->path(), kAbandonedAfter)) fs::remove(it->path(), ec);
       } else {
         log("store: unexpected file volumes/" + name + " left alone");
       }

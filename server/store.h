@@ -1,5 +1,6 @@
 // The store: uploaded volumes and built rigs as content-addressed files under one directory, and an index of them
-// (and of build operations) behind StoreIndex: SQLite for one machine; a shared database can replace it. Every file
+// (and of build operations) behind StoreIndex: SQLite for one machine; PostgreSQL for replicas that share the
+// directory (builds claimed with leases, deletions announced to every replica). Every file
 // is written through AtomicFile and its index row commits only after the file is durable, so a crash leaves either a
 // whole file with or without its row (reconciled at the next open) or nothing. Ids are checked to be hex of the
 // expected length before they name a file: no path ever comes from a client.
@@ -53,6 +54,8 @@ struct OperationRecord {
   std::string error_message;
   double elapsed_s = 0.0;
   std::string created;
+  std::string owner;  // the replica running it (a shared index)
+  int lease_s = 0;    // while QUEUED or RUNNING: the owner renews it; past it, the build is over (a shared index)
 };
 
 // The index: rows of volumes, rigs and operations. Implementations serialize their own access (thread-safe).
@@ -80,13 +83,35 @@ class StoreIndex {
 
   // Bytes of every volume and rig file the index holds (for the store's quota).
   virtual Result<uint64_t> total_bytes() = 0;
+
+  // Several replicas share this index (and the store's directory). The rest matter only then; one server alone
+  // needs no claims or leases (it runs each build once itself, and its unfinished builds are failed at its start).
+  virtual bool shared() const { return false; }
+  // Builds QUEUED or RUNNING whose lease ran out (their replica stopped): marked FAILED; returns how many.
+  virtual Result<int> fail_expired_operations(int /*error_code*/, const std::string& /*message*/) { return 0; }
+  // `owner`'s live operations and build claims leased for `lease_s` more seconds.
+  virtual Status renew_operations(const std::string& /*owner*/, int /*lease_s*/) { return ok_status(); }
+  // True when `owner` now holds the build of `rig_id` (free, its lease ran out, or owner's already): two replicas
+  // asked for the same build build it once; the other waits for the rig.
+  virtual Result<bool> claim_build(const std::string& /*rig_id*/, const std::string& /*owner*/, int /*lease_s*/) {
+    return true;
+  }
+  virtual Status release_build(const std::string& /*rig_id*/, const std::string& /*owner*/) { return ok_status(); }
+  // Rigs deleted by any replica, as they are (`deleted`, on a thread of the index's); `resync` after notifications
+  // may have been missed (a lost connection), to check what the caller holds.
+  virtual void watch_deleted_rigs(std::function<void(const std::string&)> /*deleted*/,
+                                  std::function<void()> /*resync*/) {}
 };
 
 // SQLite (WAL, synchronous=FULL) at `path`, created with its schema when missing.
 Result<std::unique_ptr<StoreIndex>> open_sqlite_index(const std::string& path);
+// PostgreSQL at `conninfo` (a libpq connection string or postgresql:// URL), its tables created when missing.
+// UNIMPLEMENTED in a server built without libpqxx.
+Result<std::unique_ptr<StoreIndex>> open_postgres_index(const std::string& conninfo);
 
 struct StoreOptions {
   uint64_t quota_bytes = 0;  // volumes and rigs together; 0: no quota
+  std::string database;      // a PostgreSQL index shared by replicas; empty: SQLite beside the files
   // Test hook: seconds to pause half-way through writing a rig file (a crash test kills the server there).
   double pause_in_rig_write_s = 0.0;
 };

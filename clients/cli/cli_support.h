@@ -51,5 +51,6 @@ void add_rig_commands(CLI::App& app);
 void add_pose_commands(CLI::App& app);
 void add_dicom_commands(CLI::App& app);
 void add_batch_command(CLI::App& app);
+void add_health_command(CLI::App& app);
 
 }  // namespace posewarp::cli

@@ -31,6 +31,7 @@ int main(int argc, char** argv) {
   cli::add_pose_commands(app);
   cli::add_dicom_commands(app);
   cli::add_batch_command(app);
+  cli::add_health_command(app);
 
   try {
     app.parse(argc, argv);

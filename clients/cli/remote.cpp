@@ -1,6 +1,7 @@
 // Remote commands over the generated gRPC client.
 #include "remote.h"
 
+#include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
 
 #include <algorithm>
@@ -8,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <future>
 #include <memory>
 #include <thread>
 
@@ -74,7 +76,7 @@ class Remote {
   grpc::Status with_retries(Attempt&& attempt) const {
     grpc::Status status = attempt();
     double wait_s = 0.5;
-    for (int retry = 0; retry < retries_ && status.error_code() == grpc::StatusCode::UNAVAILABLE; ++retry) {
+    for (int retry = 0; retry < retries_ && retryable(status); ++retry) {
       say("posewarp-server at " + server_ + " is unavailable (" + status.error_message() + "); trying again within " +
           std::to_string(wait_s).substr(0, 3) + " s");
       // Connecting meanwhile: the next try starts as soon as the server is back, or when the wait is over.
@@ -86,7 +88,16 @@ class Remote {
     }
     return status;
   }
+  // UNAVAILABLE (no server, or a proxy with no replica to reach), or a stream a proxy cut in the middle of its
+  // answer because its replica went away (nginx resets the stream: INTERNAL, "RST_STREAM"). Every call is safe to
+  // repeat: uploads and rigs are content-addressed, a build joins its operation, poses only read.
+  static bool retryable(const grpc::Status& status) {
+    return status.error_code() == grpc::StatusCode::UNAVAILABLE ||
+           (status.error_code() == grpc::StatusCode::INTERNAL &&
+            status.error_message().find("RST_STREAM") != std::string::npos);
+  }
   v1::Posewarp::Stub* operator->() const { return stub_.get(); }
+  const std::shared_ptr<grpc::Channel>& channel() const { return channel_; }
   v1::Posewarp::Stub& operator*() const { return *stub_; }
   const std::string& server() const { return server_; }
   // A call's context with the token and the rig id.
@@ -549,6 +560,33 @@ int run_export_remote(const Connection& connection, const std::string& rig_id, c
   if (Status s = api::write_file_atomically(rig_out, *bytes, "rig file"); !s.ok()) return report(s);
   say("wrote " + rig_out + " (" + std::to_string(bytes->size() >> 20) + " MB)");
   return 0;
+}
+
+int run_health_remote(const Connection& connection, double timeout_s) {
+  Result<Remote> remote = Remote::open(connection);
+  if (!remote.ok()) return report(remote.status());
+  // grpc.health.v1 through the generic stub: the request (service "", the whole server) is empty; the answer's
+  // field 1 is the serving status (1 = SERVING).
+  grpc::GenericStub stub(remote->channel());
+  const auto context = remote->context();
+  context->set_deadline(std::chrono::system_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000)));
+  const grpc::Slice empty(std::string{});
+  grpc::ByteBuffer request(&empty, 1), response;
+  std::promise<grpc::Status> finished;
+  stub.UnaryCall(context.get(), "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                 [&finished](grpc::Status status) { finished.set_value(std::move(status)); });
+  const grpc::Status status = finished.get_future().get();
+  if (!status.ok()) return report(status_of(status, connection.server));
+  std::vector<grpc::Slice> slices;
+  std::string bytes;
+  if (response.Dump(&slices).ok()) {
+    for (const grpc::Slice& slice : slices) bytes.append(reinterpret_cast<const char*>(slice.begin()), slice.size());
+  }
+  const int serving = bytes.size() >= 2 && bytes[0] == 0x08 ? bytes[1] : 0;
+  static const char* const kNames[] = {"UNKNOWN", "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN"};
+  std::printf("%s\n", kNames[serving >= 0 && serving <= 3 ? serving : 0]);
+  return serving == 1 ? 0 : 1;
 }
 
 }  // namespace posewarp::cli

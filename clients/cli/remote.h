@@ -93,6 +93,8 @@ int run_list_remote(const Connection& connection);
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json);
 int run_delete_remote(const Connection& connection, const std::string& rig_id);
 int run_export_remote(const Connection& connection, const std::string& rig_id, const std::string& rig_out);
+// The standard gRPC health check (grpc.health.v1.Health/Check): exit 0 when the server is serving, 1 otherwise.
+int run_health_remote(const Connection& connection, double timeout_s);
 #else
 // A build tree without the server (-DPOSEWARP_BUILD_SERVER=OFF) has no remote mode.
 inline int remote_unavailable() {
@@ -123,6 +125,7 @@ inline Result<rig::Skeleton> RemotePoser::skeleton() const {
 inline Result<api::Rig> RemotePoser::rig() const {
   return unimplemented_error("no remote mode");
 }
+inline int run_health_remote(const Connection&, double) { return remote_unavailable(); }
 inline int run_list_remote(const Connection&) {
   return remote_unavailable();
 }

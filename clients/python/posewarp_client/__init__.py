@@ -14,6 +14,7 @@ python3-protobuf and python3-numpy (python3-nibabel to upload arrays).
 import hashlib
 import json
 import os
+import time
 
 import grpc
 import numpy as np
@@ -68,7 +69,8 @@ class Client:
     def __init__(self, address, timeout_s=600.0, token=None, tls_ca=None, retries=3):
         """token: the server's bearer token (or None); tls_ca: path of the CA certificate (PEM) of a TLS server;
         retries: calls answered UNAVAILABLE (a server restarting) are tried again this many times, 0.5 s apart and
-        doubling (gRPC's own retry policy: a stream is retried only before its first answer)."""
+        doubling (gRPC's own retry policy, which stops at a stream's first answer; a pose whose stream a proxy cut
+        in mid-answer, its replica gone, is posed again by pose() itself)."""
         policy = {"methodConfig": [{"name": [{"service": "posewarp.v1.Posewarp"}], "retryPolicy": {
             "maxAttempts": retries + 1, "initialBackoff": "0.5s", "maxBackoff": "8s", "backoffMultiplier": 2,
             "retryableStatusCodes": ["UNAVAILABLE"]}}]} if retries > 0 else {}
@@ -83,6 +85,7 @@ class Client:
             self._channel = grpc.insecure_channel(address, options=options)
         self._stub = rpc.PosewarpStub(self._channel)
         self._timeout = timeout_s
+        self._retries = max(0, retries)
         self._metadata = (("authorization", "Bearer " + token.strip()),) if token else ()
 
     def close(self):
@@ -174,23 +177,32 @@ class Client:
         for name, (vertices, triangles) in (meshes or {}).items():
             request.meshes.add(name=name, vertices=np.asarray(vertices, dtype=float).ravel().tolist(),
                                triangles=np.asarray(triangles, dtype=np.int32).ravel().tolist())
-        header, report, found = None, {}, {}
-        parts = {"labels": bytearray(), "ct": bytearray(), "inverse_field": bytearray(), "forward_field": bytearray()}
-        try:
-            for part in self._stub.Pose(request, timeout=self._timeout,
-                                        metadata=self._metadata + (("x-posewarp-rig", rig_id),)):
-                kind = part.WhichOneof("part")
-                if kind == "header":
-                    header = part.header
-                elif kind in parts:
-                    parts[kind] += getattr(part, kind).data
-                elif kind == "surface":
-                    found[part.surface.name] = (np.array(part.surface.vertices).reshape(-1, 3),
-                                                np.array(part.surface.triangles, dtype=np.int32).reshape(-1, 3))
-                elif kind == "report":
-                    report = json.loads(part.report.json)
-        except grpc.RpcError as error:
-            raise PosewarpError(error.code(), error.details()) from None
+        wait_s = 0.5
+        for attempt in range(self._retries + 1):
+            header, report, found = None, {}, {}
+            parts = {"labels": bytearray(), "ct": bytearray(), "inverse_field": bytearray(),
+                     "forward_field": bytearray()}
+            try:
+                for part in self._stub.Pose(request, timeout=self._timeout,
+                                            metadata=self._metadata + (("x-posewarp-rig", rig_id),)):
+                    kind = part.WhichOneof("part")
+                    if kind == "header":
+                        header = part.header
+                    elif kind in parts:
+                        parts[kind] += getattr(part, kind).data
+                    elif kind == "surface":
+                        found[part.surface.name] = (np.array(part.surface.vertices).reshape(-1, 3),
+                                                    np.array(part.surface.triangles, dtype=np.int32).reshape(-1, 3))
+                    elif kind == "report":
+                        report = json.loads(part.report.json)
+                break
+            except grpc.RpcError as error:
+                # gRPC's retry policy stops at a stream's first answer; a replica lost behind a proxy in the middle
+                # of one is tried again here (a pose only reads, so repeating it is safe).
+                if attempt == self._retries or not _stream_cut(error):
+                    raise PosewarpError(error.code(), error.details()) from None
+                time.sleep(wait_s)
+                wait_s = min(8.0, wait_s * 2)
         if header is None or any(len(parts[k]) != n for k, n in (
                 ("labels", header.label_bytes), ("ct", header.ct_bytes),
                 ("inverse_field", header.inverse_field_bytes), ("forward_field", header.forward_field_bytes))):
@@ -204,6 +216,12 @@ class Client:
             result.inverse_field = _field(bytes(parts["inverse_field"]), header.grid)
             result.forward_field = _field(bytes(parts["forward_field"]), header.source_grid)
         return result
+
+
+def _stream_cut(error):
+    """UNAVAILABLE, or a stream that a proxy reset because its replica went away (INTERNAL, RST_STREAM)."""
+    return error.code() == grpc.StatusCode.UNAVAILABLE or (
+        error.code() == grpc.StatusCode.INTERNAL and "RST_STREAM" in (error.details() or ""))
 
 
 def _sample_dtype(pixel_type):
