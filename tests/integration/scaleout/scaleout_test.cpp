@@ -345,8 +345,16 @@ TEST_F(ScaleOut, APostgresRestartIsUnavailableWhileDownAndRecoversWithoutRestart
   ASSERT_EQ(rig_id.size(), 64u);
   ASSERT_EQ(list_code(*s2), grpc::StatusCode::OK);
 
+  v1::PoseRequest warm;
+  warm.set_rig_id(rig_id);
+  warm.set_pose_json(file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/bar_bend_90.json"));
+  warm.set_want_labels(true);
+  ASSERT_TRUE(pose_remote(*s1, warm).status.ok());
+
   ASSERT_TRUE(database_->stop());
   for (auto* stub : {s1.get(), s2.get()}) EXPECT_EQ(list_code(*stub), grpc::StatusCode::UNAVAILABLE);
+  // A rig in a replica's cache goes on posing without the index.
+  EXPECT_TRUE(pose_remote(*s1, warm).status.ok());
   const std::string message = [&] {
     grpc::ClientContext context;
     v1::ListRigsResponse listed;
