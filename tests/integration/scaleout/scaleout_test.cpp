@@ -5,8 +5,6 @@
 
 #include <atomic>
 #include <future>
-#include <mutex>
-#include <regex>
 #include <set>
 
 #include "../support/cluster.h"
