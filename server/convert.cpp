@@ -15,51 +15,11 @@ void put_grid(const ImageGeometry& g, v1::Grid* grid) {
   for (size_t e = 0; e < 9; ++e) grid->add_direction(g.direction[e]);
 }
 
-Result<ImageGeometry> grid_from(const v1::Grid& grid) {
-  if (grid.size_size() != 3 || grid.spacing_size() != 3 || grid.origin_size() != 3 || grid.direction_size() != 9) {
-    return invalid_argument_error("a grid has 3 sizes, 3 spacings, 3 origin coordinates and 9 direction entries "
-                                  "(row-major, LPS mm)");
-  }
-  ImageGeometry g;
-  for (int a = 0; a < 3; ++a) {
-    g.size[static_cast<size_t>(a)] = grid.size(a);
-    g.spacing[static_cast<size_t>(a)] = grid.spacing(a);
-    g.origin[static_cast<size_t>(a)] = grid.origin(a);
-  }
-  for (int e = 0; e < 9; ++e) g.direction[static_cast<size_t>(e)] = grid.direction(e);
-  POSEWARP_RETURN_IF_ERROR(g.validate());
-  return g;
-}
-
 skinning::Method method_of(v1::Method method) {
   switch (method) {
     case v1::METHOD_DQS: return skinning::Method::kDqs;
     case v1::METHOD_LBS: return skinning::Method::kLbs;
-    default: return skinning::Method::kCor;
-  }
-}
-
-const char* extension_of(v1::FileFormat format) {
-  switch (format) {
-    case v1::FILE_FORMAT_NIFTI_GZ: return ".nii.gz";
-    case v1::FILE_FORMAT_NIFTI: return ".nii";
-    case v1::FILE_FORMAT_NRRD: return ".nrrd";
-    case v1::FILE_FORMAT_MHA: return ".mha";
-    default: return nullptr;
-  }
-}
-
-std::optional<PixelType> pixel_type_of(v1::PixelType type) {
-  switch (type) {
-    case v1::PIXEL_TYPE_UINT8: return PixelType::kUInt8;
-    case v1::PIXEL_TYPE_INT8: return PixelType::kInt8;
-    case v1::PIXEL_TYPE_UINT16: return PixelType::kUInt16;
-    case v1::PIXEL_TYPE_INT16: return PixelType::kInt16;
-    case v1::PIXEL_TYPE_UINT32: return PixelType::kUInt32;
-    case v1::PIXEL_TYPE_INT32: return PixelType::kInt32;
-    case v1::PIXEL_TYPE_FLOAT32: return PixelType::kFloat32;
-    case v1::PIXEL_TYPE_FLOAT64: return PixelType::kFloat64;
-    default: return std::nullopt;
+    default: return skinning::Method::kCor;  // METHOD_COR and METHOD_UNSPECIFIED (method_from refused the rest)
   }
 }
 
@@ -75,32 +35,6 @@ v1::PixelType wire_pixel_type(PixelType type) {
     case PixelType::kFloat64: return v1::PIXEL_TYPE_FLOAT64;
     default: return v1::PIXEL_TYPE_UNSPECIFIED;
   }
-}
-
-Result<surface::SurfaceMesh> surface_from(const v1::Surface& message) {
-  const std::string name = message.name().empty() ? "mesh" : message.name();
-  if (message.vertices_size() == 0 || message.vertices_size() % 3 != 0 || message.triangles_size() % 3 != 0) {
-    return invalid_argument_error("mesh '" + name + "' needs 3 coordinates per vertex and 3 vertex indices per "
-                                  "triangle");
-  }
-  surface::SurfaceMesh mesh;
-  mesh.name = name;
-  mesh.label = message.label();
-  const int vertices = message.vertices_size() / 3;
-  mesh.vertices.resize(vertices, 3);
-  for (int i = 0; i < message.vertices_size(); ++i) {
-    if (!std::isfinite(message.vertices(i))) return invalid_argument_error("mesh '" + name + "' has a coordinate that is not a finite number");
-    mesh.vertices(i / 3, i % 3) = message.vertices(i);
-  }
-  mesh.triangles.resize(message.triangles_size() / 3, 3);
-  for (int i = 0; i < message.triangles_size(); ++i) {
-    if (message.triangles(i) < 0 || message.triangles(i) >= vertices) {
-      return invalid_argument_error("mesh '" + name + "' has a triangle naming vertex " +
-                                    std::to_string(message.triangles(i)) + " of " + std::to_string(vertices));
-    }
-    mesh.triangles(i / 3, i % 3) = message.triangles(i);
-  }
-  return mesh;
 }
 
 void put_rig_row(const RigRecord& record, v1::Rig* message) {

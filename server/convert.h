@@ -6,23 +6,17 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.pb.h"
+#include "requests.h"
 #include "store.h"
 
 namespace posewarp::server {
 
 void put_grid(const ImageGeometry& geometry, v1::Grid* grid);
-// A client's grid, checked (3 sizes, spacings and origins, 9 direction entries, a valid geometry).
-Result<ImageGeometry> grid_from(const v1::Grid& grid);
 
+// A checked method (requests.h: method_from) as the engine names it.
 skinning::Method method_of(v1::Method method);
-// The extension a stored upload of `format` gets, or nullptr for a format that is not a file.
-const char* extension_of(v1::FileFormat format);
-// RAW samples -> the pixel type, or nullopt.
-std::optional<PixelType> pixel_type_of(v1::PixelType type);
 // The pixel type on the wire; UNSPECIFIED for 64-bit integers, which the proto does not carry.
 v1::PixelType wire_pixel_type(PixelType type);
-// A client's mesh, checked (whole vertices and triangles, finite coordinates, indices in range).
-Result<surface::SurfaceMesh> surface_from(const v1::Surface& message);
 
 // The rig's description: the index row, the skeleton, mesh size and provenance.
 void put_rig(const RigRecord& record, const api::Rig& rig, v1::Rig* message);

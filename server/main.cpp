@@ -3,12 +3,14 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/resource_quota.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <csignal>
 #include <cstdio>
 #include <memory>
@@ -81,7 +83,11 @@ int main(int argc, char** argv) {
   std::string store_dir, config, token_file, tls_cert, tls_key, tls_client_ca, metrics_listen, log_level = "info";
   server::ServiceOptions options;
   server::StoreOptions store_options;
-  int64_t cache_mb = options.cache_bytes >> 20;
+  const int64_t machine_mb = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) >> 20;
+  int64_t memory_mb = machine_mb * 3 / 4;
+  int64_t cache_mb = 0;
+  double stall_timeout_s = options.stall_timeout_ms / 1000.0;
+  int64_t upload_mb_per_client = 0;
   int64_t max_upload_mb = options.max_upload_bytes >> 20;
   int64_t max_output_mb = 0;
   int64_t quota_gb = 0;
@@ -101,11 +107,33 @@ int main(int argc, char** argv) {
       ->capture_default_str()->check(CLI::Range(0, 256));
   app.add_option("--pose-queue", options.pose_queue, "Poses that may wait for a slot")->capture_default_str()->check(CLI::Range(0, 10000));
   app.add_option("--pose-threads", options.pose_threads, "Threads of one pose (0 = all cores)")->capture_default_str();
-  app.add_option("--cache-mb", cache_mb, "Loaded rigs kept in memory, MB")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--memory-mb", memory_mb,
+                 "The server's memory ceiling, MB (default 3/4 of the machine's): loaded rigs (--cache-mb), poses and "
+                 "uploads in flight and a 256 MB base share it; work that would go past it waits or is refused "
+                 "RESOURCE_EXHAUSTED")
+      ->capture_default_str()->check(CLI::Range(int64_t{512}, int64_t{1} << 40));
+  app.add_option("--cache-mb", cache_mb, "Loaded rigs kept in memory, MB, out of --memory-mb (0 = a third of it, at "
+                                         "most 8192)")->capture_default_str()->check(CLI::NonNegativeNumber);
+  app.add_option("--stall-timeout-s", stall_timeout_s,
+                 "A call whose stream makes no progress this long (a client that stopped reading its pose, or stopped "
+                 "sending its upload) is cancelled and its pose slot and memory freed")
+      ->capture_default_str()->check(CLI::Range(0.1, 3600.0));
+  app.add_option("--calls-per-client", options.client.calls,
+                 "Poses, uploads and downloads one client may have in progress at once (a client is its bearer token, "
+                 "else its address)")->capture_default_str()->check(CLI::Range(1, 10000));
+  app.add_option("--uploads-per-client", options.client.uploads, "Uploads one client may have in progress at once")
+      ->capture_default_str()->check(CLI::Range(1, 1000));
+  app.add_option("--upload-mb-per-client", upload_mb_per_client,
+                 "Declared sizes of one client's uploads in progress together, MB (0 = --max-upload-mb)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
   app.add_option("--max-upload-mb", max_upload_mb, "Largest uploaded file, MB")->capture_default_str()->check(CLI::PositiveNumber);
-  app.add_option("--max-volume-voxels", options.max_volume_voxels, "Largest uploaded volume, voxels")->capture_default_str();
-  app.add_option("--max-output-voxels", options.max_output_voxels, "Largest pose output grid, voxels")->capture_default_str();
-  app.add_option("--max-output-mb", max_output_mb, "Largest pose output, MB (0 = half the machine's memory)")->capture_default_str();
+  app.add_option("--max-volume-voxels", options.max_volume_voxels,
+                 "Largest uploaded volume, voxels (also what reading it may allocate)")
+      ->capture_default_str()->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
+  app.add_option("--max-output-voxels", options.max_output_voxels, "Largest pose output grid, voxels")
+      ->capture_default_str()->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
+  app.add_option("--max-output-mb", max_output_mb, "Largest output of one pose, MB (0 = the whole memory budget)")
+      ->capture_default_str()->check(CLI::NonNegativeNumber);
   app.add_option("--max-message-mb", max_message_mb, "Largest gRPC message received, MB")->capture_default_str()->check(CLI::Range(1, 1024));
   app.add_option("--max-streams", max_streams, "Concurrent streams per client connection")->capture_default_str()->check(CLI::Range(1, 10000));
   app.add_option("--preview-streams-per-client", options.preview_streams_per_client,
@@ -147,8 +175,19 @@ int main(int argc, char** argv) {
     const int code = app.exit(error);
     return code == 0 ? 0 : 2;
   }
+  if (cache_mb == 0) cache_mb = std::min<int64_t>(memory_mb / 3, 8192);
+  constexpr int64_t kBaseMb = 256;  // the server itself: libraries, gRPC's buffers, the index
+  if (memory_mb < cache_mb + kBaseMb + 256) {
+    std::fprintf(stderr, "error: --memory-mb %lld leaves less than 256 MB for poses and uploads after --cache-mb %lld "
+                         "and the server's own 256 MB; raise --memory-mb or lower --cache-mb\n",
+                 static_cast<long long>(memory_mb), static_cast<long long>(cache_mb));
+    return 2;
+  }
   options.cache_bytes = cache_mb << 20;
+  options.memory_bytes = (memory_mb - cache_mb - kBaseMb) << 20;
+  options.stall_timeout_ms = static_cast<int>(stall_timeout_s * 1000.0);
   options.max_upload_bytes = max_upload_mb << 20;
+  options.client.upload_bytes = (upload_mb_per_client > 0 ? upload_mb_per_client : max_upload_mb) << 20;
   options.max_output_bytes = max_output_mb << 20;
   store_options.quota_bytes = static_cast<uint64_t>(quota_gb) << 30;
   if (tls_cert.empty() != tls_key.empty()) {
@@ -219,6 +258,10 @@ int main(int argc, char** argv) {
   builder.AddListeningPort(listen, credentials, &port);
   builder.RegisterService(&service);
   builder.SetMaxReceiveMessageSize(max_message_mb << 20);
+  // gRPC's own buffers come out of the server's base share.
+  grpc::ResourceQuota quota("posewarp-server");
+  quota.Resize(size_t{192} << 20);
+  builder.SetResourceQuota(quota);
   builder.AddChannelArgument(GRPC_ARG_MAX_CONCURRENT_STREAMS, max_streams);
   std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
   if (!server || port == 0) {

@@ -14,6 +14,7 @@
 #include <utility>
 
 #include "convert.h"
+#include "intake.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
 #include "status_map.h"
@@ -71,9 +72,12 @@ Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api
 using ChunkField = v1::VolumeChunk* (v1::PoseResponse::*)();
 
 // n samples as `type` (or n bytes of a file, T = char), in chunks of about chunk_bytes, each converted straight into its message (no extra copy).
+// Writes one message of a pose's stream (under the call's stall watch); false when the client went away.
+using PoseWrite = std::function<bool(const v1::PoseResponse&)>;
+
 template <typename T>
-grpc::Status write_samples(grpc::ServerWriter<v1::PoseResponse>* writer, const T* data, int64_t n, PixelType type,
-                           uint64_t chunk_bytes, ChunkField field) {
+grpc::Status write_samples(const PoseWrite& write, const T* data, int64_t n, PixelType type, uint64_t chunk_bytes,
+                           ChunkField field) {
   const int64_t sample = pixel_type_bytes(type);
   const int64_t per_chunk = std::max<int64_t>(1, static_cast<int64_t>(chunk_bytes) / sample);
   for (int64_t first = 0; first < n; first += per_chunk) {
@@ -90,7 +94,7 @@ grpc::Status write_samples(grpc::ServerWriter<v1::PoseResponse>* writer, const T
       return {grpc::StatusCode::INTERNAL, "a posed value does not fit the study's voxel type " +
                                               std::string(pixel_type_name(type)) + "; ask for computed samples"};
     }
-    if (!writer->Write(message)) return kClientGone;
+    if (!write(message)) return kClientGone;
   }
   return grpc::Status::OK;
 }
@@ -99,8 +103,8 @@ grpc::Status write_samples(grpc::ServerWriter<v1::PoseResponse>* writer, const T
 // volume waits for the one before it, and the call writes nothing else until wait(): one writer at a time.
 class VolumeSender {
  public:
-  VolumeSender(grpc::ServerWriter<v1::PoseResponse>* writer, VolumeEncoding encoding, uint64_t chunk_bytes)
-      : writer_(writer), encoding_(std::move(encoding)), chunk_bytes_(chunk_bytes) {}
+  VolumeSender(PoseWrite write, VolumeEncoding encoding, uint64_t chunk_bytes)
+      : write_(std::move(write)), encoding_(std::move(encoding)), chunk_bytes_(chunk_bytes) {}
   ~VolumeSender() { (void)wait(); }
 
   template <typename T>
@@ -110,10 +114,10 @@ class VolumeSender {
       if (before.valid()) {
         if (grpc::Status s = before.get(); !s.ok()) return s;
       }
-      if (!encoding_.format) return write_samples(writer_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
+      if (!encoding_.format) return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
       Result<std::string> bytes = api::encode_volume(*volume, *encoding_.format, encoding_.gzip, type);
       if (!bytes.ok()) return {grpc::StatusCode::INTERNAL, "encoding a posed volume failed: " + bytes.status().message()};
-      return write_samples(writer_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8,
+      return write_samples(write_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8,
                            chunk_bytes_, field);
     });
   }
@@ -126,12 +130,24 @@ class VolumeSender {
   }
 
  private:
-  grpc::ServerWriter<v1::PoseResponse>* writer_;
+  PoseWrite write_;
   VolumeEncoding encoding_;
   uint64_t chunk_bytes_;
   std::future<grpc::Status> last_;
   grpc::Status status_;
 };
+
+// Placeholder until the labels stage's check lands.
+Status check_looks_like_labels(const LabelVolume& volume, const std::string& what) {
+  std::set<Label> seen;
+  for (int64_t i = 0; i < volume.voxel_count(); ++i) {
+    if (seen.insert(volume.data()[i]).second && seen.size() > 1000) {
+      return invalid_argument_error(what + " hold more than 1000 distinct values: an intensity volume (CT or MRI) "
+                                    "given as labels? Upload the segmentation as VOLUME_KIND_LABELS");
+    }
+  }
+  return ok_status();
+}
 
 // A request id from the client's "x-request-id" metadata when it is a plain token, else one of ours.
 std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) {
@@ -148,20 +164,16 @@ std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) 
   return text;
 }
 
-// The client's host from gRPC's peer string ("ipv4:127.0.0.1:5432", "ipv6:[::1]:5432").
-std::string peer_host(const std::string& peer) {
-  const size_t colon = peer.rfind(':');
-  return colon == std::string::npos ? peer : peer.substr(0, colon);
-}
 
 }  // namespace
 
-// One call's frame: the token check, then at the end the log line and the metrics.
+// One call's frame: the token check, the stall watch over its stream, then at the end the log line and the metrics.
 class PosewarpService::Call {
  public:
   Call(PosewarpService& service, grpc::ServerContext* context, const char* method, std::string rig_id = "")
       : service_(service), context_(context), method_(method), rig_id_(std::move(rig_id)),
-        request_id_(request_id_of(context, service.next_request_++)), start_(std::chrono::steady_clock::now()) {
+        request_id_(request_id_of(context, service.next_request_++)), start_(std::chrono::steady_clock::now()),
+        stream_(service.stall_watch_.watch(context)) {
     if (service_.tokens_.enabled()) {
       const auto& metadata = context->client_metadata();
       const auto it = metadata.find("authorization");
@@ -178,10 +190,30 @@ class PosewarpService::Call {
   bool refused() const { return !refusal_.ok(); }
   grpc::Status refusal() { return done(refusal_); }
   void set_rig(const std::string& rig_id) { rig_id_ = rig_id; }
+  // Who the call comes from, for the per-client limits.
+  std::string client() const { return client_of(*context_); }
+
+  // One Write or Read of the call's stream, under the stall watch: false when the client went away or stalled.
+  template <typename Writer, typename Message>
+  bool write(Writer* writer, const Message& message) {
+    return stream_->io([&] { return writer->Write(message); });
+  }
+  template <typename Reader, typename Message>
+  bool read(Reader* reader, Message* message) {
+    return stream_->io([&] { return reader->Read(message); });
+  }
+  StallWatch::Stream& stream() { return *stream_; }
 
   grpc::Status done(grpc::Status status) {
-    // gRPC cancels a call whose deadline passed: that is the client's deadline, not a cancel.
-    if (status.error_code() == grpc::StatusCode::CANCELLED && context_->deadline() <= std::chrono::system_clock::now()) {
+    if (stream_->stalled()) {
+      const double limit_s = static_cast<double>(service_.stall_watch_.limit().count()) / 1000.0;
+      status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                            "the stream made no progress for " + number_text(limit_s) +
+                                " s (the client stopped reading or sending; the server's --stall-timeout-s); the "
+                                "call was cancelled");
+    } else if (status.error_code() == grpc::StatusCode::CANCELLED &&
+               context_->deadline() <= std::chrono::system_clock::now()) {
+      // gRPC cancels a call whose deadline passed: that is the client's deadline, not a cancel.
       status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the client's deadline passed before the call ended");
     }
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
@@ -202,18 +234,27 @@ class PosewarpService::Call {
   }
 
  private:
+  static std::string number_text(double value) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", value);
+    return text;
+  }
   PosewarpService& service_;
   grpc::ServerContext* context_;
   const char* method_;
   std::string rig_id_;
   std::string request_id_;
   std::chrono::steady_clock::time_point start_;
+  std::unique_ptr<StallWatch::Stream> stream_;
   grpc::Status refusal_;
 };
 
 PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions options, const Tokens& tokens,
                                  Metrics& metrics)
-    : store_(std::move(store)), options_(options), tokens_(tokens), metrics_(metrics) {
+    : store_(std::move(store)), options_(options),
+      stall_watch_(std::chrono::milliseconds(std::max(1, options.stall_timeout_ms))),
+      memory_(options.memory_bytes), client_limits_(options.client), tokens_(tokens), metrics_(metrics) {
+  stall_watch_.on_stall([this] { metrics_.count("streams_stalled"); });
   if (options_.pose_slots <= 0) options_.pose_slots = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   metrics_.set_gauges([this] { return gauges(); });
   for (int i = 0; i < std::max(1, options_.build_workers); ++i) build_threads_.emplace_back([this] { build_worker(); });
@@ -336,6 +377,30 @@ void PosewarpService::shutdown() {
 
 grpc::Status PosewarpService::to_grpc(const Status& status) const { return server::to_grpc(status, store_->directory()); }
 
+RequestLimits PosewarpService::request_limits() const {
+  RequestLimits limits;
+  limits.max_upload_bytes = options_.max_upload_bytes;
+  limits.max_volume_voxels = options_.max_volume_voxels;
+  limits.max_output_voxels = options_.max_output_voxels;
+  return limits;
+}
+
+api::ReadOptions PosewarpService::read_options() const {
+  api::ReadOptions options;
+  options.max_voxels = options_.max_volume_voxels;
+  options.voxel_limit_name = "the server's --max-volume-voxels";
+  options.inline_data_only = true;
+  return options;
+}
+
+Status PosewarpService::server_limits_named(const Status& status) const {
+  if (status.code() != StatusCode::kResourceExhausted) return status;
+  return Status(status.code(), status.message() + " (this server makes output grids of at most " +
+                                   std::to_string(options_.max_output_voxels) + " voxels, its --max-output-voxels, " +
+                                   "within a memory budget of " + std::to_string(memory_.total() >> 20) +
+                                   " MB, its --memory-mb; max_output_bytes lowers it for one request)");
+}
+
 ProgressHooks PosewarpService::call_hooks(grpc::ServerContext* context) const {
   ProgressHooks hooks;
   hooks.threads = options_.pose_threads;
@@ -351,42 +416,22 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   Call call(*this, context, "UploadVolume");
   if (call.refused()) return call.refusal();
   v1::UploadVolumeRequest part;
-  if (!reader->Read(&part) || !part.has_header()) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload starts with its header (kind, format, size, sha256)"});
+  if (!call.read(reader, &part)) return call.done(kClientGone);
+  if (!part.has_header()) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload starts with its header (kind, format, size_bytes, "
+                                                          "sha256)"});
   }
   const v1::UploadVolumeHeader header = part.header();
-  const bool raw = header.format() == v1::FILE_FORMAT_RAW;
-  const char* extension = raw ? ".nii.gz" : extension_of(header.format());
-  if (extension == nullptr) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload format must be NIFTI_GZ, NIFTI, NRRD, MHA or RAW"});
-  }
-  if (header.kind() != v1::VOLUME_KIND_LABELS && header.kind() != v1::VOLUME_KIND_INTENSITY) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload kind must be LABELS or INTENSITY"});
-  }
-  if (!api::is_hex_id(header.sha256())) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "upload sha256 must be 64 lowercase hex digits"});
-  }
-  if (header.size_bytes() == 0 || header.size_bytes() > static_cast<uint64_t>(options_.max_upload_bytes)) {
-    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "upload size must be 1 to " +
-                                                                std::to_string(options_.max_upload_bytes) +
-                                                                " bytes (the server's --max-upload-mb)"});
-  }
-  std::optional<ImageGeometry> raw_grid;
-  std::optional<PixelType> raw_type;
-  if (raw) {
-    Result<ImageGeometry> grid = grid_from(header.raw_grid());
-    if (!grid.ok()) return call.done(to_grpc(grid.status().with_context("raw upload")));
-    raw_type = pixel_type_of(header.raw_pixel_type());
-    if (!raw_type) return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a raw upload names its raw_pixel_type"});
-    raw_grid = *grid;
-  }
-  const std::string kind = header.kind() == v1::VOLUME_KIND_LABELS ? "labels" : "intensity";
-  const bool labels = kind == "labels";
+  Result<UploadPlan> checked = check_upload_header(header, request_limits());
+  if (!checked.ok()) return call.done(to_grpc(checked.status()));
+  const UploadPlan& plan = *checked;
+  const bool labels = header.kind() == v1::VOLUME_KIND_LABELS;
+  const std::string kind = labels ? "labels" : "intensity";
   // A file the store holds already (its id is its SHA-256) is answered after the header: the client's chunks are
   // never read, so a client re-sending a study does not move its bytes again.
-  if (!raw) {
+  if (!plan.raw) {
     if (Result<VolumeRecord> existing = store_->volume(header.sha256()); existing.ok() && existing->kind == kind) {
-      if (Result<api::VolumeHeader> stored = api::read_header(existing->path); stored.ok()) {
+      if (Result<api::VolumeHeader> stored = api::read_header(existing->path, read_options()); stored.ok()) {
         response->set_id(existing->id);
         response->set_kind(header.kind());
         put_grid(stored->geometry, response->mutable_grid());
@@ -397,92 +442,91 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
       }
     }
   }
-  std::string bytes;
-  bytes.reserve(header.size_bytes());
-  api::Sha256 hash;
-  while (reader->Read(&part)) {
-    if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the upload"});
-    if (part.part_case() != v1::UploadVolumeRequest::kChunk) {
-      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload has one header, then chunks"});
-    }
-    if (bytes.size() + part.chunk().size() > header.size_bytes()) {
-      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "the upload sent more bytes than its header's size_bytes"});
-    }
-    hash.update(part.chunk());
-    bytes += part.chunk();
+  Result<ClientLimits::Entry> admitted =
+      client_limits_.enter_upload(call.client(), static_cast<int64_t>(header.size_bytes()));
+  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
+
+  // The bytes go to a file in a directory of this upload's own as they arrive (never held whole in memory): a
+  // header there that names a data file beside itself finds nothing it did not send.
+  Result<std::string> directory = store_->make_staging_directory();
+  if (!directory.ok()) return call.done(to_grpc(directory.status()));
+  const StagingDirectory staging(*directory);
+  const std::string staged = *directory + "/upload" + plan.extension;
+  Result<StagedUpload> received = receive_upload<v1::UploadVolumeRequest>(
+      [&](v1::UploadVolumeRequest* message) { return call.read(reader, message); },
+      [](const v1::UploadVolumeRequest& message) -> const std::string* {
+        return message.part_case() == v1::UploadVolumeRequest::kChunk ? &message.chunk() : nullptr;
+      },
+      header.size_bytes(), staged);
+  if (!received.ok()) {
+    if (call.stream().stalled() || context->IsCancelled()) return call.done(kClientGone);
+    return call.done(to_grpc(received.status()));
   }
-  if (bytes.size() != header.size_bytes()) {
-    return call.done({grpc::StatusCode::DATA_LOSS, "the upload ended after " + std::to_string(bytes.size()) + " of " +
-                                                       std::to_string(header.size_bytes()) + " bytes; send it again"});
-  }
-  if (hash.hex_digest() != header.sha256()) {
+  if (received->sha256 != header.sha256()) {
     return call.done({grpc::StatusCode::DATA_LOSS, "the upload's bytes do not match its sha256; send it again"});
   }
-  if (raw) {
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  const auto gone = [context] { return context->IsCancelled(); };
+
+  if (plan.raw) {
     // Raw samples become a NIfTI file in the store; the id covers the samples and their geometry.
-    if (raw_grid->voxel_count() > options_.max_volume_voxels) {
-      return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "the volume has " + std::to_string(raw_grid->voxel_count()) +
-                                                                  " voxels; this server takes at most " +
-                                                                  std::to_string(options_.max_volume_voxels)});
-    }
     const std::string id = api::sha256_hex(header.sha256() + header.raw_grid().SerializeAsString() +
                                            std::to_string(header.raw_pixel_type()) + kind);
     if (Result<VolumeRecord> existing = store_->volume(id); existing.ok()) {
       response->set_id(id);
       response->set_kind(header.kind());
-      put_grid(*raw_grid, response->mutable_grid());
+      put_grid(plan.raw_grid, response->mutable_grid());
       response->set_size_bytes(existing->size_bytes);
       return call.done(grpc::Status::OK);
     }
-    // Stored as a .nii.gz made in memory.
-    Result<std::string> encoded = labels ? [&]() -> Result<std::string> {
-      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, labels_from_raw(bytes, *raw_type, *raw_grid));
-      return api::encode_volume(v, api::VolumeFormat::kNifti, true);
-    }()
-                                         : [&]() -> Result<std::string> {
-      POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, intensity_from_raw(bytes, *raw_type, *raw_grid));
+    // The samples, the volume made of them and its .nii.gz, all in memory at once.
+    const int64_t voxels = plan.raw_grid.voxel_count();
+    Result<MemoryBudget::Reservation> memory =
+        memory_.reserve(static_cast<int64_t>(header.size_bytes()) * 2 + voxels * 4, "this upload", until, gone);
+    if (!memory.ok()) return call.done(to_grpc(memory.status()));
+    Result<std::string> encoded = [&]() -> Result<std::string> {
+      POSEWARP_ASSIGN_OR_RETURN(const std::string bytes,
+                                api::read_text_input(staged, "upload", static_cast<int64_t>(header.size_bytes())));
+      if (labels) {
+        POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, labels_from_raw(bytes, plan.raw_type, plan.raw_grid));
+        POSEWARP_RETURN_IF_ERROR(check_looks_like_labels(v, "the uploaded labels"));
+        return api::encode_volume(v, api::VolumeFormat::kNifti, true);
+      }
+      POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, intensity_from_raw(bytes, plan.raw_type, plan.raw_grid));
       return api::encode_volume(v, api::VolumeFormat::kNifti, true);
     }();
     if (!encoded.ok()) return call.done(to_grpc(encoded.status()));
-    Result<VolumeRecord> stored = store_->put_volume(id, extension, kind, *encoded);
+    Result<VolumeRecord> stored = store_->put_volume(id, plan.extension, kind, *encoded);
     if (!stored.ok()) return call.done(to_grpc(stored.status()));
     response->set_id(id);
     response->set_kind(header.kind());
-    put_grid(*raw_grid, response->mutable_grid());
-    response->set_pixel_type(std::string(pixel_type_name(*raw_type)));
+    put_grid(plan.raw_grid, response->mutable_grid());
+    response->set_pixel_type(std::string(pixel_type_name(plan.raw_type)));
     response->set_size_bytes(stored->size_bytes);
     return call.done(grpc::Status::OK);
   }
-  // A file is read as posing will read it before it gets its name in the store.
-  // Named apart per upload: the same bytes may arrive twice at once, on this server or on another replica.
-  static std::atomic<uint64_t> uploads{0};
-  static const std::string process_tag = api::sha256_hex(options_.replica + std::to_string(std::random_device{}()))
-                                             .substr(0, 12);
-  const fs::path staging = fs::path(store_->directory()) / "volumes" /
-                           (".staging-" + header.sha256().substr(0, 16) + "-" + process_tag + "-" +
-                            std::to_string(++uploads) + extension);
-  if (Status s = api::write_file_atomically(staging.string(), bytes, "upload"); !s.ok()) return call.done(to_grpc(s));
+  // A file is read as posing will read it before it gets its name in the store: its header first (the voxel
+  // limit, inline data only), then, with memory reserved for them, its voxels.
   Result<api::VolumeHeader> read = [&]() -> Result<api::VolumeHeader> {
-    POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staging.string()));
-    if (h.geometry.voxel_count() > options_.max_volume_voxels) {
-      return resource_exhausted_error("the volume has " + std::to_string(h.geometry.voxel_count()) +
-                                      " voxels; this server takes at most " +
-                                      std::to_string(options_.max_volume_voxels) + " (--max-volume-voxels)");
-    }
+    POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staged, read_options()));
+    const int64_t voxels = h.geometry.voxel_count();
+    POSEWARP_ASSIGN_OR_RETURN(const MemoryBudget::Reservation memory,
+                              memory_.reserve(voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload",
+                                              until, gone));
     if (labels) {
-      POSEWARP_RETURN_IF_ERROR(api::read_label_volume(staging.string()).status());
+      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume volume, api::read_label_volume(staged, read_options()));
+      POSEWARP_RETURN_IF_ERROR(check_looks_like_labels(volume, "the uploaded labels"));
     } else {
-      POSEWARP_RETURN_IF_ERROR(api::read_intensity_volume(staging.string()).status());
+      POSEWARP_RETURN_IF_ERROR(api::read_intensity_volume(staged, read_options()).status());
     }
     return h;
   }();
-  std::error_code ec;
-  fs::remove(staging, ec);
   if (!read.ok()) {
-    return call.done({static_cast<grpc::StatusCode>(read.status().code()),
-                      without_path(read.status().message(), staging.string(), "uploaded volume")});
+    // Named as the client knows it; a path a reader quotes (the store's) never reaches the client.
+    const std::string message = without_path(read.status().message(), staged, "the uploaded volume");
+    return call.done(to_grpc(Status(read.status().code(), without_path(message, *directory, "the upload"))));
   }
-  Result<VolumeRecord> stored = store_->put_volume(header.sha256(), extension, kind, bytes);
+  Result<VolumeRecord> stored = store_->put_volume_file(header.sha256(), plan.extension, kind, staged);
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
   response->set_id(stored->id);
   response->set_kind(header.kind());
@@ -496,13 +540,27 @@ grpc::Status PosewarpService::BuildRig(grpc::ServerContext* context, const v1::B
                                        v1::Operation* response) {
   Call call(*this, context, "BuildRig");
   if (call.refused()) return call.refusal();
-  if (!api::is_hex_id(request->labels_volume_id()) ||
-      (!request->ct_volume_id().empty() && !api::is_hex_id(request->ct_volume_id()))) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "volume ids are 64 lowercase hex digits (from UploadVolume)"});
-  }
-  if (Result<VolumeRecord> v = store_->volume(request->labels_volume_id()); !v.ok()) return call.done(to_grpc(v.status()));
+  if (Status s = check_build_request(*request); !s.ok()) return call.done(to_grpc(s));
+  // Each volume was uploaded for its purpose: the labels as labels, the CT as intensities (the swap is refused
+  // before any work; a volume of an older store, adopted without its kind, is checked by the build).
+  Result<VolumeRecord> labels = store_->volume(request->labels_volume_id());
+  if (!labels.ok()) return call.done(to_grpc(labels.status().with_context("labels_volume_id")));
+  std::optional<VolumeRecord> ct;
   if (!request->ct_volume_id().empty()) {
-    if (Result<VolumeRecord> v = store_->volume(request->ct_volume_id()); !v.ok()) return call.done(to_grpc(v.status()));
+    Result<VolumeRecord> v = store_->volume(request->ct_volume_id());
+    if (!v.ok()) return call.done(to_grpc(v.status().with_context("ct_volume_id")));
+    ct = *v;
+  }
+  const bool labels_wrong = labels->kind == "intensity";
+  const bool ct_wrong = ct && ct->kind == "labels";
+  if (labels_wrong || ct_wrong) {
+    std::string message = labels_wrong && ct_wrong ? "labels_volume_id names an intensity volume and ct_volume_id a "
+                                                     "label volume: they are swapped"
+                          : labels_wrong          ? "labels_volume_id names a volume uploaded as VOLUME_KIND_INTENSITY"
+                                                    " (a CT or MRI); give the segmentation's id"
+                                                  : "ct_volume_id names a volume uploaded as VOLUME_KIND_LABELS (a "
+                                                    "segmentation); give the CT's id";
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, message});
   }
   v1::BuildRigRequest unnamed = *request;
   unnamed.clear_name();
@@ -700,7 +758,7 @@ grpc::Status PosewarpService::WatchOperation(grpc::ServerContext* context, const
       if (!operation.ok()) return call.done(to_grpc(operation.status()));
       if (const std::string serialized = operation->SerializeAsString(); serialized != last) {
         last = serialized;
-        if (!writer->Write(*operation)) return call.done(kClientGone);
+        if (!call.write(writer, *operation)) return call.done(kClientGone);
       }
       if (is_final(operation->state()) || !store_->index().shared()) return call.done(grpc::Status::OK);
       if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the watch"});
@@ -715,7 +773,7 @@ grpc::Status PosewarpService::WatchOperation(grpc::ServerContext* context, const
     if (serialized != last) {
       last = serialized;
       lock.unlock();
-      const bool written = writer->Write(now);
+      const bool written = call.write(writer, now);
       lock.lock();
       if (!written) return call.done(kClientGone);
     }
@@ -794,6 +852,10 @@ Result<std::shared_ptr<const api::PoseEngine>> PosewarpService::engine(const std
   metrics_.count("cache_misses");
   auto result = std::make_shared<EngineResult>([&]() -> EngineResult {
     POSEWARP_ASSIGN_OR_RETURN(const RigRecord stored, store_->rig(rig_id));
+    // Loading holds the file's bytes beside the rig made of them; the loaded engine then counts in the cache.
+    POSEWARP_ASSIGN_OR_RETURN(const MemoryBudget::Reservation loading_memory,
+                              memory_.reserve(static_cast<int64_t>(stored.size_bytes) * 2, "loading this rig",
+                                              std::chrono::steady_clock::now() + std::chrono::seconds(60), nullptr));
     Result<api::Rig> rig = api::load_rig(stored.path);
     if (!rig.ok() && rig.status().code() == StatusCode::kDataLoss) {
       // Never served: moved aside for a person to look at, and the client told to rebuild.
@@ -890,7 +952,7 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
   const api::Rig& rig = (*engine)->rig();
   v1::RigAsset asset;
   put_skeleton(rig, asset.mutable_skeleton());
-  if (!writer->Write(asset)) return call.done(kClientGone);
+  if (!call.write(writer, asset)) return call.done(kClientGone);
   // Each surface's role, for a viewer: a bone segment's label, the skin (label 0), or another tissue.
   std::set<Label> bone_labels;
   for (const rig::Segment& segment : rig.skeleton.segments) bone_labels.insert(segment.labels.begin(), segment.labels.end());
@@ -908,7 +970,7 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
       put_surface(mesh, true, part.mutable_surface());
       part.mutable_surface()->set_role(role);
     }
-    if (!writer->Write(part)) return call.done(kClientGone);
+    if (!call.write(writer, part)) return call.done(kClientGone);
   }
   return call.done(grpc::Status::OK);
 }
@@ -919,6 +981,13 @@ grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1
   if (call.refused()) return call.refusal();
   Result<RigRecord> stored = store_->rig(request->rig_id());
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
+  Result<ClientLimits::Entry> admitted = client_limits_.enter_call(call.client());
+  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
+  Result<MemoryBudget::Reservation> memory =
+      memory_.reserve(static_cast<int64_t>(stored->size_bytes) * 3, "sending this rig",
+                      std::chrono::steady_clock::now() + std::chrono::seconds(30),
+                      [context] { return context->IsCancelled(); });
+  if (!memory.ok()) return call.done(to_grpc(memory.status()));
   Result<std::string> bytes = api::read_text_input(stored->path, "rig file", int64_t{1} << 40);
   if (!bytes.ok()) return call.done(to_grpc(bytes.status()));
   // The file as stored, checked first: a damaged rig is quarantined, never sent.
@@ -937,7 +1006,7 @@ grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1
       chunk.set_size_bytes(bytes->size());
       chunk.set_sha256(sha);
     }
-    return writer->Write(chunk);
+    return call.write(writer, chunk);
   });
   return call.done(sent ? grpc::Status::OK : kClientGone);
 }
@@ -947,31 +1016,42 @@ grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::Serv
   Call call(*this, context, "UploadRig");
   if (call.refused()) return call.refusal();
   v1::UploadRigRequest part;
-  if (!reader->Read(&part) || !part.has_header()) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig upload starts with its header (size, sha256)"});
+  if (!call.read(reader, &part)) return call.done(kClientGone);
+  if (!part.has_header()) {
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig upload starts with its header (size_bytes, sha256)"});
   }
   const v1::UploadRigHeader header = part.header();
-  if (!api::is_hex_id(header.sha256())) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "the rig upload's sha256 must be 64 lowercase hex digits"});
+  if (Status s = check_rig_upload_header(header, request_limits()); !s.ok()) return call.done(to_grpc(s));
+  Result<ClientLimits::Entry> admitted =
+      client_limits_.enter_upload(call.client(), static_cast<int64_t>(header.size_bytes()));
+  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
+  Result<std::string> directory = store_->make_staging_directory();
+  if (!directory.ok()) return call.done(to_grpc(directory.status()));
+  const StagingDirectory staging(*directory);
+  const std::string staged = *directory + "/upload.rig";
+  Result<StagedUpload> received = receive_upload<v1::UploadRigRequest>(
+      [&](v1::UploadRigRequest* message) { return call.read(reader, message); },
+      [](const v1::UploadRigRequest& message) -> const std::string* {
+        return message.part_case() == v1::UploadRigRequest::kChunk ? &message.chunk() : nullptr;
+      },
+      header.size_bytes(), staged);
+  if (!received.ok()) {
+    if (call.stream().stalled() || context->IsCancelled()) return call.done(kClientGone);
+    return call.done(to_grpc(received.status()));
   }
-  if (header.size_bytes() == 0 || header.size_bytes() > static_cast<uint64_t>(options_.max_upload_bytes)) {
-    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED, "a rig upload must be 1 to " +
-                                                                std::to_string(options_.max_upload_bytes) +
-                                                                " bytes (the server's --max-upload-mb)"});
+  if (received->sha256 != header.sha256()) {
+    return call.done({grpc::StatusCode::DATA_LOSS, "the rig upload arrived altered (its sha256 differs); send it "
+                                                   "again"});
   }
-  std::string bytes;
-  bytes.reserve(header.size_bytes());
-  while (reader->Read(&part)) {
-    if (part.part_case() != v1::UploadRigRequest::kChunk || bytes.size() + part.chunk().size() > header.size_bytes()) {
-      return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig upload has one header, then at most size_bytes "
-                                                            "bytes of chunks"});
-    }
-    bytes += part.chunk();
-  }
-  if (bytes.size() != header.size_bytes() || api::sha256_hex(bytes) != header.sha256()) {
-    return call.done({grpc::StatusCode::DATA_LOSS, "the rig upload arrived incomplete or altered (size or sha256 "
-                                                   "differ); send it again"});
-  }
+  // The file's bytes and the rig read from them are in memory at once.
+  Result<MemoryBudget::Reservation> memory =
+      memory_.reserve(static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload",
+                      std::chrono::steady_clock::now() + std::chrono::seconds(30),
+                      [context] { return context->IsCancelled(); });
+  if (!memory.ok()) return call.done(to_grpc(memory.status()));
+  Result<std::string> read = api::read_text_input(staged, "rig upload", static_cast<int64_t>(header.size_bytes()));
+  if (!read.ok()) return call.done(to_grpc(read.status()));
+  const std::string& bytes = *read;
   Result<api::Rig> rig = api::rig_from_bytes(bytes, "uploaded rig");
   if (!rig.ok()) return call.done(to_grpc(rig.status()));
   RigRecord record;
@@ -992,11 +1072,10 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
                                    grpc::ServerWriter<v1::PoseResponse>* writer) {
   Call call(*this, context, "Pose", request->rig_id());
   if (call.refused()) return call.refusal();
-  if (!api::is_hex_id(request->rig_id())) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "a rig id is 64 lowercase hex digits"});
-  }
-  Result<pose::Pose> pose = api::pose_from_json(request->pose_json(), "in the request");
-  if (!pose.ok()) return call.done(to_grpc(pose.status()));
+  Result<CheckedPose> checked = check_pose_request(*request, request_limits());
+  if (!checked.ok()) return call.done(to_grpc(checked.status()));
+  Result<ClientLimits::Entry> admitted = client_limits_.enter_call(call.client());
+  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
   // A slot, or a place in the bounded queue, or RESOURCE_EXHAUSTED at once.
   {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -1015,15 +1094,19 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
     if (context->IsCancelled()) return call.done({grpc::StatusCode::CANCELLED, "the client cancelled the pose"});
     ++poses_running_;
   }
+  // Given back as soon as the engine is done: sending what it made (under the stall watch) holds no slot.
   struct Slot {
     PosewarpService* service;
-    ~Slot() {
+    bool held = true;
+    void release() {
+      if (!std::exchange(held, false)) return;
       {
         std::lock_guard<std::mutex> lock(service->mutex_);
         --service->poses_running_;
       }
       service->changed_.notify_all();
     }
+    ~Slot() { release(); }
   } slot{this};
   if (options_.test_pause_in_pose_s > 0.0) {
     spdlog::info("test hook: pausing {:.1f} s inside a pose", options_.test_pause_in_pose_s);
@@ -1035,48 +1118,52 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   store_->touch_rig(request->rig_id());
   const api::Rig& rig = (*engine)->rig();
   api::PoseRequest core;
-  core.pose = std::move(pose).value();
-  core.method = method_of(request->method());
-  core.grid = request->grid() == v1::GRID_POLICY_GROW ? resample::GridPolicy::kGrow : resample::GridPolicy::kInput;
-  if (request->grid() == v1::GRID_POLICY_GIVEN) {
-    Result<ImageGeometry> given = grid_from(request->given_grid());
-    if (!given.ok()) return call.done(to_grpc(given.status().with_context("the pose request's given_grid")));
-    core.grid = resample::GridPolicy::kGiven;
-    core.given_grid = *given;
-  }
+  core.pose = std::move(checked->pose);
+  core.method = method_of(checked->method);
+  core.grid = checked->grid == v1::GRID_POLICY_GROW    ? resample::GridPolicy::kGrow
+              : checked->grid == v1::GRID_POLICY_GIVEN ? resample::GridPolicy::kGiven
+                                                       : resample::GridPolicy::kInput;
+  core.given_grid = checked->given_grid;
   core.ct_interpolation = request->nearest_ct() ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
   core.want_labels = request->want_labels();
   core.want_ct = request->want_ct() && rig.ct.has_value();
   core.want_surfaces = request->want_surfaces();
   core.want_fields = request->want_fields();
-  core.resample.max_output_bytes =
-      request->max_output_bytes() > 0 ? static_cast<int64_t>(request->max_output_bytes()) : options_.max_output_bytes;
-  if (request->meshes_size() > 0 && !request->want_surfaces()) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "meshes come back as posed surfaces: set want_surfaces"});
+  core.extra_surfaces = std::move(checked->meshes);
+  // One pose's output is bounded by the request, the server's option and the whole memory budget, whichever is least.
+  int64_t output_budget = memory_.total();
+  if (options_.max_output_bytes > 0) output_budget = std::min(output_budget, options_.max_output_bytes);
+  if (request->max_output_bytes() > 0) {
+    output_budget = std::min(output_budget, static_cast<int64_t>(std::min<uint64_t>(request->max_output_bytes(),
+                                                                                    uint64_t{1} << 62)));
   }
-  for (const v1::Surface& mesh : request->meshes()) {
-    Result<surface::SurfaceMesh> parsed = surface_from(mesh);
-    if (!parsed.ok()) return call.done(to_grpc(parsed.status().with_context("in the pose request")));
-    core.extra_surfaces.push_back(std::move(parsed).value());
-  }
+  core.resample.max_output_bytes = output_budget;
+  core.resample.max_output_voxels = options_.max_output_voxels;
   Result<VolumeEncoding> encoding = volume_encoding(*request, rig);
   if (!encoding.ok()) return call.done(to_grpc(encoding.status()));
   Result<api::PosePlan> plan = (*engine)->plan(core);
-  if (!plan.ok()) return call.done(to_grpc(plan.status()));
-  if ((core.want_labels || core.want_ct || core.want_fields) &&
-      plan->output_grid.voxel_count() > options_.max_output_voxels) {
-    return call.done({grpc::StatusCode::RESOURCE_EXHAUSTED,
-                      "the pose's output grid has " + std::to_string(plan->output_grid.voxel_count()) +
-                          " voxels; this server makes at most " + std::to_string(options_.max_output_voxels) +
-                          " (ask for the input grid, or ask the operator)"});
+  if (!plan.ok()) return call.done(to_grpc(server_limits_named(plan.status())));
+  // The memory the pose will hold until its answer is sent: the engine's outputs, a file format's encoded copy of
+  // each volume, and the skinned mesh with its report.
+  const int64_t output_voxels = plan->output_grid.voxel_count();
+  int64_t estimate = plan->output_bytes + rig.mesh.vertex_count() * 96 + rig.mesh.tet_count() * 48 + (int64_t{16} << 20);
+  if (encoding->format) {
+    if (core.want_labels) estimate += output_voxels * pixel_type_bytes(encoding->label_type);
+    if (core.want_ct) estimate += output_voxels * pixel_type_bytes(encoding->ct_type);
   }
+  const auto until = context->deadline() == std::chrono::system_clock::time_point::max()
+                         ? std::chrono::steady_clock::now() + std::chrono::seconds(60)
+                         : std::chrono::steady_clock::now() + (context->deadline() - std::chrono::system_clock::now());
+  Result<MemoryBudget::Reservation> memory =
+      memory_.reserve(estimate, "this pose", until, [context] { return context->IsCancelled(); });
+  if (!memory.ok()) return call.done(to_grpc(memory.status()));
 
   // The header first, from the plan: the client knows what follows before the engine starts.
   {
     v1::PoseResponse message;
     v1::PoseHeader* header = message.mutable_header();
     put_grid(plan->output_grid, header->mutable_grid());
-    const uint64_t voxels = static_cast<uint64_t>(plan->output_grid.voxel_count());
+    const uint64_t voxels = static_cast<uint64_t>(output_voxels);
     const bool raw = !encoding->format.has_value();
     if (core.want_labels && raw) header->set_label_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding->label_type)));
     if (core.want_ct && raw) header->set_ct_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding->ct_type)));
@@ -1092,12 +1179,14 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
       header->set_forward_field_bytes(static_cast<uint64_t>(rig.labels.voxel_count()) * 12);
       put_grid(rig.labels.geometry(), header->mutable_source_grid());
     }
-    if (!writer->Write(message)) return call.done(kClientGone);
+    if (!call.write(writer, message)) return call.done(kClientGone);
   }
 
-  // Each volume is sent from its own thread as soon as the engine has it, while the engine goes on.
-  const uint64_t chunk = request->chunk_bytes() > 0 ? std::min<uint64_t>(request->chunk_bytes(), 4 << 20) : 1 << 20;
-  VolumeSender sender(writer, *encoding, chunk);
+  // Each volume is sent from its own thread as soon as the engine has it, while the engine goes on. A client that
+  // stops reading is cancelled by the stall watch, which also stops the engine (its cancel hook).
+  const uint64_t chunk = checked->chunk_bytes;
+  const auto write = [&call, writer](const v1::PoseResponse& message) { return call.write(writer, message); };
+  VolumeSender sender(write, *encoding, chunk);
   core.labels_ready = [&](std::shared_ptr<const LabelVolume> labels) {
     sender.send(std::move(labels), encoding->label_type, &v1::PoseResponse::mutable_labels);
   };
@@ -1105,15 +1194,17 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
     sender.send(std::move(ct), encoding->ct_type, &v1::PoseResponse::mutable_ct);
   };
   Result<api::PoseResult> result = (*engine)->pose(core, call_hooks(context));
+  slot.release();
   const grpc::Status sent = sender.wait();
+  if (call.stream().stalled()) return call.done(kClientGone);
   if (!result.ok()) return call.done(to_grpc(result.status()));
   if (!sent.ok()) return call.done(sent);
   if (core.want_fields) {
     const grpc::Status fields_sent = [&] {
-      grpc::Status s = write_samples(writer, result->inverse_field.data(), static_cast<int64_t>(result->inverse_field.size()),
+      grpc::Status s = write_samples(write, result->inverse_field.data(), static_cast<int64_t>(result->inverse_field.size()),
                                      PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_inverse_field);
       if (!s.ok()) return s;
-      return write_samples(writer, result->forward_field.data(), static_cast<int64_t>(result->forward_field.size()),
+      return write_samples(write, result->forward_field.data(), static_cast<int64_t>(result->forward_field.size()),
                            PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_forward_field);
     }();
     if (!fields_sent.ok()) return call.done(fields_sent);
@@ -1121,11 +1212,11 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   for (const surface::SurfaceMesh& s : result->surfaces) {
     v1::PoseResponse m;
     put_surface(s, true, m.mutable_surface());
-    if (!writer->Write(m)) return call.done(kClientGone);
+    if (!call.write(writer, m)) return call.done(kClientGone);
   }
   v1::PoseResponse last;
   put_report(result->report, last.mutable_report());
-  writer->Write(last);
+  call.write(writer, last);
   return call.done(grpc::Status::OK);
 }
 
@@ -1133,7 +1224,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
                                       grpc::ServerReaderWriter<v1::PreviewResponse, v1::PreviewRequest>* stream) {
   Call call(*this, context, "Preview");
   if (call.refused()) return call.refusal();
-  const std::string client = peer_host(context->peer());
+  const std::string client = call.client();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (previews_by_client_[client] >= options_.preview_streams_per_client) {
@@ -1212,7 +1303,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       answer.set_dropped(dropped);
       answer.set_error_code(static_cast<int32_t>(status.error_code()));
       answer.set_error_message(status.error_message());
-      return stream->Write(answer);
+      return call.write(stream, answer);
     };
     if (!engine) {
       call.set_rig(update.rig_id());
@@ -1228,8 +1319,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       engine = *loaded;
     }
     const auto start = std::chrono::steady_clock::now();
-    Result<pose::Pose> pose =
-        api::pose_from_json(update.pose_json(), "in preview update " + std::to_string(update.sequence()));
+    Result<pose::Pose> pose = check_preview_request(update);
     Result<api::PreviewResult> preview =
         pose.ok() ? engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());
     if (!preview.ok()) {
@@ -1255,7 +1345,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       for (int a = 0; a < 3; ++a) answer.add_joint_centres(c[a]);
     }
     answer.set_server_ms(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-    if (!stream->Write(answer)) return call.done(kClientGone);
+    if (!call.write(stream, answer)) return call.done(kClientGone);
   }
 }
 

@@ -18,8 +18,10 @@
 #include <thread>
 #include <vector>
 
+#include "admission.h"
 #include "auth.h"
 #include "metrics.h"
+#include "requests.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 #include "store.h"
@@ -35,10 +37,14 @@ struct ServiceOptions {
   int pose_threads = 0;                        // threads of one pose (0: all cores)
   int64_t cache_bytes = int64_t{8} << 30;      // loaded engines kept, by Rig::footprint_bytes()
   int64_t max_upload_bytes = int64_t{4} << 30; // one uploaded file
-  int64_t max_volume_voxels = int64_t{1} << 30;  // one uploaded volume
-  int64_t max_output_voxels = int64_t{1} << 30;  // one pose's output grid
-  int64_t max_output_bytes = 0;                // one pose's outputs (0: half the machine's memory)
-  int preview_streams_per_client = 4;          // open preview streams per client address
+  int64_t max_volume_voxels = int64_t{1} << 28;  // one uploaded volume (and what the readers allocate for it)
+  int64_t max_output_voxels = int64_t{1} << 28;  // one pose's output grid
+  int64_t max_output_bytes = 0;                // one pose's outputs (0: the whole memory budget)
+  // Poses and uploads in flight together, by their estimates (the engine cache's cache_bytes come on top).
+  int64_t memory_bytes = int64_t{4} << 30;
+  int stall_timeout_ms = 10000;                // a stream that makes no progress this long is cancelled
+  ClientLimitOptions client;                   // per client (its token, else its address)
+  int preview_streams_per_client = 4;          // open preview streams per client
   double test_pause_in_pose_s = 0.0;           // test hook: a pose holds its slot this long before posing
   std::string replica = "posewarp";            // this replica's name in a shared index (owner of its builds)
   int lease_s = 30;                            // a shared index's build leases, renewed every third of it
@@ -107,6 +113,11 @@ class PosewarpService final : public v1::Posewarp::Service {
   void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
                      bool persist);
   grpc::Status to_grpc(const Status& status) const;
+  RequestLimits request_limits() const;
+  // How uploads are read: the server's voxel limit under its option's name, voxels inline only.
+  api::ReadOptions read_options() const;
+  // A refusal of the engine's plan with the server's own limits named.
+  Status server_limits_named(const Status& status) const;
   Result<v1::Operation> find_operation(const std::string& id);
   // The loaded engine of a rig, from the cache or the store (once, however many ask at the same time). A rig file
   // that fails its checks is quarantined.
@@ -117,6 +128,9 @@ class PosewarpService final : public v1::Posewarp::Service {
 
   std::unique_ptr<RigStore> store_;
   ServiceOptions options_;
+  StallWatch stall_watch_;
+  MemoryBudget memory_;
+  ClientLimits client_limits_;
   const Tokens& tokens_;
   Metrics& metrics_;
   std::atomic<uint64_t> next_request_{1};

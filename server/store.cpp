@@ -3,13 +3,20 @@
 #include "store.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <chrono>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <set>
+#include <random>
 #include <thread>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
@@ -72,7 +79,7 @@ std::string iso_now() {
 Result<std::unique_ptr<RigStore>> RigStore::open(const std::string& directory, const StoreOptions& options,
                                                  const std::function<void(const std::string&)>& log) {
   std::error_code ec;
-  for (const char* sub : {"volumes", "rigs", "quarantine"}) {
+  for (const char* sub : {"volumes", "rigs", "quarantine", "staging"}) {
     fs::create_directories(fs::path(directory) / sub, ec);
     if (ec) {
       return failed_precondition_error("cannot create the store at '" + directory + "': " + ec.message() +
@@ -100,6 +107,12 @@ Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
     if (removed > 0) {
       log("store: removed " + std::to_string(removed) + " partial file(s) of a writer that died in " + sub + "/");
     }
+  }
+  // Uploads being checked when their server stopped (a shared store's may be another replica's, live).
+  std::error_code staging_ec;
+  for (fs::directory_iterator it(root / "staging", staging_ec), end; !staging_ec && it != end; it.increment(staging_ec)) {
+    std::error_code removing;
+    if (!shared || older_than(it->path(), kAbandonedAfter)) fs::remove_all(it->path(), removing);
   }
   POSEWARP_ASSIGN_OR_RETURN(const int interrupted,
                             index_->fail_unfinished_operations(10, "the server stopped during the build; build again"));
@@ -206,6 +219,60 @@ Result<VolumeRecord> RigStore::put_volume(const std::string& id, const std::stri
   POSEWARP_RETURN_IF_ERROR(write_file_atomically(file.string(), bytes, "volume"));
   POSEWARP_RETURN_IF_ERROR(index_->put_volume({id, kind, extension, bytes.size(), iso_now(), ""}));
   return volume(id);
+}
+
+Result<VolumeRecord> RigStore::put_volume_file(const std::string& id, const std::string& extension,
+                                               const std::string& kind, const std::string& staged_path) {
+  if (!is_hex_id(id)) return invalid_argument_error("a volume id is 64 lowercase hex digits");
+  std::lock_guard<std::mutex> lock(write_mutex_);
+  POSEWARP_ASSIGN_OR_RETURN(const std::optional<VolumeRecord> existing, index_->volume(id));
+  if (existing) return volume(id);  // the same bytes, stored once
+  std::error_code ec;
+  const uint64_t size = fs::file_size(staged_path, ec);
+  if (ec) return internal_error("an upload's staging file is gone: " + ec.message());
+  POSEWARP_RETURN_IF_ERROR(check_quota(size));
+  // Durable before it gets its name, and its name durable before the row names it.
+  const int fd = ::open(staged_path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0 || ::fsync(fd) != 0) {
+    if (fd >= 0) ::close(fd);
+    return internal_error("cannot flush an upload to disk: " + std::string(std::strerror(errno)));
+  }
+  ::close(fd);
+  const fs::path volumes = fs::path(directory_) / "volumes";
+  fs::rename(staged_path, volumes / (id + extension), ec);
+  if (ec) return internal_error("cannot move an upload into the store: " + ec.message());
+  if (const int dir = ::open(volumes.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dir >= 0) {
+    ::fsync(dir);
+    ::close(dir);
+  }
+  POSEWARP_RETURN_IF_ERROR(index_->put_volume({id, kind, extension, size, iso_now(), ""}));
+  return volume(id);
+}
+
+Result<std::string> RigStore::make_staging_directory() {
+  static std::mutex random_mutex;
+  static std::mt19937_64 random{std::random_device{}()};
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    uint64_t n = 0;
+    {
+      std::lock_guard<std::mutex> lock(random_mutex);
+      n = random();
+    }
+    char name[32];
+    std::snprintf(name, sizeof name, "%016llx", static_cast<unsigned long long>(n));
+    const fs::path path = fs::path(directory_) / "staging" / name;
+    if (::mkdir(path.c_str(), 0700) == 0) return path.string();
+    if (errno != EEXIST) {
+      return resource_exhausted_error("the server cannot stage an upload (" + std::string(std::strerror(errno)) +
+                                      "); try again later or ask the operator");
+    }
+  }
+  return internal_error("cannot make a staging directory for an upload");
+}
+
+StagingDirectory::~StagingDirectory() {
+  std::error_code ec;
+  if (!path_.empty()) fs::remove_all(path_, ec);
 }
 
 Result<VolumeRecord> RigStore::volume(const std::string& id) {

@@ -129,6 +129,12 @@ class RigStore {
   // Stores a checked upload under its id; the same bytes again are stored once. RESOURCE_EXHAUSTED over the quota.
   Result<VolumeRecord> put_volume(const std::string& id, const std::string& extension, const std::string& kind,
                                   std::string_view bytes);
+  // The same for a checked upload already on disk in a staging directory: flushed, then renamed into place.
+  Result<VolumeRecord> put_volume_file(const std::string& id, const std::string& extension, const std::string& kind,
+                                       const std::string& staged_path);
+  // A new, empty directory of its own under staging/ (mode 0700) for one upload: whatever a file there names
+  // beside itself, it finds nothing but its own bytes. The caller removes it (StagingDirectory does).
+  Result<std::string> make_staging_directory();
   Result<VolumeRecord> volume(const std::string& id);
 
   // The rig file, then its row. `record.id` names it; size and created are filled in.
@@ -157,6 +163,19 @@ class RigStore {
   std::mutex write_mutex_;  // quota check and write of one upload or rig at a time
   std::mutex touch_mutex_;
   std::map<std::string, std::chrono::steady_clock::time_point> touched_;  // last index write of last_used per rig
+};
+
+// One upload's staging directory, removed with everything in it when this goes out of scope.
+class StagingDirectory {
+ public:
+  explicit StagingDirectory(std::string path) : path_(std::move(path)) {}
+  StagingDirectory(const StagingDirectory&) = delete;
+  StagingDirectory& operator=(const StagingDirectory&) = delete;
+  ~StagingDirectory();
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
 };
 
 // Now, as ISO 8601 UTC ("2026-11-25T10:00:00Z").

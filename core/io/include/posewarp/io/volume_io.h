@@ -28,6 +28,11 @@ struct ReadOptions {
   // For a directory holding several DICOM series: the SeriesInstanceUID to read. Empty: the directory must
   // hold exactly one series.
   std::string dicom_series_uid;
+  // Refuse a header whose voxels lie in another file (NRRD "data file", MetaImage ElementDataFile other than LOCAL)
+  // and DICOM directories: what a server reads from a client must carry its own voxels.
+  bool inline_data_only = false;
+  // How the caller's user raises max_voxels, named in the message that refuses a larger volume.
+  std::string voxel_limit_name = "--max-voxels";
 };
 
 // What the header says, read without loading the voxels.
