@@ -72,11 +72,9 @@ Status check_ct_is_not_labels(const IntensityVolume& ct, const LabelMap& map, co
   return invalid_argument_error(ct_name + " holds only whole values that are 0 or labels the label map '" + map.name() +
                                 "' names (" + std::to_string(values.size() + (zero ? 1 : 0)) +
                                 " distinct: " + (zero ? "0, " : "") + value_list(values, 8) +
-                                "): it looks like a label volume given as the CT (the labels "
-                                "given are " +
-                                labels_name +
-                                "; are the two swapped?). Give the CT or MRI intensities "
-                                "as the CT, or leave the CT out");
+                                "): it looks like a label volume given as the CT (and " + labels_name +
+                                " as the labels: are the two swapped?). Give the CT or MRI intensities as the CT, or "
+                                "leave the CT out");
 }
 
 }  // namespace posewarp::labels
