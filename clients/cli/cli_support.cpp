@@ -24,6 +24,12 @@ api::ReadOptions read_options() {
   return options;
 }
 
+Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset, std::string_view own_map) {
+  Result<labels::LabelMap> map = api::load_label_map(path, preset);
+  if (map.ok() || !path.empty() || preset.empty()) return map;
+  return Status(map.status().code(), map.status().message() + "; to give your own, " + std::string(own_map));
+}
+
 int report(const Status& status) {
   if (status.ok()) return 0;
   std::cerr << "error: " << status.message() << " [" << status_code_name(status.code()) << "]\n";
@@ -48,6 +54,17 @@ Status check_output_files(const std::vector<std::string>& outputs) {
     }
     if (!why.empty()) {
       return invalid_argument_error("cannot write '" + output + "' in '" + dir + "': " + why);
+    }
+  }
+  return ok_status();
+}
+
+Status refuse_directories(const std::vector<std::string>& files) {
+  for (const std::string& file : files) {
+    std::error_code ec;
+    if (!file.empty() && std::filesystem::is_directory(file, ec)) {
+      return invalid_argument_error("cannot write '" + file + "': it is a directory; name a file to write (e.g. '" +
+                                    (std::filesystem::path(file) / "<name>").string() + "')");
     }
   }
   return ok_status();

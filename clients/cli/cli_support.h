@@ -23,6 +23,12 @@ struct GlobalOptions {
 GlobalOptions& global_options();
 api::ReadOptions read_options();
 
+// api::load_label_map, with the command line's way to give one's own map (`own_map`, e.g. "pass --label-map FILE.json")
+// added to the message when a preset is unknown: the library's message names no flag, since a server's caller has
+// none.
+Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset,
+                                        std::string_view own_map = "pass --label-map FILE.json");
+
 // Prints "error: <message>" (and the code) to stderr and returns the process exit code for the status.
 int report(const Status& status);
 // The process exit code of a status code: 0, 2 bad input or usage, 3 over a resource limit, 1 otherwise.
@@ -33,6 +39,9 @@ int exit_code(StatusCode code);
 // INVALID_ARGUMENT naming the directory and the reason when an output file could not be created there (missing, not a
 // directory, not writable): checked before any work. Empty paths are skipped.
 Status check_output_files(const std::vector<std::string>& outputs);
+// INVALID_ARGUMENT naming the path when an output that must be a single file (a rig, a report, a VTK export) is an
+// existing directory: checked before any work (the final rename would fail only after it). Empty paths are skipped.
+Status refuse_directories(const std::vector<std::string>& files);
 
 Status refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs);
 

@@ -405,7 +405,8 @@ class Batch {
     api::BuildInputs inputs;
     // A map of one's own replaces the preset.
     POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
-                              api::load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string()));
+                              load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string(),
+                                             "name a label_map file in the row"));
     if (!row.labels.empty()) {
       POSEWARP_ASSIGN_OR_RETURN(inputs.labels, api::read_label_volume(row.labels, read_options()));
       if (!row.ct.empty()) {
@@ -466,7 +467,8 @@ class Batch {
       inputs.name = fs::path(row.labels).filename().string();
     } else {
       POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
-                                api::load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string()));
+                                load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string(),
+                                               "name a label_map file in the row"));
       POSEWARP_ASSIGN_OR_RETURN(api::DicomStudy dicom, read_dicom(row, map));
       POSEWARP_ASSIGN_OR_RETURN(std::string labels, api::encode_volume(dicom.labels, api::VolumeFormat::kNifti, true));
       inputs.labels = RemoteVolumeFile{"labels.nii.gz", std::move(labels)};

@@ -211,6 +211,7 @@ int run_pose(const PoseOptions& o) {
   if (!o.field_out.empty()) outputs.push_back(forward_field_path(o.field_out));
   if (Status s = refuse_overwriting_inputs(outputs, inputs); !s.ok()) return report(s);
   if (Status s = check_output_files(outputs); !s.ok()) return report(s);
+  if (Status s = refuse_directories({o.report_out}); !s.ok()) return report(s);
   Result<pose::Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
   // DICOM out needs the source series: its patient, study and images are what the derived series refer to.

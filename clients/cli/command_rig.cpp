@@ -49,8 +49,9 @@ int run_build(BuildOptions& options) {
     return report(s);
   }
   if (Status s = check_output_files({options.out}); !s.ok()) return report(s);
+  if (Status s = refuse_directories({options.out}); !s.ok()) return report(s);
   api::BuildInputs inputs;
-  Result<labels::LabelMap> map = api::load_label_map(options.label_map_path, options.preset);
+  Result<labels::LabelMap> map = load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
   inputs.label_map = std::move(map).value();
   if (api::is_dicom_file(options.labels_path)) {
@@ -229,6 +230,7 @@ int run_export(const std::string& path, const std::string& mesh_out, const std::
   if (mesh_out.empty() && skeleton_out.empty()) {
     return report(invalid_argument_error("nothing to export: give --mesh OUT.vtu and/or --skeleton OUT.vtp"));
   }
+  if (Status s = refuse_directories({mesh_out, skeleton_out}); !s.ok()) return report(s);
   Result<api::Rig> rig = api::load_rig(path);
   if (!rig.ok()) return report(rig.status());
   if (!mesh_out.empty()) {

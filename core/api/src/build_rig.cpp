@@ -9,6 +9,7 @@
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/sha256.h"
+#include "posewarp/labels/volume_kind.h"
 
 #ifndef POSEWARP_VERSION
 #define POSEWARP_VERSION "unknown"
@@ -84,6 +85,11 @@ std::string canonical_params(const BuildInputs& inputs, const BuildParams& param
   return doc.dump();
 }
 
+// "the labels 'seg.nii.gz'", or just "the labels" when the caller gave no source.
+std::string input_name(const std::string& kind, const std::string& source) {
+  return source.empty() ? kind : kind + " '" + source + "'";
+}
+
 }  // namespace
 
 std::string rig_id_of(const BuildInputs& inputs, const BuildParams& params) {
@@ -116,6 +122,16 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
   }
   if (inputs.body && !inputs.body->geometry().same_grid(grid, 1e-3)) {
     return invalid_argument_error("the body mask is not on the labels' grid; resample it onto the segmentation first");
+  }
+  // What each volume is for, before any expensive work: a CT given as the labels (or labels as the CT) would mesh
+  // garbage for half a minute.
+  {
+    const std::string labels_name = input_name("the labels", inputs.labels_source);
+    const std::string ct_name = inputs.ct ? input_name("the CT", inputs.ct_source) : std::string();
+    POSEWARP_RETURN_IF_ERROR(labels::check_labels_look_like_labels(inputs.labels, labels_name, ct_name));
+    if (inputs.ct) {
+      POSEWARP_RETURN_IF_ERROR(labels::check_ct_is_not_labels(*inputs.ct, inputs.label_map, ct_name, labels_name));
+    }
   }
   Rig rig;
   rig.source_geometry = grid;

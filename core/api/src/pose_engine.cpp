@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <new>
 #include <unordered_map>
 
@@ -140,7 +141,10 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
       Eigen::Vector3d c = Eigen::Vector3d::Zero();
       for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
       const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
-      const int64_t i = std::llround(u[0]), j = std::llround(u[1]), k = std::llround(u[2]);
+      // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
+      // undefined; such a centre lies in no voxel.
+      auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
+      const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
       if (rig.labels.contains(i, j, k)) engine.tet_region_[static_cast<size_t>(t)] = engine.region_[static_cast<size_t>(g.offset(i, j, k))];
     }
     engine.rest_label_counts_ = report::label_counts(rig.labels);

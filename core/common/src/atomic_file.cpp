@@ -25,6 +25,15 @@ std::string directory_of(const std::string& path) {
 
 std::string in_quotes(const std::string& text) { return "'" + text + "'"; }
 
+// INVALID_ARGUMENT when `path` is a directory: the rename would fail with EISDIR after all the work.
+Status refuse_directory(const std::string& path, std::string_view kind) {
+  std::error_code ec;
+  if (!fs::is_directory(path, ec)) return ok_status();
+  return invalid_argument_error("cannot write " + std::string(kind) + " " + in_quotes(path) +
+                                ": it is a directory; name a file to write (e.g. " +
+                                in_quotes((fs::path(path) / "<name>").string()) + ")");
+}
+
 }  // namespace
 
 AtomicFile::AtomicFile(std::string path, std::string partial, std::string kind, int fd)
@@ -44,6 +53,7 @@ AtomicFile::~AtomicFile() {
 
 Result<AtomicFile> AtomicFile::create(const std::string& path, std::string_view kind) {
   static std::atomic<unsigned> counter{0};
+  POSEWARP_RETURN_IF_ERROR(refuse_directory(path, kind));
   const std::string directory = directory_of(path);
   remove_stale_partial_files(directory);
   // The counter keeps two threads of one process (a server writing the same target twice) apart.
@@ -99,6 +109,9 @@ Status AtomicFile::commit() {
   }
   if (::rename(partial_.c_str(), path_.c_str()) != 0) {
     const int rename_error = errno;
+    if (rename_error == EISDIR || rename_error == ENOTEMPTY || rename_error == EEXIST) {
+      POSEWARP_RETURN_IF_ERROR(refuse_directory(path_, kind_));  // made a directory since create()
+    }
     return internal_error("could not move " + kind_ + " " + in_quotes(path_) + " into place: " +
                           std::strerror(rename_error));
   }

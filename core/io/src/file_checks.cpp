@@ -57,14 +57,17 @@ int nifti_bits(int16_t datatype) {
   }
 }
 
-// Counts the bytes a (possibly gzip-compressed) file decompresses to, or -1 when the stream is corrupt.
-int64_t decompressed_size(const std::string& path) {
+// Counts the bytes a (possibly gzip-compressed) file decompresses to, reading at most until `limit` bytes came out
+// (a small file can inflate to gigabytes: nothing past what the header promises is worth the time); -1 when the
+// stream is corrupt or ends early. gzread, unlike inflate, reads every member of a multi-member gzip file.
+int64_t decompressed_size(const std::string& path, int64_t limit) {
   gzFile file = gzopen(path.c_str(), "rb");
   if (!file) return -1;
   std::vector<char> buffer(1 << 18);
   int64_t total = 0;
-  for (;;) {
-    const int n = gzread(file, buffer.data(), static_cast<unsigned>(buffer.size()));
+  while (total < limit) {
+    const int64_t wanted = std::min<int64_t>(static_cast<int64_t>(buffer.size()), limit - total);
+    const int n = gzread(file, buffer.data(), static_cast<unsigned>(wanted));
     if (n < 0) {
       gzclose(file);
       return -1;
@@ -181,7 +184,99 @@ Status check_data_file_name(const std::string& path, const std::string& name, co
   return ok_status();
 }
 
+// The first `limit` bytes of a file, as the header parsers below see them (no line of a hostile file can make them
+// read more).
+std::string file_head(const std::string& path, size_t limit) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(limit, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(limit));
+  head.resize(static_cast<size_t>(std::max<std::streamsize>(in.gcount(), 0)));
+  return head;
+}
+
+std::string trimmed(std::string text) {
+  text.erase(0, text.find_first_not_of(" \t\r"));
+  text.erase(text.find_last_not_of(" \t\r") + 1);
+  return text;
+}
+
+// Lower case without blanks: how a field name is compared when a reader may be lenient about both.
+std::string squeezed_lower(const std::string& text) {
+  std::string out;
+  for (const char c : text) {
+    if (c != ' ' && c != '\t' && c != '\r') out += static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  }
+  return out;
+}
+
+constexpr const char* kSendInline =
+    "; send the voxels inline: a .nii/.nii.gz, a .nrrd with its data inline, or a .mha with ElementDataFile = LOCAL";
+
 }  // namespace
+
+Status check_inline_data(const std::string& path, VolumeFormat format) {
+  constexpr size_t kHeaderLimit = size_t{1} << 20;
+  switch (format) {
+    case VolumeFormat::kDicomSeries:
+      return invalid_argument_error(in_quotes(path) +
+                                    " names a DICOM series (a directory, or a path without a volume extension); only "
+                                    "a single file holding its own voxels is read here" +
+                                    kSendInline);
+    case VolumeFormat::kNifti: {
+      unsigned char header[348];
+      if (!read_nifti_header(path, header).ok()) return ok_status();  // the reader reports it
+      if (std::memcmp(header + 344, "n+1", 4) != 0) {
+        return invalid_argument_error(in_quotes(path) +
+                                      " is not a single-file NIfTI (its magic is not \"n+1\": a header whose voxels "
+                                      "are in a separate .img file, or ANALYZE)" +
+                                      kSendInline);
+      }
+      return ok_status();
+    }
+    case VolumeFormat::kNrrd: {
+      const std::string head = file_head(path, kHeaderLimit);
+      if (head.rfind("NRRD", 0) != 0) return ok_status();  // not NRRD: the reader reports it
+      const bool cut = head.size() == kHeaderLimit;
+      std::istringstream lines(head);
+      std::string line;
+      std::getline(lines, line);
+      while (std::getline(lines, line)) {
+        if (lines.eof() && cut) break;  // the last line of a cut head may be cut short: judged below
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) return ok_status();  // the header ended: the data is inline
+        if (line[0] == '#') continue;
+        // teem matches field names ignoring case and knows "data file" as "datafile" too.
+        const std::string key = squeezed_lower(line.substr(0, line.find(':')));
+        if (key == "datafile" || key == "datafiles") {
+          const std::string value = trimmed(line.substr(std::min(line.size(), line.find(':') + 1)));
+          return invalid_argument_error(in_quotes(path) + " is a NRRD header whose voxels are in a separate file ('" +
+                                        value.substr(0, 80) + "', its \"data file\" field)" + kSendInline);
+        }
+      }
+      if (!cut) return ok_status();  // a header without data: the reader reports it
+      return invalid_argument_error(in_quotes(path) +
+                                    " has a NRRD header that runs past 1 MB without the empty line that ends it; "
+                                    "the file is damaged or not NRRD");
+    }
+    case VolumeFormat::kMetaImage: {
+      const std::string head = file_head(path, kHeaderLimit);
+      const bool cut = head.size() == kHeaderLimit;
+      std::istringstream lines(head);
+      std::string line;
+      while (std::getline(lines, line) && !(lines.eof() && cut)) {
+        const size_t eq = line.find('=');
+        if (eq == std::string::npos || squeezed_lower(line.substr(0, eq)) != "elementdatafile") continue;
+        const std::string value = trimmed(line.substr(eq + 1));
+        if (value == "LOCAL") return ok_status();
+        return invalid_argument_error(in_quotes(path) +
+                                      " is a MetaImage header whose voxels are in a separate file ('" +
+                                      value.substr(0, 80) + "', its ElementDataFile)" + kSendInline);
+      }
+      return ok_status();  // no ElementDataFile line: check_metaimage_header refuses the header
+    }
+  }
+  return ok_status();
+}
 
 Status check_nifti_file(const std::string& path) {
   unsigned char header[348];
@@ -227,7 +322,7 @@ Status check_nifti_file(const std::string& path) {
   const bool compressed = path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0;
   int64_t present = 0;
   if (compressed) {
-    present = decompressed_size(path);
+    present = decompressed_size(path, needed);
     if (present < 0) {
       return data_loss_error(in_quotes(path) + " is not a complete gzip stream (truncated or corrupt); copy it again");
     }
@@ -251,6 +346,22 @@ Status check_nifti_geometry_fields(const std::string& path) {
   POSEWARP_ASSIGN_OR_RETURN(const std::optional<bool> order, nifti1_byte_order(header, path));
   if (!order) return ok_status();  // NIfTI-2 or not NIfTI: ITK decides
   const bool swap = *order;
+  // The sizes, named by field: ITK only says a file with a zero size "is not recognized as a NIFTI file".
+  const int16_t ndim = read_field<int16_t>(header, 40, swap);
+  if (ndim < 1 || ndim > 7) {
+    return invalid_argument_error(in_quotes(path) + " has dim[0] = " + std::to_string(ndim) +
+                                  " in its NIfTI header (the number of dimensions must be 1..7); the header is "
+                                  "corrupt (fix or regenerate the file)");
+  }
+  for (int d = 1; d <= ndim; ++d) {
+    const int16_t size = read_field<int16_t>(header, 40 + 2 * static_cast<size_t>(d), swap);
+    if (size < 1) {
+      return invalid_argument_error(in_quotes(path) + " has dim[" + std::to_string(d) + "] = " + std::to_string(size) +
+                                    " in its NIfTI header (the size along axis " + std::to_string(d - 1) +
+                                    "); every size must be at least 1: the header is corrupt (fix or regenerate "
+                                    "the file)");
+    }
+  }
   struct Field {
     size_t offset;
     int count;
@@ -273,6 +384,17 @@ Status check_nifti_geometry_fields(const std::string& path) {
         return invalid_argument_error(in_quotes(path) + " has " + field.name + " = " + std::to_string(value) +
                                       " in its NIfTI header, beyond any real geometry; the header is corrupt");
       }
+    }
+  }
+  // The spacings, named by field: ITK turns a zero or negative one into "orthonormal direction cosines".
+  for (int d = 1; d <= std::min<int>(ndim, 3); ++d) {
+    const float spacing = read_field<float>(header, 76 + 4 * static_cast<size_t>(d), swap);
+    if (!(spacing > 0.0f)) {
+      std::ostringstream out;
+      out << in_quotes(path) << " has pixdim[" << d << "] = " << spacing
+          << " in its NIfTI header (the voxel spacing along axis " << d - 1
+          << ", mm); every spacing must be positive: fix pixdim in the header";
+      return invalid_argument_error(out.str());
     }
   }
   if (read_field<float>(header, 108, swap) < 0.0f) {
@@ -447,6 +569,30 @@ Status check_metaimage_header(const std::string& path) {
   for (const auto& [key, count] : counted) {
     if (fields.count(key) && !numbers(fields[key], count, false)) {
       return corrupt("needs " + std::string(key) + " as " + std::to_string(count) + " finite numbers");
+    }
+  }
+  // Sizes and spacings, named by field: ITK turns a zero or negative spacing into "orthonormal direction cosines".
+  auto first_not = [](const std::string& text, auto good) {
+    std::istringstream stream(text);
+    double value = 0.0;
+    for (int i = 0; stream >> value; ++i) {
+      if (!good(value)) return std::make_pair(i, value);
+    }
+    return std::make_pair(-1, 0.0);
+  };
+  if (const auto [axis, size] = first_not(fields["DimSize"], [](double v) { return v >= 1.0; }); axis >= 0) {
+    std::ostringstream out;
+    out << in_quotes(path) << " has DimSize " << fields["DimSize"] << " in its MetaImage header: DimSize[" << axis
+        << "] = " << size << ", but every size must be at least 1 (fix DimSize in the header)";
+    return invalid_argument_error(out.str());
+  }
+  for (const char* key : {"ElementSpacing", "ElementSize"}) {
+    if (!fields.count(key)) continue;
+    if (const auto [axis, spacing] = first_not(fields[key], [](double v) { return v > 0.0; }); axis >= 0) {
+      std::ostringstream out;
+      out << in_quotes(path) << " has " << key << " " << fields[key] << " in its MetaImage header: " << key << "["
+          << axis << "] = " << spacing << " mm, but every spacing must be positive (fix " << key << " in the header)";
+      return invalid_argument_error(out.str());
     }
   }
   for (const char* key : {"HeaderSize", "CompressedDataSize", "ElementNumberOfChannels"}) {

@@ -109,7 +109,8 @@ Status validate_header(const VolumeHeader& header, const ReadOptions& options, c
   if (voxels > options.max_voxels) {
     return resource_exhausted_error(in_quotes(path) + " holds " + std::to_string(voxels) +
                                     " voxels, over the limit of " + std::to_string(options.max_voxels) +
-                                    "; crop or downsample the volume, or raise the voxel limit (--max-voxels)");
+                                    "; crop or downsample the volume, or raise the voxel limit" +
+                                    (options.voxel_limit_name.empty() ? "" : " (" + options.voxel_limit_name + ")"));
   }
   Status geometry = g.validate();
   if (!geometry.ok()) return geometry.with_context(in_quotes(path));
@@ -302,6 +303,11 @@ ImageGeometry geometry_from_image(const Image3<Pixel>& image) {
 
 Result<std::pair<VolumeHeader, DicomSeries>> open_volume(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(const VolumeFormat format, format_from_path(path));
+  if (options.inline_data_only) {
+    // A regular file first: the check reads it (a FIFO would block).
+    if (format != VolumeFormat::kDicomSeries) POSEWARP_RETURN_IF_ERROR(check_input_file(path, "volume"));
+    POSEWARP_RETURN_IF_ERROR(detail::check_inline_data(path, format));
+  }
   DicomSeries series;
   if (format == VolumeFormat::kDicomSeries) {
     POSEWARP_ASSIGN_OR_RETURN(VolumeHeader header, read_dicom_header(path, options, &series));

@@ -172,7 +172,7 @@ std::vector<std::string> preset_names() { return {"totalsegmentator"}; }
 Result<LabelMap> preset_by_name(std::string_view name) {
   if (name == "totalsegmentator" || name == "totalsegmentator_v2") return totalsegmentator_v2_preset();
   return invalid_argument_error("unknown label-map preset '" + std::string(name) +
-                                "'; available: totalsegmentator (or pass --label-map FILE.json)");
+                                "'; available: totalsegmentator (or give your own label map)");
 }
 
 }  // namespace posewarp::labels

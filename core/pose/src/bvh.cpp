@@ -19,6 +19,9 @@ namespace {
 
 using detail::join;
 
+// Largest magnitude of a frame value (degrees, or the clip's length unit).
+constexpr double kMaxChannelValue = 1e4;
+
 enum class Channel { kXposition, kYposition, kZposition, kXrotation, kYrotation, kZrotation };
 
 struct BvhJoint {
@@ -349,6 +352,13 @@ Result<BvhClip> parse_bvh(const std::string& text) {
     }
     for (const Token& word : words) {
       POSEWARP_ASSIGN_OR_RETURN(const double number, parse_number(word.text, line));
+      // No motion capture moves 100 m or turns 28 times in one frame: such a value is damage, and would give an
+      // arbitrary rotation.
+      if (std::abs(number) > kMaxChannelValue) {
+        return invalid_argument_error(line_prefix(line) + "frame " + std::to_string(frames_read) + " holds " +
+                                      std::string(word.text) + ", outside [-10000, 10000] (degrees or BVH length " +
+                                      "units); the motion is damaged");
+      }
       clip.values.push_back(number);
     }
     ++frames_read;

@@ -35,6 +35,17 @@ Status check_format(const Json& doc, std::string_view format, int version, const
 
 // A finite number, or INVALID_ARGUMENT "<where>: <field> must be a finite number ...".
 Result<double> finite_number(const Json& value, const std::string& where, std::string_view field);
+// A finite number within [-limit, limit], or INVALID_ARGUMENT
+// "<where>: "<field>" = <value> is outside [-limit, limit] <unit>; <hint>".
+Result<double> number_within(const Json& value, const std::string& where, std::string_view field, double limit,
+                             std::string_view unit, std::string_view hint);
+// The message of a number outside [-limit, limit], shared by the JSON readers and validate_pose.
+Status outside_range_error(const std::string& where, std::string_view field, double value, double limit,
+                           std::string_view unit, std::string_view hint);
+// The hints of the two ranges of pose.h.
+inline constexpr const char* kAngleHint = "give an angle within a full turn either way";
+inline constexpr const char* kTranslationHint =
+    "a body is about 2 m long; a larger move is not a re-pose (move the body less)";
 // `size` finite numbers.
 Result<Eigen::VectorXd> finite_numbers(const Json& value, int size, const std::string& where, std::string_view field);
 

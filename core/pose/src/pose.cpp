@@ -60,6 +60,12 @@ Result<Pose> pose_from_object(const Json& doc, const std::string& where) {
     if (root.contains("translation_mm")) {
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::VectorXd t,
                                 finite_numbers(root["translation_mm"], 3, root_where, "translation_mm"));
+      for (int a = 0; a < 3; ++a) {
+        if (std::abs(t[a]) > kMaxRootTranslationMm) {
+          return outside_range_error(root_where, "translation_mm[" + std::to_string(a) + "]", t[a],
+                                     kMaxRootTranslationMm, "mm", kTranslationHint);
+        }
+      }
       pose.root.translation = t;
     }
     if (root.contains("rotation")) {
@@ -171,6 +177,15 @@ Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton) {
       return invalid_argument_error(where + ", joint \"" + joint.joint +
                                     "\": an anatomical angle is NaN or infinite; give finite degrees");
     }
+    if (joint.angles_deg) {
+      constexpr const char* kNames[3] = {"flexion", "abduction", "rotation"};
+      for (int i = 0; i < 3; ++i) {
+        if (std::abs((*joint.angles_deg)[i]) > kMaxAngleDeg) {
+          return detail::outside_range_error(where + ", joint \"" + joint.joint + "\", \"angles_deg\"", kNames[i],
+                                             (*joint.angles_deg)[i], kMaxAngleDeg, "degrees", detail::kAngleHint);
+        }
+      }
+    }
     const Eigen::Quaterniond& q = joint.rotation;
     if (!q.coeffs().allFinite()) {
       return invalid_argument_error(where + ", joint \"" + joint.joint +
@@ -186,6 +201,13 @@ Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton) {
   }
   if (!pose.root.translation.allFinite()) {
     return invalid_argument_error(where + ": the root translation has a NaN or infinite component");
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(pose.root.translation[a]) > kMaxRootTranslationMm) {
+      return detail::outside_range_error(where + ", root", "translation_mm[" + std::to_string(a) + "]",
+                                         pose.root.translation[a], kMaxRootTranslationMm, "mm",
+                                         detail::kTranslationHint);
+    }
   }
   return ok_status();
 }

@@ -125,6 +125,20 @@ Result<double> finite_number(const Json& value, const std::string& where, std::s
   return number;
 }
 
+Status outside_range_error(const std::string& where, std::string_view field, double value, double limit,
+                           std::string_view unit, std::string_view hint) {
+  return invalid_argument_error(where + ": \"" + std::string(field) + "\" = " + number_text(value) + " is outside [" +
+                                number_text(-limit) + ", " + number_text(limit) + "] " + std::string(unit) + "; " +
+                                std::string(hint));
+}
+
+Result<double> number_within(const Json& value, const std::string& where, std::string_view field, double limit,
+                             std::string_view unit, std::string_view hint) {
+  POSEWARP_ASSIGN_OR_RETURN(const double number, finite_number(value, where, field));
+  if (std::abs(number) > limit) return outside_range_error(where, field, number, limit, unit, hint);
+  return number;
+}
+
 Result<Eigen::VectorXd> finite_numbers(const Json& value, int size, const std::string& where, std::string_view field) {
   if (!value.is_array() || value.size() != static_cast<size_t>(size)) {
     return invalid_argument_error(where + ": \"" + std::string(field) + "\" must be a list of " + std::to_string(size) +
@@ -177,7 +191,8 @@ Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::str
     }
     POSEWARP_RETURN_IF_ERROR(check_fields(axis_angle, {"axis", "degrees"}, inner));
     POSEWARP_ASSIGN_OR_RETURN(const Eigen::VectorXd axis, finite_numbers(axis_angle["axis"], 3, inner, "axis"));
-    POSEWARP_ASSIGN_OR_RETURN(const double degrees, finite_number(axis_angle["degrees"], inner, "degrees"));
+    POSEWARP_ASSIGN_OR_RETURN(const double degrees, number_within(axis_angle["degrees"], inner, "degrees", kMaxAngleDeg,
+                                                                  "degrees", kAngleHint));
     if (!(axis.norm() > 1e-12)) {
       return invalid_argument_error(inner + ": \"axis\" is zero; give the direction to turn about, e.g. [1, 0, 0]");
     }
@@ -199,7 +214,8 @@ Result<Eigen::Quaterniond> rotation_from_json(const Json& object, const std::str
   const char* names[3] = {"flexion", "abduction", "rotation"};
   for (int i = 0; i < 3; ++i) {
     if (angles.contains(names[i])) {
-      POSEWARP_ASSIGN_OR_RETURN(values[i], finite_number(angles[names[i]], inner, names[i]));
+      POSEWARP_ASSIGN_OR_RETURN(values[i],
+                                number_within(angles[names[i]], inner, names[i], kMaxAngleDeg, "degrees", kAngleHint));
     }
   }
   *angles_deg = Eigen::Vector3d(values[0], values[1], values[2]);

@@ -2,6 +2,8 @@
 #include <Eigen/Dense>
 
 #include <cmath>
+#include <iomanip>
+#include <sstream>
 
 #include "posewarp/resample/tet_warp.h"
 
@@ -33,10 +35,13 @@ Result<ImageGeometry> output_geometry(GridPolicy policy, const ImageGeometry& so
       }
       for (int a = 0; a < 3; ++a) {
         const double extent = hi[a] - lo[a] + 1.0;
-        if (extent > 65536.0) {
-          return invalid_argument_error("growing the output grid to hold the posed body needs " +
-                                        std::to_string(static_cast<int64_t>(extent)) +
-                                        " voxels along one axis; the pose moves the body absurdly far");
+        if (!(extent <= 65536.0)) {
+          // Printed as a double: a vertex 1e300 mm away makes an extent no integer type holds.
+          std::ostringstream needed;
+          needed << std::setprecision(6) << extent;
+          return invalid_argument_error("growing the output grid to hold the posed body needs " + needed.str() +
+                                        " voxels along axis " + std::to_string(a) +
+                                        " (at most 65536); the pose moves the body absurdly far");
         }
         out.size[a] = static_cast<int64_t>(extent);
       }

@@ -438,7 +438,7 @@ Result<Skeleton> build_skeleton(const LabelVolume& labels, const labels::LabelMa
     return failed_precondition_error(
         "no bone labels found: the label map '" + map.name() + "' names " + std::to_string(bone_labels) +
         " bone labels and the volume holds none of them. Check that the segmentation labels bones and that the "
-        "label map (--preset or --label-map) matches it");
+        "label map (a preset, or a map of your own) matches it");
   }
   if (n == 1) {
     return failed_precondition_error("only one bone segment ('" + skeleton.segments[0].name +

@@ -143,7 +143,21 @@ TEST_F(Catalogue, Volumes) {
            const float zero = 0.0f;
            std::memcpy(h + 80, &zero, 4);
            h[254] = 0;
-         }), info, kBadInput, "spacing"});
+         }), info, kBadInput, "pixdim[1] = 0"});
+  // ITK's text passed through: "is not recognized as a NIFTI file" for a zero size, "orthonormal direction cosines"
+  // for a zero or negative spacing with the sform in use. Named by field now, NIfTI and MetaImage alike.
+  check({"zero_dim.nii", nifti({6, 0, 4}, 2, voxels), info, kBadInput, "dim[2] = 0"});
+  check({"negative_spacing.nii", nifti({6, 5, 4}, 2, voxels, [](char* h) {
+           const float negative = -1.5f;
+           std::memcpy(h + 84, &negative, 4);
+         }), info, kBadInput, "pixdim[2] = -1.5"});
+  const auto mha = [](const std::string& dims, const std::string& spacing) {
+    return "ObjectType = Image\nNDims = 3\nBinaryData = True\nDimSize = " + dims + "\nElementSpacing = " + spacing +
+           "\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(120, '\1');
+  };
+  check({"zero_dim.mha", mha("6 0 4", "1 1 1"), info, kBadInput, "DimSize[1] = 0"});
+  check({"zero_spacing.mha", mha("6 5 4", "1 0 1"), build, kBadInput, "ElementSpacing[1] = 0"});
+  check({"negative_spacing.mha", mha("6 5 4", "1 1 -2"), info, kBadInput, "ElementSpacing[2] = -2"});
   // Accepted: NaN in a float label volume was read as label 0.
   std::string floats(6 * 5 * 4 * sizeof(float), '\0');
   const float nan = std::nanf("");
@@ -239,7 +253,50 @@ TEST_F(Catalogue, Poses) {
   check({"unknown_joint.json", R"({"joints": {"elbow_of_nobody": {"axis_angle": {"axis": [1, 0, 0], "degrees": 10}}}})",
          pose_with("--pose"), kBadInput, "elbow_of_nobody"});
   check({"huge_angle.json", R"({"joints": {"joint_2_3": {"axis_angle": {"axis": [1, 0, 0], "degrees": 1e308}}}})",
-         pose_with("--pose"), kBadInput, "huge_angle.json"});
+         pose_with("--pose"), kBadInput, "\"degrees\" = 1e+308 is outside [-360, 360] degrees"});
+  // Accepted: a flexion of 1e308 degrees (finite, an arbitrary rotation), and a root moved 30 m on a grown grid
+  // (1.25 GB of output).
+  check({"huge_flexion.json", R"({"joints": {"joint_2_3": {"angles_deg": {"flexion": 1e308}}}})", pose_with("--pose"),
+         kBadInput, "\"flexion\" = 1e+308 is outside [-360, 360] degrees"});
+  check({"far_root.json", R"({"root": {"translation_mm": [0, 30000, 0]}, "joints": {}})",
+         {"pose", at("bar.rig"), "--pose", "{}", "--grid", "grow", "--labels-out", at("out/l.nii.gz")}, kBadInput,
+         "root: \"translation_mm[1]\" = 30000 is outside [-2000, 2000] mm"});
+}
+
+// Outputs that must be files, given as existing directories: the export failed INTERNAL (exit 1) when it renamed
+// its file over the directory. Refused as bad input, naming the directory, which stays as it was.
+TEST_F(Catalogue, OutputsOntoADirectory) {
+  const std::string dir = at("a_directory");
+  const std::string volume_dir = at("a_directory.nii.gz");
+  fs::create_directories(dir);
+  fs::create_directories(volume_dir);
+  const std::vector<std::vector<std::string>> commands{
+      {"rig", "export", at("bar.rig"), "--mesh", dir},
+      {"rig", "export", at("bar.rig"), "--skeleton", dir},
+      {"rig", "build", "--labels", at("labels.nii.gz"), "--label-map", at("label_map.json"), "-o", dir},
+      {"pose", at("bar.rig"), "--pose", at("pose.json"), "--labels-out", at("l.nii.gz"), "--report", dir},
+      {"pose", at("bar.rig"), "--pose", at("pose.json"), "--labels-out", volume_dir}};
+  for (const std::vector<std::string>& command : commands) {
+    SCOPED_TRACE(command[0] + " " + command[1] + " ... " + command[command.size() - 2]);
+    const std::string target = command.back() == volume_dir ? volume_dir : dir;
+    expect_refused(posewarp(command), kBadInput, "'" + target + "': it is a directory", "name a file to write");
+    EXPECT_TRUE(fs::is_empty(target));
+  }
+  EXPECT_FALSE(fs::exists(at("l.nii.gz")));
+  fs::remove_all(dir);
+  fs::remove_all(volume_dir);
+}
+
+// The labels and the CT given the wrong way round built a rig (30 s of meshing garbage): refused before any work,
+// naming both.
+TEST_F(Catalogue, LabelsAndCtSwapped) {
+  ASSERT_EQ(posewarp({"-q", "convert", at("ct.nii.gz"), at("ct16.nii.gz"), "--pixel-type", "int16"}).exit_code, 0);
+  const CliRun run = posewarp({"rig", "build", "--labels", at("ct16.nii.gz"), "--ct", at("labels.nii.gz"),
+                               "--label-map", at("label_map.json"), "-o", at("swapped.rig")});
+  expect_refused(run, kBadInput, "the CT '" + at("labels.nii.gz") + "'", "looks like a label volume given as the CT");
+  EXPECT_NE(run.err.find("the labels '" + at("ct16.nii.gz") + "'"), std::string::npos) << run.err;
+  EXPECT_FALSE(fs::exists(at("swapped.rig")));
+  fs::remove(at("ct16.nii.gz"));
 }
 
 TEST_F(Catalogue, AnimationsAndBvh) {

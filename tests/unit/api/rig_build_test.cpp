@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
+#include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -73,6 +76,48 @@ TEST(BuildRig, AnEmptyVolumeIsAClearError) {
   Result<Rig> rig = build_rig(inputs, small_bar_params(), {});
   EXPECT_EQ(rig.status().code(), StatusCode::kFailedPrecondition);
   EXPECT_NE(rig.status().message().find("no bone labels"), std::string::npos);
+}
+
+// A CT given as the labels and the labels given as the CT are refused before any meshing, naming both inputs; the
+// same volumes the right way round build (BarBuildsWithNoManualInput).
+TEST(BuildRig, LabelsAndCtSwappedAreRefusedNamingBothBeforeMeshing) {
+  const BuildInputs right = bar_inputs();
+  BuildInputs swapped = right;
+  swapped.labels_source = "ct.nii.gz";
+  swapped.ct_source = "labels.nii.gz";
+  LabelVolume ct_as_labels(right.labels.geometry(), 0);
+  for (int64_t v = 0; v < ct_as_labels.voxel_count(); ++v) {
+    ct_as_labels.data()[v] = static_cast<Label>(std::lround(right.ct->data()[v]));
+  }
+  IntensityVolume labels_as_ct(right.labels.geometry(), 0.0f);
+  for (int64_t v = 0; v < labels_as_ct.voxel_count(); ++v) {
+    labels_as_ct.data()[v] = static_cast<float>(right.labels.data()[v]);
+  }
+  swapped.labels = ct_as_labels;
+  swapped.ct = labels_as_ct;
+  // Any stage that started would report progress (and polls for cancellation): none may.
+  std::vector<std::string> stages;
+  ProgressHooks hooks;
+  hooks.on_progress = [&stages](std::string_view stage, double) { stages.emplace_back(stage); };
+  hooks.cancel_requested = [&stages] {
+    stages.emplace_back("polled");
+    return false;
+  };
+  Result<Rig> rig = build_rig(swapped, small_bar_params(), hooks);
+  EXPECT_EQ(rig.status().code(), StatusCode::kInvalidArgument) << rig.status().to_string();
+  EXPECT_NE(rig.status().message().find("the CT 'labels.nii.gz'"), std::string::npos) << rig.status().to_string();
+  EXPECT_NE(rig.status().message().find("the labels 'ct.nii.gz'"), std::string::npos) << rig.status().to_string();
+  EXPECT_NE(rig.status().message().find("swapped"), std::string::npos) << rig.status().to_string();
+
+  // The labels alone given as the CT too (no swap of the labels): the CT is still refused.
+  BuildInputs twice = right;
+  twice.ct = labels_as_ct;
+  twice.ct_source = "labels.nii.gz";
+  Result<Rig> doubled = build_rig(twice, small_bar_params(), hooks);
+  EXPECT_EQ(doubled.status().code(), StatusCode::kInvalidArgument) << doubled.status().to_string();
+  EXPECT_NE(doubled.status().message().find("looks like a label volume given as the CT"), std::string::npos)
+      << doubled.status().to_string();
+  EXPECT_TRUE(stages.empty()) << "a stage ran: " << stages.front();
 }
 
 // A cancel in the middle of meshing (CGAL's stop flag), of the weights (between solves) or of the centres of

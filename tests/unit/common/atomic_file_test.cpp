@@ -64,6 +64,18 @@ TEST(AtomicFile, AMissingDirectoryIsNamedWithTheSystemsReason) {
   EXPECT_NE(status.message().find("No such file or directory"), std::string::npos) << status.to_string();
 }
 
+// Renaming over a directory failed with EISDIR after all the work, as an INTERNAL error (exit 1 from the CLI).
+TEST(AtomicFile, ADirectoryInThePlaceOfTheFileIsNamedBeforeWriting) {
+  ScratchDir dir;
+  std::filesystem::create_directories(dir.file("mesh.vtu"));
+  const Status status = write_file_atomically(dir.file("mesh.vtu"), "<VTKFile/>", "mesh");
+  EXPECT_EQ(status.code(), StatusCode::kInvalidArgument) << status.to_string();
+  const std::string named = dir.file("mesh.vtu");
+  EXPECT_NE(status.message().find(named + "': it is a directory"), std::string::npos) << status.to_string();
+  EXPECT_EQ(names_in(dir.path()), std::vector<std::string>{"mesh.vtu"});
+  EXPECT_TRUE(std::filesystem::is_empty(dir.file("mesh.vtu")));
+}
+
 TEST(AtomicFile, ThreadsWritingTheSameTargetNeverMixTheirBytes) {
   ScratchDir dir;
   std::vector<std::thread> threads;

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -76,9 +77,16 @@ TEST(BadInput, ZeroAndNegativeDimensionsAreRejectedBeforeReading) {
     patch<int16_t>(bytes, kDimOffset + 2 * 2, bad);  // dim[2]
     write_bytes(dir.file("bad_dims.nii"), bytes);
     const Status status = read_label_volume(dir.file("bad_dims.nii")).status();
-    EXPECT_FALSE(status.ok()) << "dim = " << bad;
-    EXPECT_NE(status.message().find("bad_dims.nii"), std::string::npos) << status.to_string();
+    expect_error_naming(status, "bad_dims.nii", StatusCode::kInvalidArgument);
+    // Named by field, not ITK's "is not recognized as a NIFTI file".
+    EXPECT_NE(status.message().find("dim[2] = " + std::to_string(bad)), std::string::npos) << status.to_string();
   }
+  std::string bytes = read_bytes(path);
+  patch<int16_t>(bytes, kDimOffset, int16_t{0});  // dim[0]
+  write_bytes(dir.file("no_dims.nii"), bytes);
+  const Status none = read_header(dir.file("no_dims.nii")).status();
+  expect_error_naming(none, "no_dims.nii", StatusCode::kInvalidArgument);
+  EXPECT_NE(none.message().find("dim[0] = 0"), std::string::npos) << none.to_string();
 }
 
 TEST(BadInput, AbsurdDimensionsNeverAllocate) {
@@ -91,20 +99,59 @@ TEST(BadInput, AbsurdDimensionsNeverAllocate) {
   EXPECT_EQ(status.code(), StatusCode::kResourceExhausted) << status.to_string();
   EXPECT_NE(status.message().find("huge.nii"), std::string::npos);
   EXPECT_NE(status.message().find("--max-voxels"), std::string::npos);
+  // A server names its own option.
+  ReadOptions server;
+  server.voxel_limit_name = "the server's --max-volume-voxels";
+  const Status named = read_header(dir.file("huge.nii"), server).status();
+  EXPECT_EQ(named.code(), StatusCode::kResourceExhausted) << named.to_string();
+  EXPECT_NE(named.message().find("(the server's --max-volume-voxels)"), std::string::npos) << named.to_string();
+  EXPECT_EQ(named.message().find("--max-voxels"), std::string::npos) << named.to_string();
 }
 
 TEST(BadInput, ZeroOrNegativeSpacingIsRejected) {
   ScratchDir dir;
   const std::string path = valid_nifti(dir, "spacing.nii");
   for (float bad : {0.0f, -2.0f}) {
-    std::string bytes = read_bytes(path);
-    patch<float>(bytes, kPixdimOffset + 4 * 1, bad);  // pixdim[1]
-    patch<int16_t>(bytes, 252, int16_t{0});           // qform_code 0: spacing from pixdim alone
-    patch<int16_t>(bytes, 254, int16_t{0});           // sform_code 0
-    write_bytes(dir.file("bad_spacing.nii"), bytes);
-    const Status status = read_label_volume(dir.file("bad_spacing.nii")).status();
-    EXPECT_EQ(status.code(), StatusCode::kInvalidArgument) << "spacing " << bad << ": " << status.to_string();
+    // With the qform and sform in use (ITK said "orthonormal direction cosines") and without (pixdim alone).
+    for (bool orientation : {true, false}) {
+      std::string bytes = read_bytes(path);
+      patch<float>(bytes, kPixdimOffset + 4 * 3, bad);  // pixdim[3]
+      if (!orientation) {
+        patch<int16_t>(bytes, 252, int16_t{0});  // qform_code 0: spacing from pixdim alone
+        patch<int16_t>(bytes, 254, int16_t{0});  // sform_code 0
+      }
+      write_bytes(dir.file("bad_spacing.nii"), bytes);
+      const Status status = read_label_volume(dir.file("bad_spacing.nii")).status();
+      SCOPED_TRACE("spacing " + std::to_string(bad) + (orientation ? " with" : " without") + " qform/sform");
+      expect_error_naming(status, "bad_spacing.nii", StatusCode::kInvalidArgument);
+      EXPECT_NE(status.message().find("pixdim[3] = " + std::string(bad == 0.0f ? "0" : "-2")), std::string::npos)
+          << status.to_string();
+    }
   }
+}
+
+// MetaImage sizes and spacings are named by field too (ITK: "orthonormal direction cosines" for a zero spacing).
+TEST(BadInput, MetaImageZeroSizeAndZeroOrNegativeSpacingAreNamedByField) {
+  ScratchDir dir;
+  auto mha = [](const std::string& dims, const std::string& spacing) {
+    return "ObjectType = Image\nNDims = 3\nDimSize = " + dims + "\nElementSpacing = " + spacing +
+           "\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(120, '\1');
+  };
+  struct Case {
+    std::string name, bytes, says;
+  };
+  const std::vector<Case> cases{{"zero_size.mha", mha("6 0 4", "1 1 1"), "DimSize[1] = 0"},
+                                {"zero_spacing.mha", mha("6 5 4", "1 0 1"), "ElementSpacing[1] = 0"},
+                                {"negative_spacing.mha", mha("6 5 4", "1 1 -2.5"), "ElementSpacing[2] = -2.5"}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    write_bytes(dir.file(c.name), c.bytes);
+    const Status status = read_header(dir.file(c.name)).status();
+    expect_error_naming(status, c.name, StatusCode::kInvalidArgument);
+    EXPECT_NE(status.message().find(c.says), std::string::npos) << status.to_string();
+  }
+  write_bytes(dir.file("fine.mha"), mha("6 5 4", "1 1 2.5"));
+  EXPECT_TRUE(read_label_volume(dir.file("fine.mha")).ok());
 }
 
 TEST(BadInput, VoxelLimitIsConfigurable) {
@@ -350,6 +397,122 @@ TEST(BadInput, EveryVolumeFuzzingFoundIsRefused) {
     ++seen;
   }
   EXPECT_GE(seen, 10);
+}
+
+}  // namespace
+}  // namespace posewarp::io
+
+namespace posewarp::io {
+namespace {
+
+ReadOptions inline_only() {
+  ReadOptions options;
+  options.inline_data_only = true;
+  return options;
+}
+
+// A server's uploads must hold their own voxels: a header naming a data file beside it could read another stored
+// volume (or any file) as its voxels.
+TEST(BadInput, InlineDataOnlyRefusesDetachedHeadersAndDicomBeforeReading) {
+  ScratchDir dir;
+  LabelVolume labels = patterned_labels(small_oblique_grid(), {0, 1, 2});
+  labels.set_source_type(PixelType::kUInt8);
+  for (const char* name :
+       {"detached.nhdr", "detached.mhd", "inline.nii", "inline.nii.gz", "inline.nrrd", "inline.mha", "series"}) {
+    ASSERT_TRUE(write_volume(labels, dir.file(name)).ok()) << name;
+  }
+  // Other spellings of a detached header under an inline extension.
+  std::string mhd = read_bytes(dir.file("detached.mhd"));
+  write_bytes(dir.file("detached_as.mha"), mhd);
+  const std::string data_file = mhd.substr(mhd.find("ElementDataFile = ") + 18);
+  write_bytes(dir.file("shouting.nrrd"),
+              "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 7 6 5\nencoding: raw\nDATA FILE: " +
+                  data_file.substr(0, data_file.find('\n')) + "\n");
+  std::string pair = read_bytes(dir.file("inline.nii"));
+  std::memcpy(pair.data() + 344, "ni1", 4);  // a .hdr/.img pair's magic: the voxels are in another file
+  write_bytes(dir.file("pair.nii"), pair);
+
+  struct Case {
+    std::string name, says;
+  };
+  const std::vector<Case> refused{{"detached.nhdr", "\"data file\""},
+                                  {"shouting.nrrd", "\"data file\""},
+                                  {"detached.mhd", "ElementDataFile"},
+                                  {"detached_as.mha", "ElementDataFile"},
+                                  {"pair.nii", "n+1"},
+                                  {"series", "DICOM series"}};
+  for (const Case& c : refused) {
+    SCOPED_TRACE(c.name);
+    const std::string path = dir.file(c.name);
+    for (const Status& status :
+         {read_header(path, inline_only()).status(), read_label_volume(path, inline_only()).status(),
+          read_intensity_volume(path, inline_only()).status()}) {
+      expect_error_naming(status, c.name, StatusCode::kInvalidArgument);
+      EXPECT_NE(status.message().find(c.says), std::string::npos) << status.to_string();
+      EXPECT_NE(status.message().find("send the voxels inline: a .nii/.nii.gz, a .nrrd with its data inline, or a "
+                                      ".mha with ElementDataFile = LOCAL"),
+                std::string::npos)
+          << status.to_string();
+    }
+  }
+  // Without the option the detached files are read as before; with it, self-contained files still are.
+  EXPECT_TRUE(read_label_volume(dir.file("detached.nhdr")).ok());
+  EXPECT_TRUE(read_label_volume(dir.file("detached.mhd")).ok());
+  for (const char* name : {"inline.nii", "inline.nii.gz", "inline.nrrd", "inline.mha"}) {
+    Result<LabelVolume> read = read_label_volume(dir.file(name), inline_only());
+    ASSERT_TRUE(read.ok()) << name << ": " << read.status().to_string();
+    EXPECT_EQ(read->voxels(), labels.voxels()) << name;
+  }
+}
+
+// `raw` as a gzip file, written in 1 MB pieces, followed by `zeros` zero bytes.
+void write_gzip(const std::string& path, const std::string& raw, int64_t zeros) {
+  gzFile file = gzopen(path.c_str(), "wb1");
+  ASSERT_NE(file, nullptr);
+  ASSERT_EQ(gzwrite(file, raw.data(), static_cast<unsigned>(raw.size())), static_cast<int>(raw.size()));
+  const std::string piece(size_t{1} << 20, '\0');
+  for (int64_t left = zeros; left > 0; left -= static_cast<int64_t>(piece.size())) {
+    const unsigned n = static_cast<unsigned>(std::min<int64_t>(left, static_cast<int64_t>(piece.size())));
+    ASSERT_EQ(gzwrite(file, piece.data(), n), static_cast<int>(n));
+  }
+  ASSERT_EQ(gzclose(file), Z_OK);
+}
+
+// A small .nii.gz can inflate to gigabytes: the check inflates only what the header promises, and a header that
+// promises too much is refused by the voxel limit before anything is inflated.
+TEST(BadInput, NiftiGzipBombsCostNoMoreThanTheVoxelsTheirHeaderPromises) {
+  ScratchDir dir;
+  ImageGeometry g = small_oblique_grid();
+  g.size = {10, 1, 1};
+  LabelVolume ten = patterned_labels(g, {0, 1, 2});
+  ten.set_source_type(PixelType::kUInt8);
+  ASSERT_TRUE(write_volume(ten, dir.file("ten.nii")).ok());
+  const std::string nii = read_bytes(dir.file("ten.nii"));
+
+  // 10 voxels, then 200 MB of zeros the header never mentions: read as the 10 voxels.
+  write_gzip(dir.file("trailing.nii.gz"), nii, int64_t{200} << 20);
+  EXPECT_LT(std::filesystem::file_size(dir.file("trailing.nii.gz")), 2u << 20);
+  Result<LabelVolume> read = read_label_volume(dir.file("trailing.nii.gz"));
+  ASSERT_TRUE(read.ok()) << read.status().to_string();
+  EXPECT_EQ(read->voxels(), ten.voxels());
+
+  // 800^3 voxels claimed, over a 100 M limit: RESOURCE_EXHAUSTED. The stream is cut after its first part, so had
+  // it been inflated the answer would have been DATA_LOSS.
+  std::string huge = nii;
+  for (size_t d = 1; d <= 3; ++d) patch<int16_t>(huge, kDimOffset + 2 * d, int16_t{800});
+  write_gzip(dir.file("whole.nii.gz"), huge, int64_t{8} << 20);
+  std::string cut = read_bytes(dir.file("whole.nii.gz"));
+  cut.resize(cut.size() / 2);
+  write_bytes(dir.file("claims.nii.gz"), cut);
+  ReadOptions options;
+  options.max_voxels = 100'000'000;
+  const Status status = read_label_volume(dir.file("claims.nii.gz"), options).status();
+  expect_error_naming(status, "claims.nii.gz", StatusCode::kResourceExhausted);
+  EXPECT_NE(status.message().find("512000000 voxels"), std::string::npos) << status.to_string();
+  // Within the limit, the same cut stream is found short.
+  options.max_voxels = int64_t{1} << 30;
+  expect_error_naming(read_label_volume(dir.file("claims.nii.gz"), options).status(), "claims.nii.gz",
+                      StatusCode::kDataLoss);
 }
 
 }  // namespace

@@ -297,6 +297,14 @@ TEST(Bvh, MalformedFilesAreErrorsNamingTheLine) {
                StatusCode::kInvalidArgument, {"line 20", "\"hips\"", "} is missing"});
   expect_error(import_bvh("ROOT hips\n", chain_map(), skeleton, 0, -1).status(), StatusCode::kInvalidArgument,
                {"no MOTION"});
+  // A finite but absurd value would be an arbitrary rotation (or a move of kilometres).
+  frames = kFrames;
+  frames[3] = "0 0 0  0 0 0   10 1e308 30  0 0 0";
+  expect_error(import_bvh(bvh_text(frames), chain_map(), skeleton, 0, -1).status(), StatusCode::kInvalidArgument,
+               {"line 27", "frame 3", "1e308", "[-10000, 10000]"});
+  frames[3] = "-20000 0 0  0 0 0   0 0 0  0 0 0";
+  expect_error(import_bvh(bvh_text(frames), chain_map(), skeleton, 0, -1).status(), StatusCode::kInvalidArgument,
+               {"line 27", "-20000"});
   expect_error(import_bvh(std::string(kHierarchy) + "MOTION\nFrame Time: 0.1\n", chain_map(), skeleton, 0, -1).status(),
                StatusCode::kInvalidArgument, {"line 22", "Frames:"});
 }

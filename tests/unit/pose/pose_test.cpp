@@ -270,6 +270,50 @@ TEST(PoseJson, NanOrInfiniteAngleIsAnError) {
   expect_invalid(validate_pose(pose, chain_skeleton()), {"root translation"});
 }
 
+// 1e308 degrees is finite, but its rotation is arbitrary: every angle lies within a full turn either way, and the
+// root moves at most 2 m, however the pose comes in.
+TEST(PoseJson, AnglesAndRootTranslationOutsideTheirRangesAreErrorsNamingTheField) {
+  expect_invalid(
+      pose_status(R"({"joints": {"lower": {"angles_deg": {"flexion": 1e308}}}})"),
+      {"pose 'test.json', joint \"lower\", \"angles_deg\": \"flexion\" = 1e+308 is outside [-360, 360] degrees"});
+  expect_invalid(pose_status(R"({"joints": {"lower": {"angles_deg": {"abduction": -361}}}})"),
+                 {"\"abduction\" = -361 is outside [-360, 360] degrees"});
+  expect_invalid(pose_status(R"({"joints": {"upper": {"angles_deg": {"rotation": 400}}}})"),
+                 {"joint \"upper\"", "\"rotation\" = 400"});
+  expect_invalid(pose_status(R"({"joints": {"lower": {"axis_angle": {"axis": [1, 0, 0], "degrees": 1e308}}}})"),
+                 {"joint \"lower\", \"axis_angle\": \"degrees\" = 1e+308 is outside [-360, 360] degrees"});
+  expect_invalid(pose_status(R"({"root": {"rotation": {"axis_angle": {"axis": [0, 0, 1], "degrees": -720}}},
+                                 "joints": {}})"),
+                 {"root rotation", "\"degrees\" = -720"});
+  expect_invalid(pose_status(R"({"root": {"translation_mm": [0, 30000, 0]}, "joints": {}})"),
+                 {"root: \"translation_mm[1]\" = 30000 is outside [-2000, 2000] mm"});
+  expect_invalid(pose_status(R"({"root": {"translation_mm": [1e300, 0, 0]}, "joints": {}})"),
+                 {"\"translation_mm[0]\" = 1e+300"});
+  // The limits themselves are accepted.
+  EXPECT_TRUE(pose_status(R"({"root": {"translation_mm": [-2000, 2000, 0]},
+                              "joints": {"lower": {"angles_deg": {"flexion": 360, "abduction": -360}},
+                                         "upper": {"axis_angle": {"axis": [0, 1, 0], "degrees": -360}}}})")
+                  .ok());
+  // A pose built in code is held to the same ranges.
+  Pose coded = pose_of({anatomical_rotation("lower", 1e308)});
+  expect_invalid(validate_pose(coded, chain_skeleton()),
+                 {"joint \"lower\", \"angles_deg\": \"flexion\" = 1e+308 is outside [-360, 360] degrees"});
+  coded = pose_of({anatomical_rotation("lower", 10.0, 0.0, -kMaxAngleDeg - 1.0)});
+  expect_invalid(validate_pose(coded, chain_skeleton()), {"\"rotation\" = -361"});
+  coded = pose_of({});
+  coded.root.translation.z() = -kMaxRootTranslationMm * 15;
+  expect_invalid(validate_pose(coded, chain_skeleton()),
+                 {"root", "\"translation_mm[2]\" = -30000", "[-2000, 2000] mm"});
+  coded.root.translation.z() = kMaxRootTranslationMm;
+  EXPECT_TRUE(validate_pose(coded, chain_skeleton()).ok());
+}
+
+TEST(Animation, FramesAreHeldToThePoseRanges) {
+  Result<Animation> animation = animation_from_json(
+      R"({"frames": [{"joints": {}}, {"root": {"translation_mm": [0, 0, 2500]}, "joints": {}}]})", "'a.json'");
+  expect_invalid(animation.status(), {"frame 1", "\"translation_mm[2]\" = 2500"});
+}
+
 TEST(PoseJson, NonUnitQuaternionIsAnErrorThatSaysToNormalize) {
   expect_invalid(pose_status(R"({"joints": {"lower": {"quaternion": [1, 1, 0, 0]}}})"),
                  {"joint \"lower\"", "length 1.414", "divide each component by 1.414"});

@@ -10,6 +10,7 @@
 #include "posewarp/io/volume_io.h"
 #include "posewarp/labels/label_map.h"
 #include "posewarp/labels/presets.h"
+#include "posewarp/labels/volume_kind.h"
 #include "posewarp/pose/animation.h"
 #include "posewarp/pose/bvh.h"
 #include "posewarp/pose/bvh_map.h"
@@ -49,6 +50,11 @@ using labels::preset_by_name;
 using labels::preset_names;
 using labels::read_label_map;
 using labels::write_label_map;
+
+// What a volume is for: labels that look like labels, a CT that is not a label volume (build_rig checks both).
+using labels::check_ct_is_not_labels;
+using labels::check_labels_look_like_labels;
+using labels::kMaxDistinctLabels;
 
 // Poses, animations and BVH motion.
 using pose::read_animation;

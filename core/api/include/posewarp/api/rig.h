@@ -93,6 +93,9 @@ struct Rig {
 std::string rig_id_of(const BuildInputs& inputs, const BuildParams& params);
 
 // Builds a rig: body mask, skeleton, classes, mesh (with health checks), weights and centres of rotation.
+// Before any of it, what each volume is for (labels::check_labels_look_like_labels, labels::check_ct_is_not_labels):
+// a CT given as the labels, or labels given as the CT, is INVALID_ARGUMENT naming both inputs (labels_source,
+// ct_source).
 Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks);
 
 // A 64-bit hash of a buffer as 16 hex digits (FNV-1a over 8-byte words; stable across platforms of one endianness).

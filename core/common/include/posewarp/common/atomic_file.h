@@ -14,8 +14,8 @@ namespace posewarp {
 class AtomicFile {
  public:
   // Creates the partial file. Errors name the file, its directory and the system's reason: NOT_FOUND for a missing
-  // directory, PERMISSION_DENIED for one that cannot be written, INVALID_ARGUMENT otherwise. `kind` names what is
-  // written in messages ("rig file", "report").
+  // directory, PERMISSION_DENIED for one that cannot be written, INVALID_ARGUMENT otherwise (a path that is a
+  // directory among them, named as such). `kind` names what is written in messages ("rig file", "report").
   static Result<AtomicFile> create(const std::string& path, std::string_view kind);
 
   AtomicFile(AtomicFile&& other) noexcept;

@@ -23,16 +23,18 @@ Result<VolumeFormat> format_from_path(const std::string& path);
 struct ReadOptions {
   // Largest voxel count accepted (default 512 Mi voxels: 2 GiB of int32 labels).
   int64_t max_voxels = int64_t{1} << 29;
+  // How the voxel limit is named to the caller in the message that refuses a volume over it (the command line's
+  // flag by default; a server names its own option).
+  std::string voxel_limit_name = "--max-voxels";
   // Largest size along any one axis.
   int64_t max_dimension = 65536;
   // For a directory holding several DICOM series: the SeriesInstanceUID to read. Empty: the directory must
   // hold exactly one series.
   std::string dicom_series_uid;
-  // Refuse a header whose voxels lie in another file (NRRD "data file", MetaImage ElementDataFile other than LOCAL)
-  // and DICOM directories: what a server reads from a client must carry its own voxels.
+  // Only self-contained files: NIfTI (.nii, .nii.gz), NRRD with its data inline and MetaImage with
+  // ElementDataFile = LOCAL. A header naming a detached data file (.nhdr, .mhd) and a DICOM directory are refused
+  // (INVALID_ARGUMENT) before anything else is read: a server's uploads must never read a file they did not send.
   bool inline_data_only = false;
-  // How the caller's user raises max_voxels, named in the message that refuses a larger volume.
-  std::string voxel_limit_name = "--max-voxels";
 };
 
 // What the header says, read without loading the voxels.

@@ -28,7 +28,9 @@ namespace posewarp::pose {
 // rig joints must still exist.
 //
 // Errors, all INVALID_ARGUMENT unless noted: a malformed file (the message names the line: wrong number of
-// values on a frame line, truncated motion, a word where a number belongs, unknown channels, unbalanced braces);
+// values on a frame line, truncated motion, a word where a number belongs, a frame value that is not finite or
+// beyond +-10000, unknown channels, unbalanced braces); the root translation of a frame is checked by
+// validate_pose (kMaxRootTranslationMm) when the animation is posed;
 // BVH joints neither mapped nor ignored, or rig joints the skeleton lacks (each message lists the names and says
 // what to add to the map); a mapping that contradicts the rig's tree (the mapped ancestor of a BVH joint must drive
 // the nearest mapped ancestor joint of its rig joint); first < 0 or last < first; OUT_OF_RANGE when the range

@@ -15,6 +15,13 @@
 
 namespace posewarp::pose {
 
+// The ranges every way into a pose checks (pose JSON, animation JSON, BVH, validate_pose for poses built in C++),
+// with the same message. An angle beyond a full turn either way is a mistake, never a rotation (1e308 degrees is
+// finite, but its rotation is arbitrary); a body is about 2 m long, so moving it further is not a re-pose (it only
+// grows the output grid).
+inline constexpr double kMaxAngleDeg = 360.0;
+inline constexpr double kMaxRootTranslationMm = 2000.0;
+
 // The rotation of a joint's child segment relative to its parent, expressed in the joint's rest frame F
 // (rig::Joint::frame, columns x, y, z in LPS: x the flexion axis, y the abduction axis, z along the child's long
 // axis). In LPS the child turns by F * R * F^T about the joint centre. Must be a unit quaternion (within 1e-3).
@@ -61,7 +68,10 @@ struct Pose {
 //       The root rotation takes no angles_deg.
 // Joint rotations are in the joint's frame (see JointRotation). The root rotation uses the same forms in LPS axes
 // (x patient left, y posterior, z superior) and turns about the root segment's centroid; "translation_mm" is in
-// LPS mm. Numbers must be finite; JSON has no NaN or Infinity.
+// LPS mm. Numbers must be finite; JSON has no NaN or Infinity. Every angle ("degrees", each of "angles_deg") lies
+// within [-kMaxAngleDeg, kMaxAngleDeg], every component of "translation_mm" within [-kMaxRootTranslationMm,
+// kMaxRootTranslationMm]; INVALID_ARGUMENT otherwise, e.g.
+//   pose 'x.json', joint "knee_left", "angles_deg": "flexion" = 1e+308 is outside [-360, 360] degrees; ...
 Result<Pose> pose_from_json(const std::string& text, const std::string& source);
 // NOT_FOUND when the file cannot be opened; otherwise as pose_from_json.
 Result<Pose> read_pose(const std::string& path);
@@ -69,8 +79,9 @@ Result<Pose> read_pose(const std::string& path);
 std::string pose_to_json(const Pose& pose);
 
 // INVALID_ARGUMENT for a joint the skeleton lacks (the message lists the rig's joints), a joint given twice, a
-// quaternion that is not unit within 1e-3 or not finite, a root rotation that is not a rotation, a non-finite
-// root translation.
+// quaternion that is not unit within 1e-3 or not finite, anatomical angles (angles_deg) outside [-kMaxAngleDeg,
+// kMaxAngleDeg], a root rotation that is not a rotation, a root translation component that is not finite or
+// outside [-kMaxRootTranslationMm, kMaxRootTranslationMm].
 Status validate_pose(const Pose& pose, const rig::Skeleton& skeleton);
 
 // R = Rx(flexion) * Ry(abduction) * Rz(rotation), angles in degrees, in a frame (no anatomical signs).
