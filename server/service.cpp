@@ -137,18 +137,6 @@ class VolumeSender {
   grpc::Status status_;
 };
 
-// Placeholder until the labels stage's check lands.
-Status check_looks_like_labels(const LabelVolume& volume, const std::string& what) {
-  std::set<Label> seen;
-  for (int64_t i = 0; i < volume.voxel_count(); ++i) {
-    if (seen.insert(volume.data()[i]).second && seen.size() > 1000) {
-      return invalid_argument_error(what + " hold more than 1000 distinct values: an intensity volume (CT or MRI) "
-                                    "given as labels? Upload the segmentation as VOLUME_KIND_LABELS");
-    }
-  }
-  return ok_status();
-}
-
 // A request id from the client's "x-request-id" metadata when it is a plain token, else one of ours.
 std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) {
   const auto& metadata = context->client_metadata();
@@ -489,7 +477,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
                                 api::read_text_input(staged, "upload", static_cast<int64_t>(header.size_bytes())));
       if (labels) {
         POSEWARP_ASSIGN_OR_RETURN(const LabelVolume v, labels_from_raw(bytes, plan.raw_type, plan.raw_grid));
-        POSEWARP_RETURN_IF_ERROR(check_looks_like_labels(v, "the uploaded labels"));
+        POSEWARP_RETURN_IF_ERROR(api::check_labels_look_like_labels(v, "the uploaded label volume"));
         return api::encode_volume(v, api::VolumeFormat::kNifti, true);
       }
       POSEWARP_ASSIGN_OR_RETURN(const IntensityVolume v, intensity_from_raw(bytes, plan.raw_type, plan.raw_grid));
@@ -515,7 +503,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
                                               until, gone));
     if (labels) {
       POSEWARP_ASSIGN_OR_RETURN(const LabelVolume volume, api::read_label_volume(staged, read_options()));
-      POSEWARP_RETURN_IF_ERROR(check_looks_like_labels(volume, "the uploaded labels"));
+      POSEWARP_RETURN_IF_ERROR(api::check_labels_look_like_labels(volume, "the uploaded label volume"));
     } else {
       POSEWARP_RETURN_IF_ERROR(api::read_intensity_volume(staged, read_options()).status());
     }

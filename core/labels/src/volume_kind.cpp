@@ -35,6 +35,14 @@ Status check_labels_look_like_labels(const LabelVolume& labels, const std::strin
     if (have_last && voxel[v] == last) continue;
     last = voxel[v];
     have_last = true;
+    if (last < kMinLabelValue) {
+      std::string message = labels_name + " holds the value " + std::to_string(last) +
+                            ", where label values are structure numbers (none below " +
+                            std::to_string(kMinLabelValue) +
+                            "): it looks like an intensity volume (CT air is about -1000 HU) given as the labels";
+      if (!ct_name.empty()) message += " (and " + ct_name + " given as the CT: are the two swapped?)";
+      return invalid_argument_error(message + ". Give the segmentation as the labels");
+    }
     if (seen.insert(last).second && static_cast<int>(seen.size()) > kMaxDistinctLabels) {
       std::string message = labels_name + " holds more than " + std::to_string(kMaxDistinctLabels) +
                             " distinct values, where a label volume holds one per structure (TotalSegmentator: "

@@ -30,12 +30,21 @@ TEST(VolumeKind, LabelsWithAThousandValuesAreLabelsAndMoreAreAnIntensityVolume) 
   LabelVolume labels(grid(100), 0);
   for (int64_t v = 0; v < labels.voxel_count(); ++v) labels.data()[v] = static_cast<Label>(v % 1000);
   EXPECT_TRUE(check_labels_look_like_labels(labels, "the labels 'seg.nii.gz'").ok());
-  // A CT read as labels: -1000 HU air and a thousand other values.
-  labels.data()[0] = -1000;
+  // An intensity volume stored shifted (air at 0): a thousand and one values.
   labels.data()[1] = 1500;
   expect_invalid(check_labels_look_like_labels(labels, "the labels 'ct.nii.gz'", "the CT 'seg.nii.gz'"),
                  {"the labels 'ct.nii.gz' holds more than 1000 distinct values",
                   "looks like an intensity volume (CT/MRI) given as the labels", "the CT 'seg.nii.gz'", "swapped"});
+}
+
+TEST(VolumeKind, LabelsBelowMinusOneHundredAreAnIntensityVolume) {
+  // A CT in HU read as labels holds few values when it is a phantom, but always its air.
+  LabelVolume labels(grid(10), 40);
+  labels.data()[5] = kMinLabelValue;
+  EXPECT_TRUE(check_labels_look_like_labels(labels, "the labels").ok());
+  labels.data()[7] = -1000;
+  expect_invalid(check_labels_look_like_labels(labels, "the labels 'ct.nii.gz'"),
+                 {"the labels 'ct.nii.gz' holds the value -1000", "none below -100", "given as the labels"});
 }
 
 TEST(VolumeKind, LabelsGivenAsTheCtAreRefusedNamingBoth) {

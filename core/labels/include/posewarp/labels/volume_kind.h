@@ -13,8 +13,10 @@ namespace posewarp::labels {
 // Most distinct values a label volume holds: one per structure (TotalSegmentator v2 has 117 classes); a CT or an
 // MRI holds thousands.
 inline constexpr int kMaxDistinctLabels = 1000;
+// Lowest value a label volume holds: labels are structure numbers, while air in a CT lies near -1000 HU.
+inline constexpr Label kMinLabelValue = -100;
 
-// OK when `labels` holds at most kMaxDistinctLabels distinct values. Otherwise INVALID_ARGUMENT: "<labels_name>
+// OK when `labels` holds at most kMaxDistinctLabels distinct values, none below kMinLabelValue. Otherwise INVALID_ARGUMENT: "<labels_name>
 // holds more than 1000 distinct values ...; it looks like an intensity volume (CT/MRI) given as the labels", naming
 // `ct_name` too when it is not empty (the two may be swapped). Names are used as given, e.g. "the labels
 // 'seg.nii.gz'". One pass over the voxels that stops at the 1001st distinct value. (A floating-point file with
