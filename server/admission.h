@@ -113,8 +113,10 @@ class MemoryBudget {
 // Per-client limits. A client is its bearer token when it sent one (so clients behind one proxy are told apart),
 // else its address.
 struct ClientLimitOptions {
-  int calls = 16;                            // concurrent heavy calls (poses, uploads, downloads, assets)
-  int uploads = 4;                           // concurrent uploads (volumes and rigs)
+  // Generous enough for many users behind one proxy without tokens (all one address): a hostile client is held by
+  // the memory budget and the stall watch first, these keep it from taking every slot and queue place.
+  int calls = 64;                            // concurrent heavy calls (poses, uploads, downloads)
+  int uploads = 16;                          // concurrent uploads (volumes and rigs)
   int64_t upload_bytes = int64_t{4} << 30;   // the declared sizes of a client's open uploads together
 };
 

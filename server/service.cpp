@@ -332,6 +332,8 @@ std::vector<std::pair<std::string, double>> PosewarpService::gauges() {
     for (const auto& [client, n] : previews_by_client_) previews += n;
     values.emplace_back("preview_streams", previews);
   }
+  values.emplace_back("memory_reserved_bytes", static_cast<double>(memory_.used()));
+  values.emplace_back("memory_budget_bytes", static_cast<double>(memory_.total()));
   std::lock_guard<std::mutex> lock(cache_mutex_);
   int64_t bytes = 0;
   for (const auto& [id, entry] : cache_) bytes += entry.bytes;

@@ -293,7 +293,8 @@ TEST_F(Catalogue, LabelsAndCtSwapped) {
   ASSERT_EQ(posewarp({"-q", "convert", at("ct.nii.gz"), at("ct16.nii.gz"), "--pixel-type", "int16"}).exit_code, 0);
   const CliRun run = posewarp({"rig", "build", "--labels", at("ct16.nii.gz"), "--ct", at("labels.nii.gz"),
                                "--label-map", at("label_map.json"), "-o", at("swapped.rig")});
-  expect_refused(run, kBadInput, "the CT '" + at("labels.nii.gz") + "'", "looks like a label volume given as the CT");
+  // The labels, checked first, are refused (HU values below -100); the message names both and the swap.
+  expect_refused(run, kBadInput, "the CT '" + at("labels.nii.gz") + "'", "are the two swapped?");
   EXPECT_NE(run.err.find("the labels '" + at("ct16.nii.gz") + "'"), std::string::npos) << run.err;
   EXPECT_FALSE(fs::exists(at("swapped.rig")));
   fs::remove(at("ct16.nii.gz"));

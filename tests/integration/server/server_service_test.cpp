@@ -470,10 +470,11 @@ TEST_F(ServerService, RawSamplesUploadAsTheSameVolumeAsTheirFile) {
   v1::Volume raw;
   ASSERT_TRUE(send(samples, &raw).ok());
   EXPECT_EQ(raw.grid().SerializeAsString(), from_file.grid().SerializeAsString());
-  // Too few samples for the grid: refused with what it needs.
+  // Too few samples for the grid: refused at the header, naming the fields that disagree.
   const grpc::Status short_upload = send(samples.substr(0, samples.size() / 2), &raw);
   EXPECT_EQ(short_upload.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_NE(short_upload.error_message().find("needs"), std::string::npos) << short_upload.error_message();
+  EXPECT_NE(short_upload.error_message().find("size_bytes"), std::string::npos) << short_upload.error_message();
+  EXPECT_NE(short_upload.error_message().find("raw_grid"), std::string::npos) << short_upload.error_message();
 }
 
 // A client that finds the server down (restarting) tries again and succeeds once it is back; a study sent again is
