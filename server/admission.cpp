@@ -11,7 +11,9 @@ int64_t now_ns() {
       .count();
 }
 
-std::string megabytes(int64_t bytes) { return std::to_string((bytes + (1 << 20) - 1) >> 20) + " MB"; }
+std::string megabytes(int64_t bytes) {
+  return std::to_string((bytes + (1 << 20) - 1) >> 20) + " MB";
+}
 
 }  // namespace
 

@@ -49,8 +49,8 @@ class StallWatch {
     void end();
     StallWatch* watch_;
     grpc::ServerContext* context_;
-    std::atomic<int> depth_{0};          // operations in progress (the volume sender may overlap the call's own)
-    std::atomic<int64_t> since_ns_{0};   // steady-clock time the oldest one started; 0: none
+    std::atomic<int> depth_{0};         // operations in progress (the volume sender may overlap the call's own)
+    std::atomic<int64_t> since_ns_{0};  // steady-clock time the oldest one started; 0: none
     std::atomic<bool> stalled_{false};
   };
 
@@ -82,7 +82,9 @@ class MemoryBudget {
   class Reservation {
    public:
     Reservation() = default;
-    Reservation(Reservation&& other) noexcept : budget_(other.budget_), bytes_(other.bytes_) { other.budget_ = nullptr; }
+    Reservation(Reservation&& other) noexcept : budget_(other.budget_), bytes_(other.bytes_) {
+      other.budget_ = nullptr;
+    }
     Reservation& operator=(Reservation&& other) noexcept;
     ~Reservation() { release(); }
     int64_t bytes() const { return bytes_; }
@@ -115,9 +117,9 @@ class MemoryBudget {
 struct ClientLimitOptions {
   // Generous enough for many users behind one proxy without tokens (all one address): a hostile client is held by
   // the memory budget and the stall watch first, these keep it from taking every slot and queue place.
-  int calls = 64;                            // concurrent heavy calls (poses, uploads, downloads)
-  int uploads = 16;                          // concurrent uploads (volumes and rigs)
-  int64_t upload_bytes = int64_t{4} << 30;   // the declared sizes of a client's open uploads together
+  int calls = 64;                           // concurrent heavy calls (poses, uploads, downloads)
+  int uploads = 16;                         // concurrent uploads (volumes and rigs)
+  int64_t upload_bytes = int64_t{4} << 30;  // the declared sizes of a client's open uploads together
 };
 
 class ClientLimits {
@@ -126,8 +128,10 @@ class ClientLimits {
   class Entry {
    public:
     Entry() = default;
-    Entry(Entry&& other) noexcept : limits_(other.limits_), client_(std::move(other.client_)), upload_(other.upload_),
-                                    bytes_(other.bytes_) { other.limits_ = nullptr; }
+    Entry(Entry&& other) noexcept
+        : limits_(other.limits_), client_(std::move(other.client_)), upload_(other.upload_), bytes_(other.bytes_) {
+      other.limits_ = nullptr;
+    }
     Entry& operator=(Entry&&) = delete;
     ~Entry();
 

@@ -40,8 +40,8 @@ Result<StagedUpload> receive_upload(Read&& read, ChunkOf&& chunk_of, uint64_t si
     const std::string* chunk = chunk_of(message);
     if (chunk == nullptr) return invalid_argument_error("an upload has one header, then only chunks");
     if (staged.bytes + chunk->size() > size) {
-      return invalid_argument_error("the upload sent more bytes than its header's size_bytes (" +
-                                    std::to_string(size) + ")");
+      return invalid_argument_error("the upload sent more bytes than its header's size_bytes (" + std::to_string(size) +
+                                    ")");
     }
     if (chunk->size() < kMinUploadChunkBytes && staged.bytes + chunk->size() != size) {
       return invalid_argument_error("an upload chunk of " + std::to_string(chunk->size()) +

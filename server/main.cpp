@@ -1,12 +1,12 @@
 // posewarp-server: the gRPC service over a store directory.
-#include <CLI/CLI.hpp>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/resource_quota.h>
-#include <nlohmann/json.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <unistd.h>
 
@@ -111,29 +111,41 @@ int main(int argc, char** argv) {
                  "The server's memory ceiling, MB (default 3/4 of the machine's): loaded rigs (--cache-mb), poses and "
                  "uploads in flight and a 256 MB base share it; work that would go past it waits or is refused "
                  "RESOURCE_EXHAUSTED")
-      ->capture_default_str()->check(CLI::Range(int64_t{512}, int64_t{1} << 40));
-  app.add_option("--cache-mb", cache_mb, "Loaded rigs kept in memory, MB, out of --memory-mb (0 = a third of it, at "
-                                         "most 8192)")->capture_default_str()->check(CLI::NonNegativeNumber);
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{512}, int64_t{1} << 40));
+  app.add_option("--cache-mb", cache_mb,
+                 "Loaded rigs kept in memory, MB, out of --memory-mb (0 = a third of it, at "
+                 "most 8192)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--stall-timeout-s", stall_timeout_s,
                  "A call whose stream makes no progress this long (a client that stopped reading its pose, or stopped "
                  "sending its upload) is cancelled and its pose slot and memory freed")
-      ->capture_default_str()->check(CLI::Range(0.1, 3600.0));
+      ->capture_default_str()
+      ->check(CLI::Range(0.1, 3600.0));
   app.add_option("--calls-per-client", options.client.calls,
                  "Poses, uploads and downloads one client may have in progress at once (a client is its bearer token, "
-                 "else its address)")->capture_default_str()->check(CLI::Range(1, 10000));
+                 "else its address)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000));
   app.add_option("--uploads-per-client", options.client.uploads, "Uploads one client may have in progress at once")
-      ->capture_default_str()->check(CLI::Range(1, 1000));
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
   app.add_option("--upload-mb-per-client", upload_mb_per_client,
                  "Declared sizes of one client's uploads in progress together, MB (0 = --max-upload-mb)")
-      ->capture_default_str()->check(CLI::NonNegativeNumber);
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--max-upload-mb", max_upload_mb, "Largest uploaded file, MB")->capture_default_str()->check(CLI::PositiveNumber);
   app.add_option("--max-volume-voxels", options.max_volume_voxels,
                  "Largest uploaded volume, voxels (also what reading it may allocate)")
-      ->capture_default_str()->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
   app.add_option("--max-output-voxels", options.max_output_voxels, "Largest pose output grid, voxels")
-      ->capture_default_str()->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
+      ->capture_default_str()
+      ->check(CLI::Range(int64_t{1}, int64_t{1} << 31));
   app.add_option("--max-output-mb", max_output_mb, "Largest output of one pose, MB (0 = the whole memory budget)")
-      ->capture_default_str()->check(CLI::NonNegativeNumber);
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--max-message-mb", max_message_mb, "Largest gRPC message received, MB")->capture_default_str()->check(CLI::Range(1, 1024));
   app.add_option("--max-streams", max_streams, "Concurrent streams per client connection")->capture_default_str()->check(CLI::Range(1, 10000));
   app.add_option("--preview-streams-per-client", options.preview_streams_per_client,
@@ -178,8 +190,9 @@ int main(int argc, char** argv) {
   if (cache_mb == 0) cache_mb = std::min<int64_t>(memory_mb / 3, 8192);
   constexpr int64_t kBaseMb = 256;  // the server itself: libraries, gRPC's buffers, the index
   if (memory_mb < cache_mb + kBaseMb + 256) {
-    std::fprintf(stderr, "error: --memory-mb %lld leaves less than 256 MB for poses and uploads after --cache-mb %lld "
-                         "and the server's own 256 MB; raise --memory-mb or lower --cache-mb\n",
+    std::fprintf(stderr,
+                 "error: --memory-mb %lld leaves less than 256 MB for poses and uploads after --cache-mb %lld "
+                 "and the server's own 256 MB; raise --memory-mb or lower --cache-mb\n",
                  static_cast<long long>(memory_mb), static_cast<long long>(cache_mb));
     return 2;
   }

@@ -15,7 +15,9 @@ std::string number_text(double value) {
   return text;
 }
 
-bool hex_id(const std::string& text) { return is_hex_id(text); }
+bool hex_id(const std::string& text) {
+  return is_hex_id(text);
+}
 
 Status check_json_size(const std::string& json, const std::string& field) {
   if (json.size() > kMaxRequestJsonBytes) {
@@ -58,18 +60,19 @@ Result<v1::Method> method_from(v1::Method method, const std::string& field) {
     case v1::METHOD_DQS:
     case v1::METHOD_LBS: return method;
     default:
-      return invalid_argument_error(field + " is " + std::to_string(static_cast<int>(method)) +
-                                    ", not a method; use METHOD_COR (1, the default), METHOD_DQS (2) or METHOD_LBS (3)");
+      return invalid_argument_error(
+          field + " is " + std::to_string(static_cast<int>(method)) +
+          ", not a method; use METHOD_COR (1, the default), METHOD_DQS (2) or METHOD_LBS (3)");
   }
 }
 
 Result<ImageGeometry> grid_from(const v1::Grid& grid, const std::string& field) {
   if (grid.size_size() != 3 || grid.spacing_size() != 3 || grid.origin_size() != 3 || grid.direction_size() != 9) {
-    return invalid_argument_error(field + " needs 3 sizes, 3 spacings, 3 origin coordinates and 9 direction entries "
-                                          "(row-major, LPS mm); it has " +
-                                  std::to_string(grid.size_size()) + ", " + std::to_string(grid.spacing_size()) +
-                                  ", " + std::to_string(grid.origin_size()) + " and " +
-                                  std::to_string(grid.direction_size()));
+    return invalid_argument_error(field +
+                                  " needs 3 sizes, 3 spacings, 3 origin coordinates and 9 direction entries "
+                                  "(row-major, LPS mm); it has " +
+                                  std::to_string(grid.size_size()) + ", " + std::to_string(grid.spacing_size()) + ", " +
+                                  std::to_string(grid.origin_size()) + " and " + std::to_string(grid.direction_size()));
   }
   ImageGeometry g;
   for (int a = 0; a < 3; ++a) {
@@ -105,7 +108,8 @@ Result<ImageGeometry> grid_from(const v1::Grid& grid, const std::string& field) 
 Result<surface::SurfaceMesh> surface_from(const v1::Surface& message) {
   const std::string name = message.name().empty() ? "mesh" : message.name().substr(0, 64);
   if (message.vertices_size() == 0 || message.vertices_size() % 3 != 0 || message.triangles_size() % 3 != 0) {
-    return invalid_argument_error("meshes: mesh '" + name + "' needs 3 coordinates per vertex (vertices) and 3 vertex "
+    return invalid_argument_error("meshes: mesh '" + name +
+                                  "' needs 3 coordinates per vertex (vertices) and 3 vertex "
                                   "indices per triangle (triangles)");
   }
   surface::SurfaceMesh mesh;
@@ -159,8 +163,9 @@ Result<UploadPlan> check_upload_header(const v1::UploadVolumeHeader& header, con
   }
   if (!plan.raw) {
     if (header.has_raw_grid() || header.raw_pixel_type() != v1::PIXEL_TYPE_UNSPECIFIED) {
-      return invalid_argument_error("header.raw_grid and header.raw_pixel_type belong to FILE_FORMAT_RAW uploads; a "
-                                    "file carries its own geometry");
+      return invalid_argument_error(
+          "header.raw_grid and header.raw_pixel_type belong to FILE_FORMAT_RAW uploads; a "
+          "file carries its own geometry");
     }
     return plan;
   }
@@ -174,10 +179,9 @@ Result<UploadPlan> check_upload_header(const v1::UploadVolumeHeader& header, con
   plan.raw_type = *type;
   const int64_t voxels = plan.raw_grid.voxel_count();
   if (voxels > limits.max_volume_voxels) {
-    return resource_exhausted_error("header.raw_grid holds " + std::to_string(voxels) +
-                                    " voxels; this server takes volumes of at most " +
-                                    std::to_string(limits.max_volume_voxels) +
-                                    " voxels (its --max-volume-voxels): crop or downsample the volume");
+    return resource_exhausted_error(
+        "header.raw_grid holds " + std::to_string(voxels) + " voxels; this server takes volumes of at most " +
+        std::to_string(limits.max_volume_voxels) + " voxels (its --max-volume-voxels): crop or downsample the volume");
   }
   const uint64_t expected = static_cast<uint64_t>(voxels) * static_cast<uint64_t>(pixel_type_bytes(plan.raw_type));
   if (header.size_bytes() != expected) {
@@ -276,8 +280,9 @@ Status check_build_request(const v1::BuildRigRequest& request) {
     return invalid_argument_error("ct_volume_id is empty or 64 lowercase hex digits (the id UploadVolume answered)");
   }
   if (request.ct_volume_id() == request.labels_volume_id()) {
-    return invalid_argument_error("labels_volume_id and ct_volume_id name the same volume; the CT is the intensity "
-                                  "volume on the labels' grid");
+    return invalid_argument_error(
+        "labels_volume_id and ct_volume_id name the same volume; the CT is the intensity "
+        "volume on the labels' grid");
   }
   POSEWARP_RETURN_IF_ERROR(check_json_size(request.label_map_json(), "label_map_json"));
   POSEWARP_RETURN_IF_ERROR(check_json_size(request.rig_spec_json(), "rig_spec_json"));

@@ -19,9 +19,9 @@ namespace posewarp::server {
 
 // The server's limits that requests are checked against (its options).
 struct RequestLimits {
-  int64_t max_upload_bytes = int64_t{4} << 30;    // --max-upload-mb
-  int64_t max_volume_voxels = int64_t{1} << 28;   // --max-volume-voxels
-  int64_t max_output_voxels = int64_t{1} << 28;   // --max-output-voxels
+  int64_t max_upload_bytes = int64_t{4} << 30;   // --max-upload-mb
+  int64_t max_volume_voxels = int64_t{1} << 28;  // --max-volume-voxels
+  int64_t max_output_voxels = int64_t{1} << 28;  // --max-output-voxels
 };
 
 // A chunk of an upload smaller than this must be its last (a client sending one byte per message holds an upload

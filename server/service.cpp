@@ -71,8 +71,9 @@ Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api
 
 using ChunkField = v1::VolumeChunk* (v1::PoseResponse::*)();
 
-// n samples as `type` (or n bytes of a file, T = char), in chunks of about chunk_bytes, each converted straight into its message (no extra copy).
-// Writes one message of a pose's stream (under the call's stall watch); false when the client went away.
+// n samples as `type` (or n bytes of a file, T = char), in chunks of about chunk_bytes, each converted straight into
+// its message (no extra copy). Writes one message of a pose's stream (under the call's stall watch); false when the
+// client went away.
 using PoseWrite = std::function<bool(const v1::PoseResponse&)>;
 
 template <typename T>
@@ -114,11 +115,12 @@ class VolumeSender {
       if (before.valid()) {
         if (grpc::Status s = before.get(); !s.ok()) return s;
       }
-      if (!encoding_.format) return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
+      if (!encoding_.format)
+        return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
       Result<std::string> bytes = api::encode_volume(*volume, *encoding_.format, encoding_.gzip, type);
       if (!bytes.ok()) return {grpc::StatusCode::INTERNAL, "encoding a posed volume failed: " + bytes.status().message()};
-      return write_samples(write_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8,
-                           chunk_bytes_, field);
+      return write_samples(write_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8, chunk_bytes_,
+                           field);
     });
   }
 
@@ -152,15 +154,18 @@ std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) 
   return text;
 }
 
-
 }  // namespace
 
 // One call's frame: the token check, the stall watch over its stream, then at the end the log line and the metrics.
 class PosewarpService::Call {
  public:
   Call(PosewarpService& service, grpc::ServerContext* context, const char* method, std::string rig_id = "")
-      : service_(service), context_(context), method_(method), rig_id_(std::move(rig_id)),
-        request_id_(request_id_of(context, service.next_request_++)), start_(std::chrono::steady_clock::now()),
+      : service_(service),
+        context_(context),
+        method_(method),
+        rig_id_(std::move(rig_id)),
+        request_id_(request_id_of(context, service.next_request_++)),
+        start_(std::chrono::steady_clock::now()),
         stream_(service.stall_watch_.watch(context)) {
     if (service_.tokens_.enabled()) {
       const auto& metadata = context->client_metadata();
@@ -239,9 +244,13 @@ class PosewarpService::Call {
 
 PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions options, const Tokens& tokens,
                                  Metrics& metrics)
-    : store_(std::move(store)), options_(options),
+    : store_(std::move(store)),
+      options_(options),
       stall_watch_(std::chrono::milliseconds(std::max(1, options.stall_timeout_ms))),
-      memory_(options.memory_bytes), client_limits_(options.client), tokens_(tokens), metrics_(metrics) {
+      memory_(options.memory_bytes),
+      client_limits_(options.client),
+      tokens_(tokens),
+      metrics_(metrics) {
   stall_watch_.on_stall([this] { metrics_.count("streams_stalled"); });
   if (options_.pose_slots <= 0) options_.pose_slots = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   metrics_.set_gauges([this] { return gauges(); });
@@ -408,8 +417,9 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   v1::UploadVolumeRequest part;
   if (!call.read(reader, &part)) return call.done(kClientGone);
   if (!part.has_header()) {
-    return call.done({grpc::StatusCode::INVALID_ARGUMENT, "an upload starts with its header (kind, format, size_bytes, "
-                                                          "sha256)"});
+    return call.done({grpc::StatusCode::INVALID_ARGUMENT,
+                      "an upload starts with its header (kind, format, size_bytes, "
+                      "sha256)"});
   }
   const v1::UploadVolumeHeader header = part.header();
   Result<UploadPlan> checked = check_upload_header(header, request_limits());
@@ -500,9 +510,9 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   Result<api::VolumeHeader> read = [&]() -> Result<api::VolumeHeader> {
     POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(staged, read_options()));
     const int64_t voxels = h.geometry.voxel_count();
-    POSEWARP_ASSIGN_OR_RETURN(const MemoryBudget::Reservation memory,
-                              memory_.reserve(voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload",
-                                              until, gone));
+    POSEWARP_ASSIGN_OR_RETURN(
+        const MemoryBudget::Reservation memory,
+        memory_.reserve(voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload", until, gone));
     if (labels) {
       POSEWARP_ASSIGN_OR_RETURN(const LabelVolume volume, api::read_label_volume(staged, read_options()));
       POSEWARP_RETURN_IF_ERROR(api::check_labels_look_like_labels(volume, "the uploaded label volume"));
@@ -546,10 +556,10 @@ grpc::Status PosewarpService::BuildRig(grpc::ServerContext* context, const v1::B
   if (labels_wrong || ct_wrong) {
     std::string message = labels_wrong && ct_wrong ? "labels_volume_id names an intensity volume and ct_volume_id a "
                                                      "label volume: they are swapped"
-                          : labels_wrong          ? "labels_volume_id names a volume uploaded as VOLUME_KIND_INTENSITY"
-                                                    " (a CT or MRI); give the segmentation's id"
-                                                  : "ct_volume_id names a volume uploaded as VOLUME_KIND_LABELS (a "
-                                                    "segmentation); give the CT's id";
+                          : labels_wrong           ? "labels_volume_id names a volume uploaded as VOLUME_KIND_INTENSITY"
+                                                     " (a CT or MRI); give the segmentation's id"
+                                                   : "ct_volume_id names a volume uploaded as VOLUME_KIND_LABELS (a "
+                                                     "segmentation); give the CT's id";
     return call.done({grpc::StatusCode::INVALID_ARGUMENT, message});
   }
   v1::BuildRigRequest unnamed = *request;
@@ -973,10 +983,9 @@ grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
   Result<ClientLimits::Entry> admitted = client_limits_.enter_call(call.client());
   if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
-  Result<MemoryBudget::Reservation> memory =
-      memory_.reserve(static_cast<int64_t>(stored->size_bytes) * 3, "sending this rig",
-                      std::chrono::steady_clock::now() + std::chrono::seconds(30),
-                      [context] { return context->IsCancelled(); });
+  Result<MemoryBudget::Reservation> memory = memory_.reserve(
+      static_cast<int64_t>(stored->size_bytes) * 3, "sending this rig",
+      std::chrono::steady_clock::now() + std::chrono::seconds(30), [context] { return context->IsCancelled(); });
   if (!memory.ok()) return call.done(to_grpc(memory.status()));
   Result<std::string> bytes = api::read_text_input(stored->path, "rig file", int64_t{1} << 40);
   if (!bytes.ok()) return call.done(to_grpc(bytes.status()));
@@ -1030,14 +1039,14 @@ grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::Serv
     return call.done(to_grpc(received.status()));
   }
   if (received->sha256 != header.sha256()) {
-    return call.done({grpc::StatusCode::DATA_LOSS, "the rig upload arrived altered (its sha256 differs); send it "
-                                                   "again"});
+    return call.done({grpc::StatusCode::DATA_LOSS,
+                      "the rig upload arrived altered (its sha256 differs); send it "
+                      "again"});
   }
   // The file's bytes and the rig read from them are in memory at once.
-  Result<MemoryBudget::Reservation> memory =
-      memory_.reserve(static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload",
-                      std::chrono::steady_clock::now() + std::chrono::seconds(30),
-                      [context] { return context->IsCancelled(); });
+  Result<MemoryBudget::Reservation> memory = memory_.reserve(
+      static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload",
+      std::chrono::steady_clock::now() + std::chrono::seconds(30), [context] { return context->IsCancelled(); });
   if (!memory.ok()) return call.done(to_grpc(memory.status()));
   Result<std::string> read = api::read_text_input(staged, "rig upload", static_cast<int64_t>(header.size_bytes()));
   if (!read.ok()) return call.done(to_grpc(read.status()));
@@ -1124,8 +1133,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   int64_t output_budget = memory_.total();
   if (options_.max_output_bytes > 0) output_budget = std::min(output_budget, options_.max_output_bytes);
   if (request->max_output_bytes() > 0) {
-    output_budget = std::min(output_budget, static_cast<int64_t>(std::min<uint64_t>(request->max_output_bytes(),
-                                                                                    uint64_t{1} << 62)));
+    output_budget = std::min(output_budget,
+                             static_cast<int64_t>(std::min<uint64_t>(request->max_output_bytes(), uint64_t{1} << 62)));
   }
   core.resample.max_output_bytes = output_budget;
   core.resample.max_output_voxels = options_.max_output_voxels;
@@ -1136,7 +1145,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   // The memory the pose will hold until its answer is sent: the engine's outputs, a file format's encoded copy of
   // each volume, and the skinned mesh with its report.
   const int64_t output_voxels = plan->output_grid.voxel_count();
-  int64_t estimate = plan->output_bytes + rig.mesh.vertex_count() * 96 + rig.mesh.tet_count() * 48 + (int64_t{16} << 20);
+  int64_t estimate =
+      plan->output_bytes + rig.mesh.vertex_count() * 96 + rig.mesh.tet_count() * 48 + (int64_t{16} << 20);
   if (encoding->format) {
     if (core.want_labels) estimate += output_voxels * pixel_type_bytes(encoding->label_type);
     if (core.want_ct) estimate += output_voxels * pixel_type_bytes(encoding->ct_type);
@@ -1191,8 +1201,9 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   if (!sent.ok()) return call.done(sent);
   if (core.want_fields) {
     const grpc::Status fields_sent = [&] {
-      grpc::Status s = write_samples(write, result->inverse_field.data(), static_cast<int64_t>(result->inverse_field.size()),
-                                     PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_inverse_field);
+      grpc::Status s =
+          write_samples(write, result->inverse_field.data(), static_cast<int64_t>(result->inverse_field.size()),
+                        PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_inverse_field);
       if (!s.ok()) return s;
       return write_samples(write, result->forward_field.data(), static_cast<int64_t>(result->forward_field.size()),
                            PixelType::kFloat32, chunk, &v1::PoseResponse::mutable_forward_field);

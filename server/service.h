@@ -21,9 +21,9 @@
 #include "admission.h"
 #include "auth.h"
 #include "metrics.h"
-#include "requests.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
+#include "requests.h"
 #include "store.h"
 
 namespace posewarp::server {
@@ -39,7 +39,7 @@ struct ServiceOptions {
   int64_t max_upload_bytes = int64_t{4} << 30; // one uploaded file
   int64_t max_volume_voxels = int64_t{1} << 28;  // one uploaded volume (and what the readers allocate for it)
   int64_t max_output_voxels = int64_t{1} << 28;  // one pose's output grid
-  int64_t max_output_bytes = 0;                // one pose's outputs (0: the whole memory budget)
+  int64_t max_output_bytes = 0;                  // one pose's outputs (0: the whole memory budget)
   // Poses and uploads in flight together, by their estimates (the engine cache's cache_bytes come on top).
   int64_t memory_bytes = int64_t{4} << 30;
   int stall_timeout_ms = 10000;                // a stream that makes no progress this long is cancelled

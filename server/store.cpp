@@ -4,14 +4,14 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <cstring>
 #include <chrono>
+#include <cstring>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
-#include <set>
 #include <random>
+#include <set>
 #include <thread>
 
 #include <fcntl.h>
@@ -110,7 +110,8 @@ Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
   }
   // Uploads being checked when their server stopped (a shared store's may be another replica's, live).
   std::error_code staging_ec;
-  for (fs::directory_iterator it(root / "staging", staging_ec), end; !staging_ec && it != end; it.increment(staging_ec)) {
+  for (fs::directory_iterator it(root / "staging", staging_ec), end; !staging_ec && it != end;
+       it.increment(staging_ec)) {
     std::error_code removing;
     if (!shared || older_than(it->path(), kAbandonedAfter)) fs::remove_all(it->path(), removing);
   }

@@ -36,10 +36,9 @@ class Hostile : public ::testing::Test {
     fs::remove_all(dir_);
     fs::create_directories(dir_);
     ASSERT_EQ(run({POSEWARP_CLI, "--quiet", "phantom", "bar", "-o", (dir_ / "bar").string()}), 0);
-    server_ = new ServerProcess(dir_ / "store",
-                                {"--pose-slots", "2", "--stall-timeout-s", "2", "--memory-mb", std::to_string(kMemoryMb),
-                                 "--cache-mb", "128", "--uploads-per-client", "3", "--upload-mb-per-client", "64",
-                                 "--max-upload-mb", "48"});
+    server_ = new ServerProcess(dir_ / "store", {"--pose-slots", "2", "--stall-timeout-s", "2", "--memory-mb",
+                                                 std::to_string(kMemoryMb), "--cache-mb", "128", "--uploads-per-client",
+                                                 "3", "--upload-mb-per-client", "64", "--max-upload-mb", "48"});
     ASSERT_GT(server_->port(), 0);
     stub_ = v1::Posewarp::NewStub(server_->channel());
     v1::Volume labels, ct;
@@ -373,13 +372,17 @@ TEST_F(Hostile, AnUploadReadsNoFileItDidNotSend) {
   const size_t before = stored_volumes();
   for (const std::string& target :
        std::vector<std::string>{other, "../volumes/" + other, "/etc/passwd", "../index.sqlite", "upload.nii.gz"}) {
-    const std::string mha = "ObjectType = Image\nNDims = 3\nDimSize = 40 40 130\nElementSpacing = 2 2 2\n"
-                            "ElementType = MET_UCHAR\nElementDataFile = " + target + "\n";
+    const std::string mha =
+        "ObjectType = Image\nNDims = 3\nDimSize = 40 40 130\nElementSpacing = 2 2 2\n"
+        "ElementType = MET_UCHAR\nElementDataFile = " +
+        target + "\n";
     const grpc::Status status = upload_bytes(mha, v1::FILE_FORMAT_MHA, v1::VOLUME_KIND_LABELS);
     EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << target << ": " << status.error_message();
     EXPECT_TRUE(says(status, "inline")) << status.error_message();
-    const std::string nrrd = "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 40 40 130\nencoding: gzip\n"
-                             "data file: " + target + "\n\n";
+    const std::string nrrd =
+        "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 40 40 130\nencoding: gzip\n"
+        "data file: " +
+        target + "\n\n";
     const grpc::Status detached = upload_bytes(nrrd, v1::FILE_FORMAT_NRRD, v1::VOLUME_KIND_LABELS);
     EXPECT_EQ(detached.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << target << ": " << detached.error_message();
     EXPECT_TRUE(says(detached, "inline")) << detached.error_message();
@@ -392,8 +395,8 @@ TEST_F(Hostile, AnUploadReadsNoFileItDidNotSend) {
 
 TEST_F(Hostile, VolumesGivenForTheWrongPurposeAreRefusedBeforeAnyWork) {
   // The CT uploaded as labels: thousands of values, not a segmentation.
-  const grpc::Status ct_as_labels = upload_bytes(file_text(dir_ / "bar" / "ct.nii.gz"), v1::FILE_FORMAT_NIFTI_GZ,
-                                                 v1::VOLUME_KIND_LABELS);
+  const grpc::Status ct_as_labels =
+      upload_bytes(file_text(dir_ / "bar" / "ct.nii.gz"), v1::FILE_FORMAT_NIFTI_GZ, v1::VOLUME_KIND_LABELS);
   EXPECT_EQ(ct_as_labels.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << ct_as_labels.error_message();
   // Ids swapped in the build: named, refused at once (no operation).
   for (const bool both : {false, true}) {
