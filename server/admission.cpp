@@ -17,7 +17,8 @@ std::string megabytes(int64_t bytes) {
 
 }  // namespace
 
-StallWatch::StallWatch(std::chrono::milliseconds limit) : limit_(limit) {
+StallWatch::StallWatch(std::chrono::milliseconds limit, std::function<void()> on_stall)
+    : limit_(limit), on_stall_(std::move(on_stall)) {
   thread_ = std::thread([this] { run(); });
 }
 
@@ -121,48 +122,44 @@ ClientLimits::Entry::~Entry() {
 }
 
 Result<ClientLimits::Entry> ClientLimits::enter_call(const std::string& client) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Counts& counts = clients_[client];
-  if (counts.calls >= options_.calls) {
-    return resource_exhausted_error("this client has " + std::to_string(counts.calls) +
-                                    " calls in progress, the most this server takes from one client (its "
-                                    "--calls-per-client); wait for one to finish");
-  }
-  ++counts.calls;
-  Entry entry;
-  entry.limits_ = this;
-  entry.client_ = client;
-  return entry;
+  return enter(client, false, 0);
 }
 
 Result<ClientLimits::Entry> ClientLimits::enter_upload(const std::string& client, int64_t declared_bytes) {
+  return enter(client, true, declared_bytes);
+}
+
+Result<ClientLimits::Entry> ClientLimits::enter(const std::string& client, bool upload, int64_t declared_bytes) {
   std::lock_guard<std::mutex> lock(mutex_);
-  Counts& counts = clients_[client];
+  const Counts counts = clients_.count(client) ? clients_[client] : Counts{};
   if (counts.calls >= options_.calls) {
     return resource_exhausted_error("this client has " + std::to_string(counts.calls) +
                                     " calls in progress, the most this server takes from one client (its "
                                     "--calls-per-client); wait for one to finish");
   }
-  if (counts.uploads >= options_.uploads) {
+  if (upload && counts.uploads >= options_.uploads) {
     return resource_exhausted_error("this client has " + std::to_string(counts.uploads) +
                                     " uploads in progress, the most this server takes at once from one client (its "
                                     "--uploads-per-client); send them one after another");
   }
-  if (counts.upload_bytes + declared_bytes > options_.upload_bytes) {
+  if (upload && counts.upload_bytes + declared_bytes > options_.upload_bytes) {
     return resource_exhausted_error("this client's uploads in progress would hold " +
                                     megabytes(counts.upload_bytes + declared_bytes) + ", over the " +
                                     megabytes(options_.upload_bytes) +
                                     " one client may have in flight (the server's --upload-mb-per-client); wait for "
                                     "an upload to finish");
   }
-  ++counts.calls;
-  ++counts.uploads;
-  counts.upload_bytes += declared_bytes;
+  Counts& held = clients_[client];  // made only for a client let in: a refused one leaves nothing behind
+  ++held.calls;
+  if (upload) {
+    ++held.uploads;
+    held.upload_bytes += declared_bytes;
+  }
   Entry entry;
   entry.limits_ = this;
   entry.client_ = client;
-  entry.upload_ = true;
-  entry.bytes_ = declared_bytes;
+  entry.upload_ = upload;
+  entry.bytes_ = upload ? declared_bytes : 0;
   return entry;
 }
 

@@ -54,15 +54,14 @@ class StallWatch {
     std::atomic<bool> stalled_{false};
   };
 
-  explicit StallWatch(std::chrono::milliseconds limit);
+  // `on_stall` is called (on the watch's thread) each time a stream is cancelled.
+  StallWatch(std::chrono::milliseconds limit, std::function<void()> on_stall);
   ~StallWatch();
   StallWatch(const StallWatch&) = delete;
   StallWatch& operator=(const StallWatch&) = delete;
 
   std::unique_ptr<Stream> watch(grpc::ServerContext* context);
   std::chrono::milliseconds limit() const { return limit_; }
-  // Called (on the watch's thread) each time a stream is cancelled.
-  void on_stall(std::function<void()> callback) { on_stall_ = std::move(callback); }
 
  private:
   void run();
@@ -155,6 +154,7 @@ class ClientLimits {
     int uploads = 0;
     int64_t upload_bytes = 0;
   };
+  Result<Entry> enter(const std::string& client, bool upload, int64_t declared_bytes);
   void leave(const Entry& entry);
   ClientLimitOptions options_;
   std::mutex mutex_;

@@ -4,8 +4,6 @@
 #include <cmath>
 #include <cstdio>
 
-#include "posewarp/common/sha256.h"
-
 namespace posewarp::server {
 namespace {
 
@@ -15,14 +13,27 @@ std::string number_text(double value) {
   return text;
 }
 
-bool hex_id(const std::string& text) {
-  return is_hex_id(text);
-}
-
 Status check_json_size(const std::string& json, const std::string& field) {
   if (json.size() > kMaxRequestJsonBytes) {
     return invalid_argument_error(field + " holds " + std::to_string(json.size()) + " bytes; at most " +
                                   std::to_string(kMaxRequestJsonBytes) + " are read");
+  }
+  return ok_status();
+}
+
+// An upload header's sha256 and size_bytes, the same for volumes and rigs.
+Status check_file_claim(const std::string& sha256, uint64_t size_bytes, const RequestLimits& limits,
+                        const std::string& what) {
+  if (!api::is_hex_id(sha256)) {
+    return invalid_argument_error("header.sha256 must be the " + what + "'s SHA-256 as 64 lowercase hex digits");
+  }
+  if (size_bytes == 0) {
+    return invalid_argument_error("header.size_bytes is 0; give the size of the whole " + what + " in bytes");
+  }
+  if (size_bytes > static_cast<uint64_t>(limits.max_upload_bytes)) {
+    return resource_exhausted_error("header.size_bytes is " + std::to_string(size_bytes) +
+                                    "; this server takes files of at most " + std::to_string(limits.max_upload_bytes) +
+                                    " bytes (its --max-upload-mb)");
   }
   return ok_status();
 }
@@ -105,14 +116,14 @@ Result<ImageGeometry> grid_from(const v1::Grid& grid, const std::string& field) 
   return g;
 }
 
-Result<surface::SurfaceMesh> surface_from(const v1::Surface& message) {
+Result<api::SurfaceMesh> surface_from(const v1::Surface& message) {
   const std::string name = message.name().empty() ? "mesh" : message.name().substr(0, 64);
   if (message.vertices_size() == 0 || message.vertices_size() % 3 != 0 || message.triangles_size() % 3 != 0) {
     return invalid_argument_error("meshes: mesh '" + name +
                                   "' needs 3 coordinates per vertex (vertices) and 3 vertex "
                                   "indices per triangle (triangles)");
   }
-  surface::SurfaceMesh mesh;
+  api::SurfaceMesh mesh;
   mesh.name = name;
   mesh.label = message.label();
   const int vertices = message.vertices_size() / 3;
@@ -150,17 +161,7 @@ Result<UploadPlan> check_upload_header(const v1::UploadVolumeHeader& header, con
     return invalid_argument_error("header.kind is " + std::to_string(static_cast<int>(header.kind())) +
                                   "; an upload is VOLUME_KIND_LABELS or VOLUME_KIND_INTENSITY");
   }
-  if (!hex_id(header.sha256())) {
-    return invalid_argument_error("header.sha256 must be the file's SHA-256 as 64 lowercase hex digits");
-  }
-  if (header.size_bytes() == 0) {
-    return invalid_argument_error("header.size_bytes is 0; give the size of the whole file in bytes");
-  }
-  if (header.size_bytes() > static_cast<uint64_t>(limits.max_upload_bytes)) {
-    return resource_exhausted_error("header.size_bytes is " + std::to_string(header.size_bytes()) +
-                                    "; this server takes files of at most " + std::to_string(limits.max_upload_bytes) +
-                                    " bytes (its --max-upload-mb): crop or downsample the volume");
-  }
+  POSEWARP_RETURN_IF_ERROR(check_file_claim(header.sha256(), header.size_bytes(), limits, "file"));
   if (!plan.raw) {
     if (header.has_raw_grid() || header.raw_pixel_type() != v1::PIXEL_TYPE_UNSPECIFIED) {
       return invalid_argument_error(
@@ -193,24 +194,14 @@ Result<UploadPlan> check_upload_header(const v1::UploadVolumeHeader& header, con
 }
 
 Status check_rig_upload_header(const v1::UploadRigHeader& header, const RequestLimits& limits) {
-  if (!hex_id(header.sha256())) {
-    return invalid_argument_error("header.sha256 must be the rig file's SHA-256 as 64 lowercase hex digits");
-  }
-  if (header.size_bytes() == 0) {
-    return invalid_argument_error("header.size_bytes is 0; give the size of the whole rig file in bytes");
-  }
-  if (header.size_bytes() > static_cast<uint64_t>(limits.max_upload_bytes)) {
-    return resource_exhausted_error("header.size_bytes is " + std::to_string(header.size_bytes()) +
-                                    "; this server takes files of at most " + std::to_string(limits.max_upload_bytes) +
-                                    " bytes (its --max-upload-mb)");
-  }
+  POSEWARP_RETURN_IF_ERROR(check_file_claim(header.sha256(), header.size_bytes(), limits, "rig file"));
   if (header.name().size() > 256) return invalid_argument_error("header.name is longer than 256 characters");
   return ok_status();
 }
 
-Result<CheckedPose> check_pose_request(const v1::PoseRequest& request, const RequestLimits& limits) {
-  (void)limits;
-  if (!hex_id(request.rig_id())) return invalid_argument_error("rig_id is 64 lowercase hex digits (from BuildRig)");
+Result<CheckedPose> check_pose_request(const v1::PoseRequest& request) {
+  if (!api::is_hex_id(request.rig_id()))
+    return invalid_argument_error("rig_id is 64 lowercase hex digits (from BuildRig)");
   CheckedPose checked;
   POSEWARP_ASSIGN_OR_RETURN(checked.method, method_from(request.method(), "method"));
   switch (request.grid()) {
@@ -256,27 +247,27 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request, const Req
     return invalid_argument_error("meshes holds " + std::to_string(request.meshes_size()) + " meshes; at most 256");
   }
   for (const v1::Surface& mesh : request.meshes()) {
-    POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh parsed, surface_from(mesh));
+    POSEWARP_ASSIGN_OR_RETURN(api::SurfaceMesh parsed, surface_from(mesh));
     checked.meshes.push_back(std::move(parsed));
   }
   POSEWARP_RETURN_IF_ERROR(check_json_size(request.pose_json(), "pose_json"));
-  Result<pose::Pose> parsed = pose::pose_from_json(request.pose_json(), "pose_json");
+  Result<api::Pose> parsed = api::pose_from_json(request.pose_json(), "pose_json");
   if (!parsed.ok()) return parsed.status();
   checked.pose = std::move(parsed).value();
   return checked;
 }
 
-Result<pose::Pose> check_preview_request(const v1::PreviewRequest& request) {
+Result<api::Pose> check_preview_request(const v1::PreviewRequest& request) {
   POSEWARP_RETURN_IF_ERROR(method_from(request.method(), "method").status());
   POSEWARP_RETURN_IF_ERROR(check_json_size(request.pose_json(), "pose_json"));
-  return pose::pose_from_json(request.pose_json(), "pose_json of preview update " + std::to_string(request.sequence()));
+  return api::pose_from_json(request.pose_json(), "pose_json of preview update " + std::to_string(request.sequence()));
 }
 
 Status check_build_request(const v1::BuildRigRequest& request) {
-  if (!hex_id(request.labels_volume_id())) {
+  if (!api::is_hex_id(request.labels_volume_id())) {
     return invalid_argument_error("labels_volume_id is 64 lowercase hex digits (the id UploadVolume answered)");
   }
-  if (!request.ct_volume_id().empty() && !hex_id(request.ct_volume_id())) {
+  if (!request.ct_volume_id().empty() && !api::is_hex_id(request.ct_volume_id())) {
     return invalid_argument_error("ct_volume_id is empty or 64 lowercase hex digits (the id UploadVolume answered)");
   }
   if (request.ct_volume_id() == request.labels_volume_id()) {

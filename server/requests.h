@@ -1,6 +1,7 @@
 // The checks every request passes where it enters, before any work: ids, enums, sizes and ranges, each refusal naming
 // the API field (or the server option) that applies, never a command-line flag of the CLI. Only proto and the core's
-// data types here (no engine), so the request fuzzer runs exactly these checks on arbitrary messages.
+// data types here (posewarp/api/files.h, not the engine), so the request fuzzer runs exactly these checks on arbitrary
+// messages.
 #pragma once
 
 #include <cstdint>
@@ -8,11 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/common/image_geometry.h"
-#include "posewarp/common/result.h"
-#include "posewarp/common/volume.h"
-#include "posewarp/pose/pose.h"
-#include "posewarp/surface/surface_mesh.h"
+#include "posewarp/api/files.h"
 #include "posewarp/v1/posewarp.pb.h"
 
 namespace posewarp::server {
@@ -52,20 +49,20 @@ Status check_rig_upload_header(const v1::UploadRigHeader& header, const RequestL
 // direction entries, each in range, a valid geometry.
 Result<ImageGeometry> grid_from(const v1::Grid& grid, const std::string& field);
 // A client's mesh: whole vertices and triangles, finite coordinates within 1 km, indices in range.
-Result<surface::SurfaceMesh> surface_from(const v1::Surface& message);
+Result<api::SurfaceMesh> surface_from(const v1::Surface& message);
 
 // A PoseRequest's fields, checked.
 struct CheckedPose {
-  pose::Pose pose;
+  api::Pose pose;
   v1::Method method = v1::METHOD_COR;
   v1::GridPolicy grid = v1::GRID_POLICY_INPUT;
   std::optional<ImageGeometry> given_grid;
   uint64_t chunk_bytes = kDefaultPoseChunkBytes;
-  std::vector<surface::SurfaceMesh> meshes;
+  std::vector<api::SurfaceMesh> meshes;
 };
-Result<CheckedPose> check_pose_request(const v1::PoseRequest& request, const RequestLimits& limits);
+Result<CheckedPose> check_pose_request(const v1::PoseRequest& request);
 // A preview update's pose and method (its rig id is checked where the engine is looked up).
-Result<pose::Pose> check_preview_request(const v1::PreviewRequest& request);
+Result<api::Pose> check_preview_request(const v1::PreviewRequest& request);
 Status check_build_request(const v1::BuildRigRequest& request);
 
 // The extension a stored upload of `format` gets, or nullptr for a format that is not a file.

@@ -196,12 +196,13 @@ class PosewarpService::Call {
     return stream_->io([&] { return reader->Read(message); });
   }
   StallWatch::Stream& stream() { return *stream_; }
+  bool cancelled() const { return context_->IsCancelled(); }
 
   grpc::Status done(grpc::Status status) {
     if (stream_->stalled()) {
       const double limit_s = static_cast<double>(service_.stall_watch_.limit().count()) / 1000.0;
       status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
-                            "the stream made no progress for " + number_text(limit_s) +
+                            "the stream made no progress for " + fmt::format("{:g}", limit_s) +
                                 " s (the client stopped reading or sending; the server's --stall-timeout-s); the "
                                 "call was cancelled");
     } else if (status.error_code() == grpc::StatusCode::CANCELLED &&
@@ -227,11 +228,6 @@ class PosewarpService::Call {
   }
 
  private:
-  static std::string number_text(double value) {
-    char text[32];
-    std::snprintf(text, sizeof text, "%g", value);
-    return text;
-  }
   PosewarpService& service_;
   grpc::ServerContext* context_;
   const char* method_;
@@ -246,12 +242,12 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
                                  Metrics& metrics)
     : store_(std::move(store)),
       options_(options),
-      stall_watch_(std::chrono::milliseconds(std::max(1, options.stall_timeout_ms))),
+      stall_watch_(std::chrono::milliseconds(std::max(1, options.stall_timeout_ms)),
+                   [&metrics] { metrics.count("streams_stalled"); }),
       memory_(options.memory_bytes),
       client_limits_(options.client),
       tokens_(tokens),
       metrics_(metrics) {
-  stall_watch_.on_stall([this] { metrics_.count("streams_stalled"); });
   if (options_.pose_slots <= 0) options_.pose_slots = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   metrics_.set_gauges([this] { return gauges(); });
   for (int i = 0; i < std::max(1, options_.build_workers); ++i) build_threads_.emplace_back([this] { build_worker(); });
@@ -380,7 +376,6 @@ RequestLimits PosewarpService::request_limits() const {
   RequestLimits limits;
   limits.max_upload_bytes = options_.max_upload_bytes;
   limits.max_volume_voxels = options_.max_volume_voxels;
-  limits.max_output_voxels = options_.max_output_voxels;
   return limits;
 }
 
@@ -408,6 +403,31 @@ ProgressHooks PosewarpService::call_hooks(grpc::ServerContext* context) const {
     hooks.deadline = std::chrono::steady_clock::now() + (context->deadline() - std::chrono::system_clock::now());
   }
   return hooks;
+}
+
+Result<MemoryBudget::Reservation> PosewarpService::reserve(grpc::ServerContext* context, int64_t bytes,
+                                                          const std::string& what) {
+  const auto until = call_hooks(context).deadline.value_or(std::chrono::steady_clock::now() + std::chrono::minutes(1));
+  return memory_.reserve(bytes, what, until, [context] { return context->IsCancelled(); });
+}
+
+template <typename Request>
+grpc::Status PosewarpService::stage_upload(Call& call, grpc::ServerReader<Request>* reader, uint64_t size,
+                                           const std::string& sha256, const std::string& file_name,
+                                           StagedUpload* staged) {
+  Result<ClientLimits::Entry> admitted = client_limits_.enter_upload(call.client(), static_cast<int64_t>(size));
+  if (!admitted.ok()) return to_grpc(admitted.status());
+  staged->admitted.emplace(std::move(admitted).value());
+  // The bytes go to a file in a directory of this upload's own as they arrive (never held whole in memory): a
+  // header there that names a data file beside itself finds nothing it did not send.
+  Result<std::string> directory = store_->make_staging_directory();
+  if (!directory.ok()) return to_grpc(directory.status());
+  staged->directory = std::make_unique<StagingDirectory>(*directory);
+  staged->path = *directory + "/" + file_name;
+  const Status received =
+      receive_upload<Request>([&](Request* message) { return call.read(reader, message); }, size, sha256, staged->path);
+  if (received.ok()) return grpc::Status::OK;
+  return call.stream().stalled() || call.cancelled() ? kClientGone : to_grpc(received);
 }
 
 grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
@@ -442,31 +462,12 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
       }
     }
   }
-  Result<ClientLimits::Entry> admitted =
-      client_limits_.enter_upload(call.client(), static_cast<int64_t>(header.size_bytes()));
-  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
-
-  // The bytes go to a file in a directory of this upload's own as they arrive (never held whole in memory): a
-  // header there that names a data file beside itself finds nothing it did not send.
-  Result<std::string> directory = store_->make_staging_directory();
-  if (!directory.ok()) return call.done(to_grpc(directory.status()));
-  const StagingDirectory staging(*directory);
-  const std::string staged = *directory + "/upload" + plan.extension;
-  Result<StagedUpload> received = receive_upload<v1::UploadVolumeRequest>(
-      [&](v1::UploadVolumeRequest* message) { return call.read(reader, message); },
-      [](const v1::UploadVolumeRequest& message) -> const std::string* {
-        return message.part_case() == v1::UploadVolumeRequest::kChunk ? &message.chunk() : nullptr;
-      },
-      header.size_bytes(), staged);
-  if (!received.ok()) {
-    if (call.stream().stalled() || context->IsCancelled()) return call.done(kClientGone);
-    return call.done(to_grpc(received.status()));
+  StagedUpload upload;
+  if (grpc::Status s = stage_upload(call, reader, header.size_bytes(), header.sha256(), "upload" + plan.extension, &upload);
+      !s.ok()) {
+    return call.done(s);
   }
-  if (received->sha256 != header.sha256()) {
-    return call.done({grpc::StatusCode::DATA_LOSS, "the upload's bytes do not match its sha256; send it again"});
-  }
-  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-  const auto gone = [context] { return context->IsCancelled(); };
+  const std::string& staged = upload.path;
 
   if (plan.raw) {
     // Raw samples become a NIfTI file in the store; the id covers the samples and their geometry.
@@ -482,7 +483,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
     // The samples, the volume made of them and its .nii.gz, all in memory at once.
     const int64_t voxels = plan.raw_grid.voxel_count();
     Result<MemoryBudget::Reservation> memory =
-        memory_.reserve(static_cast<int64_t>(header.size_bytes()) * 2 + voxels * 4, "this upload", until, gone);
+        reserve(context, static_cast<int64_t>(header.size_bytes()) * 2 + voxels * 4, "this upload");
     if (!memory.ok()) return call.done(to_grpc(memory.status()));
     Result<std::string> encoded = [&]() -> Result<std::string> {
       POSEWARP_ASSIGN_OR_RETURN(const std::string bytes,
@@ -512,7 +513,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
     const int64_t voxels = h.geometry.voxel_count();
     POSEWARP_ASSIGN_OR_RETURN(
         const MemoryBudget::Reservation memory,
-        memory_.reserve(voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload", until, gone));
+        reserve(context, voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload"));
     if (labels) {
       POSEWARP_ASSIGN_OR_RETURN(const LabelVolume volume, api::read_label_volume(staged, read_options()));
       POSEWARP_RETURN_IF_ERROR(api::check_labels_look_like_labels(volume, "the uploaded label volume"));
@@ -524,7 +525,7 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   if (!read.ok()) {
     // Named as the client knows it; a path a reader quotes (the store's) never reaches the client.
     const std::string message = without_path(read.status().message(), staged, "the uploaded volume");
-    return call.done(to_grpc(Status(read.status().code(), without_path(message, *directory, "the upload"))));
+    return call.done(to_grpc(Status(read.status().code(), without_path(message, upload.directory->path(), "the upload"))));
   }
   Result<VolumeRecord> stored = store_->put_volume_file(header.sha256(), plan.extension, kind, staged);
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
@@ -983,9 +984,8 @@ grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1
   if (!stored.ok()) return call.done(to_grpc(stored.status()));
   Result<ClientLimits::Entry> admitted = client_limits_.enter_call(call.client());
   if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
-  Result<MemoryBudget::Reservation> memory = memory_.reserve(
-      static_cast<int64_t>(stored->size_bytes) * 3, "sending this rig",
-      std::chrono::steady_clock::now() + std::chrono::seconds(30), [context] { return context->IsCancelled(); });
+  Result<MemoryBudget::Reservation> memory =
+      reserve(context, static_cast<int64_t>(stored->size_bytes) * 3, "sending this rig");
   if (!memory.ok()) return call.done(to_grpc(memory.status()));
   Result<std::string> bytes = api::read_text_input(stored->path, "rig file", int64_t{1} << 40);
   if (!bytes.ok()) return call.done(to_grpc(bytes.status()));
@@ -1021,32 +1021,14 @@ grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::Serv
   }
   const v1::UploadRigHeader header = part.header();
   if (Status s = check_rig_upload_header(header, request_limits()); !s.ok()) return call.done(to_grpc(s));
-  Result<ClientLimits::Entry> admitted =
-      client_limits_.enter_upload(call.client(), static_cast<int64_t>(header.size_bytes()));
-  if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
-  Result<std::string> directory = store_->make_staging_directory();
-  if (!directory.ok()) return call.done(to_grpc(directory.status()));
-  const StagingDirectory staging(*directory);
-  const std::string staged = *directory + "/upload.rig";
-  Result<StagedUpload> received = receive_upload<v1::UploadRigRequest>(
-      [&](v1::UploadRigRequest* message) { return call.read(reader, message); },
-      [](const v1::UploadRigRequest& message) -> const std::string* {
-        return message.part_case() == v1::UploadRigRequest::kChunk ? &message.chunk() : nullptr;
-      },
-      header.size_bytes(), staged);
-  if (!received.ok()) {
-    if (call.stream().stalled() || context->IsCancelled()) return call.done(kClientGone);
-    return call.done(to_grpc(received.status()));
+  StagedUpload upload;
+  if (grpc::Status s = stage_upload(call, reader, header.size_bytes(), header.sha256(), "upload.rig", &upload); !s.ok()) {
+    return call.done(s);
   }
-  if (received->sha256 != header.sha256()) {
-    return call.done({grpc::StatusCode::DATA_LOSS,
-                      "the rig upload arrived altered (its sha256 differs); send it "
-                      "again"});
-  }
+  const std::string& staged = upload.path;
   // The file's bytes and the rig read from them are in memory at once.
-  Result<MemoryBudget::Reservation> memory = memory_.reserve(
-      static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload",
-      std::chrono::steady_clock::now() + std::chrono::seconds(30), [context] { return context->IsCancelled(); });
+  Result<MemoryBudget::Reservation> memory =
+      reserve(context, static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload");
   if (!memory.ok()) return call.done(to_grpc(memory.status()));
   Result<std::string> read = api::read_text_input(staged, "rig upload", static_cast<int64_t>(header.size_bytes()));
   if (!read.ok()) return call.done(to_grpc(read.status()));
@@ -1071,7 +1053,7 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
                                    grpc::ServerWriter<v1::PoseResponse>* writer) {
   Call call(*this, context, "Pose", request->rig_id());
   if (call.refused()) return call.refusal();
-  Result<CheckedPose> checked = check_pose_request(*request, request_limits());
+  Result<CheckedPose> checked = check_pose_request(*request);
   if (!checked.ok()) return call.done(to_grpc(checked.status()));
   Result<ClientLimits::Entry> admitted = client_limits_.enter_call(call.client());
   if (!admitted.ok()) return call.done(to_grpc(admitted.status()));
@@ -1119,9 +1101,9 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   api::PoseRequest core;
   core.pose = std::move(checked->pose);
   core.method = method_of(checked->method);
-  core.grid = checked->grid == v1::GRID_POLICY_GROW    ? resample::GridPolicy::kGrow
-              : checked->grid == v1::GRID_POLICY_GIVEN ? resample::GridPolicy::kGiven
-                                                       : resample::GridPolicy::kInput;
+  core.grid = checked->grid == v1::GRID_POLICY_GROW    ? api::GridPolicy::kGrow
+              : checked->grid == v1::GRID_POLICY_GIVEN ? api::GridPolicy::kGiven
+                                                       : api::GridPolicy::kInput;
   core.given_grid = checked->given_grid;
   core.ct_interpolation = request->nearest_ct() ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
   core.want_labels = request->want_labels();
@@ -1151,11 +1133,7 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
     if (core.want_labels) estimate += output_voxels * pixel_type_bytes(encoding->label_type);
     if (core.want_ct) estimate += output_voxels * pixel_type_bytes(encoding->ct_type);
   }
-  const auto until = context->deadline() == std::chrono::system_clock::time_point::max()
-                         ? std::chrono::steady_clock::now() + std::chrono::seconds(60)
-                         : std::chrono::steady_clock::now() + (context->deadline() - std::chrono::system_clock::now());
-  Result<MemoryBudget::Reservation> memory =
-      memory_.reserve(estimate, "this pose", until, [context] { return context->IsCancelled(); });
+  Result<MemoryBudget::Reservation> memory = reserve(context, estimate, "this pose");
   if (!memory.ok()) return call.done(to_grpc(memory.status()));
 
   // The header first, from the plan: the client knows what follows before the engine starts.
@@ -1320,7 +1298,7 @@ grpc::Status PosewarpService::Preview(grpc::ServerContext* context,
       engine = *loaded;
     }
     const auto start = std::chrono::steady_clock::now();
-    Result<pose::Pose> pose = check_preview_request(update);
+    Result<api::Pose> pose = check_preview_request(update);
     Result<api::PreviewResult> preview =
         pose.ok() ? engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());
     if (!preview.ok()) {

@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -113,6 +114,20 @@ class PosewarpService final : public v1::Posewarp::Service {
   void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
                      bool persist);
   grpc::Status to_grpc(const Status& status) const;
+  // An upload admitted for its client (--uploads-per-client, --upload-mb-per-client) and received: its chunks in a
+  // file of a staging directory of its own, checked against the header's size and SHA-256.
+  struct StagedUpload {
+    std::optional<ClientLimits::Entry> admitted;
+    std::unique_ptr<StagingDirectory> directory;
+    std::string path;
+  };
+  // OK with `staged` filled, or the status the call ends with.
+  template <typename Request>
+  grpc::Status stage_upload(Call& call, grpc::ServerReader<Request>* reader, uint64_t size, const std::string& sha256,
+                            const std::string& file_name, StagedUpload* staged);
+  // `bytes` of the memory budget for `what`, waiting for room until the call's deadline (a minute without one) or
+  // until the client goes away.
+  Result<MemoryBudget::Reservation> reserve(grpc::ServerContext* context, int64_t bytes, const std::string& what);
   RequestLimits request_limits() const;
   // How uploads are read: the server's voxel limit under its option's name, voxels inline only.
   api::ReadOptions read_options() const;

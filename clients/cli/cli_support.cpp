@@ -24,8 +24,8 @@ api::ReadOptions read_options() {
   return options;
 }
 
-Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset, std::string_view own_map) {
-  Result<labels::LabelMap> map = api::load_label_map(path, preset);
+Result<api::LabelMap> load_label_map(const std::string& path, const std::string& preset, std::string_view own_map) {
+  Result<api::LabelMap> map = api::load_label_map(path, preset);
   if (map.ok() || !path.empty() || preset.empty()) return map;
   return Status(map.status().code(), map.status().message() + "; to give your own, " + std::string(own_map));
 }

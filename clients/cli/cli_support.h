@@ -26,7 +26,7 @@ api::ReadOptions read_options();
 // api::load_label_map, with the command line's way to give one's own map (`own_map`, e.g. "pass --label-map FILE.json")
 // added to the message when a preset is unknown: the library's message names no flag, since a server's caller has
 // none.
-Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset,
+Result<api::LabelMap> load_label_map(const std::string& path, const std::string& preset,
                                         std::string_view own_map = "pass --label-map FILE.json");
 
 // Prints "error: <message>" (and the code) to stderr and returns the process exit code for the status.

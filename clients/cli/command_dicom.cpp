@@ -22,7 +22,7 @@ int run_export(const ExportOptions& o) {
   if (Status s = refuse_overwriting_inputs({o.out}, {o.ct_path, o.labels_path, o.label_map_path}); !s.ok())
     return report(s);
   // A map of one's own replaces the preset.
-  Result<labels::LabelMap> map = load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
+  Result<api::LabelMap> map = load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
   if (!map.ok()) return report(map.status());
   Result<IntensityVolume> ct = api::read_intensity_volume(o.ct_path, read_options());
   if (!ct.ok()) return report(ct.status());
@@ -61,7 +61,7 @@ int run_dicom_info(const InfoOptions& o) {
               g.spacing[2]);
   if (o.seg_path.empty()) return 0;
   // A map of one's own replaces the preset.
-  Result<labels::LabelMap> map = load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
+  Result<api::LabelMap> map = load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : std::string());
   if (!map.ok()) return report(map.status());
   Result<api::DicomStudy> study = api::read_dicom_study(o.ct_dir, o.seg_path, *map);
   if (!study.ok()) return report(study.status());

@@ -51,7 +51,7 @@ int run_build(BuildOptions& options) {
   if (Status s = check_output_files({options.out}); !s.ok()) return report(s);
   if (Status s = refuse_directories({options.out}); !s.ok()) return report(s);
   api::BuildInputs inputs;
-  Result<labels::LabelMap> map = load_label_map(options.label_map_path, options.preset);
+  Result<api::LabelMap> map = load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
   inputs.label_map = std::move(map).value();
   if (api::is_dicom_file(options.labels_path)) {

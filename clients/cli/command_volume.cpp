@@ -141,7 +141,7 @@ struct InspectOptions {
 
 int run_inspect(const InspectOptions& options) {
   const auto start = std::chrono::steady_clock::now();
-  Result<labels::LabelMap> map = load_label_map(options.label_map_path, options.preset);
+  Result<api::LabelMap> map = load_label_map(options.label_map_path, options.preset);
   if (!map.ok()) return report(map.status());
   Result<LabelVolume> seg = api::read_label_volume(options.labels_path, read_options());
   if (!seg.ok()) return report(seg.status());

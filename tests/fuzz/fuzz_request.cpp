@@ -15,7 +15,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   switch (kind) {
     case 0: {
       v1::PoseRequest request;
-      if (request.ParseFromArray(bytes, length)) (void)server::check_pose_request(request, limits);
+      if (request.ParseFromArray(bytes, length)) (void)server::check_pose_request(request);
       break;
     }
     case 1: {

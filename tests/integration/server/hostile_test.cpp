@@ -179,6 +179,30 @@ std::string gzip_nifti(const std::vector<int16_t>& dims, int16_t datatype, int64
   return compressed;
 }
 
+// An upload that has sent its header (labels, .nii.gz, `size_bytes`, `sha256`) and nothing else yet. Its calls end
+// within a minute whatever the server does, so a server that never ends them fails the test instead of hanging it.
+struct OpenUpload {
+  OpenUpload(v1::Posewarp::Stub& stub, uint64_t size_bytes, const std::string& sha256) {
+    context.set_deadline(std::chrono::system_clock::now() + std::chrono::minutes(1));
+    writer = stub.UploadVolume(&context, &volume);
+    v1::UploadVolumeRequest header;
+    header.mutable_header()->set_kind(v1::VOLUME_KIND_LABELS);
+    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
+    header.mutable_header()->set_size_bytes(size_bytes);
+    header.mutable_header()->set_sha256(sha256);
+    header_sent = writer->Write(header);
+  }
+  // Sends nothing more: the server's answer.
+  grpc::Status finish() {
+    writer->WritesDone();
+    return writer->Finish();
+  }
+  grpc::ClientContext context;
+  v1::Volume volume;
+  std::unique_ptr<grpc::ClientWriter<v1::UploadVolumeRequest>> writer;
+  bool header_sent = false;
+};
+
 bool says(const grpc::Status& status, const std::string& fragment) {
   return status.error_message().find(fragment) != std::string::npos;
 }
@@ -251,73 +275,32 @@ TEST_F(Hostile, TinyChunksAndStalledUploadsAreRefusedAndFreed) {
   EXPECT_TRUE(says(tiny, "at least 4096 bytes")) << tiny.error_message();
   // Uploads that send their header and stop: the client's uploads are limited (--uploads-per-client 3), and the
   // stall watch ends each within seconds, which gives the places back.
-  struct Open {
-    grpc::ClientContext context;
-    v1::Volume volume;
-    std::unique_ptr<grpc::ClientWriter<v1::UploadVolumeRequest>> writer;
-  };
-  std::vector<std::unique_ptr<Open>> open;
+  std::vector<std::unique_ptr<OpenUpload>> open;
   for (int i = 0; i < 3; ++i) {
-    auto o = std::make_unique<Open>();
-    o->writer = stub_->UploadVolume(&o->context, &o->volume);
-    v1::UploadVolumeRequest header;
-    header.mutable_header()->set_kind(v1::VOLUME_KIND_LABELS);
-    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
-    header.mutable_header()->set_size_bytes(10 << 20);
-    header.mutable_header()->set_sha256(std::string(64, 'a' + static_cast<char>(i)));
-    ASSERT_TRUE(o->writer->Write(header));
-    open.push_back(std::move(o));
+    open.push_back(std::make_unique<OpenUpload>(*stub_, 10 << 20, std::string(64, 'a' + static_cast<char>(i))));
+    ASSERT_TRUE(open.back()->header_sent);
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the server has read the three headers
   const grpc::Status fourth = upload_bytes(fresh, v1::FILE_FORMAT_NIFTI_GZ, v1::VOLUME_KIND_LABELS);
   EXPECT_EQ(fourth.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << fourth.error_message();
   EXPECT_TRUE(says(fourth, "--uploads-per-client")) << fourth.error_message();
-  for (auto& o : open) EXPECT_FALSE(o->writer->Finish().ok());  // ended by the server, not by us
+  for (auto& o : open) EXPECT_FALSE(o->writer->Finish().ok());  // ended by the server's stall watch, not by us
   // The places are free again: the same upload now goes through.
   const grpc::Status after = upload_bytes(fresh, v1::FILE_FORMAT_NIFTI_GZ, v1::VOLUME_KIND_LABELS);
   EXPECT_TRUE(after.ok()) << after.error_message();
   // Bytes in flight: one client's open uploads may claim 64 MB together (--upload-mb-per-client 64).
   {
-    grpc::ClientContext context;
-    v1::Volume volume;
-    auto writer = stub_->UploadVolume(&context, &volume);
-    v1::UploadVolumeRequest header;
-    header.mutable_header()->set_kind(v1::VOLUME_KIND_LABELS);
-    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
-    header.mutable_header()->set_size_bytes(40 << 20);
-    header.mutable_header()->set_sha256(std::string(64, 'd'));
-    ASSERT_TRUE(writer->Write(header));
+    OpenUpload first(*stub_, 40 << 20, std::string(64, 'd'));
+    ASSERT_TRUE(first.header_sent);
     std::this_thread::sleep_for(std::chrono::milliseconds(300));
-    const grpc::Status status = [&] {
-      grpc::ClientContext other_context;
-      v1::Volume other;
-      auto other_writer = stub_->UploadVolume(&other_context, &other);
-      v1::UploadVolumeRequest other_header = header;
-      other_header.mutable_header()->set_sha256(std::string(64, 'c'));
-      other_writer->Write(other_header);
-      other_writer->WritesDone();
-      return other_writer->Finish();
-    }();
+    const grpc::Status status = OpenUpload(*stub_, 40 << 20, std::string(64, 'c')).finish();
     EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << status.error_message();
     EXPECT_TRUE(says(status, "--upload-mb-per-client")) << status.error_message();
-    context.TryCancel();
-    writer->Finish();
+    first.context.TryCancel();
+    first.writer->Finish();
   }
-  // Claims are not reservations: a header that claims more than a client may have in flight is refused, one within
-  // it costs nothing before its bytes arrive.
-  const grpc::Status claim = [&] {
-    grpc::ClientContext context;
-    v1::Volume volume;
-    auto writer = stub_->UploadVolume(&context, &volume);
-    v1::UploadVolumeRequest header;
-    header.mutable_header()->set_kind(v1::VOLUME_KIND_LABELS);
-    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
-    header.mutable_header()->set_size_bytes(uint64_t{4} << 30);
-    header.mutable_header()->set_sha256(std::string(64, 'e'));
-    writer->Write(header);
-    writer->WritesDone();
-    return writer->Finish();
-  }();
+  // A header that claims more than one file may hold is refused at once.
+  const grpc::Status claim = OpenUpload(*stub_, uint64_t{4} << 30, std::string(64, 'e')).finish();
   EXPECT_EQ(claim.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_TRUE(says(claim, "--max-upload-mb")) << claim.error_message();
 }
@@ -463,18 +446,7 @@ TEST_F(Hostile, ValuesAndEnumsOutOfRangeAreRefusedNamingTheField) {
     EXPECT_TRUE(says(status, c.names)) << c.name << ": " << status.error_message();
   }
   // An upload claiming no bytes is a bad argument, not a lack of resources.
-  const grpc::Status empty = [&] {
-    grpc::ClientContext context;
-    v1::Volume volume;
-    auto writer = stub_->UploadVolume(&context, &volume);
-    v1::UploadVolumeRequest header;
-    header.mutable_header()->set_kind(v1::VOLUME_KIND_LABELS);
-    header.mutable_header()->set_format(v1::FILE_FORMAT_NIFTI_GZ);
-    header.mutable_header()->set_sha256(std::string(64, '0'));
-    writer->Write(header);
-    writer->WritesDone();
-    return writer->Finish();
-  }();
+  const grpc::Status empty = OpenUpload(*stub_, 0, std::string(64, '0')).finish();
   EXPECT_EQ(empty.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << empty.error_message();
   EXPECT_TRUE(says(empty, "size_bytes")) << empty.error_message();
   // A built-in label map that does not exist: the message names no CLI flag.

@@ -45,6 +45,7 @@ using io::WriteOptions;
 // Label maps and presets.
 using labels::joint_kind_name;
 using labels::label_map_from_json;
+using labels::LabelMap;
 using labels::label_map_to_json;
 using labels::preset_by_name;
 using labels::preset_names;
@@ -60,6 +61,7 @@ using labels::kMaxDistinctLabels;
 using pose::read_animation;
 using pose::read_bvh;
 using pose::read_bvh_map;
+using pose::Pose;
 using pose::pose_from_json;
 using pose::pose_to_json;
 using pose::read_pose;
@@ -69,6 +71,7 @@ using rig::rig_spec_from_json;
 
 // Surface meshes (STL, OBJ, PLY, VTP).
 using surface::read_surface;
+using surface::SurfaceMesh;
 using surface::surface_to_vtp_bytes;
 using surface::write_surface;
 

@@ -18,6 +18,9 @@
 
 namespace posewarp::api {
 
+// How a request names the output grid (the input grid, grown to hold the posed body, or a given grid).
+using resample::GridPolicy;
+
 struct PoseRequest {
   pose::Pose pose;
   skinning::Method method = skinning::Method::kCor;
