@@ -19,6 +19,7 @@ skinning::Method method_of(v1::Method method) {
   switch (method) {
     case v1::METHOD_DQS: return skinning::Method::kDqs;
     case v1::METHOD_LBS: return skinning::Method::kLbs;
+    case v1::METHOD_FEM: return skinning::Method::kFem;
     default: return skinning::Method::kCor;  // METHOD_COR and METHOD_UNSPECIFIED (method_from refused the rest)
   }
 }

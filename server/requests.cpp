@@ -69,11 +69,12 @@ Result<v1::Method> method_from(v1::Method method, const std::string& field) {
     case v1::METHOD_UNSPECIFIED:
     case v1::METHOD_COR: return v1::METHOD_COR;
     case v1::METHOD_DQS:
-    case v1::METHOD_LBS: return method;
+    case v1::METHOD_LBS:
+    case v1::METHOD_FEM: return method;
     default:
       return invalid_argument_error(
           field + " is " + std::to_string(static_cast<int>(method)) +
-          ", not a method; use METHOD_COR (1, the default), METHOD_DQS (2) or METHOD_LBS (3)");
+          ", not a method; use METHOD_COR (1, the default), METHOD_DQS (2), METHOD_LBS (3) or METHOD_FEM (4)");
   }
 }
 

@@ -127,8 +127,8 @@ Status check_row(const Row& row, const std::string& where) {
   if (!row.dicom_seg.empty() && row.dicom_ct.empty())
     return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
   if (row.pose.empty() == row.animation.empty()) return invalid_argument_error(where + ": give a pose or an animation");
-  if (row.method != "cor" && row.method != "dqs" && row.method != "lbs") {
-    return invalid_argument_error(where + ": method must be cor, dqs or lbs, not '" + row.method + "'");
+  if (row.method != "cor" && row.method != "dqs" && row.method != "lbs" && row.method != "fem") {
+    return invalid_argument_error(where + ": method must be cor, dqs, lbs or fem, not '" + row.method + "'");
   }
   if (row.out_dir.empty() && !row.to_pacs) return invalid_argument_error(where + ": give out_dir, to_pacs or both");
   if (row.to_pacs && !row.labels.empty()) {
@@ -832,7 +832,7 @@ void add_batch_command(CLI::App& app) {
                   "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
   cmd->add_option("--pose", o->pose, "With --query: the pose for every study");
   cmd->add_option("--animation", o->animation, "With --query: an animation instead");
-  cmd->add_option("--method", o->method, "With --query: cor, dqs or lbs")->capture_default_str();
+  cmd->add_option("--method", o->method, "With --query: cor, dqs, lbs or fem")->capture_default_str();
   cmd->add_option("--out-dir", o->out_dir, "With --query: a directory per study under this one");
   cmd->add_flag("--to-pacs", o->to_pacs, "With --query: store the derived CT series and SEG back into each study");
   cmd->callback([o] {

@@ -377,8 +377,10 @@ int run_animate(const AnimateOptions& o) {
 }
 
 void add_output_options(CLI::App* cmd, OutputOptions& o) {
-  cmd->add_option("--method", o.method, "Skinning: cor (centres of rotation), dqs (dual quaternions) or lbs")
-      ->check(CLI::IsMember({"cor", "dqs", "lbs"}))
+  cmd->add_option("--method", o.method, "How the tissue moves: cor (centres of rotation), dqs (dual quaternions), lbs (linear "
+                  "blend) or fem (CoR refined by the soft tissue's volume-preserving steady state: slower, keeps the "
+                  "volume at bent joints)")
+      ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}))
       ->capture_default_str();
   cmd->add_option("--grid", o.grid, "Output grid: input (the study's grid) or grow (grown to hold the posed body)")
       ->check(CLI::IsMember({"input", "grow"}))

@@ -346,6 +346,7 @@ v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_
   request.set_pose_json(api::pose_to_json(r.pose));
   request.set_method(r.method == skinning::Method::kDqs   ? v1::METHOD_DQS
                      : r.method == skinning::Method::kLbs ? v1::METHOD_LBS
+                     : r.method == skinning::Method::kFem ? v1::METHOD_FEM
                                                           : v1::METHOD_COR);
   if (r.grid == resample::GridPolicy::kGrow) request.set_grid(v1::GRID_POLICY_GROW);
   if (r.grid == resample::GridPolicy::kGiven && r.given_grid) {

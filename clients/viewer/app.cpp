@@ -20,7 +20,10 @@ namespace posewarp::view {
 namespace fs = std::filesystem;
 
 v1::Method method_named(const std::string& name) {
-  return name == "dqs" ? v1::METHOD_DQS : name == "lbs" ? v1::METHOD_LBS : v1::METHOD_COR;
+  return name == "dqs"   ? v1::METHOD_DQS
+         : name == "lbs" ? v1::METHOD_LBS
+         : name == "fem" ? v1::METHOD_FEM
+                         : v1::METHOD_COR;
 }
 
 v1::GridPolicy grid_named(const std::string& name) {
@@ -158,9 +161,10 @@ void App::toggle_compare() {
     layout(Scene::Layout::kSingle);
     return;
   }
-  // The other method: the next one after the current (CoR -> DQS -> LBS -> CoR).
+  // The other method: the next one after the current (CoR -> DQS -> LBS -> FEM -> CoR).
   const v1::Method other = controller->method() == v1::METHOD_COR   ? v1::METHOD_DQS
                            : controller->method() == v1::METHOD_DQS ? v1::METHOD_LBS
+                           : controller->method() == v1::METHOD_LBS ? v1::METHOD_FEM
                                                                     : v1::METHOD_COR;
   compare = std::make_unique<PreviewSession>(*client, options.rig_id);
   controller->set_compare(compare.get(), other);
@@ -289,8 +293,11 @@ void App::key(const std::string& k) {
   const int count = static_cast<int>(names.size());
   if (k == "n" || k == "p") {
     choose(k == "n" ? (index + 1) % count : (index + count - 1) % count);
-  } else if (k == "1" || k == "2" || k == "3") {
-    controller->set_method(k == "1" ? v1::METHOD_COR : k == "2" ? v1::METHOD_DQS : v1::METHOD_LBS);
+  } else if (k == "1" || k == "2" || k == "3" || k == "4") {
+    controller->set_method(k == "1"   ? v1::METHOD_COR
+                           : k == "2" ? v1::METHOD_DQS
+                           : k == "3" ? v1::METHOD_LBS
+                                      : v1::METHOD_FEM);
   } else if (k == "c") {
     toggle_compare();
   } else if (k == "r") {

@@ -147,7 +147,7 @@ constexpr const char* kHelp =
     "posewarp-view: preview poses of a rig held by posewarp-server.\n\n"
     "In the window: n/p (or a click on a joint's sphere) choose the joint, the first entry being the root; the three "
     "sliders set its flexion, abduction and axial rotation (degrees, the joint's own frame; the root's turn about "
-    "L-R, A-P and S-I). 1/2/3 CoR/DQS/LBS, c two methods side by side, r/R reset the joint/all, u undo, "
+    "L-R, A-P and S-I). 1/2/3/4 CoR/DQS/LBS/FEM, c two methods side by side, r/R reset the joint/all, u undo, "
     "a/l/s anterior/lateral/superior view, t tissue surfaces, T one tissue surface at a time, w save the pose JSON, o "
     "load the next pose of --poses, "
     "f full volume (posed CT and labels as three slices with the quality report; a click moves the cursor, arrows or "
@@ -169,11 +169,11 @@ int main(int argc, char** argv) {
   app.add_option("--rig", o.rig_id, "Rig id to open (default: the only rig, or one chosen from a list at a terminal)");
   app.add_option("--pose", o.pose_path, "Pose JSON to start from (the CLI's; joints in angles_deg)");
   app.add_option("--poses", o.poses_dir, "Directory of pose JSONs that o steps through (default: --pose's directory)");
-  app.add_option("--method", o.method, "Skinning: cor, dqs or lbs")
-      ->check(CLI::IsMember({"cor", "dqs", "lbs"}))
+  app.add_option("--method", o.method, "How the tissue moves: cor, dqs, lbs or fem (volume-preserving, slower)")
+      ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}))
       ->capture_default_str();
   app.add_option("--compare", o.compare, "Show this method side by side with --method")
-      ->check(CLI::IsMember({"cor", "dqs", "lbs"}));
+      ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}));
   app.add_option("--view", o.view, "Camera: anterior, lateral or superior")
       ->check(CLI::IsMember({"anterior", "lateral", "superior"}))
       ->capture_default_str();

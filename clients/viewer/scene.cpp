@@ -585,7 +585,10 @@ bool Scene::snapshot(const std::string& png_path, std::string* error) {
 }
 
 const char* method_name(v1::Method method) {
-  return method == v1::METHOD_DQS ? "DQS" : method == v1::METHOD_LBS ? "LBS" : "CoR";
+  return method == v1::METHOD_DQS   ? "DQS"
+         : method == v1::METHOD_LBS ? "LBS"
+         : method == v1::METHOD_FEM ? "FEM"
+                                    : "CoR";
 }
 
 Controller::Controller(Scene& scene, PreviewSession& session) : scene_(scene), session_(&session) {

@@ -61,6 +61,10 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     assert "needle" in computed.surfaces and computed.surfaces["needle"][0].shape == (4, 3)
     assert posed.report["method"] == "dqs"
     assert len(posed.surfaces) > 0
+    fem = client.pose(rig, POSE, method="fem", ct=False)
+    assert fem.report["method"] == "fem" and "fem" in fem.report["stage_seconds"]
+    assert fem.labels.shape == posed.labels.shape
+    assert set(np.unique(fem.labels)) <= set(np.unique(posed.labels)) | {0}
 
 
 def test_refusals_carry_their_codes(study):

@@ -27,7 +27,7 @@ __all__ = ["Client", "PoseResult", "PosewarpError"]
 _CHUNK = 1 << 20
 _FORMATS = {".nii.gz": pb.FILE_FORMAT_NIFTI_GZ, ".nii": pb.FILE_FORMAT_NIFTI, ".nrrd": pb.FILE_FORMAT_NRRD,
             ".mha": pb.FILE_FORMAT_MHA}
-_METHODS = {"cor": pb.METHOD_COR, "dqs": pb.METHOD_DQS, "lbs": pb.METHOD_LBS}
+_METHODS = {"cor": pb.METHOD_COR, "dqs": pb.METHOD_DQS, "lbs": pb.METHOD_LBS, "fem": pb.METHOD_FEM}
 _DTYPES = {"uint8": np.uint8, "int8": np.int8, "uint16": np.uint16, "int16": np.int16, "uint32": np.uint32,
            "int32": np.int32, "float32": np.float32, "float64": np.float64}
 
@@ -159,6 +159,9 @@ class Client:
     def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False,
              samples="stored", fields=False, meshes=None):
         """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one).
+
+        method: "cor" (centres of rotation, the default), "dqs", "lbs" or "fem" (CoR refined by the soft tissue's
+        volume-preserving steady state: slower, folds less tissue at bent joints).
 
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
         bytes); "computed" gives int32 labels and float32 CT as computed. fields: also the inverse (output grid) and

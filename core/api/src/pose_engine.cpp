@@ -7,14 +7,21 @@
 
 #include <chrono>
 #include <cmath>
+#include <mutex>
 #include <new>
 #include <unordered_map>
 
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
+#include "posewarp/fem/soft_tissue.h"
 #include "posewarp/pose/forward_kinematics.h"
 
 namespace posewarp::api {
+
+struct PoseEngine::Fem {
+  std::once_flag once;
+  fem::Topology topology;
+};
 namespace {
 
 class Clock {
@@ -94,17 +101,40 @@ void prepare_preview(const Rig& rig, Preview& preview) {
 
 }  // namespace
 
+Result<Eigen::MatrixXd> PoseEngine::posed_vertices(skinning::Method method, const skinning::SegmentTransforms& segments,
+                                                   const ProgressHooks& hooks) const {
+  if (method != skinning::Method::kFem) {
+    return skinning::skin(method, rig_.mesh.vertices, rig_.weights, rig_.centres, segments);
+  }
+  POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinning::skin(skinning::Method::kCor, rig_.mesh.vertices,
+                                                                       rig_.weights, rig_.centres, segments));
+  return soft_tissue(warm, segments, hooks);
+}
+
+Result<Eigen::MatrixXd> PoseEngine::soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
+                                                const ProgressHooks& hooks) const {
+  std::call_once(fem_->once, [&] { fem_->topology = fem::topology(rig_.mesh); });
+  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm}, fem::FemParams{}, hooks);
+}
+
 Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Method method) const {
   return guarded("previewing the pose", [&]() -> Result<PreviewResult> {
     POSEWARP_RETURN_IF_ERROR(pose::validate_pose(pose, rig_.skeleton));
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                               pose::forward_kinematics(rig_.skeleton, pose));
     const skinning::SegmentTransforms segments = segment_transforms(transforms);
-    POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, skinning::skin(method, preview_.mesh.vertices,
-                                                                          preview_.weights, preview_.centres, segments));
     PreviewResult result;
-    for (const mapping::Embedding& e : preview_.embeddings) {
-      result.surface_vertices.push_back(mapping::deform_points(e, preview_.mesh, posed));
+    if (method == skinning::Method::kFem) {  // the steady state needs the whole mesh
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, posed_vertices(method, segments, {}));
+      for (const mapping::Embedding& e : rig_.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, rig_.mesh, posed));
+      }
+    } else {
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, skinning::skin(method, preview_.mesh.vertices,
+                                                                            preview_.weights, preview_.centres, segments));
+      for (const mapping::Embedding& e : preview_.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, preview_.mesh, posed));
+      }
     }
     // A joint centre moves with its parent segment (the child turns about it).
     for (const rig::Joint& joint : rig_.skeleton.joints) {
@@ -156,6 +186,7 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
     return resource_exhausted_error("out of memory preparing the rig for posing");
   }
   prepare_preview(rig, engine.preview_);
+  engine.fem_ = std::make_shared<Fem>();
   engine.rig_ = std::move(rig);
   return engine;
 }
@@ -191,8 +222,10 @@ Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
       POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                                 pose::forward_kinematics(skeleton, request.pose));
       const skinning::SegmentTransforms segments = segment_transforms(transforms);
-      POSEWARP_ASSIGN_OR_RETURN(posed, skinning::skin(request.method, rig_.mesh.vertices, rig_.weights, rig_.centres,
-                                                      segments));
+      // fem moves only soft tissue between bones that CoR has placed: its grid is CoR's (the pose checks its own).
+      const skinning::Method method =
+          request.method == skinning::Method::kFem ? skinning::Method::kCor : request.method;
+      POSEWARP_ASSIGN_OR_RETURN(posed, posed_vertices(method, segments, {}));
     }
     POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry grid,
                               resample::output_geometry(request.grid, rig_.labels.geometry(), posed,
@@ -224,10 +257,15 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
   result.segment_translation = segments.translation;
   clock.lap("kinematics");
 
-  // 2. Skinning of the tet vertices.
+  // 2. Skinning of the tet vertices (fem: CoR, then the soft tissue's steady state).
+  const bool fem = request.method == skinning::Method::kFem;
   POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices,
-                            skinning::skin(request.method, mesh.vertices, rig_.weights, rig_.centres, segments));
+                            posed_vertices(fem ? skinning::Method::kCor : request.method, segments, hooks));
   clock.lap("skinning");
+  if (fem) {
+    POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices, soft_tissue(result.posed_vertices, segments, hooks));
+    clock.lap("fem");
+  }
 
   // 3. Mesh quality: inversions, volume change, bone rigidity.
   const Eigen::VectorXd det = skinning::tet_determinants(mesh, frames_, result.posed_vertices);
@@ -340,7 +378,8 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
     }
     if (request.want_fields) {
       result.inverse_field = warp.inverse_displacement();
-      // Forward field on the source grid: each source voxel moves with the rest tet that covers it.
+      // Forward field on the source grid: each bone voxel moves with its bone, every other source voxel with the rest
+      // tet that covers it.
       result.forward_field.assign(static_cast<size_t>(source.voxel_count()) * 3, 0.0f);
       const Eigen::MatrixXd& posed = result.posed_vertices;
       parallel_for(0, source.size[2], 1, [&](int64_t k0, int64_t k1) {
@@ -353,7 +392,10 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
               int32_t t = rest_owner_[static_cast<size_t>(v)];
               if (t <= -2) t = -2 - t;
               Eigen::Vector3d moved;
-              if (t >= 0) {
+              const int16_t bone = bone_voxels_.segment[static_cast<size_t>(v)];
+              if (bone != resample::BoneVoxels::kNone) {  // a bone voxel moves with its bone, exactly
+                moved = segments.rotation[static_cast<size_t>(bone)] * x + segments.translation[static_cast<size_t>(bone)];
+              } else if (t >= 0) {
                 Eigen::Matrix3d inv;
                 for (int r = 0; r < 3; ++r)
                   for (int c = 0; c < 3; ++c) inv(r, c) = frames_.rest_inverse(t, 3 * r + c);

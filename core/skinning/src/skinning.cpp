@@ -125,6 +125,7 @@ std::string_view method_name(Method method) {
     case Method::kLbs: return "lbs";
     case Method::kDqs: return "dqs";
     case Method::kCor: return "cor";
+    case Method::kFem: return "fem";
   }
   return "cor";
 }
@@ -133,7 +134,8 @@ Result<Method> method_from_name(std::string_view name) {
   if (name == "lbs") return Method::kLbs;
   if (name == "dqs") return Method::kDqs;
   if (name == "cor") return Method::kCor;
-  return invalid_argument_error("unknown skinning method '" + std::string(name) + "'; use lbs, dqs or cor");
+  if (name == "fem") return Method::kFem;
+  return invalid_argument_error("unknown method '" + std::string(name) + "'; use lbs, dqs, cor or fem");
 }
 
 Eigen::MatrixXd lbs(const Eigen::MatrixXd& rest, const SkinWeights& weights, const SegmentTransforms& transforms) {
@@ -248,6 +250,9 @@ Result<Eigen::MatrixXd> skin(Method method, const Eigen::MatrixXd& rest, const S
     case Method::kLbs: return lbs(rest, weights, transforms);
     case Method::kDqs: return dqs(rest, weights, transforms);
     case Method::kCor: return cor(rest, weights, centres, transforms);
+    case Method::kFem:
+      return invalid_argument_error("the fem method solves the whole tet mesh: pose through the engine (skinning "
+                                    "gives its CoR warm start)");
   }
   return internal_error("unhandled skinning method");
 }

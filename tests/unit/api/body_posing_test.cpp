@@ -152,6 +152,34 @@ TEST(BodyPosing, HingesFlexWithoutBoneOverlapAndCorKeepsLocalVolume) {
   }
 }
 
+// The soft tissue's steady state (fem) on the same hinges: bones as CoR puts them, and much less folded tissue
+// around the joint. (The crease itself still folds: contact between the tissue of thigh and calf is not modelled.)
+TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentHinges) {
+  for (const auto& [joint, name] : std::vector<std::pair<std::string, std::string>>{{"knee_left", "knee"},
+                                                                                    {"elbow_right", "elbow"}}) {
+    SCOPED_TRACE(name);
+    Result<PoseResult> cor = run(single(joint, 90), skinning::Method::kCor, false);
+    Result<PoseResult> fem = run(single(joint, 90), skinning::Method::kFem, false);
+    ASSERT_TRUE(cor.ok() && fem.ok()) << fem.status().to_string();
+    EXPECT_EQ(fem->report.method, "fem");
+    EXPECT_EQ(fem->report.bone_voxel_deviation_mm, cor->report.bone_voxel_deviation_mm);
+    for (const double radius : {50.0, 100.0}) {
+      const report::JointRegionChange *c = nullptr, *f = nullptr;
+      for (const auto& r : cor->report.joint_regions) if (r.radius_mm == radius) c = &r;
+      for (const auto& r : fem->report.joint_regions) if (r.radius_mm == radius) f = &r;
+      ASSERT_NE(c, nullptr);
+      ASSERT_NE(f, nullptr);
+      std::cout << name << " within " << radius << " mm: volume cor " << c->volume_change << ", fem " << f->volume_change
+                << "; folded cor " << c->folded_fraction << ", fem " << f->folded_fraction << "\n";
+      EXPECT_LT(f->folded_fraction, 0.8 * c->folded_fraction) << radius;
+      if (radius == 100.0) {
+        EXPECT_LT(std::abs(f->volume_change), 0.10);
+      }
+    }
+    EXPECT_LT(fem->report.mesh.inverted_tets, cor->report.mesh.inverted_tets);
+  }
+}
+
 // The report's soft-tissue figure around a moved joint agrees with one computed from the exported forward field
 // (finite-difference Jacobians of the voxels' motion).
 TEST(BodyPosing, ReportedLocalVolumeChangeAgreesWithTheForwardField) {

@@ -52,7 +52,7 @@ std::map<Label, double> dice_per_label(const LabelVolume& a, const LabelVolume& 
 
 TEST(Posing, IdentityPoseGivesBackTheInputWithEveryMethod) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
     PoseRequest request;
     request.pose.name = "identity";
     request.method = method;
@@ -91,7 +91,7 @@ TEST(Posing, PureRootRotationAgreesWithItksResampler) {
 
 TEST(Posing, BonesStayRigidInABentBar) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
     PoseRequest request;
     request.pose = joint_pose("joint_2_3", 60.0, 0.0);
     request.method = method;
@@ -191,8 +191,25 @@ TEST(Posing, FieldsMapOutputToSourceLikeTheWarp) {
     inside_body_differences += itk->data()[v] != result->labels->data()[v];
   }
   EXPECT_LT(static_cast<double>(inside_body_differences), 0.01 * static_cast<double>(body));
-  // Forward field: where the rest pose's bone 1 stays, nothing moves.
-  EXPECT_EQ(static_cast<int64_t>(result->forward_field.size()), 3 * engine.rig().labels.voxel_count());
+  // Forward field: every bone voxel moves with its bone's rigid transform, exactly (to float precision).
+  ASSERT_EQ(static_cast<int64_t>(result->forward_field.size()), 3 * engine.rig().labels.voxel_count());
+  const ImageGeometry& source = engine.rig().labels.geometry();
+  int64_t bone_voxels = 0;
+  double worst = 0.0;
+  for (size_t k = 0; k < engine.rig().skeleton.segments.size(); ++k) {
+    const std::vector<Label>& labels = engine.rig().skeleton.segments[k].labels;
+    for (int64_t v = 0; v < source.voxel_count(); ++v) {
+      if (std::find(labels.begin(), labels.end(), engine.rig().labels.data()[v]) == labels.end()) continue;
+      const int64_t i = v % source.size[0], j = (v / source.size[0]) % source.size[1], kk = v / (source.size[0] * source.size[1]);
+      const Vec3 p = source.index_to_physical({double(i), double(j), double(kk)});
+      const Eigen::Vector3d x(p[0], p[1], p[2]);
+      const Eigen::Vector3d expected = result->segment_rotation[k] * x + result->segment_translation[k] - x;
+      for (int a = 0; a < 3; ++a) worst = std::max(worst, std::abs(result->forward_field[static_cast<size_t>(3 * v + a)] - expected(a)));
+      ++bone_voxels;
+    }
+  }
+  EXPECT_GT(bone_voxels, 1000);
+  EXPECT_LT(worst, 1e-3);
 }
 
 TEST(Posing, SurfacesFollowTheirTetsAndBonesMoveRigidly) {
@@ -271,7 +288,9 @@ TEST(Posing, CorKeepsTheBarsSoftTissueVolumeWhereLbsLosesIt) {
   ASSERT_TRUE(engine.ok());
   for (const auto& [name, flexion, twist] : {std::tuple{"bend", 90.0, 0.0}, std::tuple{"twist", 0.0, 90.0}}) {
     std::map<std::string, double> change, local;
-    for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+    std::map<std::string, int64_t> inverted;
+    for (const skinning::Method method :
+         {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
       PoseRequest request;
       request.pose = joint_pose("joint_2_3", flexion, twist);
       request.method = method;
@@ -280,16 +299,24 @@ TEST(Posing, CorKeepsTheBarsSoftTissueVolumeWhereLbsLosesIt) {
       ASSERT_TRUE(result.ok());
       change[std::string(skinning::method_name(method))] = result->report.mesh.soft_tissue_volume_change;
       local[std::string(skinning::method_name(method))] = result->report.mesh.soft_tissue_local_volume_error;
+      inverted[std::string(skinning::method_name(method))] = result->report.mesh.inverted_tets;
     }
     std::cout << name << ": soft-tissue volume change lbs " << change["lbs"] << ", dqs " << change["dqs"] << ", cor "
-              << change["cor"] << "; local volume error lbs " << local["lbs"] << ", dqs " << local["dqs"] << ", cor "
-              << local["cor"] << "\n";
+              << change["cor"] << ", fem " << change["fem"] << "; local volume error lbs " << local["lbs"] << ", dqs "
+              << local["dqs"] << ", cor " << local["cor"] << ", fem " << local["fem"] << "; inverted cor "
+              << inverted["cor"] << ", fem " << inverted["fem"] << "\n";
     // LBS loses volume (the candy wrapper in the twist, the collapsed elbow in the bend); CoR keeps the total
     // within a percent of rest and much closer than LBS.
     EXPECT_LT(change["lbs"], -0.03) << name;
     EXPECT_LT(std::abs(change["cor"]), 0.01) << name;
     EXPECT_LT(std::abs(change["cor"]), 0.2 * std::abs(change["lbs"])) << name;
+    // The soft tissue's steady state keeps the volume locally too, and turns CoR's inverted tets back.
+    EXPECT_LT(std::abs(change["fem"]), 0.01) << name;
+    EXPECT_LT(local["fem"], 0.7 * local["cor"]) << name;
+    EXPECT_LE(inverted["fem"], inverted["cor"]) << name;
     if (std::string(name) == "bend") {
+      EXPECT_LT(local["fem"], 0.3 * local["cor"]);
+      EXPECT_LT(inverted["fem"], inverted["cor"] / 10);
       // DQS bulges outside the bend and pinches inside; the two cancel in the total, not locally: CoR's local
       // volume error is the smaller.
       EXPECT_LT(local["cor"], local["dqs"]);
@@ -399,7 +426,7 @@ namespace {
 // The preview skins only the tet vertices its surfaces need and gives the same posed surfaces as a full pose.
 TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
     PoseRequest request;
     request.pose = joint_pose("joint_2_3", 50.0, 20.0);
     request.method = method;

@@ -107,6 +107,15 @@ class PoseEngine {
     std::vector<mapping::Embedding> embeddings;
   };
   PreviewRig preview_;
+  // The fem method's share (its mesh topology), made by the first fem request and shared by copies of the engine.
+  struct Fem;
+  std::shared_ptr<Fem> fem_;
+  // The posed tet vertices of a method: skinning, then for fem the soft tissue's steady state from CoR.
+  Result<Eigen::MatrixXd> posed_vertices(skinning::Method method, const skinning::SegmentTransforms& segments,
+                                         const ProgressHooks& hooks) const;
+  // The soft tissue's steady state from skinned (CoR) vertices.
+  Result<Eigen::MatrixXd> soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
+                                      const ProgressHooks& hooks) const;
 };
 
 }  // namespace posewarp::api

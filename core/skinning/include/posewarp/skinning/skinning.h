@@ -12,10 +12,12 @@
 
 namespace posewarp::skinning {
 
-enum class Method { kLbs, kDqs, kCor };
+// kFem is CoR refined by the soft tissue's steady state (posewarp::fem), which needs the whole tet mesh: the engine
+// runs it; skin() itself answers kFem with INVALID_ARGUMENT.
+enum class Method { kLbs, kDqs, kCor, kFem };
 
 std::string_view method_name(Method method);
-// "lbs", "dqs" or "cor"; anything else is INVALID_ARGUMENT listing the three.
+// "lbs", "dqs", "cor" or "fem"; anything else is INVALID_ARGUMENT listing the four.
 Result<Method> method_from_name(std::string_view name);
 
 // Rest -> posed rigid transform per bone segment: p' = rotation[k] * p + translation[k] (LPS mm).

@@ -1,0 +1,78 @@
+// The soft tissue's steady state under the bones' rigid motion: Sujar et al. 2018 section 5 (Fig. 9), where a
+// co-rotational FEM of a nearly incompressible, homogeneous, isotropic material with the bone vertices as boundary
+// conditions and the element rotations refined iteratively conserves the volume that skinning loses.
+//
+// Solved here as the same steady state in its projective form (Bouaziz et al. 2014; ARAP with a volume term): per
+// tet, the energy V (w_s |F - R|^2 + w_v |F - S|^2) with F the tet's deformation gradient, R its nearest rotation (the
+// co-rotated frame) and S its nearest volume-preserving matrix (det S = 1). The local step finds R and S per tet from
+// the current positions, the global step solves one sparse system whose matrix (a tet Laplacian on the free
+// vertices) does not change between iterations, so it is factored once per pose and each iteration costs two
+// triangular solves. The energy never increases; iterations stop when no vertex moves more than the tolerance.
+//
+// Bone vertices (every vertex of a bone tet) are fixed where skinning puts them (their segment's rigid motion). Only
+// the tissue the pose bends is solved: vertices whose influences move differently, and the tissue within a margin
+// of them; beyond it every vertex keeps its warm-start (skinned) position, which there is a rigid motion already.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <vector>
+
+#include "posewarp/common/progress.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/tet_mesh.h"
+#include "posewarp/skinning/skinning.h"
+#include "posewarp/skinning/tet_maps.h"
+
+namespace posewarp::fem {
+
+struct FemParams {
+  // w_v / w_s: how much more keeping volume counts than keeping shape; 100 is the nearly incompressible material of
+  // the paper (Poisson's ratio close to 0.5), and also what converges fastest on the bar.
+  double volume_weight = 100.0;
+  int max_iterations = 100;
+  double tolerance_mm = 0.02;   // converged once no vertex moves more than this in one iteration
+  double margin_mm = 40.0;      // reach of the solve beyond the tissue the pose bends (rest mm, along mesh edges)
+};
+
+// INVALID_ARGUMENT naming the parameter when one is out of range.
+Status validate(const FemParams& params);
+
+struct FemStats {
+  int64_t free_vertices = 0;   // solved for
+  int64_t fixed_vertices = 0;  // bone vertices and the region's border, in the solved tets
+  int64_t tets = 0;            // tets in the solve
+  int iterations = 0;
+  double last_step_mm = 0.0;   // largest vertex move of the last iteration
+  double factor_seconds = 0.0;
+  double iterate_seconds = 0.0;
+};
+
+// What does not depend on the pose, computed once per rig.
+struct Topology {
+  std::vector<int64_t> tet_start;    // #V + 1: vertex v's tets are tets[tet_start[v] .. tet_start[v + 1])
+  std::vector<int32_t> tets;
+  std::vector<int64_t> edge_start;   // #V + 1: vertex v's neighbours along mesh edges
+  std::vector<int32_t> edges;
+  std::vector<uint8_t> bone;         // #V, 1 for a vertex of a bone tet
+};
+
+Topology topology(const TetMesh& rest);
+
+// The pose's inputs: the rig at rest and the skinned (warm-start) positions.
+struct SolveInputs {
+  const TetMesh& rest;
+  const skinning::RestTetFrames& frames;
+  const Topology& topology;
+  const SkinWeights& weights;
+  const skinning::SegmentTransforms& transforms;
+  const Eigen::MatrixXd& warm;  // #V x 3, the skinned vertices (CoR)
+};
+
+// The posed vertices (#V x 3). INVALID_ARGUMENT when the inputs do not fit each other; CANCELLED or
+// DEADLINE_EXCEEDED through the hooks (checked every iteration); INTERNAL when the system cannot be factored.
+Result<Eigen::MatrixXd> solve(const SolveInputs& inputs, const FemParams& params, const ProgressHooks& hooks,
+                              FemStats* stats = nullptr);
+
+}  // namespace posewarp::fem

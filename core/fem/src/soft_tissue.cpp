@@ -1,0 +1,318 @@
+// Projective co-rotational steady state of the soft tissue (see soft_tissue.h).
+#include "posewarp/fem/soft_tissue.h"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/Dense>
+#include <Eigen/Sparse>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <queue>
+#include <string>
+#include <utility>
+
+#include "posewarp/common/parallel.h"
+
+namespace posewarp::fem {
+namespace {
+
+using SparseMatrix = Eigen::SparseMatrix<double>;
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Builds a compressed row list of `count` rows from (row, value) pairs.
+void compress(int64_t count, const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<int64_t>& start,
+              std::vector<int32_t>& values) {
+  start.assign(static_cast<size_t>(count) + 1, 0);
+  for (const auto& [row, value] : pairs) ++start[static_cast<size_t>(row) + 1];
+  for (size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
+  values.resize(pairs.size());
+  std::vector<int64_t> at(start.begin(), start.end() - 1);
+  for (const auto& [row, value] : pairs) values[static_cast<size_t>(at[static_cast<size_t>(row)]++)] = value;
+}
+
+// Vertex c's gradient row in tet t: F = sum_c x_c g_c^T with g_1..3 the rows of the rest edge matrix's inverse and
+// g_0 = -(g_1 + g_2 + g_3).
+Eigen::Vector3d gradient(const skinning::RestTetFrames& frames, int64_t t, int c) {
+  const auto& m = frames.rest_inverse;
+  if (c > 0) return {m(t, 3 * (c - 1)), m(t, 3 * (c - 1) + 1), m(t, 3 * (c - 1) + 2)};
+  return -Eigen::Vector3d(m(t, 0) + m(t, 3) + m(t, 6), m(t, 1) + m(t, 4) + m(t, 7), m(t, 2) + m(t, 5) + m(t, 8));
+}
+
+// F = U diag(sigma) V^T with U and V rotations (det +1) and sigma descending but for its last entry, which is
+// negative when F is inverted (the signed SVD of McAdams et al. 2011), from the eigen-decomposition of F^T F in
+// closed form (a few times faster than an iterative SVD on 3 x 3).
+void signed_svd(const Eigen::Matrix3d& f, Eigen::Matrix3d& u, Eigen::Vector3d& sigma, Eigen::Matrix3d& v) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+  eigen.computeDirect(f.transpose() * f);
+  for (int i = 0; i < 3; ++i) {  // descending
+    v.col(i) = eigen.eigenvectors().col(2 - i);
+    sigma(i) = std::sqrt(std::max(0.0, eigen.eigenvalues()(2 - i)));
+  }
+  if (v.determinant() < 0.0) v.col(2) = -v.col(2);
+  const double tiny = 1e-12 * std::max(1.0, sigma(0));
+  u.col(0) = sigma(0) > tiny ? Eigen::Vector3d(f * v.col(0) / sigma(0)) : Eigen::Vector3d::UnitX();
+  Eigen::Vector3d second = f * v.col(1);
+  second -= second.dot(u.col(0)) * u.col(0);
+  if (second.norm() > tiny) {
+    u.col(1) = second.normalized();
+  } else {  // any direction perpendicular to the first
+    const Eigen::Vector3d other = std::abs(u(0, 0)) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+    u.col(1) = u.col(0).cross(other).normalized();
+  }
+  u.col(2) = u.col(0).cross(u.col(1));
+  sigma(1) = u.col(1).dot(f * v.col(1));
+  sigma(2) = u.col(2).dot(f * v.col(2));
+}
+
+// The nearest rotation R and nearest volume-preserving matrix S of F, blended: (R + w S) / (1 + w). S keeps F's
+// singular directions and moves its singular values the least distance to a product of 1 (Bouaziz et al. 2014,
+// appendix); an inverted F (det <= 0) gets R for both, which turns it back.
+Eigen::Matrix3d projection(const Eigen::Matrix3d& f, double volume_weight) {
+  Eigen::Matrix3d u, v;
+  Eigen::Vector3d sigma;
+  signed_svd(f, u, sigma, v);
+  const Eigen::Matrix3d rotation = u * v.transpose();
+  if (sigma(2) <= 0.0) return rotation;
+  Eigen::Vector3d d = Eigen::Vector3d::Zero();
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3d s = sigma + d;
+    const double c = s(0) * s(1) * s(2) - 1.0;
+    const Eigen::Vector3d grad(s(1) * s(2), s(0) * s(2), s(0) * s(1));
+    const double norm = grad.squaredNorm();
+    if (norm < 1e-20) break;
+    d = (grad.dot(d) - c) / norm * grad;
+    if (std::abs(c) < 1e-10) break;
+  }
+  const Eigen::Matrix3d volume = u * (sigma + d).asDiagonal() * v.transpose();
+  return (rotation + volume_weight * volume) / (1.0 + volume_weight);
+}
+
+}  // namespace
+
+Status validate(const FemParams& params) {
+  if (!(params.volume_weight >= 0.0 && params.volume_weight <= 1e6)) {
+    return invalid_argument_error("fem volume_weight must be in [0, 1e6], got " + std::to_string(params.volume_weight));
+  }
+  if (params.max_iterations < 1 || params.max_iterations > 10000) {
+    return invalid_argument_error("fem max_iterations must be in [1, 10000], got " + std::to_string(params.max_iterations));
+  }
+  if (!(params.tolerance_mm > 0.0 && params.tolerance_mm <= 100.0)) {
+    return invalid_argument_error("fem tolerance_mm must be in (0, 100], got " + std::to_string(params.tolerance_mm));
+  }
+  if (!(params.margin_mm >= 0.0 && params.margin_mm <= 1000.0)) {
+    return invalid_argument_error("fem margin_mm must be in [0, 1000], got " + std::to_string(params.margin_mm));
+  }
+  return ok_status();
+}
+
+Topology topology(const TetMesh& rest) {
+  Topology topo;
+  const int64_t n = rest.vertex_count();
+  std::vector<std::pair<int32_t, int32_t>> vertex_tet, vertex_vertex;
+  vertex_tet.reserve(static_cast<size_t>(rest.tet_count()) * 4);
+  vertex_vertex.reserve(static_cast<size_t>(rest.tet_count()) * 12);
+  topo.bone.assign(static_cast<size_t>(n), 0);
+  for (int64_t t = 0; t < rest.tet_count(); ++t) {
+    const bool bone = rest.tet_class.size() == rest.tet_count() && rest.tet_class(t) >= kFirstBoneClass;
+    for (int a = 0; a < 4; ++a) {
+      const int32_t v = rest.tets(t, a);
+      vertex_tet.emplace_back(v, static_cast<int32_t>(t));
+      if (bone) topo.bone[static_cast<size_t>(v)] = 1;
+      for (int b = 0; b < 4; ++b) {
+        if (b != a) vertex_vertex.emplace_back(v, rest.tets(t, b));
+      }
+    }
+  }
+  compress(n, vertex_tet, topo.tet_start, topo.tets);
+  std::sort(vertex_vertex.begin(), vertex_vertex.end());
+  vertex_vertex.erase(std::unique(vertex_vertex.begin(), vertex_vertex.end()), vertex_vertex.end());
+  compress(n, vertex_vertex, topo.edge_start, topo.edges);
+  return topo;
+}
+
+Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
+                              FemStats* stats) {
+  POSEWARP_RETURN_IF_ERROR(validate(params));
+  const TetMesh& mesh = in.rest;
+  const int64_t n = mesh.vertex_count();
+  if (in.warm.rows() != n || in.warm.cols() != 3 || in.weights.vertex_count() != n ||
+      static_cast<int64_t>(in.topology.bone.size()) != n || in.frames.rest_inverse.rows() != mesh.tet_count() ||
+      static_cast<int>(in.transforms.size()) < in.weights.segment_count) {
+    return invalid_argument_error("the soft-tissue solve's inputs do not fit the mesh (" + std::to_string(n) +
+                                  " vertices); rebuild the rig");
+  }
+  StageProgress progress(hooks, "fem");
+  FemStats local_stats;
+  FemStats& st = stats ? *stats : local_stats;
+  st = FemStats{};
+  const auto start = std::chrono::steady_clock::now();
+
+  // 1. The tissue the pose bends: vertices whose influences move them to different places.
+  std::vector<double> distance(static_cast<size_t>(n), std::numeric_limits<double>::infinity());
+  using Entry = std::pair<double, int32_t>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> queue;
+  for (int64_t v = 0; v < n; ++v) {
+    const Eigen::Vector3d x = mesh.vertices.row(v).transpose();
+    const int32_t first = in.weights.segment(v, 0);
+    if (first < 0) continue;
+    const Eigen::Vector3d moved = in.transforms.rotation[static_cast<size_t>(first)] * x +
+                                  in.transforms.translation[static_cast<size_t>(first)];
+    double spread = 0.0;
+    for (int k = 1; k < in.weights.influences; ++k) {
+      const int32_t s = in.weights.segment(v, k);
+      if (s < 0 || in.weights.weight(v, k) <= 0.0f) continue;
+      spread = std::max(spread, (in.transforms.rotation[static_cast<size_t>(s)] * x +
+                                 in.transforms.translation[static_cast<size_t>(s)] - moved).norm());
+    }
+    if (spread > 1e-3) {
+      distance[static_cast<size_t>(v)] = 0.0;
+      queue.emplace(0.0, static_cast<int32_t>(v));
+    }
+  }
+  // ... and the tissue within the margin of it, along mesh edges.
+  while (!queue.empty()) {
+    const auto [d, v] = queue.top();
+    queue.pop();
+    if (d > distance[static_cast<size_t>(v)]) continue;
+    for (int64_t e = in.topology.edge_start[static_cast<size_t>(v)]; e < in.topology.edge_start[static_cast<size_t>(v) + 1]; ++e) {
+      const int32_t w = in.topology.edges[static_cast<size_t>(e)];
+      const double dw = d + (mesh.vertices.row(w) - mesh.vertices.row(v)).norm();
+      if (dw <= params.margin_mm && dw < distance[static_cast<size_t>(w)]) {
+        distance[static_cast<size_t>(w)] = dw;
+        queue.emplace(dw, w);
+      }
+    }
+  }
+  std::vector<int32_t> free_index(static_cast<size_t>(n), -1);
+  std::vector<int32_t> free_vertices;
+  for (int64_t v = 0; v < n; ++v) {
+    if (std::isfinite(distance[static_cast<size_t>(v)]) && !in.topology.bone[static_cast<size_t>(v)]) {
+      free_index[static_cast<size_t>(v)] = static_cast<int32_t>(free_vertices.size());
+      free_vertices.push_back(static_cast<int32_t>(v));
+    }
+  }
+  Eigen::MatrixXd posed = in.warm;
+  const auto nf = static_cast<Eigen::Index>(free_vertices.size());
+  st.free_vertices = nf;
+  if (nf == 0) return posed;  // nothing bends (the rest pose, or only rigid motions)
+
+  // 2. The tets touching a free vertex, and the constant system: L_ff x_f = b(R, S) - L_fc x_c.
+  std::vector<int32_t> solve_tets;
+  std::vector<uint8_t> in_solve(static_cast<size_t>(mesh.tet_count()), 0);
+  for (const int32_t v : free_vertices) {
+    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
+      if (!in_solve[static_cast<size_t>(t)]) {
+        in_solve[static_cast<size_t>(t)] = 1;
+        solve_tets.push_back(t);
+      }
+    }
+  }
+  st.tets = static_cast<int64_t>(solve_tets.size());
+  std::vector<uint8_t> fixed_seen(static_cast<size_t>(n), 0);
+  auto fixed_seen_once = [&](int32_t v) { return std::exchange(fixed_seen[static_cast<size_t>(v)], uint8_t{1}) != 0; };
+  std::vector<int32_t> solve_slot(static_cast<size_t>(mesh.tet_count()), -1);
+  for (size_t s = 0; s < solve_tets.size(); ++s) solve_slot[static_cast<size_t>(solve_tets[s])] = static_cast<int32_t>(s);
+  for (const int32_t t : solve_tets) {
+    for (int a = 0; a < 4; ++a) {
+      const int32_t v = mesh.tets(t, a);
+      if (free_index[static_cast<size_t>(v)] < 0 && !fixed_seen_once(v)) ++st.fixed_vertices;
+    }
+  }
+
+  // The system L_ff x_f = b(R, S) - L_fc x_c, with L the tet Laplacian weighted by rest volume, factored once.
+  Eigen::MatrixXd constant(nf, 3);  // -L_fc x_c + the warm-start pull
+  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
+  {
+    std::vector<Eigen::Triplet<double>> triplets;
+    triplets.reserve(solve_tets.size() * 16 + static_cast<size_t>(nf));
+    constant.setZero();
+    double diagonal = 0.0;
+    for (size_t s = 0; s < solve_tets.size(); ++s) {
+      const int32_t t = solve_tets[s];
+      const double volume = in.frames.rest_volume(t);
+      Eigen::Vector3d g[4];
+      for (int c = 0; c < 4; ++c) g[c] = gradient(in.frames, t, c);
+      for (int a = 0; a < 4; ++a) {
+        const int32_t ia = free_index[static_cast<size_t>(mesh.tets(t, a))];
+        if (ia < 0) continue;
+        for (int b = 0; b < 4; ++b) {
+          const int32_t vb = mesh.tets(t, b);
+          const double l = volume * g[a].dot(g[b]);
+          const int32_t ib = free_index[static_cast<size_t>(vb)];
+          if (ib >= 0) {
+            triplets.emplace_back(ia, ib, l);
+            if (ia == ib) diagonal += l;
+          } else {
+            constant.row(ia) -= l * posed.row(vb);
+          }
+        }
+      }
+    }
+    // A faint pull towards the warm start keeps the system definite where a free piece touches nothing fixed.
+    const double pull = 1e-9 * diagonal / static_cast<double>(nf);
+    for (Eigen::Index i = 0; i < nf; ++i) {
+      triplets.emplace_back(i, i, pull);
+      constant.row(i) += pull * in.warm.row(free_vertices[static_cast<size_t>(i)]);
+    }
+    SparseMatrix system(nf, nf);
+    system.setFromTriplets(triplets.begin(), triplets.end());
+    llt.compute(system);
+    if (llt.info() != Eigen::Success) {
+      return internal_error("the soft-tissue system (" + std::to_string(nf) + " vertices) could not be factored");
+    }
+  }
+  st.factor_seconds = seconds_since(start);
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+
+  // 3. Local and global steps until no vertex moves more than the tolerance.
+  const auto iterate_start = std::chrono::steady_clock::now();
+  std::vector<Eigen::Matrix3d> target(solve_tets.size());  // V (R + w S) / (1 + w) per solved tet
+  Eigen::MatrixXd rhs(nf, 3);
+  for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
+    parallel_for(0, static_cast<int64_t>(solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
+      for (int64_t s = s0; s < s1; ++s) {
+        const int32_t t = solve_tets[static_cast<size_t>(s)];
+        Eigen::Matrix3d f = Eigen::Matrix3d::Zero();
+        for (int c = 0; c < 4; ++c) f += posed.row(mesh.tets(t, c)).transpose() * gradient(in.frames, t, c).transpose();
+        target[static_cast<size_t>(s)] = in.frames.rest_volume(t) * projection(f, params.volume_weight);
+      }
+    });
+    parallel_for(0, nf, 2048, [&](int64_t i0, int64_t i1) {
+      for (int64_t i = i0; i < i1; ++i) {
+        const int32_t v = free_vertices[static_cast<size_t>(i)];
+        Eigen::Vector3d b = constant.row(i).transpose();
+        for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+          const int32_t t = in.topology.tets[static_cast<size_t>(e)];
+          int c = 0;
+          while (mesh.tets(t, c) != v) ++c;
+          b += target[static_cast<size_t>(solve_slot[static_cast<size_t>(t)])] * gradient(in.frames, t, c);
+        }
+        rhs.row(i) = b.transpose();
+      }
+    });
+    const Eigen::MatrixXd x = llt.solve(rhs);
+    double step = 0.0;
+    for (Eigen::Index i = 0; i < nf; ++i) {
+      const int32_t v = free_vertices[static_cast<size_t>(i)];
+      step = std::max(step, (x.row(i) - posed.row(v)).squaredNorm());
+      posed.row(v) = x.row(i);
+    }
+    st.iterations = iteration + 1;
+    st.last_step_mm = std::sqrt(step);
+    progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
+    POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+    if (st.last_step_mm <= params.tolerance_mm) break;
+  }
+  st.iterate_seconds = seconds_since(iterate_start);
+  progress.finish();
+  return posed;
+}
+
+}  // namespace posewarp::fem
