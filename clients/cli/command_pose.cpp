@@ -8,6 +8,8 @@
 #include <optional>
 #include <sstream>
 
+#include <nlohmann/json.hpp>
+
 #include "cli_support.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
@@ -287,6 +289,113 @@ int run_pose(const PoseOptions& o) {
   return 0;
 }
 
+struct CompareOptions {
+  std::string rig_path;
+  std::string pose_path;
+  std::string json_out;
+  std::vector<std::string> methods{"cor", "fem"};
+  Connection connection;  // compare on posewarp-server; rig_path is then a rig id
+};
+
+// One pose with each method, its local figures side by side: the tet mesh only (no volume is warped), so each
+// method costs its skinning (and for fem its solve) and the mesh report.
+int run_compare(const CompareOptions& o) {
+  if (o.methods.size() < 2 || o.methods.size() > 4) {
+    return report(invalid_argument_error("--methods takes two to four of cor, dqs, lbs and fem, comma separated"));
+  }
+  std::vector<api::PoseRequest> requests;
+  for (const std::string& name : o.methods) {
+    Result<skinning::Method> method = skinning::method_from_name(name);
+    if (!method.ok()) return report(method.status().with_context("--methods"));
+    for (const api::PoseRequest& earlier : requests) {
+      if (earlier.method == *method) return report(invalid_argument_error("--methods names '" + name + "' twice"));
+    }
+    api::PoseRequest request;
+    request.method = *method;
+    request.want_labels = request.want_ct = request.want_surfaces = false;
+    requests.push_back(std::move(request));
+  }
+  if (Status s = refuse_overwriting_inputs({o.json_out}, {o.rig_path, o.pose_path}); !s.ok()) return report(s);
+  if (Status s = check_output_files({o.json_out}); !s.ok()) return report(s);
+  if (Status s = refuse_directories({o.json_out}); !s.ok()) return report(s);
+  Result<pose::Pose> pose = api::read_pose(o.pose_path);
+  if (!pose.ok()) return report(pose.status());
+  for (api::PoseRequest& request : requests) request.pose = *pose;
+  std::vector<nlohmann::json> reports;
+  if (!o.connection.server.empty()) {
+    Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
+    if (!poser.ok()) return report(poser.status());
+    for (const api::PoseRequest& request : requests) {
+      Result<RemotePoseResult> answer = poser->pose(request);
+      if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
+      reports.push_back(nlohmann::json::parse(answer->report_json, nullptr, false));
+    }
+  } else {
+    Result<api::PoseEngine> engine = load_engine(o.rig_path);
+    if (!engine.ok()) return report(engine.status());
+    if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
+      return report(fits.with_context("pose file '" + o.pose_path + "'"));
+    }
+    for (const api::PoseRequest& request : requests) {
+      Result<api::PoseResult> result = engine->pose(request, progress_bar());
+      if (!result.ok()) return report(result.status());
+      reports.push_back(nlohmann::json::parse(report::to_json(result->report), nullptr, false));
+    }
+  }
+  for (const nlohmann::json& r : reports) {
+    if (!r.is_object()) return report(internal_error("a quality report could not be read back"));
+  }
+  // Rows: figure name, then one value per method.
+  std::vector<std::pair<std::string, std::vector<std::string>>> rows;
+  auto row = [&](const std::string& name, auto&& value) {
+    std::vector<std::string> cells;
+    for (const nlohmann::json& r : reports) cells.push_back(value(r));
+    rows.emplace_back(name, std::move(cells));
+  };
+  auto percent = [](double v) { return (v >= 0 ? "+" : "") + fixed(100.0 * v, 1) + "%"; };
+  row("inverted tets", [](const nlohmann::json& r) { return std::to_string(r["tets"].value("inverted", 0)); });
+  row("soft tissue, whole body", [&](const nlohmann::json& r) { return percent(r["volume_change"].value("soft_tissue", 0.0)); });
+  row("soft tissue, local error", [&](const nlohmann::json& r) {
+    return fixed(100.0 * r["volume_change"].value("soft_tissue_local_error", 0.0), 1) + "%";
+  });
+  const nlohmann::json& regions = reports.front()["moved_joints"];
+  for (size_t m = 0; regions.is_array() && m < regions.size(); ++m) {
+    const std::string where = regions[m].value("joint", "") + " within " +
+                              std::to_string(static_cast<int>(regions[m].value("radius_mm", 0.0))) + " mm: ";
+    for (const auto& [key, label] : {std::pair{"volume_change", "soft tissue"}, std::pair{"folded_fraction", "folded"},
+                                     std::pair{"stretched_fraction", "stretched"}}) {
+      row(where + label, [&, key = key](const nlohmann::json& r) {
+        const nlohmann::json& mine = r["moved_joints"];
+        if (!mine.is_array() || m >= mine.size()) return std::string("-");
+        const double v = mine[m].value(key, 0.0);
+        return std::string(key) == "volume_change" ? percent(v) : fixed(100.0 * v, 1) + "%";
+      });
+    }
+  }
+  row("seconds (skinning + fem)", [](const nlohmann::json& r) {
+    const nlohmann::json& t = r["stage_seconds"];
+    return fixed(t.value("skinning", 0.0) + t.value("fem", 0.0), 2);
+  });
+  size_t width = 6;
+  for (const auto& [name, cells] : rows) width = std::max(width, name.size());
+  std::ostringstream table;
+  table << std::left << std::setw(static_cast<int>(width)) << ("pose '" + pose->name + "'");
+  for (const std::string& method : o.methods) table << std::right << std::setw(10) << method;
+  table << "\n";
+  for (const auto& [name, cells] : rows) {
+    table << std::left << std::setw(static_cast<int>(width)) << name;
+    for (const std::string& cell : cells) table << std::right << std::setw(10) << cell;
+    table << "\n";
+  }
+  std::cout << table.str() << std::flush;
+  if (!o.json_out.empty()) {
+    nlohmann::json out{{"format", "posewarp.compare"}, {"version", 1}, {"pose", pose->name}, {"methods", o.methods}};
+    for (size_t i = 0; i < reports.size(); ++i) out["reports"][o.methods[i]] = reports[i];
+    if (Status s = api::write_file_atomically(o.json_out, out.dump(2) + "\n", "comparison"); !s.ok()) return report(s);
+  }
+  return 0;
+}
+
 struct AnimateOptions {
   std::string rig_path;
   std::string bvh_path;
@@ -435,6 +544,24 @@ void add_pose_commands(CLI::App& app) {
     add_output_options(cmd, o->output);
     cmd->callback([o] {
       const int code = run_pose(*o);
+      if (code != 0) throw CLI::RuntimeError(code);
+    });
+  }
+  {
+    auto o = std::make_shared<CompareOptions>();
+    CLI::App* cmd = app.add_subcommand(
+        "compare", "One pose with two to four methods, their figures near each moved joint side by side (no volume is "
+                   "warped: the tet mesh's report only)");
+    cmd->add_option("rig", o->rig_path, "Rig file, or with --server a rig id")->required();
+    cmd->add_option("--pose", o->pose_path, "Pose JSON (see data/poses/)")->required();
+    cmd->add_option("--methods", o->methods, "Methods to compare, comma separated: cor, dqs, lbs, fem")
+        ->delimiter(',')
+        ->capture_default_str();
+    cmd->add_option("--json", o->json_out, "Also write the figures and each method's whole report as JSON here");
+    add_connection_options(cmd, o->connection);
+    cmd->add_option("--server", o->connection.server, "Compare on posewarp-server at HOST:PORT: RIG is then a rig id");
+    cmd->callback([o] {
+      const int code = run_compare(*o);
       if (code != 0) throw CLI::RuntimeError(code);
     });
   }

@@ -107,5 +107,24 @@ TEST_F(BadInput, WritesIntoAMissingDirectoryNameItAndExitTwo) {
   EXPECT_NE(pose.err.find("nowhere"), std::string::npos) << pose.err;
 }
 
+// posewarp compare: one pose with several methods, side by side, and its JSON; bad method lists are usage errors.
+TEST_F(BadInput, CompareWritesEachMethodsReportAndRefusesBadMethodLists) {
+  const CliRun run = posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor,fem", "--json",
+                               at("compare.json")});
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const std::string json = file_text(at("compare.json"));
+  EXPECT_NE(json.find("\"format\": \"posewarp.compare\""), std::string::npos) << json.substr(0, 400);
+  EXPECT_NE(json.find("\"method\": \"cor\""), std::string::npos);
+  EXPECT_NE(json.find("\"method\": \"fem\""), std::string::npos);
+  EXPECT_NE(json.find("\"moved_joints\""), std::string::npos);
+  expect_refused(posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor"}), 2, "--methods",
+                 "two to four");
+  expect_refused(posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor,cor"}), 2, "cor",
+                 "twice");
+  expect_refused(posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor,nope"}), 2, "nope",
+                 "lbs, dqs, cor or fem");
+  EXPECT_FALSE(fs::exists(at("compare_bad.json")));
+}
+
 }  // namespace
 }  // namespace posewarp::bad_input
