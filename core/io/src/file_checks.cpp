@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 #include <optional>
 #include <sstream>
 #include <vector>
@@ -523,9 +524,19 @@ Status check_metaimage_header(const std::string& path) {
         })) {
       return corrupt("has a malformed key");
     }
+    // MetaIO copies each key into a 255-byte field name and each text value (ObjectType, ElementType, Name, ...)
+    // into a 255-byte buffer: a longer one overflowed them (found by fuzzing). Keys are short names; only number
+    // lists (a transform's nine numbers at full precision) may run past 254 characters.
+    if (key.size() > 64) return corrupt("has a key of " + std::to_string(key.size()) + " characters");
     std::string value = line.substr(eq + 1);
     value.erase(0, value.find_first_not_of(" \t"));
     value.erase(value.find_last_not_of(" \t") + 1);
+    static const std::set<std::string> number_lists{"TransformMatrix", "Rotation", "Orientation", "Offset",
+                                                     "Position", "Origin", "CenterOfRotation", "ElementSpacing",
+                                                     "ElementSize", "DimSize"};
+    if (value.size() > (number_lists.count(key) ? size_t{1024} : size_t{254})) {
+      return corrupt("has a " + key.substr(0, 32) + " value of " + std::to_string(value.size()) + " characters");
+    }
     // MetaIO acts on the first of two equal keys, a map on the last: one of each only (found by fuzzing).
     if (!fields.emplace(key, value).second) return corrupt("has the key " + key + " twice");
     if (key == "ElementDataFile") {
