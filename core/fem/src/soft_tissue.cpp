@@ -114,9 +114,8 @@ Status validate(const FemParams& params) {
 Topology topology(const TetMesh& rest) {
   Topology topo;
   const int64_t n = rest.vertex_count();
-  std::vector<std::pair<int32_t, int32_t>> vertex_tet, vertex_vertex;
+  std::vector<std::pair<int32_t, int32_t>> vertex_tet;
   vertex_tet.reserve(static_cast<size_t>(rest.tet_count()) * 4);
-  vertex_vertex.reserve(static_cast<size_t>(rest.tet_count()) * 12);
   topo.bone.assign(static_cast<size_t>(n), 0);
   for (int64_t t = 0; t < rest.tet_count(); ++t) {
     const bool bone = rest.tet_class.size() == rest.tet_count() && rest.tet_class(t) >= kFirstBoneClass;
@@ -124,15 +123,31 @@ Topology topology(const TetMesh& rest) {
       const int32_t v = rest.tets(t, a);
       vertex_tet.emplace_back(v, static_cast<int32_t>(t));
       if (bone) topo.bone[static_cast<size_t>(v)] = 1;
-      for (int b = 0; b < 4; ++b) {
-        if (b != a) vertex_vertex.emplace_back(v, rest.tets(t, b));
-      }
     }
   }
   compress(n, vertex_tet, topo.tet_start, topo.tets);
-  std::sort(vertex_vertex.begin(), vertex_vertex.end());
-  vertex_vertex.erase(std::unique(vertex_vertex.begin(), vertex_vertex.end()), vertex_vertex.end());
-  compress(n, vertex_vertex, topo.edge_start, topo.edges);
+  // Each vertex's neighbours: the other corners of its tets, sorted and unique per vertex.
+  std::vector<std::vector<int32_t>> neighbours(static_cast<size_t>(n));
+  parallel_for(0, n, 4096, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) {
+      std::vector<int32_t>& list = neighbours[static_cast<size_t>(v)];
+      for (int64_t e = topo.tet_start[static_cast<size_t>(v)]; e < topo.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+        for (int c = 0; c < 4; ++c) {
+          const int32_t w = rest.tets(topo.tets[static_cast<size_t>(e)], c);
+          if (w != v) list.push_back(w);
+        }
+      }
+      std::sort(list.begin(), list.end());
+      list.erase(std::unique(list.begin(), list.end()), list.end());
+    }
+  });
+  topo.edge_start.assign(static_cast<size_t>(n) + 1, 0);
+  for (int64_t v = 0; v < n; ++v) {
+    topo.edge_start[static_cast<size_t>(v) + 1] =
+        topo.edge_start[static_cast<size_t>(v)] + static_cast<int64_t>(neighbours[static_cast<size_t>(v)].size());
+  }
+  topo.edges.reserve(static_cast<size_t>(topo.edge_start.back()));
+  for (const std::vector<int32_t>& list : neighbours) topo.edges.insert(topo.edges.end(), list.begin(), list.end());
   return topo;
 }
 
@@ -271,28 +286,43 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   st.factor_seconds = seconds_since(start);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-  // 3. Local and global steps until no vertex moves more than the tolerance.
+  // 3. Local and global steps until no vertex moves more than the tolerance. Each solved tet's gradient rows and
+  // each free vertex's (tet, corner) pairs are gathered once for the iterations.
   const auto iterate_start = std::chrono::steady_clock::now();
+  std::vector<Eigen::Matrix<double, 3, 4>> gradients(solve_tets.size());
+  for (size_t s = 0; s < solve_tets.size(); ++s) {
+    for (int c = 0; c < 4; ++c) gradients[s].col(c) = gradient(in.frames, solve_tets[s], c);
+  }
+  std::vector<int64_t> corner_start(static_cast<size_t>(nf) + 1, 0);
+  std::vector<std::pair<int32_t, int32_t>> corners;  // (solved tet slot, corner)
+  for (Eigen::Index i = 0; i < nf; ++i) {
+    const int32_t v = free_vertices[static_cast<size_t>(i)];
+    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
+      int c = 0;
+      while (mesh.tets(t, c) != v) ++c;
+      corners.emplace_back(solve_slot[static_cast<size_t>(t)], c);
+    }
+    corner_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(corners.size());
+  }
   std::vector<Eigen::Matrix3d> target(solve_tets.size());  // V (R + w S) / (1 + w) per solved tet
   Eigen::MatrixXd rhs(nf, 3);
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     parallel_for(0, static_cast<int64_t>(solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
         const int32_t t = solve_tets[static_cast<size_t>(s)];
-        Eigen::Matrix3d f = Eigen::Matrix3d::Zero();
-        for (int c = 0; c < 4; ++c) f += posed.row(mesh.tets(t, c)).transpose() * gradient(in.frames, t, c).transpose();
+        Eigen::Matrix<double, 3, 4> x;
+        for (int c = 0; c < 4; ++c) x.col(c) = posed.row(mesh.tets(t, c)).transpose();
+        const Eigen::Matrix3d f = x * gradients[static_cast<size_t>(s)].transpose();
         target[static_cast<size_t>(s)] = in.frames.rest_volume(t) * projection(f, params.volume_weight);
       }
     });
     parallel_for(0, nf, 2048, [&](int64_t i0, int64_t i1) {
       for (int64_t i = i0; i < i1; ++i) {
-        const int32_t v = free_vertices[static_cast<size_t>(i)];
         Eigen::Vector3d b = constant.row(i).transpose();
-        for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
-          const int32_t t = in.topology.tets[static_cast<size_t>(e)];
-          int c = 0;
-          while (mesh.tets(t, c) != v) ++c;
-          b += target[static_cast<size_t>(solve_slot[static_cast<size_t>(t)])] * gradient(in.frames, t, c);
+        for (int64_t e = corner_start[static_cast<size_t>(i)]; e < corner_start[static_cast<size_t>(i) + 1]; ++e) {
+          const auto [slot, c] = corners[static_cast<size_t>(e)];
+          b += target[static_cast<size_t>(slot)] * gradients[static_cast<size_t>(slot)].col(c);
         }
         rhs.row(i) = b.transpose();
       }
