@@ -152,31 +152,46 @@ TEST(BodyPosing, HingesFlexWithoutBoneOverlapAndCorKeepsLocalVolume) {
   }
 }
 
-// The soft tissue's steady state (fem) on the same hinges: bones as CoR puts them, and much less folded tissue
-// around the joint. (The crease itself still folds: contact between the tissue of thigh and calf is not modelled.)
-TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentHinges) {
-  for (const auto& [joint, name] : std::vector<std::pair<std::string, std::string>>{{"knee_left", "knee"},
-                                                                                    {"elbow_right", "elbow"}}) {
-    SCOPED_TRACE(name);
-    Result<PoseResult> cor = run(single(joint, 90), skinning::Method::kCor, false);
-    Result<PoseResult> fem = run(single(joint, 90), skinning::Method::kFem, false);
+// The soft tissue's steady state (fem) where the body phantom shows skinning's failures: knee and elbow at 90, the
+// forearm against the upper arm at elbow 120: bones as CoR puts them, much less folded tissue around the joint (the
+// crease itself still folds: contact between the tissue of thigh and calf is not modelled). The arm lifted 30
+// degrees from the trunk it rests against: fem keeps the tissue's volume and leaves nothing folded.
+TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
+  struct Case {
+    std::string name;
+    pose::Pose pose;
+    std::string joint;
+  };
+  for (const Case& c : std::vector<Case>{{"knee 90", single("knee_left", 90), "knee_left"},
+                                         {"elbow 90", single("elbow_right", 90), "elbow_right"},
+                                         {"elbow 120", single("elbow_right", 120), "elbow_right"},
+                                         {"shoulder abduction 30", single("shoulder_left", 0, 30), "shoulder_left"}}) {
+    SCOPED_TRACE(c.name);
+    Result<PoseResult> cor = run(c.pose, skinning::Method::kCor, false);
+    Result<PoseResult> fem = run(c.pose, skinning::Method::kFem, false);
     ASSERT_TRUE(cor.ok() && fem.ok()) << fem.status().to_string();
     EXPECT_EQ(fem->report.method, "fem");
     EXPECT_EQ(fem->report.bone_voxel_deviation_mm, cor->report.bone_voxel_deviation_mm);
     for (const double radius : {50.0, 100.0}) {
-      const report::JointRegionChange *c = nullptr, *f = nullptr;
-      for (const auto& r : cor->report.joint_regions) if (r.radius_mm == radius) c = &r;
-      for (const auto& r : fem->report.joint_regions) if (r.radius_mm == radius) f = &r;
-      ASSERT_NE(c, nullptr);
-      ASSERT_NE(f, nullptr);
-      std::cout << name << " within " << radius << " mm: volume cor " << c->volume_change << ", fem " << f->volume_change
-                << "; folded cor " << c->folded_fraction << ", fem " << f->folded_fraction << "\n";
-      EXPECT_LT(f->folded_fraction, 0.8 * c->folded_fraction) << radius;
-      if (radius == 100.0) {
-        EXPECT_LT(std::abs(f->volume_change), 0.10);
+      const report::JointRegionChange *cr = nullptr, *fr = nullptr;
+      for (const auto& r : cor->report.joint_regions) if (r.radius_mm == radius) cr = &r;
+      for (const auto& r : fem->report.joint_regions) if (r.radius_mm == radius) fr = &r;
+      ASSERT_NE(cr, nullptr);
+      ASSERT_NE(fr, nullptr);
+      EXPECT_EQ(fr->joint, c.joint);
+      std::cout << c.name << " within " << radius << " mm: volume cor " << cr->volume_change << ", fem "
+                << fr->volume_change << "; folded cor " << cr->folded_fraction << ", fem " << fr->folded_fraction << "\n";
+      if (c.name == "shoulder abduction 30") {
+        EXPECT_LT(std::abs(fr->volume_change), 0.02);
+        EXPECT_LT(fr->folded_fraction, 0.01);
+      } else {
+        EXPECT_LT(fr->folded_fraction, 0.8 * cr->folded_fraction) << radius;
+        if (radius == 100.0) {
+          EXPECT_LT(std::abs(fr->volume_change), 0.10);
+        }
       }
     }
-    EXPECT_LT(fem->report.mesh.inverted_tets, cor->report.mesh.inverted_tets);
+    EXPECT_LE(fem->report.mesh.inverted_tets, cor->report.mesh.inverted_tets);
   }
 }
 
