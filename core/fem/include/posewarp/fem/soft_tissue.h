@@ -44,6 +44,7 @@ struct FemStats {
   int64_t fixed_vertices = 0;  // bone vertices and the region's border, in the solved tets
   int64_t tets = 0;            // tets in the solve
   int iterations = 0;
+  int restarts = 0;            // accelerated steps dropped because they raised the energy
   double last_step_mm = 0.0;   // largest vertex move of the last iteration
   double factor_seconds = 0.0;
   double iterate_seconds = 0.0;
