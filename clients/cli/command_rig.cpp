@@ -11,6 +11,7 @@
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
 #include "remote.h"
@@ -141,9 +142,13 @@ int run_info(const std::string& path, bool as_json) {
                         {"voxels", segment.voxels},
                         {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
   }
+  // Each joint's range: how far it turns before its bones meet a bone that does not move with them.
+  Result<std::vector<api::JointRange>> ranges = api::joint_ranges(*rig);
+  if (!ranges.ok()) return report(ranges.status());
   json joints = json::array();
   auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
-  for (const rig::Joint& joint : s.joints) {
+  for (size_t index = 0; index < s.joints.size(); ++index) {
+    const rig::Joint& joint = s.joints[index];
     json entry{
         {"name", joint.name},
         {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
@@ -166,6 +171,11 @@ int run_info(const std::string& path, bool as_json) {
       entry["fit_rms_mm"] = joint.sphere_rms_mm;
     }
     if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
+    // [negative, positive] degrees each way; a bound short of 150 is where the bones meet (more than 1 ml).
+    for (const api::MotionRange& m : (*ranges)[index].motions) {
+      entry["range_deg"][m.motion] = {-m.negative_deg, m.positive_deg};
+      entry["range_stopped_by_bone"][m.motion] = {m.negative_stopped, m.positive_stopped};
+    }
     joints.push_back(std::move(entry));
   }
   doc["root"] = s.segments[static_cast<size_t>(s.root)].name;
@@ -211,6 +221,16 @@ int run_info(const std::string& path, bool as_json) {
               << joint["flexion_moves_child"].get<std::string>() << "), abduction about "
               << axis_text(joint["abduction_axis"]) << ", internal rotation about "
               << axis_text(joint["internal_rotation_axis"]) << "\n";
+    if (joint.contains("range_deg")) {
+      std::string line = "      turns before its bones meet another bone (1 ml):";
+      for (const auto& [motion, bounds] : joint["range_deg"].items()) {
+        const json& stopped = joint["range_stopped_by_bone"][motion];
+        line += " " + motion + " " + (stopped[0].get<bool>() ? "" : "beyond ") + fixed(bounds[0], 0) + " to " +
+                (stopped[1].get<bool>() ? "" : "beyond ") + "+" + fixed(bounds[1], 0) + " deg,";
+      }
+      line.pop_back();
+      std::cout << line << "\n";
+    }
   }
   if (doc["stats"].contains("weights")) {
     const json& w = doc["stats"]["weights"];

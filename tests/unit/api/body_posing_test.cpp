@@ -8,6 +8,7 @@
 #include <cmath>
 #include <map>
 
+#include "posewarp/api/joint_range.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/phantom/phantom.h"
@@ -193,6 +194,40 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
     }
     EXPECT_LE(fem->report.mesh.inverted_tets, cor->report.mesh.inverted_tets);
   }
+}
+
+// Each joint's range on this study: flexion for hinges, flexion and abduction for balls and planes; the knee bends
+// past 90 degrees, the arm resting against the trunk cannot be adducted, and posing a joint well past where its
+// range stops drives its bones into another bone, as the report's overlap shows.
+TEST(BodyPosing, JointRangesSayWhereBonesMeet) {
+  const Rig& rig = body_rig().engine->rig();
+  Result<std::vector<JointRange>> ranges = joint_ranges(rig);
+  ASSERT_TRUE(ranges.ok()) << ranges.status().to_string();
+  ASSERT_EQ(ranges->size(), rig.skeleton.joints.size());
+  std::map<std::string, std::map<std::string, MotionRange>> by_joint;
+  for (size_t j = 0; j < ranges->size(); ++j) {
+    const JointRange& r = (*ranges)[j];
+    EXPECT_EQ(r.joint, rig.skeleton.joints[j].name);
+    EXPECT_EQ(r.motions.size(), rig.skeleton.joints[j].kind == labels::JointKind::kHinge ? 1u : 2u) << r.joint;
+    for (const MotionRange& m : r.motions) {
+      by_joint[r.joint][m.motion] = m;
+      std::cout << r.joint << " " << m.motion << " " << -m.negative_deg << " .. " << m.positive_deg << "\n";
+    }
+  }
+  const MotionRange& knee = by_joint["knee_left"]["flexion"];
+  EXPECT_GE(knee.positive_deg, 90.0);
+  EXPECT_TRUE(by_joint["shoulder_left"]["abduction"].negative_stopped);
+  EXPECT_LE(by_joint["shoulder_left"]["abduction"].negative_deg, 10.0);
+  // Past the knee's stop, the posed bones overlap.
+  ASSERT_TRUE(knee.positive_stopped);
+  Result<PoseResult> past = run(single("knee_left", std::min(knee.positive_deg + 25.0, 150.0)), skinning::Method::kCor, false);
+  ASSERT_TRUE(past.ok());
+  double overlap_ml = 0.0;
+  for (const report::BoneOverlap& o : past->report.bone_overlaps) overlap_ml += o.volume_ml;
+  EXPECT_GT(overlap_ml, 0.5);
+  RangeParams bad;
+  bad.step_deg = 0.0;
+  EXPECT_EQ(joint_ranges(rig, bad).status().code(), StatusCode::kInvalidArgument);
 }
 
 // The report's soft-tissue figure around a moved joint agrees with one computed from the exported forward field
