@@ -173,7 +173,7 @@ int run_info(const std::string& path, bool as_json) {
     if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
     // [negative, positive] degrees each way; a bound short of 150 is where the bones meet (more than 1 ml).
     for (const api::MotionRange& m : (*ranges)[index].motions) {
-      entry["range_deg"][m.motion] = {-m.negative_deg, m.positive_deg};
+      entry["range_deg"][m.motion] = {0.0 - m.negative_deg, m.positive_deg};  // 0.0 - x: no "-0"
       entry["range_stopped_by_bone"][m.motion] = {m.negative_stopped, m.positive_stopped};
     }
     joints.push_back(std::move(entry));

@@ -5,10 +5,10 @@
 
 #include <atomic>
 #include <cmath>
-#include <unordered_map>
 
 #include "posewarp/common/parallel.h"
 #include "posewarp/pose/forward_kinematics.h"
+#include "posewarp/resample/rigid_bones.h"
 
 namespace posewarp::api {
 
@@ -21,15 +21,10 @@ Result<std::vector<JointRange>> joint_ranges(const Rig& rig, const RangeParams& 
   const LabelVolume& labels = rig.labels;
   const ImageGeometry& g = labels.geometry();
   const rig::Skeleton& skeleton = rig.skeleton;
-  std::unordered_map<Label, int16_t> segment_of;
-  for (size_t s = 0; s < skeleton.segments.size(); ++s) {
-    for (const Label l : skeleton.segments[s].labels) segment_of[l] = static_cast<int16_t>(s);
-  }
-  std::vector<int16_t> segment(static_cast<size_t>(g.voxel_count()), -1);
-  for (int64_t v = 0; v < g.voxel_count(); ++v) {
-    const auto it = segment_of.find(labels.data()[v]);
-    if (it != segment_of.end()) segment[static_cast<size_t>(v)] = it->second;
-  }
+  std::vector<std::vector<Label>> segment_labels;
+  for (const rig::Segment& s : skeleton.segments) segment_labels.push_back(s.labels);
+  POSEWARP_ASSIGN_OR_RETURN(const resample::BoneVoxels bones, resample::bone_voxels(labels, segment_labels));
+  const std::vector<int16_t>& segment = bones.segment;  // per voxel: its bone segment, or -1
   // Index <-> physical: x = origin + M i with M = direction * diag(spacing).
   Eigen::Matrix3d m;
   for (int r = 0; r < 3; ++r)

@@ -225,13 +225,13 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   if (nf == 0) return posed;  // nothing bends (the rest pose, or only rigid motions)
 
   // 2. The tets touching a free vertex, and the constant system: L_ff x_f = b(R, S) - L_fc x_c.
-  std::vector<int32_t> solve_tets;
-  std::vector<uint8_t> in_solve(static_cast<size_t>(mesh.tet_count()), 0);
+  std::vector<int32_t> solve_tets;                                       // slot -> tet
+  std::vector<int32_t> solve_slot(static_cast<size_t>(mesh.tet_count()), -1);  // tet -> slot, -1 outside the solve
   for (const int32_t v : free_vertices) {
     for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
       const int32_t t = in.topology.tets[static_cast<size_t>(e)];
-      if (!in_solve[static_cast<size_t>(t)]) {
-        in_solve[static_cast<size_t>(t)] = 1;
+      if (solve_slot[static_cast<size_t>(t)] < 0) {
+        solve_slot[static_cast<size_t>(t)] = static_cast<int32_t>(solve_tets.size());
         solve_tets.push_back(t);
       }
     }
@@ -239,8 +239,6 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   st.tets = static_cast<int64_t>(solve_tets.size());
   std::vector<uint8_t> fixed_seen(static_cast<size_t>(n), 0);
   auto fixed_seen_once = [&](int32_t v) { return std::exchange(fixed_seen[static_cast<size_t>(v)], uint8_t{1}) != 0; };
-  std::vector<int32_t> solve_slot(static_cast<size_t>(mesh.tet_count()), -1);
-  for (size_t s = 0; s < solve_tets.size(); ++s) solve_slot[static_cast<size_t>(solve_tets[s])] = static_cast<int32_t>(s);
   for (const int32_t t : solve_tets) {
     for (int a = 0; a < 4; ++a) {
       const int32_t v = mesh.tets(t, a);
