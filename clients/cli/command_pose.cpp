@@ -139,7 +139,9 @@ void summarize(const api::PoseResult& result) {
   for (const report::JointRegionChange& c : r.joint_regions) {
     say("  " + c.joint + " within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm: soft tissue " +
         fixed(100.0 * c.volume_change, 1) + "%, folded " + fixed(100.0 * c.folded_fraction, 2) + "%, stretched " +
-        fixed(100.0 * c.stretched_fraction, 2) + "%");
+        fixed(100.0 * c.stretched_fraction, 2) + "%, skin passed into the tissue facing it " +
+        std::to_string(c.skin_inside_tissue + c.skin_inside_bone) + " of " + std::to_string(c.skin_vertices) +
+        " vertices");
   }
   if (!r.labels.vanished.empty()) {
     std::string vanished;
@@ -371,6 +373,12 @@ int run_compare(const CompareOptions& o) {
         return std::string(key) == "volume_change" ? percent(v) : fixed(100.0 * v, 1) + "%";
       });
     }
+    row(where + "skin passed in", [&](const nlohmann::json& r) {
+      const nlohmann::json& mine = r["moved_joints"];
+      if (!mine.is_array() || m >= mine.size()) return std::string("-");
+      return std::to_string(mine[m].value("skin_inside_tissue", 0) + mine[m].value("skin_inside_bone", 0)) + "/" +
+             std::to_string(mine[m].value("skin_vertices", 0));
+    });
   }
   row("seconds (skinning + fem)", [](const nlohmann::json& r) {
     const nlohmann::json& t = r["stage_seconds"];

@@ -283,7 +283,18 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
     const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
     if (!pose::joint_rotation_in_lps(joint, rotation).isIdentity(1e-12)) moved_joints.emplace_back(joint.name, joint.centre_mm);
   }
-  qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, {50.0, 100.0});
+  const std::vector<double> radii{50.0, 100.0};
+  qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, radii);
+  for (size_t j = 0; j < moved_joints.size(); ++j) {
+    const std::vector<fem::Penetration> inside =
+        fem::penetration(mesh, result.posed_vertices, moved_joints[j].second, radii);
+    for (size_t r = 0; r < radii.size(); ++r) {
+      report::JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
+      change.skin_vertices = inside[r].skin_vertices;
+      change.skin_inside_tissue = inside[r].inside_tissue;
+      change.skin_inside_bone = inside[r].inside_bone;
+    }
+  }
   clock.lap("report-mesh");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
 

@@ -6,12 +6,14 @@
 #include <Eigen/Sparse>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
 #include <queue>
 #include <string>
+#include <unordered_map>
 #include <utility>
 
 #include "posewarp/common/parallel.h"
@@ -100,6 +102,70 @@ Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
           ((f - rotation).squaredNorm() + volume_weight * (f - volume).squaredNorm()) / (1.0 + volume_weight)};
 }
 
+// Posed tets on a uniform grid of 10 mm cells: which tets may hold a point.
+class TetGrid {
+ public:
+  TetGrid(const TetMesh& mesh, const Eigen::MatrixXd& posed, const std::vector<int32_t>& tets) {
+    constexpr int kMostCells = 32;  // a tet stretched over more cells per axis than this is left out
+    for (const int32_t t : tets) {
+      Eigen::Vector3d lo = posed.row(mesh.tets(t, 0)).transpose(), hi = lo;
+      for (int c = 1; c < 4; ++c) {
+        lo = lo.cwiseMin(posed.row(mesh.tets(t, c)).transpose());
+        hi = hi.cwiseMax(posed.row(mesh.tets(t, c)).transpose());
+      }
+      const Eigen::Array3i a = cell(lo), b = cell(hi);
+      if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) continue;
+      for (int x = a.x(); x <= b.x(); ++x)
+        for (int y = a.y(); y <= b.y(); ++y)
+          for (int z = a.z(); z <= b.z(); ++z) cells_[key(Eigen::Array3i(x, y, z))].push_back(t);
+    }
+  }
+  const std::vector<int32_t>* at(const Eigen::Vector3d& p) const {
+    const auto it = cells_.find(key(cell(p)));
+    return it == cells_.end() ? nullptr : &it->second;
+  }
+
+ private:
+  static constexpr double kCellMm = 10.0;
+  static Eigen::Array3i cell(const Eigen::Vector3d& p) { return (p.array() / kCellMm).floor().cast<int>(); }
+  static int64_t key(const Eigen::Array3i& c) {
+    constexpr int64_t kMask = (int64_t{1} << 21) - 1;
+    return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
+  }
+  std::unordered_map<int64_t, std::vector<int32_t>> cells_;
+};
+
+// Whether p lies strictly inside the posed tet t.
+bool inside_tet(const TetMesh& mesh, const Eigen::MatrixXd& posed, int64_t t, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d x0 = posed.row(mesh.tets(t, 0)).transpose();
+  Eigen::Matrix3d edges;
+  for (int c = 1; c < 4; ++c) edges.col(c - 1) = posed.row(mesh.tets(t, c)).transpose() - x0;
+  if (std::abs(edges.determinant()) < 1e-12) return false;
+  const Eigen::Vector3d b = edges.inverse() * (p - x0);
+  constexpr double kInside = 1e-9;
+  return b.minCoeff() > kInside && b.sum() < 1.0 - kInside;
+}
+
+// What vertex v is inside at its posed place: 0 nothing, 1 a soft tet, 2 a bone tet (bone wins), among the gridded
+// tets with no corner within `rest_distance` of v at rest (tissue from elsewhere in the body).
+int inside_what(const TetMesh& mesh, const Eigen::MatrixXd& posed, const TetGrid& grid, int32_t v,
+                double rest_distance) {
+  const Eigen::Vector3d p = posed.row(v).transpose(), x = mesh.vertices.row(v).transpose();
+  const std::vector<int32_t>* tets = grid.at(p);
+  if (tets == nullptr) return 0;
+  int found = 0;
+  for (const int32_t t : *tets) {
+    bool far = true;
+    for (int c = 0; c < 4 && far; ++c) {
+      far = (mesh.vertices.row(mesh.tets(t, c)).transpose() - x).squaredNorm() >= rest_distance * rest_distance;
+    }
+    if (!far || !inside_tet(mesh, posed, t, p)) continue;
+    found = std::max(found, mesh.tet_class(t) >= kFirstBoneClass ? 2 : 1);
+    if (found == 2) break;
+  }
+  return found;
+}
+
 }  // namespace
 
 Status validate(const FemParams& params) {
@@ -155,6 +221,7 @@ Topology topology(const TetMesh& rest) {
   }
   topo.edges.reserve(static_cast<size_t>(topo.edge_start.back()));
   for (const std::vector<int32_t>& list : neighbours) topo.edges.insert(topo.edges.end(), list.begin(), list.end());
+
   return topo;
 }
 
@@ -411,6 +478,80 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   st.iterate_seconds = seconds_since(iterate_start);
   progress.finish();
   return posed;
+}
+
+std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const Eigen::Vector3d& centre,
+                                     const std::vector<double>& radii_mm, double rest_distance_mm) {
+  std::vector<Penetration> result(radii_mm.size());
+  if (radii_mm.empty() || posed.rows() != rest.vertex_count() || posed.cols() != 3 ||
+      rest.tet_class.size() != rest.tet_count()) {
+    return result;
+  }
+  const double radius = *std::max_element(radii_mm.begin(), radii_mm.end());
+  // The tets within reach: every tet with a corner within the radius (no tet is longer than kTetReach), and the
+  // tissue from elsewhere that the skin there may have passed into.
+  constexpr double kTetReach = 100.0;
+  const double reach = radius + rest_distance_mm + kTetReach;
+  std::vector<int32_t> tets;
+  for (int64_t t = 0; t < rest.tet_count(); ++t) {
+    if ((rest.vertices.row(rest.tets(t, 0)).transpose() - centre).squaredNorm() <= reach * reach) {
+      tets.push_back(static_cast<int32_t>(t));
+    }
+  }
+  // Skin vertices within the radius: the corners of faces that one tet alone has, not on a bone tet. Every tet of
+  // such a face is among those within reach, so the local count is the mesh's.
+  std::vector<std::array<int32_t, 3>> faces;
+  faces.reserve(tets.size() * 4);
+  std::unordered_map<int32_t, uint8_t> on_bone;  // vertex within the radius -> on a bone tet
+  auto within = [&](int32_t v) { return (rest.vertices.row(v).transpose() - centre).squaredNorm() <= radius * radius; };
+  for (const int32_t t : tets) {
+    const bool bone = rest.tet_class(t) >= kFirstBoneClass;
+    for (int o = 0; o < 4; ++o) {
+      const int32_t v = rest.tets(t, o);
+      if (within(v)) on_bone[v] |= bone ? 1 : 0;
+      std::array<int32_t, 3> face{};
+      int q = 0;
+      for (int a = 0; a < 4; ++a) {
+        if (a != o) face[static_cast<size_t>(q++)] = rest.tets(t, a);
+      }
+      std::sort(face.begin(), face.end());
+      faces.push_back(face);
+    }
+  }
+  std::sort(faces.begin(), faces.end());
+  std::vector<int32_t> skin;
+  for (size_t i = 0; i < faces.size();) {
+    size_t j = i + 1;
+    while (j < faces.size() && faces[j] == faces[i]) ++j;
+    if (j - i == 1) {
+      for (const int32_t v : faces[i]) {
+        const auto it = on_bone.find(v);
+        if (it != on_bone.end() && it->second == 0) skin.push_back(v);
+      }
+    }
+    i = j;
+  }
+  std::sort(skin.begin(), skin.end());
+  skin.erase(std::unique(skin.begin(), skin.end()), skin.end());
+
+  const TetGrid grid(rest, posed, tets);
+  std::vector<uint8_t> what(skin.size(), 0);
+  parallel_for(0, static_cast<int64_t>(skin.size()), 256, [&](int64_t i0, int64_t i1) {
+    for (int64_t i = i0; i < i1; ++i) {
+      what[static_cast<size_t>(i)] =
+          static_cast<uint8_t>(inside_what(rest, posed, grid, skin[static_cast<size_t>(i)], rest_distance_mm));
+    }
+  });
+  for (size_t i = 0; i < skin.size(); ++i) {
+    const double d = (rest.vertices.row(skin[i]).transpose() - centre).norm();
+    for (size_t r = 0; r < radii_mm.size(); ++r) {
+      if (d > radii_mm[r]) continue;
+      ++result[r].skin_vertices;
+      result[r].inside_tissue += what[i] == 1;
+      result[r].inside_bone += what[i] == 2;
+    }
+  }
+  return result;
 }
 
 }  // namespace posewarp::fem

@@ -162,6 +162,11 @@ void add_warnings(QualityReport& r, double voxel_mm, const WarningThresholds& li
     if (c.folded_fraction > limits.folded_fraction) {
       r.warnings.push_back(where + ": " + percent(c.folded_fraction).substr(1) + " of it is folded (det <= 0)");
     }
+    const int64_t inside = c.skin_inside_tissue + c.skin_inside_bone;
+    if (c.skin_vertices > 0 && static_cast<double>(inside) > limits.skin_inside_fraction * static_cast<double>(c.skin_vertices)) {
+      r.warnings.push_back(where + ": " + std::to_string(inside) + " of its " + std::to_string(c.skin_vertices) +
+                           " skin vertices passed into the tissue or bone facing them (a crease without contact)");
+    }
     if (c.stretched_fraction > limits.stretched_fraction) {
       r.warnings.push_back(where + ": " + percent(c.stretched_fraction).substr(1) +
                            " of it is strongly stretched or squashed (det > 2 or < 0.5)");
@@ -212,7 +217,10 @@ std::string to_json(const QualityReport& r) {
                        {"rest_soft_tissue_ml", c.rest_volume_ml},
                        {"volume_change", c.volume_change},
                        {"folded_fraction", c.folded_fraction},
-                       {"stretched_fraction", c.stretched_fraction}});
+                       {"stretched_fraction", c.stretched_fraction},
+                       {"skin_vertices", c.skin_vertices},
+                       {"skin_inside_tissue", c.skin_inside_tissue},
+                       {"skin_inside_bone", c.skin_inside_bone}});
   }
   doc["moved_joints"] = regions;
   doc["warnings"] = r.warnings;

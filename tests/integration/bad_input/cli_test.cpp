@@ -117,6 +117,7 @@ TEST_F(BadInput, CompareWritesEachMethodsReportAndRefusesBadMethodLists) {
   EXPECT_NE(json.find("\"method\": \"cor\""), std::string::npos);
   EXPECT_NE(json.find("\"method\": \"fem\""), std::string::npos);
   EXPECT_NE(json.find("\"moved_joints\""), std::string::npos);
+  EXPECT_NE(json.find("\"skin_inside_tissue\""), std::string::npos);
   expect_refused(posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor"}), 2, "--methods",
                  "two to four");
   expect_refused(posewarp({"compare", at("bar.rig"), "--pose", at("pose.json"), "--methods", "cor,cor"}), 2, "cor",

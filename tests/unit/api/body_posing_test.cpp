@@ -181,7 +181,11 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
       ASSERT_NE(fr, nullptr);
       EXPECT_EQ(fr->joint, c.joint);
       std::cout << c.name << " within " << radius << " mm: volume cor " << cr->volume_change << ", fem "
-                << fr->volume_change << "; folded cor " << cr->folded_fraction << ", fem " << fr->folded_fraction << "\n";
+                << fr->volume_change << "; folded cor " << cr->folded_fraction << ", fem " << fr->folded_fraction
+                << "; skin vertices inside the tissue facing them cor " << cr->skin_inside_tissue << " + "
+                << cr->skin_inside_bone << ", fem " << fr->skin_inside_tissue << " + " << fr->skin_inside_bone << " of "
+                << fr->skin_vertices << "\n";
+      EXPECT_EQ(fr->skin_vertices, cr->skin_vertices);  // the same rest skin, whatever the method
       if (c.name == "shoulder abduction 30") {
         EXPECT_LT(std::abs(fr->volume_change), 0.02);
         EXPECT_LT(fr->folded_fraction, 0.01);
@@ -193,6 +197,16 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
       }
     }
     EXPECT_LE(fem->report.mesh.inverted_tets, cor->report.mesh.inverted_tets);
+    if (c.name == "knee 90") {
+      // Without contact the back of the thigh passes into the calf (issue 21, item 2, still open): the report says
+      // so rather than hiding it.
+      const report::JointRegionChange& cr = cor->report.joint_regions.back();
+      ASSERT_EQ(cr.radius_mm, 100.0);
+      EXPECT_GT(cr.skin_inside_tissue, 0);
+      EXPECT_TRUE(std::any_of(cor->report.warnings.begin(), cor->report.warnings.end(), [](const std::string& w) {
+        return w.find("a crease without contact") != std::string::npos;
+      })) << "no crease warning";
+    }
   }
 }
 

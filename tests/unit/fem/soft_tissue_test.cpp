@@ -147,6 +147,45 @@ TEST_F(SoftTissue, LeavesARigidMotionAsItIs) {
   EXPECT_EQ(*posed, warm);
 }
 
+// Two limbs side by side, 100 mm apart at rest; posed, the second is moved 90.5 mm towards the first (and a little
+// off the first's grid planes, so that no vertex lies on a face), overlapping it by 13.5 mm.
+TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhere) {
+  TetMesh two = limb_.mesh;
+  const Eigen::Index n = two.vertices.rows(), t = two.tets.rows();
+  two.vertices.conservativeResize(2 * n, 3);
+  two.tets.conservativeResize(2 * t, 4);
+  two.tet_class.conservativeResize(2 * t);
+  for (Eigen::Index v = 0; v < n; ++v) two.vertices.row(n + v) = two.vertices.row(v) + Eigen::RowVector3d(100, 0, 0);
+  for (Eigen::Index k = 0; k < t; ++k) {
+    two.tets.row(t + k) = two.tets.row(k).array() + static_cast<int>(n);
+    two.tet_class(t + k) = two.tet_class(k);
+  }
+  const Eigen::Vector3d centre(62, 12, 40);  // between the two at rest
+  const std::vector<double> radii{60.0, 200.0};
+  // At rest nothing is inside anything.
+  std::vector<Penetration> at_rest = penetration(two, two.vertices, centre, radii);
+  ASSERT_EQ(at_rest.size(), 2u);
+  EXPECT_GT(at_rest[1].skin_vertices, at_rest[0].skin_vertices);
+  EXPECT_EQ(at_rest[1].inside_tissue + at_rest[1].inside_bone, 0);
+  // Skin vertices: the corners of boundary faces off the bone blocks, both limbs (the soft middle's sides).
+  EXPECT_EQ(at_rest[1].skin_vertices, 2 * 4 * kNx * 7);  // 4 sides x 6 cells x 7 rows (z 24..56) per limb
+
+  Eigen::MatrixXd posed = two.vertices;
+  for (Eigen::Index v = n; v < 2 * n; ++v) posed.row(v) += Eigen::RowVector3d(-90.5, 0.3, 0.7);
+  const std::vector<Penetration> moved = penetration(two, posed, centre, radii);
+  // Per row of the soft middle (7 rows), the second limb's side at x = 9.5 has 6 vertices within the first's y
+  // range (0.3 .. 20.3) and its y = 0.3 side 3 more (x = 13.5, 17.5, 21.5); the first limb's side at x = 24 has 6
+  // within the second's y range (4 .. 24) and its y = 24 side 3 more (x = 12, 16, 20). All in soft tissue.
+  EXPECT_EQ(moved[1].inside_tissue, 2 * 9 * 7);
+  EXPECT_EQ(moved[1].inside_bone, 0);
+  EXPECT_EQ(moved[1].skin_vertices, at_rest[1].skin_vertices);
+  // Pushed 30 mm further along z, the second limb's skin reaches the first's upper bone block.
+  for (Eigen::Index v = n; v < 2 * n; ++v) posed(v, 2) += 30.0;
+  EXPECT_GT(penetration(two, posed, centre, radii)[1].inside_bone, 0);
+  // Mismatched inputs count nothing.
+  EXPECT_EQ(penetration(two, limb_.mesh.vertices, centre, radii)[1].skin_vertices, 0);
+}
+
 TEST_F(SoftTissue, RefusesBadParametersAndMismatchedInputsAndStopsWhenCancelled) {
   const skinning::SegmentTransforms transforms = bend(45.0);
   const Eigen::MatrixXd warm = skinning::lbs(limb_.mesh.vertices, limb_.weights, transforms);

@@ -47,6 +47,11 @@ struct JointRegionChange {
   double volume_change = 0.0;       // posed / rest soft-tissue volume - 1
   double folded_fraction = 0.0;     // of the rest volume in tets with det <= 0
   double stretched_fraction = 0.0;  // of the rest volume in tets with det > 2 or 0 < det < 0.5
+  // Skin vertices within the radius (rest) and those that ended inside tissue or bone from elsewhere in the body:
+  // a crease where one part passed into the part facing it (fem/soft_tissue.h, penetration). Filled by the engine.
+  int64_t skin_vertices = 0;
+  int64_t skin_inside_tissue = 0;
+  int64_t skin_inside_bone = 0;
 };
 
 // For each joint centre (rest, LPS mm) and each radius: the soft-tissue change around it.
@@ -75,6 +80,7 @@ struct WarningThresholds {
   double bone_overlap_ml = 1.0;        // per pair of bones
   double local_volume_change = 0.10;   // |change| of soft tissue within a moved joint's largest radius
   double folded_fraction = 0.01;
+  double skin_inside_fraction = 0.01;  // of a moved joint's skin vertices passed into tissue or bone facing them
   double stretched_fraction = 0.05;
 };
 
