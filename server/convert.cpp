@@ -62,6 +62,14 @@ void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton) {
       joint->add_abduction_axis(j.frame(a, 1));
       joint->add_rotation_axis(j.frame(a, 2));
     }
+    for (const rig::MotionRange& m : j.ranges) {
+      v1::MotionRange* range = joint->add_ranges();
+      range->set_motion(m.motion);
+      range->set_negative_deg(m.negative_deg);
+      range->set_positive_deg(m.positive_deg);
+      range->set_negative_stopped(m.negative_stopped);
+      range->set_positive_stopped(m.positive_stopped);
+    }
   }
 }
 

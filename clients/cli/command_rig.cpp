@@ -1,6 +1,7 @@
 // Rig commands: build (the expensive half of the pipeline, once per study), info, export.
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <iomanip>
@@ -142,9 +143,15 @@ int run_info(const std::string& path, bool as_json) {
                         {"voxels", segment.voxels},
                         {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
   }
-  // Each joint's range: how far it turns before its bones meet a bone that does not move with them.
-  Result<std::vector<api::JointRange>> ranges = api::joint_ranges(*rig);
-  if (!ranges.ok()) return report(ranges.status());
+  // Each joint's range: how far it turns before its bones meet a bone that does not move with them; measured at
+  // build, or here for a rig built before that.
+  std::vector<std::vector<api::MotionRange>> ranges;
+  for (const rig::Joint& joint : s.joints) ranges.push_back(joint.ranges);
+  if (std::any_of(s.joints.begin(), s.joints.end(), [](const rig::Joint& j) { return j.ranges.empty(); })) {
+    Result<std::vector<api::JointRange>> measured = api::joint_ranges(*rig);
+    if (!measured.ok()) return report(measured.status());
+    for (size_t j = 0; j < ranges.size() && j < measured->size(); ++j) ranges[j] = (*measured)[j].motions;
+  }
   json joints = json::array();
   auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
   for (size_t index = 0; index < s.joints.size(); ++index) {
@@ -172,7 +179,7 @@ int run_info(const std::string& path, bool as_json) {
     }
     if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
     // [negative, positive] degrees each way; a bound short of 150 is where the bones meet (more than 1 ml).
-    for (const api::MotionRange& m : (*ranges)[index].motions) {
+    for (const api::MotionRange& m : ranges[index]) {
       entry["range_deg"][m.motion] = {0.0 - m.negative_deg, m.positive_deg};  // 0.0 - x: no "-0"
       entry["range_stopped_by_bone"][m.motion] = {m.negative_stopped, m.positive_stopped};
     }

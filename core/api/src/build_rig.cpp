@@ -5,6 +5,7 @@
 #include <cstring>
 #include <new>
 
+#include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
@@ -285,9 +286,16 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     return resource_exhausted_error("out of memory while building the rig of " + grid.describe() +
                                     "; lower the mesher's voxel budget or use coarser mesh sizes");
   }
-  rig.provenance.stats_json = stats.dump();
   rig.labels = inputs.labels;
   rig.ct = inputs.ct;
+  // Each joint's range of motion on this study (`rig info`, GetRig): how far a pose may turn it before bones meet.
+  POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "ranges").check_cancel());
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<JointRange> ranges, joint_ranges(rig));
+  for (size_t j = 0; j < ranges.size() && j < rig.skeleton.joints.size(); ++j) {
+    rig.skeleton.joints[j].ranges = ranges[j].motions;
+  }
+  clock.lap("ranges");
+  rig.provenance.stats_json = stats.dump();
   return rig;
 }
 

@@ -112,9 +112,11 @@ Result<Eigen::MatrixXd> PoseEngine::posed_vertices(skinning::Method method, cons
 }
 
 Result<Eigen::MatrixXd> PoseEngine::soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
-                                                const ProgressHooks& hooks) const {
+                                                const ProgressHooks& hooks, int max_iterations) const {
   std::call_once(fem_->once, [&] { fem_->topology = fem::topology(rig_.mesh); });
-  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm}, fem::FemParams{}, hooks);
+  fem::FemParams params;
+  if (max_iterations > 0) params.max_iterations = max_iterations;
+  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm}, params, hooks);
 }
 
 Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Method method) const {
@@ -124,8 +126,13 @@ Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Meth
                               pose::forward_kinematics(rig_.skeleton, pose));
     const skinning::SegmentTransforms segments = segment_transforms(transforms);
     PreviewResult result;
-    if (method == skinning::Method::kFem) {  // the steady state needs the whole mesh
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, posed_vertices(method, segments, {}));
+    if (method == skinning::Method::kFem) {
+      // The steady state needs the whole mesh; a slider gets the first iterations of it (most of the folds undone
+      // at a tenth of the time: the solve's figures converge slowly after that).
+      constexpr int kPreviewIterations = 10;
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinning::skin(skinning::Method::kCor, rig_.mesh.vertices,
+                                                                           rig_.weights, rig_.centres, segments));
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(warm, segments, {}, kPreviewIterations));
       for (const mapping::Embedding& e : rig_.embeddings) {
         result.surface_vertices.push_back(mapping::deform_points(e, rig_.mesh, posed));
       }

@@ -5,6 +5,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
+
 namespace posewarp::api {
 namespace detail {
 namespace {
@@ -47,6 +49,13 @@ std::string skeleton_to_json(const rig::Skeleton& skeleton) {
                       {"side", rig::body_side_name(j.side)},
                       {"hinge_axis", to_json3(j.hinge_axis)},
                       {"declared", j.declared}});
+    for (const rig::MotionRange& m : j.ranges) {
+      joints.back()["ranges"].push_back({{"motion", m.motion},
+                                         {"negative_deg", m.negative_deg},
+                                         {"positive_deg", m.positive_deg},
+                                         {"negative_stopped", m.negative_stopped},
+                                         {"positive_stopped", m.positive_stopped}});
+    }
   }
   doc["joints"] = joints;
   doc["missing_segments"] = skeleton.missing_segments;
@@ -96,6 +105,20 @@ Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
       joint.side = side == "left" ? rig::BodySide::kLeft : side == "right" ? rig::BodySide::kRight : rig::BodySide::kMidline;
       if (j.contains("hinge_axis")) joint.hinge_axis = vec(j["hinge_axis"]);
       joint.declared = j.value("declared", false);
+      if (j.contains("ranges")) {  // rigs built before ranges were measured have none
+        for (const json& m : j.at("ranges")) {
+          rig::MotionRange range;
+          range.motion = m.at("motion").get<std::string>();
+          range.negative_deg = m.at("negative_deg").get<double>();
+          range.positive_deg = m.at("positive_deg").get<double>();
+          range.negative_stopped = m.at("negative_stopped").get<bool>();
+          range.positive_stopped = m.at("positive_stopped").get<bool>();
+          if (!std::isfinite(range.negative_deg) || !std::isfinite(range.positive_deg)) {
+            return data_loss_error("rig skeleton joint '" + joint.name + "' has a range that is not a number");
+          }
+          joint.ranges.push_back(range);
+        }
+      }
       skeleton.joints.push_back(joint);
     }
     skeleton.missing_segments = doc.at("missing_segments").get<std::vector<std::string>>();

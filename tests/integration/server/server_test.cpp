@@ -162,6 +162,13 @@ TEST_F(Server, UploadBuildAndPoseGiveWhatTheEnginePosesLocally) {
   ASSERT_TRUE(stub_->GetRig(&get_context, get, &info).ok());
   EXPECT_EQ(info.name(), "bar phantom");
   EXPECT_EQ(info.joints_size(), static_cast<int>(engine->rig().skeleton.joints.size()));
+  // Each joint's range of motion, measured at build, as the local rig says it.
+  ASSERT_GT(info.joints_size(), 0);
+  const rig::Joint& first = engine->rig().skeleton.joints[0];
+  ASSERT_EQ(info.joints(0).ranges_size(), static_cast<int>(first.ranges.size()));
+  ASSERT_GT(info.joints(0).ranges_size(), 0);
+  EXPECT_EQ(info.joints(0).ranges(0).motion(), first.ranges[0].motion);
+  EXPECT_EQ(info.joints(0).ranges(0).positive_deg(), first.ranges[0].positive_deg);
   v1::ListRigsResponse listed;
   grpc::ClientContext list_context;
   ASSERT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());

@@ -236,6 +236,13 @@ TEST(BodyPosing, JointRangesSayWhereBonesMeet) {
     const JointRange& r = (*ranges)[j];
     EXPECT_EQ(r.joint, rig.skeleton.joints[j].name);
     EXPECT_EQ(r.motions.size(), rig.skeleton.joints[j].kind == labels::JointKind::kHinge ? 1u : 2u) << r.joint;
+    // The build measured the same ranges and keeps them with the joint (rig info and GetRig read them there).
+    ASSERT_EQ(rig.skeleton.joints[j].ranges.size(), r.motions.size()) << r.joint;
+    for (size_t m = 0; m < r.motions.size(); ++m) {
+      EXPECT_EQ(rig.skeleton.joints[j].ranges[m].motion, r.motions[m].motion);
+      EXPECT_EQ(rig.skeleton.joints[j].ranges[m].positive_deg, r.motions[m].positive_deg) << r.joint;
+      EXPECT_EQ(rig.skeleton.joints[j].ranges[m].negative_stopped, r.motions[m].negative_stopped) << r.joint;
+    }
     for (const MotionRange& m : r.motions) {
       by_joint[r.joint][m.motion] = m;
       std::cout << r.joint << " " << m.motion << " " << -m.negative_deg << " .. " << m.positive_deg << "\n";

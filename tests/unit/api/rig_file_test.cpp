@@ -35,6 +35,11 @@ TEST(RigFile, RoundTripKeepsEverySection) {
   EXPECT_EQ(back->skeleton.joints.size(), rig.skeleton.joints.size());
   EXPECT_EQ(back->skeleton.joints[0].centre_mm, rig.skeleton.joints[0].centre_mm);
   EXPECT_EQ(back->skeleton.joints[0].frame, rig.skeleton.joints[0].frame);
+  ASSERT_FALSE(rig.skeleton.joints[0].ranges.empty());  // measured at build
+  ASSERT_EQ(back->skeleton.joints[0].ranges.size(), rig.skeleton.joints[0].ranges.size());
+  EXPECT_EQ(back->skeleton.joints[0].ranges[0].motion, rig.skeleton.joints[0].ranges[0].motion);
+  EXPECT_EQ(back->skeleton.joints[0].ranges[0].negative_deg, rig.skeleton.joints[0].ranges[0].negative_deg);
+  EXPECT_EQ(back->skeleton.joints[0].ranges[0].positive_stopped, rig.skeleton.joints[0].ranges[0].positive_stopped);
   EXPECT_EQ(back->label_map.entries().size(), rig.label_map.entries().size());
   EXPECT_TRUE(back->source_geometry.same_grid(rig.source_geometry, 0.0));
   EXPECT_EQ(back->id(), rig.id());

@@ -10,13 +10,7 @@
 
 namespace posewarp::api {
 
-struct MotionRange {
-  std::string motion;         // "flexion" or "abduction"
-  double negative_deg = 0.0;  // the largest angle each way before the bones meet (at most max_deg)
-  double positive_deg = 0.0;
-  bool negative_stopped = false;  // the bones met within max_deg that way
-  bool positive_stopped = false;
-};
+using rig::MotionRange;
 
 struct JointRange {
   std::string joint;

@@ -113,9 +113,9 @@ class PoseEngine {
   // The posed tet vertices of a method: skinning, then for fem the soft tissue's steady state from CoR.
   Result<Eigen::MatrixXd> posed_vertices(skinning::Method method, const skinning::SegmentTransforms& segments,
                                          const ProgressHooks& hooks) const;
-  // The soft tissue's steady state from skinned (CoR) vertices.
+  // The soft tissue's steady state from skinned (CoR) vertices, in at most `max_iterations` (0: the solve's own).
   Result<Eigen::MatrixXd> soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
-                                      const ProgressHooks& hooks) const;
+                                      const ProgressHooks& hooks, int max_iterations = 0) const;
 };
 
 }  // namespace posewarp::api

@@ -30,6 +30,16 @@ struct Segment {
 enum class BodySide { kMidline, kLeft, kRight };
 std::string_view body_side_name(BodySide side);
 
+// How far a joint turns one way and the other about one of its axes before the bones beyond it meet a bone that
+// does not move with them (api::joint_ranges).
+struct MotionRange {
+  std::string motion;         // "flexion" or "abduction"
+  double negative_deg = 0.0;  // the largest angle each way before the bones meet (at most the range's max_deg)
+  double positive_deg = 0.0;
+  bool negative_stopped = false;  // the bones met within max_deg that way
+  bool positive_stopped = false;
+};
+
 struct Joint {
   std::string name;
   int parent = -1;                     // segment nearer the root
@@ -53,6 +63,9 @@ struct Joint {
   double sphere_radius_mm = 0.0;       // radius of the fitted sphere or cylinder
   double sphere_rms_mm = 0.0;          // rms distance of the fit's inlier points from it
   bool declared = false;               // the label map or the rig spec declared this joint
+  // Its range of motion on this study, measured at rig build: flexion, and abduction for balls and planes. Empty in
+  // rigs built before it was measured (`rig info` then measures it).
+  std::vector<MotionRange> ranges;
 };
 
 struct Skeleton {
