@@ -21,6 +21,8 @@ namespace posewarp::api {
 struct PoseEngine::Fem {
   std::once_flag once;
   fem::Topology topology;
+  std::once_flag skin_once;
+  std::vector<uint8_t> skin;  // the report's skin vertices (fem::skin_vertices), made by the first pose that needs them
 };
 namespace {
 
@@ -292,9 +294,10 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
   }
   const std::vector<double> radii{50.0, 100.0};
   qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, radii);
+  if (!moved_joints.empty()) std::call_once(fem_->skin_once, [&] { fem_->skin = fem::skin_vertices(mesh); });
   for (size_t j = 0; j < moved_joints.size(); ++j) {
     const std::vector<fem::Penetration> inside =
-        fem::penetration(mesh, result.posed_vertices, moved_joints[j].second, radii);
+        fem::penetration(mesh, result.posed_vertices, fem_->skin, moved_joints[j].second, radii);
     for (size_t r = 0; r < radii.size(); ++r) {
       report::JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
       change.skin_vertices = inside[r].skin_vertices;

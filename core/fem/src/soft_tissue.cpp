@@ -6,11 +6,12 @@
 #include <Eigen/Sparse>
 
 #include <algorithm>
-#include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <optional>
 #include <queue>
 #include <string>
 #include <unordered_map>
@@ -102,27 +103,25 @@ Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
           ((f - rotation).squaredNorm() + volume_weight * (f - volume).squaredNorm()) / (1.0 + volume_weight)};
 }
 
-// Posed tets on a uniform grid of 10 mm cells: which tets may hold a point.
-class TetGrid {
+// Points on a uniform grid of 10 mm cells: which points a box may hold.
+class PointGrid {
  public:
-  TetGrid(const TetMesh& mesh, const Eigen::MatrixXd& posed, const std::vector<int32_t>& tets) {
-    constexpr int kMostCells = 32;  // a tet stretched over more cells per axis than this is left out
-    for (const int32_t t : tets) {
-      Eigen::Vector3d lo = posed.row(mesh.tets(t, 0)).transpose(), hi = lo;
-      for (int c = 1; c < 4; ++c) {
-        lo = lo.cwiseMin(posed.row(mesh.tets(t, c)).transpose());
-        hi = hi.cwiseMax(posed.row(mesh.tets(t, c)).transpose());
-      }
-      const Eigen::Array3i a = cell(lo), b = cell(hi);
-      if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) continue;
-      for (int x = a.x(); x <= b.x(); ++x)
-        for (int y = a.y(); y <= b.y(); ++y)
-          for (int z = a.z(); z <= b.z(); ++z) cells_[key(Eigen::Array3i(x, y, z))].push_back(t);
-    }
+  PointGrid(const Eigen::MatrixXd& posed, const std::vector<int32_t>& points) {
+    for (size_t i = 0; i < points.size(); ++i) cells_[key(cell(posed.row(points[i]).transpose()))].push_back(static_cast<int32_t>(i));
   }
-  const std::vector<int32_t>* at(const Eigen::Vector3d& p) const {
-    const auto it = cells_.find(key(cell(p)));
-    return it == cells_.end() ? nullptr : &it->second;
+  // Calls visit(i) for each point i (an index into `points`) in the cells a box touches.
+  template <typename Visit>
+  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
+    constexpr int kMostCells = 32;  // a tet stretched over more cells per axis than this is left out
+    const Eigen::Array3i a = cell(lo), b = cell(hi);
+    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
+    for (int x = a.x(); x <= b.x(); ++x)
+      for (int y = a.y(); y <= b.y(); ++y)
+        for (int z = a.z(); z <= b.z(); ++z) {
+          const auto it = cells_.find(key(Eigen::Array3i(x, y, z)));
+          if (it == cells_.end()) continue;
+          for (const int32_t i : it->second) visit(i);
+        }
   }
 
  private:
@@ -135,35 +134,24 @@ class TetGrid {
   std::unordered_map<int64_t, std::vector<int32_t>> cells_;
 };
 
-// Whether p lies strictly inside the posed tet t.
-bool inside_tet(const TetMesh& mesh, const Eigen::MatrixXd& posed, int64_t t, const Eigen::Vector3d& p) {
+// The barycentric coordinates of p in the posed tet t, or nothing for a flat tet.
+std::optional<Eigen::Vector4d> barycentric(const TetMesh& mesh, const Eigen::MatrixXd& posed, int64_t t,
+                                           const Eigen::Vector3d& p) {
   const Eigen::Vector3d x0 = posed.row(mesh.tets(t, 0)).transpose();
   Eigen::Matrix3d edges;
   for (int c = 1; c < 4; ++c) edges.col(c - 1) = posed.row(mesh.tets(t, c)).transpose() - x0;
-  if (std::abs(edges.determinant()) < 1e-12) return false;
+  if (std::abs(edges.determinant()) < 1e-12) return std::nullopt;
   const Eigen::Vector3d b = edges.inverse() * (p - x0);
-  constexpr double kInside = 1e-9;
-  return b.minCoeff() > kInside && b.sum() < 1.0 - kInside;
+  return Eigen::Vector4d(1.0 - b.sum(), b.x(), b.y(), b.z());
 }
 
-// What vertex v is inside at its posed place: 0 nothing, 1 a soft tet, 2 a bone tet (bone wins), among the gridded
-// tets with no corner within `rest_distance` of v at rest (tissue from elsewhere in the body).
-int inside_what(const TetMesh& mesh, const Eigen::MatrixXd& posed, const TetGrid& grid, int32_t v,
-                double rest_distance) {
-  const Eigen::Vector3d p = posed.row(v).transpose(), x = mesh.vertices.row(v).transpose();
-  const std::vector<int32_t>* tets = grid.at(p);
-  if (tets == nullptr) return 0;
-  int found = 0;
-  for (const int32_t t : *tets) {
-    bool far = true;
-    for (int c = 0; c < 4 && far; ++c) {
-      far = (mesh.vertices.row(mesh.tets(t, c)).transpose() - x).squaredNorm() >= rest_distance * rest_distance;
-    }
-    if (!far || !inside_tet(mesh, posed, t, p)) continue;
-    found = std::max(found, mesh.tet_class(t) >= kFirstBoneClass ? 2 : 1);
-    if (found == 2) break;
-  }
-  return found;
+// The solid angle at corner a of a tet whose other corners are b, c, d (Van Oosterom and Strackee 1983).
+double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, const Eigen::Vector3d& d) {
+  const Eigen::Vector3d u = b - a, v = c - a, w = d - a;
+  const double lu = u.norm(), lv = v.norm(), lw = w.norm();
+  const double numerator = std::abs(u.dot(v.cross(w)));
+  const double denominator = lu * lv * lw + u.dot(v) * lw + u.dot(w) * lv + v.dot(w) * lu;
+  return 2.0 * std::atan2(numerator, denominator);
 }
 
 }  // namespace
@@ -480,75 +468,104 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   return posed;
 }
 
-std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const Eigen::Vector3d& centre,
-                                     const std::vector<double>& radii_mm, double rest_distance_mm) {
+std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
+  const int64_t n = rest.vertex_count();
+  // A vertex inside the mesh is surrounded by its tets (their solid angles add up to 4 pi); one on the boundary is
+  // not. Summed per thread over its share of the tets, then added up.
+  const int threads = std::max(1, static_cast<int>(std::min<int64_t>(4, rest.tet_count() / 65536 + 1)));
+  std::vector<std::vector<double>> angle(static_cast<size_t>(threads), std::vector<double>(static_cast<size_t>(n), 0.0));
+  parallel_for(0, threads, 1, [&](int64_t k0, int64_t k1) {
+    for (int64_t k = k0; k < k1; ++k) {
+      std::vector<double>& sum = angle[static_cast<size_t>(k)];
+      for (int64_t t = k; t < rest.tet_count(); t += threads) {
+        Eigen::Vector3d x[4];
+        for (int c = 0; c < 4; ++c) x[c] = rest.vertices.row(rest.tets(t, c)).transpose();
+        for (int c = 0; c < 4; ++c) {
+          sum[static_cast<size_t>(rest.tets(t, c))] += solid_angle(x[c], x[(c + 1) % 4], x[(c + 2) % 4], x[(c + 3) % 4]);
+        }
+      }
+    }
+  });
+  std::vector<uint8_t> bone(static_cast<size_t>(n), 0);
+  if (rest.tet_class.size() == rest.tet_count()) {
+    for (int64_t t = 0; t < rest.tet_count(); ++t) {
+      if (rest.tet_class(t) >= kFirstBoneClass) {
+        for (int c = 0; c < 4; ++c) bone[static_cast<size_t>(rest.tets(t, c))] = 1;
+      }
+    }
+  }
+  std::vector<uint8_t> skin(static_cast<size_t>(n), 0);
+  constexpr double kFullSphere = 4.0 * M_PI;
+  for (int64_t v = 0; v < n; ++v) {
+    double total = 0.0;
+    for (const std::vector<double>& sum : angle) total += sum[static_cast<size_t>(v)];
+    skin[static_cast<size_t>(v)] = total > 0.0 && total < kFullSphere - 1e-6 && !bone[static_cast<size_t>(v)];
+  }
+  return skin;
+}
+
+std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const std::vector<uint8_t>& skin,
+                                     const Eigen::Vector3d& centre, const std::vector<double>& radii_mm,
+                                     double rest_distance_mm) {
   std::vector<Penetration> result(radii_mm.size());
   if (radii_mm.empty() || posed.rows() != rest.vertex_count() || posed.cols() != 3 ||
-      rest.tet_class.size() != rest.tet_count()) {
+      static_cast<int64_t>(skin.size()) != rest.vertex_count() || rest.tet_class.size() != rest.tet_count()) {
     return result;
   }
   const double radius = *std::max_element(radii_mm.begin(), radii_mm.end());
-  // The tets within reach: every tet with a corner within the radius (no tet is longer than kTetReach), and the
-  // tissue from elsewhere that the skin there may have passed into.
+  std::vector<int32_t> points;  // skin vertices within the radius at rest
+  for (int64_t v = 0; v < rest.vertex_count(); ++v) {
+    if (skin[static_cast<size_t>(v)] && (rest.vertices.row(v).transpose() - centre).squaredNorm() <= radius * radius) {
+      points.push_back(static_cast<int32_t>(v));
+    }
+  }
+  if (points.empty()) return result;
+  // Every tet that could be "elsewhere" for them and near them posed: within the radius, the contact distance and
+  // a tet's length (kTetReach) of the centre at rest; each posed tet's box looks up the points it may hold.
   constexpr double kTetReach = 100.0;
   const double reach = radius + rest_distance_mm + kTetReach;
-  std::vector<int32_t> tets;
-  for (int64_t t = 0; t < rest.tet_count(); ++t) {
-    if ((rest.vertices.row(rest.tets(t, 0)).transpose() - centre).squaredNorm() <= reach * reach) {
-      tets.push_back(static_cast<int32_t>(t));
-    }
+  const PointGrid grid(posed, points);
+  Eigen::Vector3d points_lo = posed.row(points[0]).transpose(), points_hi = points_lo;
+  for (const int32_t v : points) {
+    points_lo = points_lo.cwiseMin(posed.row(v).transpose());
+    points_hi = points_hi.cwiseMax(posed.row(v).transpose());
   }
-  // Skin vertices within the radius: the corners of faces that one tet alone has, not on a bone tet. Every tet of
-  // such a face is among those within reach, so the local count is the mesh's.
-  std::vector<std::array<int32_t, 3>> faces;
-  faces.reserve(tets.size() * 4);
-  std::unordered_map<int32_t, uint8_t> on_bone;  // vertex within the radius -> on a bone tet
-  auto within = [&](int32_t v) { return (rest.vertices.row(v).transpose() - centre).squaredNorm() <= radius * radius; };
-  for (const int32_t t : tets) {
-    const bool bone = rest.tet_class(t) >= kFirstBoneClass;
-    for (int o = 0; o < 4; ++o) {
-      const int32_t v = rest.tets(t, o);
-      if (within(v)) on_bone[v] |= bone ? 1 : 0;
-      std::array<int32_t, 3> face{};
-      int q = 0;
-      for (int a = 0; a < 4; ++a) {
-        if (a != o) face[static_cast<size_t>(q++)] = rest.tets(t, a);
+  std::vector<std::atomic<uint8_t>> what(points.size());
+  for (std::atomic<uint8_t>& w : what) w.store(0, std::memory_order_relaxed);
+  parallel_for(0, rest.tet_count(), 4096, [&](int64_t t0, int64_t t1) {
+    for (int64_t t = t0; t < t1; ++t) {
+      if ((rest.vertices.row(rest.tets(t, 0)).transpose() - centre).squaredNorm() > reach * reach) continue;
+      Eigen::Vector3d lo = posed.row(rest.tets(t, 0)).transpose(), hi = lo;
+      for (int c = 1; c < 4; ++c) {
+        lo = lo.cwiseMin(posed.row(rest.tets(t, c)).transpose());
+        hi = hi.cwiseMax(posed.row(rest.tets(t, c)).transpose());
       }
-      std::sort(face.begin(), face.end());
-      faces.push_back(face);
-    }
-  }
-  std::sort(faces.begin(), faces.end());
-  std::vector<int32_t> skin;
-  for (size_t i = 0; i < faces.size();) {
-    size_t j = i + 1;
-    while (j < faces.size() && faces[j] == faces[i]) ++j;
-    if (j - i == 1) {
-      for (const int32_t v : faces[i]) {
-        const auto it = on_bone.find(v);
-        if (it != on_bone.end() && it->second == 0) skin.push_back(v);
-      }
-    }
-    i = j;
-  }
-  std::sort(skin.begin(), skin.end());
-  skin.erase(std::unique(skin.begin(), skin.end()), skin.end());
-
-  const TetGrid grid(rest, posed, tets);
-  std::vector<uint8_t> what(skin.size(), 0);
-  parallel_for(0, static_cast<int64_t>(skin.size()), 256, [&](int64_t i0, int64_t i1) {
-    for (int64_t i = i0; i < i1; ++i) {
-      what[static_cast<size_t>(i)] =
-          static_cast<uint8_t>(inside_what(rest, posed, grid, skin[static_cast<size_t>(i)], rest_distance_mm));
+      if ((hi.array() < points_lo.array()).any() || (lo.array() > points_hi.array()).any()) continue;
+      const uint8_t kind = rest.tet_class(t) >= kFirstBoneClass ? 2 : 1;
+      grid.in_box(lo, hi, [&](int32_t i) {
+        const int32_t v = points[static_cast<size_t>(i)];
+        if (what[static_cast<size_t>(i)].load(std::memory_order_relaxed) >= kind) return;
+        const Eigen::Vector3d x = rest.vertices.row(v).transpose();
+        for (int c = 0; c < 4; ++c) {
+          if ((rest.vertices.row(rest.tets(t, c)).transpose() - x).squaredNorm() < rest_distance_mm * rest_distance_mm) return;
+        }
+        const std::optional<Eigen::Vector4d> b = barycentric(rest, posed, t, posed.row(v).transpose());
+        constexpr double kInside = 1e-9;
+        if (!b || b->minCoeff() <= kInside) return;
+        uint8_t seen = what[static_cast<size_t>(i)].load(std::memory_order_relaxed);
+        while (seen < kind && !what[static_cast<size_t>(i)].compare_exchange_weak(seen, kind)) {
+        }
+      });
     }
   });
-  for (size_t i = 0; i < skin.size(); ++i) {
-    const double d = (rest.vertices.row(skin[i]).transpose() - centre).norm();
+  for (size_t i = 0; i < points.size(); ++i) {
+    const double d = (rest.vertices.row(points[i]).transpose() - centre).norm();
+    const uint8_t w = what[i].load(std::memory_order_relaxed);
     for (size_t r = 0; r < radii_mm.size(); ++r) {
       if (d > radii_mm[r]) continue;
       ++result[r].skin_vertices;
-      result[r].inside_tissue += what[i] == 1;
-      result[r].inside_bone += what[i] == 2;
+      result[r].inside_tissue += w == 1;
+      result[r].inside_bone += w == 2;
     }
   }
   return result;

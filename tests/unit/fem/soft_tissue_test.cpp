@@ -162,8 +162,9 @@ TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhe
   }
   const Eigen::Vector3d centre(62, 12, 40);  // between the two at rest
   const std::vector<double> radii{60.0, 200.0};
+  const std::vector<uint8_t> skin = skin_vertices(two);
   // At rest nothing is inside anything.
-  std::vector<Penetration> at_rest = penetration(two, two.vertices, centre, radii);
+  std::vector<Penetration> at_rest = penetration(two, two.vertices, skin, centre, radii);
   ASSERT_EQ(at_rest.size(), 2u);
   EXPECT_GT(at_rest[1].skin_vertices, at_rest[0].skin_vertices);
   EXPECT_EQ(at_rest[1].inside_tissue + at_rest[1].inside_bone, 0);
@@ -172,7 +173,7 @@ TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhe
 
   Eigen::MatrixXd posed = two.vertices;
   for (Eigen::Index v = n; v < 2 * n; ++v) posed.row(v) += Eigen::RowVector3d(-90.5, 0.3, 0.7);
-  const std::vector<Penetration> moved = penetration(two, posed, centre, radii);
+  const std::vector<Penetration> moved = penetration(two, posed, skin, centre, radii);
   // Per row of the soft middle (7 rows), the second limb's side at x = 9.5 has 6 vertices within the first's y
   // range (0.3 .. 20.3) and its y = 0.3 side 3 more (x = 13.5, 17.5, 21.5); the first limb's side at x = 24 has 6
   // within the second's y range (4 .. 24) and its y = 24 side 3 more (x = 12, 16, 20). All in soft tissue.
@@ -181,9 +182,9 @@ TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhe
   EXPECT_EQ(moved[1].skin_vertices, at_rest[1].skin_vertices);
   // Pushed 30 mm further along z, the second limb's skin reaches the first's upper bone block.
   for (Eigen::Index v = n; v < 2 * n; ++v) posed(v, 2) += 30.0;
-  EXPECT_GT(penetration(two, posed, centre, radii)[1].inside_bone, 0);
+  EXPECT_GT(penetration(two, posed, skin, centre, radii)[1].inside_bone, 0);
   // Mismatched inputs count nothing.
-  EXPECT_EQ(penetration(two, limb_.mesh.vertices, centre, radii)[1].skin_vertices, 0);
+  EXPECT_EQ(penetration(two, limb_.mesh.vertices, skin, centre, radii)[1].skin_vertices, 0);
 }
 
 TEST_F(SoftTissue, RefusesBadParametersAndMismatchedInputsAndStopsWhenCancelled) {

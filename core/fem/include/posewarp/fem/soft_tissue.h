@@ -76,16 +76,21 @@ struct SolveInputs {
 Result<Eigen::MatrixXd> solve(const SolveInputs& inputs, const FemParams& params, const ProgressHooks& hooks,
                               FemStats* stats = nullptr);
 
-// Skin vertices of the posed mesh that lie inside tissue or bone from elsewhere in the body (no corner of the tet
-// they are in lies within `rest_distance_mm` of them at rest), among those within each radius of `centre` at rest:
-// a crease where one part of the body passed into the part facing it instead of pressing against it. Counted for
-// any method's posed vertices (the quality report's figure), one entry per radius.
+// Per vertex: 1 on the mesh's boundary (its tets do not surround it) and on no bone tet: the skin.
+std::vector<uint8_t> skin_vertices(const TetMesh& rest);
+
+// Skin vertices (`skin`, from skin_vertices) of the posed mesh that lie inside tissue or bone from elsewhere in the
+// body (no corner of the tet they are in lies within `rest_distance_mm` of them at rest), among those within each
+// radius of `centre` at rest: a crease where one part of the body passed into the part facing it instead of
+// pressing against it. Counted for any method's posed vertices (the quality report's figure), one entry per radius;
+// nothing is counted when the inputs do not fit the mesh.
 struct Penetration {
   int64_t skin_vertices = 0;    // looked at
   int64_t inside_tissue = 0;    // inside a soft tet from elsewhere
   int64_t inside_bone = 0;      // inside a bone tet from elsewhere
 };
-std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const Eigen::Vector3d& centre,
-                                     const std::vector<double>& radii_mm, double rest_distance_mm = 15.0);
+std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const std::vector<uint8_t>& skin,
+                                     const Eigen::Vector3d& centre, const std::vector<double>& radii_mm,
+                                     double rest_distance_mm = 15.0);
 
 }  // namespace posewarp::fem
