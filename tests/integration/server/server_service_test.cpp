@@ -621,6 +621,9 @@ TEST(ServerCli, RigCommandsWorkRemotelyWithATokenAndFailWithoutOne) {
   const std::string info = output_of({POSEWARP_CLI, "rig", "info", id, "--json", "--server", address, "--token-file", token});
   EXPECT_NE(info.find("\"joints\""), std::string::npos) << info;
   EXPECT_NE(info.find("\"name\": \"bar\""), std::string::npos) << info;
+  EXPECT_NE(info.find("\"range_deg\""), std::string::npos) << info;  // each joint's range, measured at build
+  const std::string text = output_of({POSEWARP_CLI, "rig", "info", id, "--server", address, "--token-file", token});
+  EXPECT_NE(text.find("turns before its bones meet another bone"), std::string::npos) << text;
   ASSERT_EQ(run({POSEWARP_CLI, "rig", "export", id, "--server", address, "--token-file", token, "--rig-out",
                  (dir / "exported.rig").string()}),
             0);
