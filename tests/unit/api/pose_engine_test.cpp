@@ -423,7 +423,8 @@ TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
 namespace posewarp::api {
 namespace {
 
-// The preview skins only the tet vertices its surfaces need and gives the same posed surfaces as a full pose.
+// The preview skins only the tet vertices its surfaces need and gives the same posed surfaces as a full pose; with
+// fem it takes the solve's first iterations, so its surfaces are within a few millimetres of the full pose's.
 TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
   const PoseEngine& engine = bar_engine();
   for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
@@ -436,8 +437,9 @@ TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
     Result<PreviewResult> preview = engine.preview(request.pose, method);
     ASSERT_TRUE(preview.ok()) << preview.status().to_string();
     ASSERT_EQ(preview->surface_vertices.size(), engine.rig().surfaces.size());
+    const double tolerance = method == skinning::Method::kFem ? 5.0 : 1e-9;
     for (size_t i = 0; i < preview->surface_vertices.size(); ++i) {
-      EXPECT_LT((preview->surface_vertices[i] - full->surfaces[i].vertices).cwiseAbs().maxCoeff(), 1e-9)
+      EXPECT_LT((preview->surface_vertices[i] - full->surfaces[i].vertices).cwiseAbs().maxCoeff(), tolerance)
           << engine.rig().surfaces[i].name;
     }
   }
