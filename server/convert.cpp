@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstring>
 
+#include "posewarp/api/joint_range.h"
+
 namespace posewarp::server {
 
 void put_grid(const ImageGeometry& g, v1::Grid* grid) {
@@ -62,7 +64,7 @@ void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton) {
       joint->add_abduction_axis(j.frame(a, 1));
       joint->add_rotation_axis(j.frame(a, 2));
     }
-    for (const rig::MotionRange& m : j.ranges) {
+    for (const api::MotionRange& m : j.ranges) {
       v1::MotionRange* range = joint->add_ranges();
       range->set_motion(m.motion);
       range->set_negative_deg(m.negative_deg);

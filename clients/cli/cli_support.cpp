@@ -1,6 +1,8 @@
 // Status reporting, progress bars and global options for the CLI.
 #include "cli_support.h"
 
+#include <nlohmann/json.hpp>
+
 #include <filesystem>
 
 #include <unistd.h>
@@ -132,6 +134,21 @@ void say(const std::string& line) {
   if (global_options().quiet) return;
   std::lock_guard<std::mutex> lock(mutex);
   std::cout << line << '\n';
+}
+
+std::string joint_range_line(const nlohmann::json& joint) {
+  if (!joint.contains("range_deg")) return "";
+  std::string line = "      turns before its bones meet another bone (1 ml):";
+  for (const auto& [motion, bounds] : joint["range_deg"].items()) {
+    const nlohmann::json& stopped = joint["range_stopped_by_bone"][motion];
+    char text[160];
+    std::snprintf(text, sizeof text, " %s %s%.0f to %s+%.0f deg,", motion.c_str(),
+                  stopped[0].get<bool>() ? "" : "beyond ", bounds[0].get<double>(),
+                  stopped[1].get<bool>() ? "" : "beyond ", bounds[1].get<double>());
+    line += text;
+  }
+  line.pop_back();
+  return line;
 }
 
 }  // namespace posewarp::cli

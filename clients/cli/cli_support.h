@@ -2,6 +2,7 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json_fwd.hpp>
 
 #include <cstdint>
 #include <string>
@@ -51,6 +52,10 @@ ProgressHooks progress_bar();
 
 // Prints to stdout unless --quiet.
 void say(const std::string& line);
+
+// A joint's range of motion as `rig info` prints it, from its JSON entry (`range_deg`, `range_stopped_by_bone`, as
+// local and remote `rig info --json` write them); empty when the entry has none.
+std::string joint_range_line(const nlohmann::json& joint);
 
 // Registers the subcommands of each area.
 void add_volume_commands(CLI::App& app);

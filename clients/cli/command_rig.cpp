@@ -146,8 +146,8 @@ int run_info(const std::string& path, bool as_json) {
   // Each joint's range: how far it turns before its bones meet a bone that does not move with them; measured at
   // build, or here for a rig built before that.
   std::vector<std::vector<api::MotionRange>> ranges;
-  for (const rig::Joint& joint : s.joints) ranges.push_back(joint.ranges);
-  if (std::any_of(s.joints.begin(), s.joints.end(), [](const rig::Joint& j) { return j.ranges.empty(); })) {
+  for (const auto& joint : s.joints) ranges.push_back(joint.ranges);
+  if (std::any_of(s.joints.begin(), s.joints.end(), [](const auto& joint) { return joint.ranges.empty(); })) {
     Result<std::vector<api::JointRange>> measured = api::joint_ranges(*rig);
     if (!measured.ok()) return report(measured.status());
     for (size_t j = 0; j < ranges.size() && j < measured->size(); ++j) ranges[j] = (*measured)[j].motions;
@@ -228,16 +228,7 @@ int run_info(const std::string& path, bool as_json) {
               << joint["flexion_moves_child"].get<std::string>() << "), abduction about "
               << axis_text(joint["abduction_axis"]) << ", internal rotation about "
               << axis_text(joint["internal_rotation_axis"]) << "\n";
-    if (joint.contains("range_deg")) {
-      std::string line = "      turns before its bones meet another bone (1 ml):";
-      for (const auto& [motion, bounds] : joint["range_deg"].items()) {
-        const json& stopped = joint["range_stopped_by_bone"][motion];
-        line += " " + motion + " " + (stopped[0].get<bool>() ? "" : "beyond ") + fixed(bounds[0], 0) + " to " +
-                (stopped[1].get<bool>() ? "" : "beyond ") + "+" + fixed(bounds[1], 0) + " deg,";
-      }
-      line.pop_back();
-      std::cout << line << "\n";
-    }
+    if (const std::string line = joint_range_line(joint); !line.empty()) std::cout << line << "\n";
   }
   if (doc["stats"].contains("weights")) {
     const json& w = doc["stats"]["weights"];

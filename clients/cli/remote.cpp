@@ -491,6 +491,22 @@ Result<api::Rig> RemotePoser::rig() const {
   return api::rig_from_bytes(bytes, "rig " + state_->rig_id);
 }
 
+namespace {
+
+// A joint of GetRig as the local `rig info --json` writes it: its range as [negative, positive] degrees, and whether
+// bone stopped each way.
+nlohmann::json joint_json(const v1::Joint& j) {
+  nlohmann::json joint{
+      {"name", j.name()}, {"parent", j.parent()}, {"child", j.child()}, {"kind", j.kind()}, {"centre_mm", j.centre_mm()}};
+  for (const v1::MotionRange& m : j.ranges()) {
+    joint["range_deg"][m.motion()] = {0.0 - m.negative_deg(), m.positive_deg()};
+    joint["range_stopped_by_bone"][m.motion()] = {m.negative_stopped(), m.positive_stopped()};
+  }
+  return joint;
+}
+
+}  // namespace
+
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
   Result<Remote> remote = Remote::open(connection);
@@ -512,19 +528,7 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
                           {"has_ct", rig.has_ct()},
                           {"software_version", rig.software_version()},
                           {"segments", rig.segments()}};
-    for (const v1::Joint& j : rig.joints()) {
-      nlohmann::json joint{{"name", j.name()},
-                           {"parent", j.parent()},
-                           {"child", j.child()},
-                           {"kind", j.kind()},
-                           {"centre_mm", j.centre_mm()}};
-      // As the local `rig info --json` writes them: [negative, positive] degrees, and whether bone stopped each.
-      for (const v1::MotionRange& m : j.ranges()) {
-        joint["range_deg"][m.motion()] = {0.0 - m.negative_deg(), m.positive_deg()};
-        joint["range_stopped_by_bone"][m.motion()] = {m.negative_stopped(), m.positive_stopped()};
-      }
-      out["joints"].push_back(std::move(joint));
-    }
+    for (const v1::Joint& j : rig.joints()) out["joints"].push_back(joint_json(j));
     for (const v1::StageTime& t : rig.stage_seconds()) out["stage_seconds"][t.stage()] = t.seconds();
     std::printf("%s\n", out.dump(2).c_str());
     return 0;
@@ -538,18 +542,7 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
   for (const v1::Joint& j : rig.joints()) {
     std::printf("    %-24s %-6s %s -> %s at (%.1f, %.1f, %.1f) mm\n", j.name().c_str(), j.kind().c_str(),
                 j.parent().c_str(), j.child().c_str(), j.centre_mm(0), j.centre_mm(1), j.centre_mm(2));
-    if (j.ranges_size() > 0) {
-      std::string line = "      turns before its bones meet another bone (1 ml):";
-      for (const v1::MotionRange& m : j.ranges()) {
-        char text[160];
-        std::snprintf(text, sizeof text, " %s %s%.0f to %s+%.0f deg,", m.motion().c_str(),
-                      m.negative_stopped() ? "" : "beyond ", 0.0 - m.negative_deg(), m.positive_stopped() ? "" : "beyond ",
-                      m.positive_deg());
-        line += text;
-      }
-      line.pop_back();
-      std::printf("%s\n", line.c_str());
-    }
+    if (const std::string line = joint_range_line(joint_json(j)); !line.empty()) std::printf("%s\n", line.c_str());
   }
   for (const v1::StageTime& t : rig.stage_seconds()) std::printf("  %-10s %8.2f s\n", t.stage().c_str(), t.seconds());
   return 0;
