@@ -23,6 +23,7 @@ struct PoseEngine::Fem {
   fem::Topology topology;
   std::once_flag skin_once;
   std::vector<uint8_t> skin;  // the report's skin vertices (fem::skin_vertices), made by the first pose that needs them
+  fem::SolveCache cache;      // the last solve's factored system: a slider's next pose frees the same vertices
 };
 namespace {
 
@@ -117,8 +118,12 @@ Result<Eigen::MatrixXd> PoseEngine::soft_tissue(const Eigen::MatrixXd& warm, con
                                                 const ProgressHooks& hooks, int max_iterations) const {
   std::call_once(fem_->once, [&] { fem_->topology = fem::topology(rig_.mesh); });
   fem::FemParams params;
-  if (max_iterations > 0) params.max_iterations = max_iterations;
-  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm}, params, hooks);
+  if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
+    params.max_iterations = max_iterations;
+    params.continue_from_last = true;
+    params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
+  }
+  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm, &fem_->cache}, params, hooks);
 }
 
 Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Method method) const {
@@ -129,9 +134,10 @@ Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Meth
     const skinning::SegmentTransforms segments = segment_transforms(transforms);
     PreviewResult result;
     if (method == skinning::Method::kFem) {
-      // The steady state needs the whole mesh; a slider gets the first iterations of it (most of the folds undone
-      // at a tenth of the time: the solve's figures converge slowly after that).
-      constexpr int kPreviewIterations = 10;
+      // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
+      // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
+      // slider moves and settles when it stops.
+      constexpr int kPreviewIterations = 5;
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinning::skin(skinning::Method::kCor, rig_.mesh.vertices,
                                                                            rig_.weights, rig_.centres, segments));
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(warm, segments, {}, kPreviewIterations));

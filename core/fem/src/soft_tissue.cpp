@@ -6,14 +6,18 @@
 #include <Eigen/Sparse>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <queue>
 #include <string>
+#include <tuple>
 #include <unordered_map>
 #include <utility>
 
@@ -213,6 +217,124 @@ Topology topology(const TetMesh& rest) {
   return topo;
 }
 
+// The solve's system for one set of free vertices: the tets touching them packed with their corners (solve vertex
+// numbers: the free ones first, in free order, then the fixed corners), gradient rows and rest volumes; each free
+// vertex's (tet, corner) pairs; and the matrix L_ff (the tet Laplacian weighted by rest volume) factored.
+struct SolveSystem {
+  std::vector<int32_t> free_vertices;                  // solve vertex i < nf -> mesh vertex
+  std::vector<int32_t> solve_vertices;                 // every solve vertex -> mesh vertex (free ones first)
+  std::vector<int32_t> solve_tets;                     // slot -> tet
+  std::vector<std::array<int32_t, 4>> slot_corners;    // slot -> its corners' solve vertices
+  std::vector<Eigen::Matrix<double, 3, 4>> gradients;  // slot -> its corners' gradient rows
+  std::vector<double> slot_volume;                     // slot -> rest volume
+  std::vector<int64_t> corner_start;                   // nf + 1: free vertex i's pairs are corners[corner_start[i] ..)
+  std::vector<std::pair<int32_t, int32_t>> corners;    // (slot, corner)
+  std::vector<std::tuple<int32_t, int32_t, double>> coupling;  // (free i, fixed solve vertex j, L_ij)
+  double pull = 0.0;                                   // the faint pull toward the warm start on the diagonal
+  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
+  // Where the last solve on this system started (the warm start) and ended, free vertices only.
+  Eigen::MatrixXd last_warm, last_solution;
+};
+
+SolveCache::SolveCache() = default;
+SolveCache::~SolveCache() = default;
+
+std::unique_ptr<SolveSystem> SolveCache::take(const std::vector<int32_t>& free_vertices) {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  if (system_ && system_->free_vertices == free_vertices) return std::move(system_);
+  return nullptr;
+}
+
+void SolveCache::put(std::unique_ptr<SolveSystem> system) {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  system_ = std::move(system);
+}
+
+namespace {
+
+Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<int32_t> free_vertices) {
+  const TetMesh& mesh = in.rest;
+  auto system = std::make_unique<SolveSystem>();
+  SolveSystem& sys = *system;
+  const auto nf = static_cast<Eigen::Index>(free_vertices.size());
+  std::vector<int32_t> local(static_cast<size_t>(mesh.vertex_count()), -1);  // mesh vertex -> solve vertex
+  for (Eigen::Index i = 0; i < nf; ++i) local[static_cast<size_t>(free_vertices[static_cast<size_t>(i)])] = static_cast<int32_t>(i);
+  sys.solve_vertices = free_vertices;
+  sys.free_vertices = std::move(free_vertices);
+  // The tets touching a free vertex.
+  std::vector<int32_t> solve_slot(static_cast<size_t>(mesh.tet_count()), -1);  // tet -> slot, -1 outside the solve
+  for (const int32_t v : sys.free_vertices) {
+    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
+      if (solve_slot[static_cast<size_t>(t)] < 0) {
+        solve_slot[static_cast<size_t>(t)] = static_cast<int32_t>(sys.solve_tets.size());
+        sys.solve_tets.push_back(t);
+      }
+    }
+  }
+  const size_t slots = sys.solve_tets.size();
+  sys.gradients.resize(slots);
+  sys.slot_corners.resize(slots);
+  sys.slot_volume.resize(slots);
+  for (size_t s = 0; s < slots; ++s) {
+    const int32_t t = sys.solve_tets[s];
+    for (int c = 0; c < 4; ++c) {
+      sys.gradients[s].col(c) = gradient(in.frames, t, c);
+      const int32_t v = mesh.tets(t, c);
+      if (local[static_cast<size_t>(v)] < 0) {
+        local[static_cast<size_t>(v)] = static_cast<int32_t>(sys.solve_vertices.size());
+        sys.solve_vertices.push_back(v);
+      }
+      sys.slot_corners[s][static_cast<size_t>(c)] = local[static_cast<size_t>(v)];
+    }
+    sys.slot_volume[s] = in.frames.rest_volume(t);
+  }
+  sys.corner_start.assign(static_cast<size_t>(nf) + 1, 0);
+  for (Eigen::Index i = 0; i < nf; ++i) {
+    const int32_t v = sys.free_vertices[static_cast<size_t>(i)];
+    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
+      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
+      int c = 0;
+      while (mesh.tets(t, c) != v) ++c;
+      sys.corners.emplace_back(solve_slot[static_cast<size_t>(t)], c);
+    }
+    sys.corner_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(sys.corners.size());
+  }
+  // L_ff, and L_fc for the right-hand side's constant part.
+  std::vector<Eigen::Triplet<double>> triplets;
+  triplets.reserve(slots * 16 + static_cast<size_t>(nf));
+  double diagonal = 0.0;
+  for (size_t s = 0; s < slots; ++s) {
+    const auto& corner = sys.slot_corners[s];
+    for (int a = 0; a < 4; ++a) {
+      const int32_t ia = corner[static_cast<size_t>(a)];
+      if (ia >= nf) continue;
+      for (int b = 0; b < 4; ++b) {
+        const int32_t ib = corner[static_cast<size_t>(b)];
+        const double l = sys.slot_volume[s] * sys.gradients[s].col(a).dot(sys.gradients[s].col(b));
+        if (ib < nf) {
+          triplets.emplace_back(ia, ib, l);
+          if (ia == ib) diagonal += l;
+        } else {
+          sys.coupling.emplace_back(ia, ib, l);
+        }
+      }
+    }
+  }
+  // A faint pull towards the warm start keeps the system definite where a free piece touches nothing fixed.
+  sys.pull = 1e-9 * diagonal / static_cast<double>(nf);
+  for (Eigen::Index i = 0; i < nf; ++i) triplets.emplace_back(i, i, sys.pull);
+  SparseMatrix matrix(nf, nf);
+  matrix.setFromTriplets(triplets.begin(), triplets.end());
+  sys.llt.compute(matrix);
+  if (sys.llt.info() != Eigen::Success) {
+    return internal_error("the soft-tissue system (" + std::to_string(nf) + " vertices) could not be factored");
+  }
+  return system;
+}
+
+}  // namespace
+
 Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
                               FemStats* stats) {
   POSEWARP_RETURN_IF_ERROR(validate(params));
@@ -266,11 +388,9 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
       }
     }
   }
-  std::vector<int32_t> free_index(static_cast<size_t>(n), -1);
   std::vector<int32_t> free_vertices;
   for (int64_t v = 0; v < n; ++v) {
     if (std::isfinite(distance[static_cast<size_t>(v)]) && !in.topology.bone[static_cast<size_t>(v)]) {
-      free_index[static_cast<size_t>(v)] = static_cast<int32_t>(free_vertices.size());
       free_vertices.push_back(static_cast<int32_t>(v));
     }
   }
@@ -279,91 +399,39 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   st.free_vertices = nf;
   if (nf == 0) return posed;  // nothing bends (the rest pose, or only rigid motions)
 
-  // 2. The tets touching a free vertex, and the constant system: L_ff x_f = b(R, S) - L_fc x_c.
-  std::vector<int32_t> solve_tets;                                       // slot -> tet
-  std::vector<int32_t> solve_slot(static_cast<size_t>(mesh.tet_count()), -1);  // tet -> slot, -1 outside the solve
-  for (const int32_t v : free_vertices) {
-    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
-      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
-      if (solve_slot[static_cast<size_t>(t)] < 0) {
-        solve_slot[static_cast<size_t>(t)] = static_cast<int32_t>(solve_tets.size());
-        solve_tets.push_back(t);
-      }
-    }
+  // 2. The solve's system for these free vertices: from the cache when the last solve had the same ones.
+  std::unique_ptr<SolveSystem> system = in.cache ? in.cache->take(free_vertices) : nullptr;
+  if (!system) {
+    POSEWARP_ASSIGN_OR_RETURN(system, prepare(in, std::move(free_vertices)));
+  } else {
+    st.reused_system = true;
   }
-  st.tets = static_cast<int64_t>(solve_tets.size());
-  std::vector<uint8_t> fixed_seen(static_cast<size_t>(n), 0);
-  auto fixed_seen_once = [&](int32_t v) { return std::exchange(fixed_seen[static_cast<size_t>(v)], uint8_t{1}) != 0; };
-  for (const int32_t t : solve_tets) {
-    for (int a = 0; a < 4; ++a) {
-      const int32_t v = mesh.tets(t, a);
-      if (free_index[static_cast<size_t>(v)] < 0 && !fixed_seen_once(v)) ++st.fixed_vertices;
-    }
-  }
+  SolveSystem& sys = *system;
+  st.tets = static_cast<int64_t>(sys.solve_tets.size());
+  st.fixed_vertices = static_cast<int64_t>(sys.solve_vertices.size()) - nf;
 
-  // The system L_ff x_f = b(R, S) - L_fc x_c, with L the tet Laplacian weighted by rest volume, factored once.
-  Eigen::MatrixXd constant(nf, 3);  // -L_fc x_c + the warm-start pull
-  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
-  {
-    std::vector<Eigen::Triplet<double>> triplets;
-    triplets.reserve(solve_tets.size() * 16 + static_cast<size_t>(nf));
-    constant.setZero();
-    double diagonal = 0.0;
-    for (size_t s = 0; s < solve_tets.size(); ++s) {
-      const int32_t t = solve_tets[s];
-      const double volume = in.frames.rest_volume(t);
-      Eigen::Vector3d g[4];
-      for (int c = 0; c < 4; ++c) g[c] = gradient(in.frames, t, c);
-      for (int a = 0; a < 4; ++a) {
-        const int32_t ia = free_index[static_cast<size_t>(mesh.tets(t, a))];
-        if (ia < 0) continue;
-        for (int b = 0; b < 4; ++b) {
-          const int32_t vb = mesh.tets(t, b);
-          const double l = volume * g[a].dot(g[b]);
-          const int32_t ib = free_index[static_cast<size_t>(vb)];
-          if (ib >= 0) {
-            triplets.emplace_back(ia, ib, l);
-            if (ia == ib) diagonal += l;
-          } else {
-            constant.row(ia) -= l * posed.row(vb);
-          }
-        }
-      }
-    }
-    // A faint pull towards the warm start keeps the system definite where a free piece touches nothing fixed.
-    const double pull = 1e-9 * diagonal / static_cast<double>(nf);
-    for (Eigen::Index i = 0; i < nf; ++i) {
-      triplets.emplace_back(i, i, pull);
-      constant.row(i) += pull * in.warm.row(free_vertices[static_cast<size_t>(i)]);
-    }
-    SparseMatrix system(nf, nf);
-    system.setFromTriplets(triplets.begin(), triplets.end());
-    llt.compute(system);
-    if (llt.info() != Eigen::Success) {
-      return internal_error("the soft-tissue system (" + std::to_string(nf) + " vertices) could not be factored");
-    }
-  }
+  // The right-hand side's constant part, -L_fc x_c + the warm-start pull, from this pose's fixed positions.
+  Eigen::MatrixXd constant(nf, 3);
+  for (Eigen::Index i = 0; i < nf; ++i) constant.row(i) = sys.pull * in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
+  for (const auto& [i, j, l] : sys.coupling) constant.row(i) -= l * in.warm.row(sys.solve_vertices[static_cast<size_t>(j)]);
   st.factor_seconds = seconds_since(start);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-  // 3. Local and global steps until no vertex moves more than the tolerance. Each solved tet's gradient rows and
-  // each free vertex's (tet, corner) pairs are gathered once for the iterations.
+  // 3. Local and global steps until no vertex moves more than the tolerance, on the solve's packed vertices.
   const auto iterate_start = std::chrono::steady_clock::now();
-  std::vector<Eigen::Matrix<double, 3, 4>> gradients(solve_tets.size());
-  for (size_t s = 0; s < solve_tets.size(); ++s) {
-    for (int c = 0; c < 4; ++c) gradients[s].col(c) = gradient(in.frames, solve_tets[s], c);
-  }
-  std::vector<int64_t> corner_start(static_cast<size_t>(nf) + 1, 0);
-  std::vector<std::pair<int32_t, int32_t>> corners;  // (solved tet slot, corner)
-  for (Eigen::Index i = 0; i < nf; ++i) {
-    const int32_t v = free_vertices[static_cast<size_t>(i)];
-    for (int64_t e = in.topology.tet_start[static_cast<size_t>(v)]; e < in.topology.tet_start[static_cast<size_t>(v) + 1]; ++e) {
-      const int32_t t = in.topology.tets[static_cast<size_t>(e)];
-      int c = 0;
-      while (mesh.tets(t, c) != v) ++c;
-      corners.emplace_back(solve_slot[static_cast<size_t>(t)], c);
-    }
-    corner_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(corners.size());
+  const std::vector<int32_t>& solve_tets = sys.solve_tets;
+  const std::vector<Eigen::Matrix<double, 3, 4>>& gradients = sys.gradients;
+  const std::vector<std::array<int32_t, 4>>& slot_corners = sys.slot_corners;
+  const std::vector<double>& slot_volume = sys.slot_volume;
+  const std::vector<int64_t>& corner_start = sys.corner_start;
+  const std::vector<std::pair<int32_t, int32_t>>& corners = sys.corners;
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> x_solve(static_cast<Eigen::Index>(sys.solve_vertices.size()), 3);
+  for (size_t i = 0; i < sys.solve_vertices.size(); ++i) x_solve.row(static_cast<Eigen::Index>(i)) = in.warm.row(sys.solve_vertices[i]);
+  // A preview goes on from where the last solve on these free vertices ended: its correction of the warm start,
+  // carried to this pose's warm start.
+  if (params.continue_from_last && sys.last_solution.rows() == nf) {
+    x_solve.topRows(nf) += sys.last_solution - sys.last_warm;
+    st.continued = true;
   }
   std::vector<Eigen::Matrix3d> target(solve_tets.size());  // V (R + w S) / (1 + w) per solved tet
   std::vector<double> energy(solve_tets.size());
@@ -372,22 +440,20 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   auto local_step = [&] {
     parallel_for(0, static_cast<int64_t>(solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
       for (int64_t s = s0; s < s1; ++s) {
-        const int32_t t = solve_tets[static_cast<size_t>(s)];
+        const std::array<int32_t, 4>& corner = slot_corners[static_cast<size_t>(s)];
         Eigen::Matrix<double, 3, 4> x;
-        for (int c = 0; c < 4; ++c) x.col(c) = posed.row(mesh.tets(t, c)).transpose();
+        for (int c = 0; c < 4; ++c) x.col(c) = x_solve.row(corner[static_cast<size_t>(c)]).transpose();
         const Eigen::Matrix3d f = x * gradients[static_cast<size_t>(s)].transpose();
         const Projection p = projection(f, params.volume_weight);
-        target[static_cast<size_t>(s)] = in.frames.rest_volume(t) * p.target;
-        energy[static_cast<size_t>(s)] = in.frames.rest_volume(t) * p.energy;
+        target[static_cast<size_t>(s)] = slot_volume[static_cast<size_t>(s)] * p.target;
+        energy[static_cast<size_t>(s)] = slot_volume[static_cast<size_t>(s)] * p.energy;
       }
     });
     double total = 0.0;
     for (const double e : energy) total += e;
     return total;
   };
-  auto set_free = [&](const Eigen::MatrixXd& x) {
-    for (Eigen::Index i = 0; i < nf; ++i) posed.row(free_vertices[static_cast<size_t>(i)]) = x.row(i);
-  };
+  auto set_free = [&](const Eigen::MatrixXd& x) { x_solve.topRows(nf) = x; };
   // Anderson acceleration of the local/global fixed point (Peng et al. 2018): the next positions combine the last
   // few global steps so that their residuals cancel; a combination that raises the energy is dropped for the plain
   // step, and the history starts again. On the bar it converges in a fifth of the iterations.
@@ -397,7 +463,7 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   bool accelerated = false;
   double last_energy = std::numeric_limits<double>::infinity();
   Eigen::MatrixXd current(nf, 3);
-  for (Eigen::Index i = 0; i < nf; ++i) current.row(i) = posed.row(free_vertices[static_cast<size_t>(i)]);
+  current = x_solve.topRows(nf);
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     double e = local_step();
     if (accelerated && e > last_energy) {
@@ -420,7 +486,7 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
         rhs.row(i) = b.transpose();
       }
     });
-    const Eigen::MatrixXd global = llt.solve(rhs);
+    const Eigen::MatrixXd global = sys.llt.solve(rhs);
     const Eigen::MatrixXd residual = global - current;
     st.iterations = iteration + 1;
     st.last_step_mm = residual.rowwise().norm().maxCoeff();
@@ -464,6 +530,11 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
     if (st.last_step_mm <= params.tolerance_mm) break;
   }
   st.iterate_seconds = seconds_since(iterate_start);
+  for (Eigen::Index i = 0; i < nf; ++i) posed.row(sys.free_vertices[static_cast<size_t>(i)]) = x_solve.row(i);
+  sys.last_solution = x_solve.topRows(nf);
+  sys.last_warm.resize(nf, 3);
+  for (Eigen::Index i = 0; i < nf; ++i) sys.last_warm.row(i) = in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
+  if (in.cache) in.cache->put(std::move(system));
   progress.finish();
   return posed;
 }

@@ -133,6 +133,44 @@ TEST_F(SoftTissue, GivesTheBentJointItsVolumeBackAndKeepsBonesWhereTheyAre) {
   }
 }
 
+// A slider: the cache keeps the factored system for the same free vertices (a pose's result does not change by it),
+// and previews of a few iterations each, going on from the last, reach the steady state while the slider moves.
+TEST_F(SoftTissue, ACacheKeepsTheSystemAndPreviewsGoOnFromTheLastSolve) {
+  auto warm_at = [&](double degrees) { return skinning::lbs(limb_.mesh.vertices, limb_.weights, bend(degrees)); };
+  const Eigen::MatrixXd warm60 = warm_at(60.0);
+  const Eigen::MatrixXd alone = solve({limb_.mesh, frames_, topology_, limb_.weights, bend(60.0), warm60}, FemParams{}, {}).value();
+  SolveCache cache;
+  FemStats first, again;
+  const Eigen::MatrixXd cached =
+      solve({limb_.mesh, frames_, topology_, limb_.weights, bend(60.0), warm60, &cache}, FemParams{}, {}, &first).value();
+  (void)solve({limb_.mesh, frames_, topology_, limb_.weights, bend(60.0), warm60, &cache}, FemParams{}, {}, &again).value();
+  EXPECT_FALSE(first.reused_system);
+  EXPECT_TRUE(again.reused_system);
+  EXPECT_FALSE(again.continued);  // a pose starts from its own warm start
+  EXPECT_EQ(cached, alone);
+
+  // Previews of 3 iterations from 30 to 60 degrees: each goes on from the last, and the last is closer to the
+  // steady state than 3 iterations from the warm start.
+  FemParams preview;
+  preview.max_iterations = 3;
+  preview.continue_from_last = true;
+  SolveCache slider;
+  Eigen::MatrixXd last;
+  for (const double degrees : {30.0, 40.0, 50.0, 60.0, 60.0, 60.0}) {
+    FemStats stats;
+    last = solve({limb_.mesh, frames_, topology_, limb_.weights, bend(degrees), warm_at(degrees), &slider}, preview, {},
+                 &stats).value();
+    EXPECT_EQ(stats.continued, degrees != 30.0) << degrees;
+  }
+  const Eigen::MatrixXd once =
+      solve({limb_.mesh, frames_, topology_, limb_.weights, bend(60.0), warm60}, preview, {}).value();
+  const double slider_off = (last - alone).rowwise().norm().maxCoeff(), once_off = (once - alone).rowwise().norm().maxCoeff();
+  std::cout << "60 degrees after a slider's previews: " << slider_off << " mm from the steady state (one preview: "
+            << once_off << " mm)\n";
+  EXPECT_LT(slider_off, 0.5 * once_off);
+  EXPECT_EQ(soft_figures(limb_, frames_, last).inverted, 0);
+}
+
 TEST_F(SoftTissue, LeavesARigidMotionAsItIs) {
   skinning::SegmentTransforms transforms = bend(0.0);
   const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();

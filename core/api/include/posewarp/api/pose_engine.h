@@ -113,7 +113,8 @@ class PoseEngine {
   // The posed tet vertices of a method: skinning, then for fem the soft tissue's steady state from CoR.
   Result<Eigen::MatrixXd> posed_vertices(skinning::Method method, const skinning::SegmentTransforms& segments,
                                          const ProgressHooks& hooks) const;
-  // The soft tissue's steady state from skinned (CoR) vertices, in at most `max_iterations` (0: the solve's own).
+  // The soft tissue's steady state from skinned (CoR) vertices. With `max_iterations` (a preview's), at most that
+  // many, going on from where the last solve on the same free vertices ended; 0: the solve's own, from the warm start.
   Result<Eigen::MatrixXd> soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
                                       const ProgressHooks& hooks, int max_iterations = 0) const;
 };

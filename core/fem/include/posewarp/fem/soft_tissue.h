@@ -17,6 +17,8 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 #include "posewarp/common/progress.h"
@@ -34,6 +36,10 @@ struct FemParams {
   int max_iterations = 100;
   double tolerance_mm = 0.02;   // converged once no vertex moves more than this in one iteration
   double margin_mm = 40.0;      // reach of the solve beyond the tissue the pose bends (rest mm, along mesh edges)
+  // Start from where the last solve on the same free vertices ended (its correction of the skinned positions,
+  // carried to this pose's), when a cache holds it: a slider's previews go on converging from call to call. A pose
+  // leaves it off, so that its result depends on its request alone.
+  bool continue_from_last = false;
 };
 
 // INVALID_ARGUMENT naming the parameter when one is out of range.
@@ -48,6 +54,8 @@ struct FemStats {
   double last_step_mm = 0.0;   // largest vertex move of the last iteration
   double factor_seconds = 0.0;
   double iterate_seconds = 0.0;
+  bool reused_system = false;  // the cache held the factored system for these free vertices
+  bool continued = false;      // started from the last solve's end (continue_from_last)
 };
 
 // What does not depend on the pose, computed once per rig.
@@ -61,6 +69,27 @@ struct Topology {
 
 Topology topology(const TetMesh& rest);
 
+struct SolveSystem;  // the solve's packed tets and factored matrix for one set of free vertices
+
+// What a solve prepares for one set of free vertices, kept between solves on one rig: a slider dragging one joint
+// frees the same vertices at every angle, so only its first solve factors the system. A solve takes the system
+// out while it runs (a factor is not shared between threads) and puts it back after; solves at once on other
+// threads prepare their own.
+class SolveCache {
+ public:
+  SolveCache();
+  ~SolveCache();
+  SolveCache(const SolveCache&) = delete;
+  SolveCache& operator=(const SolveCache&) = delete;
+  // The kept system when it was prepared for exactly these free vertices (it leaves the cache), else nothing.
+  std::unique_ptr<SolveSystem> take(const std::vector<int32_t>& free_vertices);
+  void put(std::unique_ptr<SolveSystem> system);
+
+ private:
+  std::mutex mutex_;
+  std::unique_ptr<SolveSystem> system_;
+};
+
 // The pose's inputs: the rig at rest and the skinned (warm-start) positions.
 struct SolveInputs {
   const TetMesh& rest;
@@ -69,6 +98,7 @@ struct SolveInputs {
   const SkinWeights& weights;
   const skinning::SegmentTransforms& transforms;
   const Eigen::MatrixXd& warm;  // #V x 3, the skinned vertices (CoR)
+  SolveCache* cache = nullptr;  // optional: reuse and keep the system (see SolveCache)
 };
 
 // The posed vertices (#V x 3). INVALID_ARGUMENT when the inputs do not fit each other; CANCELLED or

@@ -1,0 +1,240 @@
+// Where the soft tissue around a bent joint loses its volume: posewarp_fem_probe RIG POSE.json [METHOD ...]
+//
+// Poses the rig's tet mesh (no volumes) with each method and splits the soft tets whose rest centroid lies within
+// 50 mm of each joint the pose moves by how many of their corners are bone vertices (fixed by their bone's rigid
+// motion in every method), and by how many different bones those corners belong to. Per class: rest volume, signed
+// volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
+// A probe for developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue
+// pinned between two bones by the mesh.
+#include <Eigen/Dense>
+
+#include <array>
+#include <optional>
+#include <cstdio>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
+#include "posewarp/fem/soft_tissue.h"
+#include "posewarp/pose/forward_kinematics.h"
+#include "posewarp/skinning/tet_maps.h"
+#include <chrono>
+#include <sstream>
+
+using namespace posewarp;
+
+namespace {
+
+struct ClassFigures {
+  double rest = 0.0, posed = 0.0, folded = 0.0, folded_loss = 0.0;
+};
+
+void print_row(const char* name, const ClassFigures& c, double total_rest) {
+  if (c.rest <= 0.0) return;
+  std::printf("  %-26s %8.1f ml %7.1f%% of it   change %+7.1f%%   folded %5.1f%%   folded cost %+6.1f%% of all\n", name,
+              c.rest / 1000.0, 100.0 * c.rest / total_rest, 100.0 * (c.posed / c.rest - 1.0), 100.0 * c.folded / c.rest,
+              -100.0 * c.folded_loss / total_rest);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 3) {
+    std::fprintf(stderr, "usage: posewarp_fem_probe RIG POSE.json [METHOD ...]   (methods: cor dqs lbs fem; default cor fem)\n");
+    return 2;
+  }
+  std::vector<std::string> methods;
+  for (int i = 3; i < argc; ++i) methods.emplace_back(argv[i]);
+  if (methods.empty()) methods = {"cor", "fem"};
+  auto rig = api::load_rig(argv[1]);
+  if (!rig.ok()) {
+    std::fprintf(stderr, "%s\n", rig.status().message().c_str());
+    return 1;
+  }
+  auto pose = pose::read_pose(argv[2]);
+  if (!pose.ok()) {
+    std::fprintf(stderr, "%s\n", pose.status().message().c_str());
+    return 1;
+  }
+  auto engine = api::PoseEngine::create(std::move(*rig));
+  if (!engine.ok()) {
+    std::fprintf(stderr, "%s\n", engine.status().message().c_str());
+    return 1;
+  }
+  const TetMesh& mesh = engine->rig().mesh;
+  // Which bone segments each vertex belongs to (a vertex of bone tets of two segments belongs to both).
+  std::vector<std::set<int>> bones(static_cast<size_t>(mesh.vertex_count()));
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    if (mesh.tet_class(t) < kFirstBoneClass) continue;
+    for (int c = 0; c < 4; ++c) bones[static_cast<size_t>(mesh.tets(t, c))].insert(mesh.tet_class(t) - kFirstBoneClass);
+  }
+  for (const std::string& method_name : methods) {
+    // fem:WEIGHT:ITERATIONS:WARM solves here with those parameters from WARM's vertices (cor, dqs or lbs).
+    std::optional<fem::FemParams> custom;
+    std::string warm_name = method_name;
+    if (method_name.rfind("fem:", 0) == 0) {
+      std::stringstream in(method_name.substr(4));
+      std::string w, it;
+      std::getline(in, w, ':');
+      std::getline(in, it, ':');
+      std::getline(in, warm_name, ':');
+      std::string margin;
+      std::getline(in, margin, ':');
+      custom.emplace();
+      if (!margin.empty()) custom->margin_mm = std::stod(margin);
+      custom->volume_weight = std::stod(w);
+      custom->max_iterations = std::stoi(it);
+    }
+    auto method = skinning::method_from_name(warm_name);
+    if (!method.ok()) {
+      std::fprintf(stderr, "%s\n", method.status().message().c_str());
+      return 1;
+    }
+    api::PoseRequest request;
+    request.pose = *pose;
+    request.method = *method;
+    request.want_labels = request.want_ct = request.want_surfaces = false;
+    auto result = engine->pose(request);
+    if (!result.ok()) {
+      std::fprintf(stderr, "%s\n", result.status().message().c_str());
+      return 1;
+    }
+    Eigen::MatrixXd posed = result->posed_vertices;
+    if (custom) {
+      const auto transforms = pose::forward_kinematics(engine->rig().skeleton, *pose);
+      skinning::SegmentTransforms segments;
+      for (const pose::RigidTransform& t : *transforms) {
+        segments.rotation.push_back(t.rotation);
+        segments.translation.push_back(t.translation);
+      }
+      const skinning::RestTetFrames frames = skinning::rest_tet_frames(mesh);
+      const fem::Topology topology = fem::topology(mesh);
+      fem::FemStats stats;
+      const auto start = std::chrono::steady_clock::now();
+      auto solved = fem::solve({mesh, frames, topology, engine->rig().weights, segments, posed}, *custom, {}, &stats);
+      if (!solved.ok()) {
+        std::fprintf(stderr, "%s\n", solved.status().message().c_str());
+        return 1;
+      }
+      posed = *solved;
+      std::printf("%s: %lld free vertices, %lld tets, %d iterations, last step %.3f mm, %d restarts, factor %.2f s, iterations %.2f s, all %.2f s\n", method_name.c_str(), static_cast<long long>(stats.free_vertices), static_cast<long long>(stats.tets), stats.iterations,
+                  stats.last_step_mm, stats.restarts, stats.factor_seconds, stats.iterate_seconds,
+                  std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    }
+    for (const pose::JointRotation& moved : pose->joints) {
+      const rig::Joint* joint = nullptr;
+      for (const rig::Joint& j : engine->rig().skeleton.joints) {
+        if (j.name == moved.joint) joint = &j;
+      }
+      if (joint == nullptr) continue;
+      constexpr double kRadius = 50.0;
+      // [bone corners 0..4], and for 4: [5] one bone, [6] two or more bones.
+      std::array<ClassFigures, 7> classes{};
+      std::array<ClassFigures, 4> sides{};  // tets with a free corner: [child side?][flexion side?]
+      double total_rest = 0.0;
+      for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+        if (mesh.tet_class(t) != kSoftTissueClass) continue;
+        Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+        Eigen::Matrix3d rest_edges, posed_edges;
+        for (int c = 0; c < 4; ++c) centroid += 0.25 * mesh.vertices.row(mesh.tets(t, c)).transpose();
+        if ((centroid - joint->centre_mm).norm() > kRadius) continue;
+        int bone_corners = 0;
+        std::set<int> segments;
+        for (int c = 0; c < 4; ++c) {
+          const auto& b = bones[static_cast<size_t>(mesh.tets(t, c))];
+          bone_corners += !b.empty();
+          segments.insert(b.begin(), b.end());
+          if (c > 0) {
+            rest_edges.col(c - 1) = (mesh.vertices.row(mesh.tets(t, c)) - mesh.vertices.row(mesh.tets(t, 0))).transpose();
+            posed_edges.col(c - 1) = (posed.row(mesh.tets(t, c)) - posed.row(mesh.tets(t, 0))).transpose();
+          }
+        }
+        const double rest_volume = rest_edges.determinant() / 6.0, det = posed_edges.determinant() / rest_edges.determinant();
+        ClassFigures* into[2] = {&classes[static_cast<size_t>(bone_corners)], nullptr};
+        if (bone_corners == 4) into[1] = &classes[segments.size() > 1 ? 6 : 5];
+        for (ClassFigures* c : into) {
+          if (c == nullptr) continue;
+          c->rest += rest_volume;
+          c->posed += rest_volume * det;
+          if (det <= 0.0) {
+            c->folded += rest_volume;
+            c->folded_loss += rest_volume * (1.0 - det);
+          }
+        }
+        total_rest += rest_volume;
+        if (bone_corners < 4) {
+          // In the joint's frame: z along the child's long axis, and a flexion turns the child's far end toward -y.
+          const Eigen::Vector3d local = joint->frame.transpose() * (centroid - joint->centre_mm);
+          ClassFigures& c = sides[static_cast<size_t>(2 * (local.z() > 0.0) + (local.y() < 0.0))];
+          c.rest += rest_volume;
+          c.posed += rest_volume * det;
+          if (det <= 0.0) {
+            c.folded += rest_volume;
+            c.folded_loss += rest_volume * (1.0 - det);
+          }
+        }
+      }
+      ClassFigures all;
+      for (int k = 0; k <= 4; ++k) {
+        all.rest += classes[static_cast<size_t>(k)].rest;
+        all.posed += classes[static_cast<size_t>(k)].posed;
+        all.folded += classes[static_cast<size_t>(k)].folded;
+        all.folded_loss += classes[static_cast<size_t>(k)].folded_loss;
+      }
+      std::printf("%s %s, soft tets within %.0f mm of its centre:\n", method_name.c_str(), joint->name.c_str(), kRadius);
+      print_row("all", all, total_rest);
+      const char* names[7] = {"no bone corner",        "1 bone corner",       "2 bone corners", "3 bone corners",
+                              "4 bone corners (fixed)", "  4, all on one bone", "  4, on two bones"};
+      for (size_t k = 0; k < classes.size(); ++k) print_row(names[k], classes[k], total_rest);
+      const char* side_names[4] = {"free, parent, other side", "free, parent, flexion side", "free, child, other side",
+                                   "free, child, flexion side"};
+      for (size_t k = 0; k < sides.size(); ++k) print_row(side_names[k], sides[k], total_rest);
+    }
+  }
+  // A slider dragged from rest to the pose in 9 steps (every angle scaled), fem previews: what each call waits for.
+  std::printf("fem preview, the pose reached in 9 slider steps:");
+  for (int k = 1; k <= 9; ++k) {
+    pose::Pose step = *pose;
+    for (pose::JointRotation& r : step.joints) {
+      if (r.angles_deg) *r.angles_deg *= k / 9.0;
+    }
+    const auto start = std::chrono::steady_clock::now();
+    if (!engine->preview(step, skinning::Method::kFem).ok()) return 1;
+    std::printf(" %.0f", 1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  }
+  std::printf(" ms\n");
+  // The same steps through the stages, timed apart: CoR skinning of the whole mesh, the solve (free vertices and
+  // system, then 10 iterations going on from the last).
+  {
+    const TetMesh& rest = engine->rig().mesh;
+    const skinning::RestTetFrames frames = skinning::rest_tet_frames(rest);
+    const fem::Topology topology = fem::topology(rest);
+    fem::SolveCache cache;
+    fem::FemParams params;
+    params.max_iterations = 10;
+    params.continue_from_last = true;
+    for (int k = 1; k <= 9; ++k) {
+      pose::Pose step = *pose;
+      for (pose::JointRotation& r : step.joints) {
+        if (r.angles_deg) *r.angles_deg *= k / 9.0;
+      }
+      const auto transforms = pose::forward_kinematics(engine->rig().skeleton, step);
+      skinning::SegmentTransforms segments;
+      for (const pose::RigidTransform& t : *transforms) {
+        segments.rotation.push_back(t.rotation);
+        segments.translation.push_back(t.translation);
+      }
+      const auto start = std::chrono::steady_clock::now();
+      const Eigen::MatrixXd warm = skinning::skin(skinning::Method::kCor, rest.vertices, engine->rig().weights,
+                                                  engine->rig().centres, segments).value();
+      const double skin_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      fem::FemStats stats;
+      (void)fem::solve({rest, frames, topology, engine->rig().weights, segments, warm, &cache}, params, {}, &stats);
+      std::printf("  step %d: skin %.0f ms, free vertices and system %.0f ms (reused %d), 10 iterations %.0f ms\n", k,
+                  1000.0 * skin_s, 1000.0 * stats.factor_seconds, stats.reused_system ? 1 : 0, 1000.0 * stats.iterate_seconds);
+    }
+  }
+  return 0;
+}
