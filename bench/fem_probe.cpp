@@ -73,7 +73,18 @@ int main(int argc, char** argv) {
   for (const std::string& method_name : methods) {
     // fem:WEIGHT:ITERATIONS:WARM solves here with those parameters from WARM's vertices (cor, dqs or lbs).
     std::optional<fem::FemParams> custom;
+    std::optional<fem::CorotationalParams> corotational;
     std::string warm_name = method_name;
+    if (method_name.rfind("corot:", 0) == 0) {  // corot:POISSON:ITERATIONS:WARM, the co-rotational reference
+      std::stringstream in(method_name.substr(6));
+      std::string nu, it;
+      std::getline(in, nu, ':');
+      std::getline(in, it, ':');
+      std::getline(in, warm_name, ':');
+      corotational.emplace();
+      corotational->poisson_ratio = std::stod(nu);
+      corotational->max_iterations = std::stoi(it);
+    }
     if (method_name.rfind("fem:", 0) == 0) {
       std::stringstream in(method_name.substr(4));
       std::string w, it;
@@ -102,7 +113,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     Eigen::MatrixXd posed = result->posed_vertices;
-    if (custom) {
+    if (custom || corotational) {
       const auto transforms = pose::forward_kinematics(engine->rig().skeleton, *pose);
       skinning::SegmentTransforms segments;
       for (const pose::RigidTransform& t : *transforms) {
@@ -113,7 +124,8 @@ int main(int argc, char** argv) {
       const fem::Topology topology = fem::topology(mesh);
       fem::FemStats stats;
       const auto start = std::chrono::steady_clock::now();
-      auto solved = fem::solve({mesh, frames, topology, engine->rig().weights, segments, posed}, *custom, {}, &stats);
+      const fem::SolveInputs inputs{mesh, frames, topology, engine->rig().weights, segments, posed};
+      auto solved = custom ? fem::solve(inputs, *custom, {}, &stats) : fem::solve_corotational(inputs, *corotational, {}, &stats);
       if (!solved.ok()) {
         std::fprintf(stderr, "%s\n", solved.status().message().c_str());
         return 1;

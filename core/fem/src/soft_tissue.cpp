@@ -22,26 +22,10 @@
 #include <utility>
 
 #include "posewarp/common/parallel.h"
+#include "internal.h"
 
 namespace posewarp::fem {
-namespace {
-
-using SparseMatrix = Eigen::SparseMatrix<double>;
-
-double seconds_since(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
-
-// Builds a compressed row list of `count` rows from (row, value) pairs.
-void compress(int64_t count, const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<int64_t>& start,
-              std::vector<int32_t>& values) {
-  start.assign(static_cast<size_t>(count) + 1, 0);
-  for (const auto& [row, value] : pairs) ++start[static_cast<size_t>(row) + 1];
-  for (size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
-  values.resize(pairs.size());
-  std::vector<int64_t> at(start.begin(), start.end() - 1);
-  for (const auto& [row, value] : pairs) values[static_cast<size_t>(at[static_cast<size_t>(row)]++)] = value;
-}
+namespace internal {
 
 // Vertex c's gradient row in tet t: F = sum_c x_c g_c^T with g_1..3 the rows of the rest edge matrix's inverse and
 // g_0 = -(g_1 + g_2 + g_3).
@@ -75,6 +59,30 @@ void signed_svd(const Eigen::Matrix3d& f, Eigen::Matrix3d& u, Eigen::Vector3d& s
   u.col(2) = u.col(0).cross(u.col(1));
   sigma(1) = u.col(1).dot(f * v.col(1));
   sigma(2) = u.col(2).dot(f * v.col(2));
+}
+
+}  // namespace internal
+
+namespace {
+
+using internal::gradient;
+using internal::signed_svd;
+
+using SparseMatrix = Eigen::SparseMatrix<double>;
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Builds a compressed row list of `count` rows from (row, value) pairs.
+void compress(int64_t count, const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<int64_t>& start,
+              std::vector<int32_t>& values) {
+  start.assign(static_cast<size_t>(count) + 1, 0);
+  for (const auto& [row, value] : pairs) ++start[static_cast<size_t>(row) + 1];
+  for (size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
+  values.resize(pairs.size());
+  std::vector<int64_t> at(start.begin(), start.end() - 1);
+  for (const auto& [row, value] : pairs) values[static_cast<size_t>(at[static_cast<size_t>(row)]++)] = value;
 }
 
 // The nearest rotation R and nearest volume-preserving matrix S of F, blended: (R + w S) / (1 + w), with the tet's
@@ -335,9 +343,9 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
 
 }  // namespace
 
-Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
-                              FemStats* stats) {
-  POSEWARP_RETURN_IF_ERROR(validate(params));
+namespace internal {
+
+Status check_inputs(const SolveInputs& in) {
   const TetMesh& mesh = in.rest;
   const int64_t n = mesh.vertex_count();
   if (in.warm.rows() != n || in.warm.cols() != 3 || in.weights.vertex_count() != n ||
@@ -346,12 +354,12 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
     return invalid_argument_error("the soft-tissue solve's inputs do not fit the mesh (" + std::to_string(n) +
                                   " vertices); rebuild the rig");
   }
-  StageProgress progress(hooks, "fem");
-  FemStats local_stats;
-  FemStats& st = stats ? *stats : local_stats;
-  st = FemStats{};
-  const auto start = std::chrono::steady_clock::now();
+  return ok_status();
+}
 
+std::vector<int32_t> free_vertices(const SolveInputs& in, double margin_mm) {
+  const TetMesh& mesh = in.rest;
+  const int64_t n = mesh.vertex_count();
   // 1. The tissue the pose bends: vertices whose influences move them to different places.
   std::vector<double> distance(static_cast<size_t>(n), std::numeric_limits<double>::infinity());
   using Entry = std::pair<double, int32_t>;
@@ -382,7 +390,7 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
     for (int64_t e = in.topology.edge_start[static_cast<size_t>(v)]; e < in.topology.edge_start[static_cast<size_t>(v) + 1]; ++e) {
       const int32_t w = in.topology.edges[static_cast<size_t>(e)];
       const double dw = d + (mesh.vertices.row(w) - mesh.vertices.row(v)).norm();
-      if (dw <= params.margin_mm && dw < distance[static_cast<size_t>(w)]) {
+      if (dw <= margin_mm && dw < distance[static_cast<size_t>(w)]) {
         distance[static_cast<size_t>(w)] = dw;
         queue.emplace(dw, w);
       }
@@ -394,6 +402,21 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
       free_vertices.push_back(static_cast<int32_t>(v));
     }
   }
+  return free_vertices;
+}
+
+}  // namespace internal
+
+Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
+                              FemStats* stats) {
+  POSEWARP_RETURN_IF_ERROR(validate(params));
+  POSEWARP_RETURN_IF_ERROR(internal::check_inputs(in));
+  StageProgress progress(hooks, "fem");
+  FemStats local_stats;
+  FemStats& st = stats ? *stats : local_stats;
+  st = FemStats{};
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<int32_t> free_vertices = internal::free_vertices(in, params.margin_mm);
   Eigen::MatrixXd posed = in.warm;
   const auto nf = static_cast<Eigen::Index>(free_vertices.size());
   st.free_vertices = nf;

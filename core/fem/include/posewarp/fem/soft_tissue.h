@@ -106,6 +106,23 @@ struct SolveInputs {
 Result<Eigen::MatrixXd> solve(const SolveInputs& inputs, const FemParams& params, const ProgressHooks& hooks,
                               FemStats* stats = nullptr);
 
+// The straightforward co-rotational linear FEM of the paper's section 5 (Mueller and Gross 2004), kept to measure
+// the projective solve against: per iteration each tet's rotation from the polar decomposition of its deformation
+// gradient, then the linear system sum_e R_e K_e (R_e^T x - X) = 0 assembled and factored anew (3 unknowns per free
+// vertex), on the same free vertices with the same bones held. K_e is a homogeneous isotropic linear material whose
+// Poisson's ratio sets how nearly incompressible it is. Seconds to minutes on a body: a reference, not a method.
+struct CorotationalParams {
+  double poisson_ratio = 0.45;
+  int max_iterations = 100;
+  double tolerance_mm = 0.02;
+  double margin_mm = 40.0;
+};
+
+Status validate(const CorotationalParams& params);
+
+Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const CorotationalParams& params,
+                                           const ProgressHooks& hooks, FemStats* stats = nullptr);
+
 // Per vertex: 1 on the mesh's boundary (its tets do not surround it) and on no bone tet: the skin.
 std::vector<uint8_t> skin_vertices(const TetMesh& rest);
 
