@@ -5,11 +5,13 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <mutex>
 #include <new>
 #include <unordered_map>
+#include <utility>
 
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
@@ -58,6 +60,16 @@ skinning::SegmentTransforms segment_transforms(const std::vector<pose::RigidTran
     segments.translation.push_back(t.translation);
   }
   return segments;
+}
+
+// A joint rotation's flexion and abduction in degrees: the pose's own angles when it gave them, else the rotation
+// `turn` (LPS) read in the joint's frame as x, then y, then z (rig::joint_rotation_from_angles's order).
+std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const pose::JointRotation& rotation,
+                                                const Eigen::Matrix3d& turn) {
+  if (rotation.angles_deg) return {rotation.angles_deg->x(), rotation.angles_deg->y()};
+  const Eigen::Matrix3d m = joint.frame.transpose() * turn * joint.frame;  // Rx(f) Ry(a) Rz(r)
+  constexpr double kDegrees = 180.0 / M_PI;
+  return {std::atan2(-m(1, 2), m(2, 2)) * kDegrees, std::asin(std::clamp(m(0, 2), -1.0, 1.0)) * kDegrees};
 }
 
 // Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
@@ -296,7 +308,18 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
   for (const pose::JointRotation& rotation : request.pose.joints) {
     const int j = skeleton.joint_index(rotation.joint);
     const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
-    if (!pose::joint_rotation_in_lps(joint, rotation).isIdentity(1e-12)) moved_joints.emplace_back(joint.name, joint.centre_mm);
+    const Eigen::Matrix3d turn = pose::joint_rotation_in_lps(joint, rotation);
+    if (turn.isIdentity(1e-12)) continue;
+    moved_joints.emplace_back(joint.name, joint.centre_mm);
+    const auto [flexion, abduction] = flexion_and_abduction(joint, rotation, turn);
+    for (const rig::MotionRange& range : joint.ranges) {
+      const double angle = range.motion == "abduction" ? abduction : flexion;
+      constexpr double kSlackDeg = 0.5;
+      if ((range.positive_stopped && angle > range.positive_deg + kSlackDeg) ||
+          (range.negative_stopped && angle < -range.negative_deg - kSlackDeg)) {
+        qr.past_range.push_back({joint.name, range.motion, angle, range.negative_deg, range.positive_deg});
+      }
+    }
   }
   const std::vector<double> radii{50.0, 100.0};
   qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, radii);

@@ -6,7 +6,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <iomanip>
 #include <mutex>
+#include <sstream>
+#include <string>
 
 #include "posewarp/common/parallel.h"
 
@@ -172,6 +175,13 @@ void add_warnings(QualityReport& r, double voxel_mm, const WarningThresholds& li
                            " of it is strongly stretched or squashed (det > 2 or < 0.5)");
     }
   }
+  for (const JointPastRange& p : r.past_range) {
+    std::ostringstream text;
+    text << std::fixed << std::setprecision(0) << "'" << p.joint << "' " << p.motion << " " << p.angle_deg
+         << " degrees is past its range measured at rig build (" << (0.0 - p.negative_deg) << " to " << p.positive_deg
+         << " degrees, where its bones meet): expect bone overlap and crushed tissue there";
+    r.warnings.push_back(text.str());
+  }
   if (!r.labels.appeared.empty()) r.warnings.push_back("labels appeared that the input does not hold");
   if (!r.labels.vanished.empty()) r.warnings.push_back("labels vanished in this pose");
 }
@@ -223,6 +233,12 @@ std::string to_json(const QualityReport& r) {
                        {"skin_inside_bone", c.skin_inside_bone}});
   }
   doc["moved_joints"] = regions;
+  json past = json::array();
+  for (const JointPastRange& p : r.past_range) {
+    past.push_back({{"joint", p.joint}, {"motion", p.motion}, {"angle_deg", p.angle_deg},
+                    {"range_deg", {0.0 - p.negative_deg, p.positive_deg}}});
+  }
+  doc["joints_past_range"] = past;
   doc["warnings"] = r.warnings;
   doc["voxels"] = {{"covered", r.covered_voxels},
                    {"conflicted", r.conflicted_voxels},

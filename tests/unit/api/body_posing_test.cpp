@@ -254,11 +254,36 @@ TEST(BodyPosing, JointRangesSayWhereBonesMeet) {
   EXPECT_LE(by_joint["shoulder_left"]["abduction"].negative_deg, 10.0);
   // Past the knee's stop, the posed bones overlap.
   ASSERT_TRUE(knee.positive_stopped);
-  Result<PoseResult> past = run(single("knee_left", std::min(knee.positive_deg + 25.0, 150.0)), skinning::Method::kCor, false);
+  const double past_deg = std::min(knee.positive_deg + 25.0, 150.0);
+  Result<PoseResult> past = run(single("knee_left", past_deg), skinning::Method::kCor, false);
   ASSERT_TRUE(past.ok());
   double overlap_ml = 0.0;
   for (const report::BoneOverlap& o : past->report.bone_overlaps) overlap_ml += o.volume_ml;
   EXPECT_GT(overlap_ml, 0.5);
+  // ... and the report says the pose is past the knee's range, with the pose's angle, whether the pose gave angles
+  // or a quaternion; a pose within the range says nothing.
+  ASSERT_EQ(past->report.past_range.size(), 1u);
+  EXPECT_EQ(past->report.past_range[0].joint, "knee_left");
+  EXPECT_EQ(past->report.past_range[0].motion, "flexion");
+  EXPECT_DOUBLE_EQ(past->report.past_range[0].angle_deg, past_deg);
+  EXPECT_EQ(past->report.past_range[0].positive_deg, knee.positive_deg);
+  bool warned = false;
+  for (const std::string& w : past->report.warnings) {
+    warned |= w.find("'knee_left' flexion") != std::string::npos && w.find("past its range") != std::string::npos;
+  }
+  EXPECT_TRUE(warned);
+  pose::Pose quaternion;
+  pose::JointRotation turn;
+  turn.joint = "knee_left";
+  turn.rotation = Eigen::Quaterniond(Eigen::AngleAxisd(past_deg * M_PI / 180.0, Eigen::Vector3d::UnitX()));
+  quaternion.joints.push_back(turn);
+  Result<PoseResult> same = run(quaternion, skinning::Method::kCor, false);
+  ASSERT_TRUE(same.ok());
+  ASSERT_EQ(same->report.past_range.size(), 1u);
+  EXPECT_NEAR(same->report.past_range[0].angle_deg, past_deg, 1e-6);
+  Result<PoseResult> within = run(single("knee_left", knee.positive_deg - 5.0), skinning::Method::kCor, false);
+  ASSERT_TRUE(within.ok());
+  EXPECT_TRUE(within->report.past_range.empty());
   RangeParams bad;
   bad.step_deg = 0.0;
   EXPECT_EQ(joint_ranges(rig, bad).status().code(), StatusCode::kInvalidArgument);

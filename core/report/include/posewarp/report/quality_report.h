@@ -74,6 +74,15 @@ struct BoneOverlap {
   double volume_ml = 0.0;
 };
 
+// A moved joint turned past the range of motion measured for it at rig build, where its bones meet (rig::Joint::
+// ranges): the pose asks for what the study's bones do not allow, and bone overlap or crushed tissue follows.
+struct JointPastRange {
+  std::string joint;
+  std::string motion;        // "flexion" or "abduction"
+  double angle_deg = 0.0;    // the pose's angle of that motion
+  double negative_deg = 0.0, positive_deg = 0.0;  // the measured range: -negative_deg .. positive_deg
+};
+
 // When a figure of the report is bad enough to warn about.
 struct WarningThresholds {
   double bone_deviation_voxels = 0.5;  // a bone voxel further than this from its bone's rigid motion
@@ -114,6 +123,7 @@ struct QualityReport {
   double bone_voxel_deviation_mm = 0.0;              // max over segments
   std::vector<BoneOverlap> bone_overlaps;
   std::vector<JointRegionChange> joint_regions;      // around each joint the pose moves, at 50 and 100 mm
+  std::vector<JointPastRange> past_range;            // moved joints turned past where their bones meet
   std::vector<std::string> warnings;                 // figures over WarningThresholds, in words
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
