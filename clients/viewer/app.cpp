@@ -143,7 +143,21 @@ void App::full_volume() {
   volume_request = std::make_unique<VolumeRequest>(*client, options.rig_id, controller->pose(), controller->method(),
                                                    true, grid_named(options.grid));
   requested_pose = pose_json(controller->pose()) + method_name(controller->method());
+  compare_report.reset();
+  compare_request.reset();
+  if (compare) {  // the other method's figures for the same pose, beside the slices' report
+    compare_request_method = controller->compare_method();
+    compare_request = VolumeRequest::report_only(*client, options.rig_id, controller->pose(), compare_request_method);
+  }
   status(progress_text("full volume", *volume_request));
+}
+
+void App::show_report() {
+  if (compare_report) {
+    scene->set_report(shown_title, shown_report, &*compare_report, method_name(shown_method), compare_report_method);
+  } else {
+    scene->set_report(shown_title, shown_report);
+  }
 }
 
 void App::save_volumes() {
@@ -251,9 +265,10 @@ bool App::tick() {
     } else {
       scene->slices().set_volume(std::move(converted));
       shown_pose = requested_pose, shown_report = arrived.report, stale = false;
+      shown_method = controller->method();
       shown_title =
           "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
-      scene->set_report(shown_title, shown_report);
+      show_report();
       if (compare) toggle_compare();
       layout(Scene::Layout::kSlices);
       status("full volume shown: click a slice to move the cursor, arrows step, b window, +/- label opacity");
@@ -261,11 +276,26 @@ bool App::tick() {
     arrived = PosedVolumes{};
     redraw = true;
   }
+  // The compare method's report of the same pose, beside the slices' own.
+  if (compare_request && compare_request->done()) {
+    PosedVolumes result;
+    const CallError e = compare_request->take(&result);
+    compare_request.reset();
+    if (e.failed()) {
+      status(std::string("the ") + method_name(compare_request_method) + " report: " + e.message);
+    } else {
+      compare_report = result.report;
+      compare_report_method = method_name(compare_request_method);
+      if (scene->slices().has_volume() && !stale) show_report();
+    }
+    redraw = true;
+  }
   // The slices of an older pose say so.
   if (scene->slices().has_volume() && !stale &&
       pose_json(controller->pose()) + method_name(controller->method()) != shown_pose) {
     stale = true;
-    scene->set_report(shown_title + "\nof an earlier pose: f refreshes", shown_report);
+    shown_title += "\nof an earlier pose: f refreshes";
+    show_report();
     redraw = true;
   }
   if (save_request && !save_request->done() && progress_due) {
@@ -352,6 +382,7 @@ void App::key(const std::string& k) {
     reconnect();
   } else if (k == "Escape") {
     if (volume_request) volume_request->cancel();
+    if (compare_request) compare_request->cancel();
     if (save_request) save_request->cancel();
   } else if (k == "q" && interactor != nullptr) {
     interactor->TerminateApp();
@@ -378,7 +409,7 @@ bool App::settle(int timeout_ms) {
   const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
   for (;;) {
     tick();
-    if (!volume_request && !save_request && !converting.valid()) return true;
+    if (!volume_request && !save_request && !compare_request && !converting.valid()) return true;
     if (std::chrono::steady_clock::now() > until) return false;
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }

@@ -47,6 +47,12 @@ struct App {
   // The full volume (for the slices) and a save, each a Pose call on its own thread; the conversion of a finished
   // volume runs off the render thread too.
   std::unique_ptr<VolumeRequest> volume_request, save_request;
+  // While two methods are compared, the full volume's pose is also asked of the other method for its report only,
+  // and the slices' report shows both side by side.
+  std::unique_ptr<VolumeRequest> compare_request;
+  v1::Method compare_request_method = v1::METHOD_DQS;
+  std::optional<v1::QualityReport> compare_report;  // of the compare method, for requested_pose's pose
+  std::string compare_report_method;
   SliceVolume converted;
   PosedVolumes arrived;
   // Declared after what it reads and writes, so it is waited for (destroyed) first.
@@ -54,6 +60,7 @@ struct App {
   std::string requested_pose, shown_pose;  // the pose JSON and method of the volume asked for and of the one shown
   std::string shown_title;
   v1::QualityReport shown_report;
+  v1::Method shown_method = v1::METHOD_COR;  // of the volume shown
   bool stale = false;    // the pose changed since the volume shown
   std::string save_dir;  // of the save running or last done
   std::vector<std::string> pose_files;
@@ -69,6 +76,8 @@ struct App {
   // Changes the window's layout and moves the sliders into the 3D view.
   void layout(Scene::Layout layout);
   void full_volume();
+  // The slices' report: the shown pose's, beside the compare method's when it has arrived for that pose.
+  void show_report();
   void save_volumes();
   void toggle_compare();
   void reconnect();

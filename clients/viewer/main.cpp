@@ -172,7 +172,8 @@ int main(int argc, char** argv) {
   app.add_option("--method", o.method, "How the tissue moves: cor, dqs, lbs or fem (volume-preserving, slower)")
       ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}))
       ->capture_default_str();
-  app.add_option("--compare", o.compare, "Show this method side by side with --method")
+  app.add_option("--compare", o.compare,
+                 "Show this method side by side with --method; with --slices (or f), the two methods' report figures side by side")
       ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}));
   app.add_option("--view", o.view, "Camera: anterior, lateral or superior")
       ->check(CLI::IsMember({"anterior", "lateral", "superior"}))
@@ -296,16 +297,29 @@ int main(int argc, char** argv) {
   v1::QualityReport shown_report;
   if (const CallError& e = controller.last_error(); e.failed())
     return fail("the server refused the pose: " + e.message, exit_code(e));
+  std::optional<v1::QualityReport> compare_report;
   if (o.slices) {
     VolumeRequest request(*client, o.rig_id, start, method, true, grid_named(o.grid));
+    // --compare: the other method's report of the same pose, beside this one's.
+    std::unique_ptr<VolumeRequest> other =
+        compare ? VolumeRequest::report_only(*client, o.rig_id, start, method_named(o.compare)) : nullptr;
     PosedVolumes posed;
     if (CallError e = finish(request, "full volume", &posed); e.failed()) return fail(e.message, exit_code(e));
+    if (other) {
+      PosedVolumes report;
+      if (CallError e = finish(*other, "the " + o.compare + " report", &report); e.failed()) {
+        return fail(e.message, exit_code(e));
+      }
+      compare_report = report.report;
+    }
     SliceVolume volume;
     std::string why;
     if (!slice_volume(posed, &volume, &why)) return fail(why);
     scene.slices().set_volume(std::move(volume));
     if (!o.cursor.empty()) scene.slices().set_cursor_mm(cursor);
-    scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report);
+    scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report,
+                     compare_report ? &*compare_report : nullptr, method_name(method),
+                     o.compare.empty() ? "" : method_name(method_named(o.compare)));
     scene.set_layout(Scene::Layout::kSlices);
     shown_report = posed.report;
   }
@@ -324,6 +338,9 @@ int main(int argc, char** argv) {
     ui.shown_pose = pose_json(start) + method_name(method);
     ui.shown_title = std::string("quality report (") + method_name(method) + ")";
     ui.shown_report = shown_report;
+    ui.shown_method = method;
+    ui.compare_report = compare_report;
+    ui.compare_report_method = o.compare.empty() ? "" : method_name(method_named(o.compare));
   }
   ui.options = o;
   ui.client = client.get();

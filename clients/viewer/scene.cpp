@@ -441,14 +441,24 @@ void Scene::set_method_names(const std::string& main, const std::string& compare
   parts_->method_names[1]->SetInput(compare.c_str());
 }
 
-void Scene::set_report(const std::string& title, const v1::QualityReport& report) {
+void Scene::set_report(const std::string& title, const v1::QualityReport& report, const v1::QualityReport* compare,
+                       const std::string& method, const std::string& compare_method) {
   std::string text = title;
-  for (const std::string& line : report_lines(report)) text += "\n" + line;
+  const std::vector<std::string> lines =
+      compare ? compare_report_lines(report, method, *compare, compare_method) : report_lines(report);
+  for (const std::string& line : lines) text += "\n" + line;
+  report_text_ = text;
+  // A table of two methods lines up in a fixed-width font.
+  if (compare) {
+    parts_->report->GetTextProperty()->SetFontFamilyToCourier();
+  } else {
+    parts_->report->GetTextProperty()->SetFontFamilyToArial();
+  }
   parts_->report->SetInput(text.c_str());
   // The first warnings, wrapped to the 3D view's width (about 7 pixels a character at this size); the report
   // file has them all.
   const size_t columns = static_cast<size_t>(std::max(30, parts_->width / 2 / 7 - 4));
-  constexpr int kShown = 3;
+  const int kShown = compare ? 1 : 3;  // a table of two methods takes the room of the others
   std::string warnings;
   for (int i = 0; i < std::min(kShown, report.warnings_size()); ++i) {
     const std::string& w = report.warnings(i);

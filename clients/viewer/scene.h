@@ -41,8 +41,13 @@ class Scene {
   // Names the methods shown (the side-by-side view's two, or the 3D view's one).
   void set_method_names(const std::string& main, const std::string& compare);
   SliceViews& slices() { return *slices_; }
-  // The quality report's key figures beside the slices, warnings highlighted; `title` says which pose it is.
-  void set_report(const std::string& title, const v1::QualityReport& report);
+  // The quality report's key figures beside the slices, warnings highlighted; `title` says which pose it is. With
+  // `compare` (the same pose with another method), the two methods' figures side by side, named `method` and
+  // `compare_method`; the warnings stay `report`'s.
+  void set_report(const std::string& title, const v1::QualityReport& report, const v1::QualityReport* compare = nullptr,
+                  const std::string& method = "", const std::string& compare_method = "");
+  // The text set_report shows (for tests and scripts).
+  const std::string& report_text() const { return report_text_; }
   // The joint list down the left side, the chosen one marked (empty: hidden).
   void set_joint_list(const std::vector<std::string>& names, const std::string& chosen);
   // The joint whose sphere is under display (x, y) in the 3D view, or -1.
@@ -70,6 +75,7 @@ class Scene {
   Parts* parts_;
   std::unique_ptr<SliceViews> slices_;
   Layout layout_ = Layout::kSingle;
+  std::string report_text_;
   std::vector<std::array<double, 3>> centres_;  // as drawn now
   std::vector<std::string> joint_names_;
   std::vector<std::array<double, 3>> rest_centres_;

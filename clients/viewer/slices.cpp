@@ -15,9 +15,12 @@
 #include <vtkTextProperty.h>
 #include <vtkUnsignedCharArray.h>
 
+#include <nlohmann/json.hpp>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 namespace posewarp::view {
 namespace {
@@ -184,11 +187,82 @@ bool slice_volume(const PosedVolumes& posed, SliceVolume* volume, std::string* e
   return true;
 }
 
+std::vector<LocalFigures> local_figures(const v1::QualityReport& report) {
+  std::vector<LocalFigures> figures;
+  const nlohmann::json doc = nlohmann::json::parse(report.json(), nullptr, false);
+  if (!doc.is_object() || !doc.contains("moved_joints") || !doc["moved_joints"].is_array()) return figures;
+  for (const nlohmann::json& j : doc["moved_joints"]) {
+    if (!j.is_object()) continue;
+    LocalFigures f;
+    f.joint = j.value("joint", std::string());
+    f.radius_mm = j.value("radius_mm", 0.0);
+    f.volume_change = j.value("volume_change", 0.0);
+    f.folded_fraction = j.value("folded_fraction", 0.0);
+    f.skin_vertices = j.value("skin_vertices", int64_t{0});
+    f.skin_inside = j.value("skin_inside_tissue", int64_t{0}) + j.value("skin_inside_bone", int64_t{0});
+    figures.push_back(f);
+  }
+  return figures;
+}
+
 std::vector<std::string> report_lines(const v1::QualityReport& report) {
-  return {"inverted tets: " + std::to_string(report.inverted_tets()),
-          figure("bone rigidity error: %.2f mm", report.bone_rigidity_error_mm()),
-          figure("volume change: %+.2f %%", 100.0 * report.volume_change()),
-          "new labels: " + label_list(report.new_labels()), "lost labels: " + label_list(report.lost_labels())};
+  std::vector<std::string> lines{"inverted tets: " + std::to_string(report.inverted_tets()),
+                                 figure("bone rigidity error: %.2f mm", report.bone_rigidity_error_mm()),
+                                 figure("volume change: %+.2f %%", 100.0 * report.volume_change()),
+                                 "new labels: " + label_list(report.new_labels()),
+                                 "lost labels: " + label_list(report.lost_labels())};
+  for (const LocalFigures& f : local_figures(report)) {
+    char text[160];
+    std::snprintf(text, sizeof text, "%s, %.0f mm: %+.1f %% soft tissue, %.1f %% folded, skin in %lld/%lld",
+                  f.joint.c_str(), f.radius_mm, 100.0 * f.volume_change, 100.0 * f.folded_fraction,
+                  static_cast<long long>(f.skin_inside), static_cast<long long>(f.skin_vertices));
+    lines.emplace_back(text);
+  }
+  return lines;
+}
+
+std::vector<std::string> compare_report_lines(const v1::QualityReport& a, const std::string& a_name,
+                                              const v1::QualityReport& b, const std::string& b_name, size_t max_joints) {
+  char text[160];
+  auto row = [&](const std::string& name, const std::string& x, const std::string& y) {
+    std::snprintf(text, sizeof text, "%-22.22s %9s %9s", name.c_str(), x.c_str(), y.c_str());
+    return std::string(text);
+  };
+  auto percent = [](double value) { return figure("%+.1f %%", 100.0 * value); };
+  std::vector<std::string> lines{row("", a_name, b_name),
+                                 row("inverted tets", std::to_string(a.inverted_tets()), std::to_string(b.inverted_tets())),
+                                 row("volume change", percent(a.volume_change()), percent(b.volume_change()))};
+  const std::vector<LocalFigures> fa = local_figures(a), fb = local_figures(b);
+  auto find = [](const std::vector<LocalFigures>& in, const std::string& joint, double radius) -> const LocalFigures* {
+    for (const LocalFigures& f : in) {
+      if (f.joint == joint && f.radius_mm == radius) return &f;
+    }
+    return nullptr;
+  };
+  // Per joint (in the report's order): the soft tissue's volume change and folded share within the smallest
+  // radius, its volume change within the largest.
+  std::vector<std::string> joints;
+  double inner = std::numeric_limits<double>::infinity(), outer = 0.0;
+  for (const LocalFigures& f : fa) {
+    if (find(fb, f.joint, f.radius_mm) == nullptr) continue;
+    if (std::find(joints.begin(), joints.end(), f.joint) == joints.end()) joints.push_back(f.joint);
+    inner = std::min(inner, f.radius_mm), outer = std::max(outer, f.radius_mm);
+  }
+  for (size_t j = 0; j < joints.size() && j < max_joints; ++j) {
+    const LocalFigures *x = find(fa, joints[j], inner), *y = find(fb, joints[j], inner);
+    if (x && y) {
+      lines.push_back(row(joints[j] + figure(" %.0f mm", inner), percent(x->volume_change), percent(y->volume_change)));
+      lines.push_back(row("  folded", figure("%.1f %%", 100.0 * x->folded_fraction), figure("%.1f %%", 100.0 * y->folded_fraction)));
+    }
+    x = find(fa, joints[j], outer), y = find(fb, joints[j], outer);
+    if (outer > inner && x && y) {
+      lines.push_back(row(joints[j] + figure(" %.0f mm", outer), percent(x->volume_change), percent(y->volume_change)));
+    }
+  }
+  if (joints.size() > max_joints) {
+    lines.push_back("and " + std::to_string(joints.size() - max_joints) + " more joints (d saves report.json)");
+  }
+  return lines;
 }
 
 struct SliceViews::Parts {

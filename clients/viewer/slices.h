@@ -35,8 +35,24 @@ struct SliceVolume {
 // does not hold what its header says.
 bool slice_volume(const PosedVolumes& posed, SliceVolume* volume, std::string* error);
 
-// The quality report's key figures, one per line, and its warnings (to highlight).
+// The soft tissue around each joint the pose moved, at each radius, as the report's JSON gives it.
+struct LocalFigures {
+  std::string joint;
+  double radius_mm = 0.0;
+  double volume_change = 0.0, folded_fraction = 0.0;
+  int64_t skin_vertices = 0, skin_inside = 0;  // skin passed into tissue or bone facing it
+};
+std::vector<LocalFigures> local_figures(const v1::QualityReport& report);
+
+// The quality report's key figures, one per line: the whole body's, then each moved joint's local figures.
 std::vector<std::string> report_lines(const v1::QualityReport& report);
+// Two methods' reports of one pose side by side, fixed-width: a header with the methods' names, then one row per
+// figure with each method's value (inverted tets, volume change, then for the first `max_joints` moved joints the
+// soft tissue's volume change and folded share within the smallest radius and its volume change within the
+// largest). Joints only one report has are left out.
+std::vector<std::string> compare_report_lines(const v1::QualityReport& a, const std::string& a_name,
+                                              const v1::QualityReport& b, const std::string& b_name,
+                                              size_t max_joints = 3);
 
 // Window/level presets in Hounsfield units.
 struct WindowLevel {

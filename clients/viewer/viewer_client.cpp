@@ -351,6 +351,24 @@ VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_
   thread_ = std::thread([this, request] { run(request); });
 }
 
+VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request)
+    : context_(client.context(rig_id)), client_(client) {
+  result_.pose_json = request.pose_json();
+  thread_ = std::thread([this, request] { run(request); });
+}
+
+std::unique_ptr<VolumeRequest> VolumeRequest::report_only(const ViewerClient& client, const std::string& rig_id,
+                                                          const Pose& pose, v1::Method method) {
+  v1::PoseRequest request;
+  request.set_rig_id(rig_id);
+  request.set_pose_json(pose_json(pose));
+  request.set_method(method);
+  request.set_want_labels(false);
+  request.set_want_ct(false);
+  request.set_want_surfaces(false);
+  return std::unique_ptr<VolumeRequest>(new VolumeRequest(client, rig_id, std::move(request)));
+}
+
 VolumeRequest::~VolumeRequest() {
   cancel();
   thread_.join();
@@ -397,6 +415,8 @@ void VolumeRequest::run(v1::PoseRequest request) {
                 "cannot reach posewarp-server at " + client_.server() + ": " + status.error_message()};
     } else if (!status.ok()) {
       error_ = {status.error_code(), status.error_message()};
+    } else if (!request.want_labels() && !request.want_ct()) {  // a report only
+      if (result.report.json().empty()) error_ = {grpc::StatusCode::DATA_LOSS, "the server's answer held no report"};
     } else if (result.labels.empty() || result.ct.empty() ||
                (request.format() == v1::FILE_FORMAT_RAW &&
                 (result.labels.size() != label_total || result.ct.size() != ct_total))) {

@@ -141,6 +141,9 @@ class VolumeRequest {
   // grid (GRID_POLICY_INPUT, what the CLI does by default) or one grown to hold the posed body.
   VolumeRequest(const ViewerClient& client, const std::string& rig_id, const Pose& pose, v1::Method method, bool raw,
                 v1::GridPolicy grid = v1::GRID_POLICY_INPUT);
+  // Only the quality report of the pose (no volume, no surface): another method's figures beside the slices'.
+  static std::unique_ptr<VolumeRequest> report_only(const ViewerClient& client, const std::string& rig_id,
+                                                    const Pose& pose, v1::Method method);
   ~VolumeRequest();
   VolumeRequest(const VolumeRequest&) = delete;
   VolumeRequest& operator=(const VolumeRequest&) = delete;
@@ -155,6 +158,7 @@ class VolumeRequest {
   bool wait(int timeout_ms);
 
  private:
+  VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request);
   void run(v1::PoseRequest request);
   std::unique_ptr<grpc::ClientContext> context_;
   const ViewerClient& client_;

@@ -14,6 +14,7 @@
 #include <sys/wait.h>
 
 #include <cmath>
+#include <sstream>
 #include <functional>
 #include <thread>
 
@@ -376,6 +377,37 @@ TEST(ViewerReport, KeyFiguresReadAsTheyShould) {
   EXPECT_EQ(lines[2], "volume change: -1.23 %");
   EXPECT_EQ(lines[3], "new labels: none");
   EXPECT_EQ(lines[4], "lost labels: 13");
+  // The local figures of each moved joint follow, from the report's JSON; two methods side by side in rows.
+  report.set_json(R"({"moved_joints": [{"joint": "knee_left", "radius_mm": 50, "volume_change": -0.148,
+      "folded_fraction": 0.095, "skin_vertices": 300, "skin_inside_tissue": 70, "skin_inside_bone": 4}]})");
+  const std::vector<std::string> local = view::report_lines(report);
+  ASSERT_EQ(local.size(), 6u);
+  EXPECT_EQ(local[5], "knee_left, 50 mm: -14.8 % soft tissue, 9.5 % folded, skin in 74/300");
+  v1::QualityReport other = report;
+  other.set_inverted_tets(0);
+  other.set_json(R"({"moved_joints": [{"joint": "knee_left", "radius_mm": 50, "volume_change": -0.178,
+      "folded_fraction": 0.181, "skin_vertices": 300, "skin_inside_tissue": 90, "skin_inside_bone": 0}]})");
+  const std::vector<std::string> table = view::compare_report_lines(report, "fem", other, "cor");
+  ASSERT_EQ(table.size(), 5u);
+  auto cells = [](const std::string& line) {
+    std::istringstream in(line.substr(22));
+    std::string a, b, unit;
+    in >> a;
+    if (line.find('%', 22) != std::string::npos) in >> unit;
+    in >> b;
+    return std::make_pair(a, b);
+  };
+  EXPECT_EQ(cells(table[0]), std::make_pair(std::string("fem"), std::string("cor")));
+  EXPECT_EQ(cells(table[1]), std::make_pair(std::string("3"), std::string("0")));
+  EXPECT_EQ(table[3].substr(0, 16), "knee_left 50 mm ");
+  EXPECT_EQ(cells(table[3]), std::make_pair(std::string("-14.8"), std::string("-17.8")));
+  EXPECT_EQ(table[4].substr(0, 8), "  folded");
+  EXPECT_EQ(cells(table[4]), std::make_pair(std::string("9.5"), std::string("18.1")));
+  EXPECT_EQ(view::compare_report_lines(report, "fem", other, "cor", 0).back(), "and 1 more joints (d saves report.json)");
+  // A report without the joint leaves its rows out; a report that is not JSON has no local figures.
+  other.set_json("not json");
+  EXPECT_EQ(view::compare_report_lines(report, "fem", other, "cor").size(), 3u);
+  EXPECT_EQ(view::report_lines(other).size(), 5u);
 }
 
 // The window's keys and clicks, driven as the interactor calls them (without one): choose a joint by clicking its
@@ -433,16 +465,28 @@ TEST_F(Viewer, TheWindowsKeysAndClicksWorkWithoutFreezing) {
   const auto milliseconds = [](auto start) {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   };
+  // Asked while two methods are compared, the full volume comes with the other method's report, and the slices'
+  // report shows the two methods' figures side by side.
+  app.key("c");
+  ASSERT_TRUE(app.compare != nullptr);
   auto pressed = std::chrono::steady_clock::now();
   app.key("f");
   EXPECT_LT(milliseconds(pressed), 200.0);
   EXPECT_TRUE(app.volume_request != nullptr);
+  EXPECT_TRUE(app.compare_request != nullptr);
   pressed = std::chrono::steady_clock::now();
   app.tick();
   EXPECT_LT(milliseconds(pressed), 200.0);
   ASSERT_TRUE(app.settle(120000));
   ASSERT_TRUE(scene.slices().has_volume());
   EXPECT_EQ(scene.layout(), view::Scene::Layout::kSlices);
+  ASSERT_TRUE(app.compare_report.has_value());
+  const std::string& text = scene.report_text();
+  EXPECT_NE(text.find("CoR"), std::string::npos) << text;
+  EXPECT_NE(text.find("DQS"), std::string::npos) << text;
+  EXPECT_NE(text.find("joint_2_3 50 mm"), std::string::npos) << text;
+  EXPECT_NE(text.find("joint_2_3 100 mm"), std::string::npos) << text;
+  EXPECT_NE(text.find("  folded"), std::string::npos) << text;
   // A click in the coronal view (bottom left) moves the cursor's L-R and S-I, not its A-P.
   scene.render();
   const std::array<double, 3> before = scene.slices().cursor_mm();
@@ -522,7 +566,10 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
   const Image bent = shot("sample_bent.png", {"--pose", pose.string()});
   const Image compare = shot("sample_cor_lbs.png", {"--pose", pose.string(), "--compare", "lbs", "--view", "lateral"});
   const Image slices = shot("sample_slices.png", {"--pose", pose.string(), "--slices", "--window", "bone"});
-  for (const Image* image : {&rest, &bent, &compare, &slices}) {
+  // The slices with CoR's and fem's report figures side by side.
+  const Image figures = shot("sample_slices_cor_fem.png", {"--pose", pose.string(), "--slices", "--compare", "fem"});
+  EXPECT_GT(differing(slices, figures, 0, 600), 0.0);
+  for (const Image* image : {&rest, &bent, &compare, &slices, &figures}) {
     ASSERT_EQ(image->width, 800);
     EXPECT_GT(drawn(*image), 0.10);
   }
@@ -530,7 +577,8 @@ TEST_F(Viewer, TheSampleAtRestBentSideBySideAndInSlices) {
   EXPECT_GT(differing(rest, bent, 300, 600), 0.02);
   EXPECT_LT(differing(rest, bent, 0, 150), differing(rest, bent, 300, 600));
   if (const char* out = std::getenv("POSEWARP_DOCS_OUT")) {
-    for (const char* name : {"sample_rest.png", "sample_bent.png", "sample_cor_lbs.png", "sample_slices.png"}) {
+    for (const char* name :
+         {"sample_rest.png", "sample_bent.png", "sample_cor_lbs.png", "sample_slices.png", "sample_slices_cor_fem.png"}) {
       fs::copy_file(dir_ / name, fs::path(out) / name, fs::copy_options::overwrite_existing);
     }
   }
