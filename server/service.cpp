@@ -1101,6 +1101,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   api::PoseRequest core;
   core.pose = std::move(checked->pose);
   core.method = method_of(checked->method);
+  core.fem.max_iterations = static_cast<int>(std::min<uint32_t>(request->fem().max_iterations(), 1u << 30));
+  core.fem.volume_weight = request->fem().volume_weight();  // the engine refuses what is out of range
   core.grid = checked->grid == v1::GRID_POLICY_GROW    ? api::GridPolicy::kGrow
               : checked->grid == v1::GRID_POLICY_GIVEN ? api::GridPolicy::kGiven
                                                        : api::GridPolicy::kInput;

@@ -30,6 +30,7 @@ struct OutputOptions {
   std::string grid_like;
   bool nearest_ct = false;
   int64_t max_output_mb = 0;  // 0 = half the machine's memory
+  api::FemOptions fem;        // 0: the engine's defaults
 };
 
 struct PoseOptions {
@@ -65,6 +66,7 @@ std::string forward_field_path(const std::string& path) {
 Result<api::PoseRequest> make_request(const OutputOptions& o) {
   api::PoseRequest request;
   POSEWARP_ASSIGN_OR_RETURN(request.method, skinning::method_from_name(o.method));
+  request.fem = o.fem;
   request.ct_interpolation = o.nearest_ct ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
   if (!o.grid_like.empty()) {
     POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader header, api::read_header(o.grid_like, read_options()));
@@ -296,6 +298,7 @@ struct CompareOptions {
   std::string pose_path;
   std::string json_out;
   std::vector<std::string> methods{"cor", "fem"};
+  api::FemOptions fem;    // for the fem method's solve
   Connection connection;  // compare on posewarp-server; rig_path is then a rig id
 };
 
@@ -314,6 +317,7 @@ int run_compare(const CompareOptions& o) {
     }
     api::PoseRequest request;
     request.method = *method;
+    request.fem = o.fem;
     request.want_labels = request.want_ct = request.want_surfaces = false;
     requests.push_back(std::move(request));
   }
@@ -493,12 +497,24 @@ int run_animate(const AnimateOptions& o) {
   return 0;
 }
 
+void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
+  cmd->add_option("--fem-iterations", fem.max_iterations,
+                  "With --method fem: at most this many iterations of the soft tissue's solve (default 100; more "
+                  "converges further, each costs about 1% of the default's time)")
+      ->check(CLI::Range(1, 10000));
+  cmd->add_option("--fem-volume-weight", fem.volume_weight,
+                  "With --method fem: how much more keeping volume counts than keeping shape (default 100, nearly "
+                  "incompressible)")
+      ->check(CLI::Range(1e-3, 1e6));
+}
+
 void add_output_options(CLI::App* cmd, OutputOptions& o) {
   cmd->add_option("--method", o.method, "How the tissue moves: cor (centres of rotation), dqs (dual quaternions), lbs (linear "
                   "blend) or fem (CoR refined by the soft tissue's volume-preserving steady state: slower, keeps the "
                   "volume at bent joints)")
       ->check(CLI::IsMember({"cor", "dqs", "lbs", "fem"}))
       ->capture_default_str();
+  add_fem_options(cmd, o.fem);
   cmd->add_option("--grid", o.grid, "Output grid: input (the study's grid) or grow (grown to hold the posed body)")
       ->check(CLI::IsMember({"input", "grow"}))
       ->capture_default_str();
@@ -565,6 +581,7 @@ void add_pose_commands(CLI::App& app) {
     cmd->add_option("--methods", o->methods, "Methods to compare, comma separated: cor, dqs, lbs, fem")
         ->delimiter(',')
         ->capture_default_str();
+    add_fem_options(cmd, o->fem);
     cmd->add_option("--json", o->json_out, "Also write the figures and each method's whole report as JSON here");
     add_connection_options(cmd, o->connection);
     cmd->add_option("--server", o->connection.server, "Compare on posewarp-server at HOST:PORT: RIG is then a rig id");

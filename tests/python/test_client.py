@@ -65,6 +65,13 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     assert fem.report["method"] == "fem" and "fem" in fem.report["stage_seconds"]
     assert fem.labels.shape == posed.labels.shape
     assert set(np.unique(fem.labels)) <= set(np.unique(posed.labels)) | {0}
+    # The fem solve's options reach the server: 1 iteration moves less tissue than 100; out of range is refused.
+    steady = client.pose(rig, POSE, method="fem", labels=False, ct=False)
+    short = client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=1)
+    assert steady.report["moved_joints"] and short.report["moved_joints"] != steady.report["moved_joints"]
+    with pytest.raises(PosewarpError) as too_many:
+        client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=20000)
+    assert too_many.value.code == grpc.StatusCode.INVALID_ARGUMENT and "max_iterations" in str(too_many.value)
 
 
 def test_refusals_carry_their_codes(study):

@@ -157,11 +157,13 @@ class Client:
                 return found
 
     def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False,
-             samples="stored", fields=False, meshes=None):
+             samples="stored", fields=False, meshes=None, fem_iterations=0, fem_volume_weight=0.0):
         """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one).
 
         method: "cor" (centres of rotation, the default), "dqs", "lbs" or "fem" (CoR refined by the soft tissue's
-        volume-preserving steady state: slower, folds less tissue at bent joints).
+        volume-preserving steady state: slower, folds less tissue at bent joints). With "fem", fem_iterations (1 to
+        10000, default 100: more converges further and takes longer) and fem_volume_weight (how much more keeping
+        volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default.
 
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
         bytes); "computed" gives int32 labels and float32 CT as computed. fields: also the inverse (output grid) and
@@ -176,7 +178,8 @@ class Client:
                                  grid=pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
                                  want_labels=labels, want_ct=ct, want_surfaces=surfaces or bool(meshes),
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
-                                 want_fields=fields)
+                                 want_fields=fields,
+                                 fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight))
         for name, (vertices, triangles) in (meshes or {}).items():
             request.meshes.add(name=name, vertices=np.asarray(vertices, dtype=float).ravel().tolist(),
                                triangles=np.asarray(triangles, dtype=np.int32).ravel().tolist())

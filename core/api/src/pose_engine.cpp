@@ -62,6 +62,15 @@ skinning::SegmentTransforms segment_transforms(const std::vector<pose::RigidTran
   return segments;
 }
 
+// The solve's parameters for a request's options (0: the default); INVALID_ARGUMENT naming the option out of range.
+Result<fem::FemParams> fem_params(const FemOptions& options) {
+  fem::FemParams params;
+  if (options.max_iterations != 0) params.max_iterations = options.max_iterations;
+  if (options.volume_weight != 0.0) params.volume_weight = options.volume_weight;
+  POSEWARP_RETURN_IF_ERROR(fem::validate(params));
+  return params;
+}
+
 // A joint rotation's flexion and abduction in degrees: the pose's own angles when it gave them, else the rotation
 // `turn` (LPS) read in the joint's frame as x, then y, then z (rig::joint_rotation_from_angles's order).
 std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const pose::JointRotation& rotation,
@@ -127,9 +136,10 @@ Result<Eigen::MatrixXd> PoseEngine::posed_vertices(skinning::Method method, cons
 }
 
 Result<Eigen::MatrixXd> PoseEngine::soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
-                                                const ProgressHooks& hooks, int max_iterations) const {
+                                                const ProgressHooks& hooks, int max_iterations,
+                                                const FemOptions& options) const {
   std::call_once(fem_->once, [&] { fem_->topology = fem::topology(rig_.mesh); });
-  fem::FemParams params;
+  POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
   if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
     params.max_iterations = max_iterations;
     params.continue_from_last = true;
@@ -241,6 +251,7 @@ Result<PosePlan> PoseEngine::check_output_budget(const PoseRequest& request, con
 
 Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
   return guarded("planning the pose", [&]() -> Result<PosePlan> {
+    if (request.method == skinning::Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
     if (!(request.want_labels || request.want_ct || request.want_fields)) return PosePlan{};
     const rig::Skeleton& skeleton = rig_.skeleton;
     POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
@@ -277,6 +288,7 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
 
   // 1. Forward kinematics: one rigid transform per segment.
   POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
+  if (request.method == skinning::Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
                             pose::forward_kinematics(skeleton, request.pose));
   const skinning::SegmentTransforms segments = segment_transforms(transforms);
@@ -290,7 +302,7 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
                             posed_vertices(fem ? skinning::Method::kCor : request.method, segments, hooks));
   clock.lap("skinning");
   if (fem) {
-    POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices, soft_tissue(result.posed_vertices, segments, hooks));
+    POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices, soft_tissue(result.posed_vertices, segments, hooks, 0, request.fem));
     clock.lap("fem");
   }
 

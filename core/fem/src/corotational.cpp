@@ -180,6 +180,16 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& in, const Corotati
         }
       }
     }
+    // A faint pull towards the warm start keeps the system definite where a free piece touches nothing fixed.
+    double diagonal = 0.0;
+    for (Eigen::Index i = 0; i < 3 * nf; ++i) diagonal += matrix.coeff(i, i);
+    const double pull = 1e-9 * diagonal / static_cast<double>(3 * nf);
+    for (Eigen::Index i = 0; i < nf; ++i) {
+      for (int d = 0; d < 3; ++d) {
+        matrix.coeffRef(3 * i + d, 3 * i + d) += pull;
+        rhs(3 * i + d) += pull * in.warm(free_vertices[static_cast<size_t>(i)], d);
+      }
+    }
     llt.factorize(matrix);
     if (llt.info() != Eigen::Success) {
       return internal_error("the co-rotational soft-tissue system (" + std::to_string(nf) + " vertices) could not be factored");

@@ -423,6 +423,32 @@ TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
 namespace posewarp::api {
 namespace {
 
+// The fem solve's options: fewer iterations stop earlier (a different shape), and values out of range are refused
+// before any work, naming the option.
+TEST(Posing, FemOptionsTuneTheSolveAndOutOfRangeIsRefused) {
+  const PoseEngine& engine = bar_engine();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 70.0, 0.0);
+  request.method = skinning::Method::kFem;
+  request.want_labels = request.want_ct = request.want_surfaces = false;
+  Result<PoseResult> steady = engine.pose(request);
+  ASSERT_TRUE(steady.ok()) << steady.status().to_string();
+  request.fem.max_iterations = 1;
+  Result<PoseResult> one = engine.pose(request);
+  ASSERT_TRUE(one.ok()) << one.status().to_string();
+  EXPECT_GT((one->posed_vertices - steady->posed_vertices).cwiseAbs().maxCoeff(), 0.01);
+  request.fem.max_iterations = 20000;
+  Result<PoseResult> refused = engine.pose(request);
+  EXPECT_EQ(refused.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("max_iterations"), std::string::npos) << refused.status().message();
+  EXPECT_EQ(engine.plan(request).status().code(), StatusCode::kInvalidArgument);
+  request.fem.max_iterations = 0;
+  request.fem.volume_weight = -1.0;
+  EXPECT_EQ(engine.pose(request).status().code(), StatusCode::kInvalidArgument);
+  request.method = skinning::Method::kCor;  // the other methods do not read them
+  EXPECT_TRUE(engine.pose(request).ok());
+}
+
 // The preview skins only the tet vertices its surfaces need and gives the same posed surfaces as a full pose; with
 // fem it takes the solve's first iterations, so its surfaces are within a few millimetres of the full pose's.
 TEST(Posing, PreviewGivesTheFullPosesSurfaces) {

@@ -21,9 +21,17 @@ namespace posewarp::api {
 // How a request names the output grid (the input grid, grown to hold the posed body, or a given grid).
 using resample::GridPolicy;
 
+// The fem method's solve, for a request that trades time for how far it converges (the others ignore it). 0 takes
+// the engine's default.
+struct FemOptions {
+  int max_iterations = 0;      // 1 to 10000; default 100
+  double volume_weight = 0.0;  // how much more keeping volume counts than keeping shape, up to 1e6; default 100
+};
+
 struct PoseRequest {
   pose::Pose pose;
   skinning::Method method = skinning::Method::kCor;
+  FemOptions fem;
   resample::GridPolicy grid = resample::GridPolicy::kInput;
   std::optional<ImageGeometry> given_grid;  // for GridPolicy::kGiven
   bool want_labels = true;
@@ -116,7 +124,8 @@ class PoseEngine {
   // The soft tissue's steady state from skinned (CoR) vertices. With `max_iterations` (a preview's), at most that
   // many, going on from where the last solve on the same free vertices ended; 0: the solve's own, from the warm start.
   Result<Eigen::MatrixXd> soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
-                                      const ProgressHooks& hooks, int max_iterations = 0) const;
+                                      const ProgressHooks& hooks, int max_iterations = 0,
+                                      const FemOptions& options = {}) const;
 };
 
 }  // namespace posewarp::api
