@@ -301,6 +301,13 @@ void add_rig_commands(CLI::App& app) {
         ->capture_default_str();
     cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")
         ->capture_default_str();
+    cmd->add_option("--joint-size", p.mesh.joint_cell_size_mm,
+                    "Largest tet size within --joint-radius of each joint's centre (not the spine's plane joints), mm (0: no finer mesh "
+                    "there; finer tets let the fem method bend the tissue of a joint over several layers)")
+        ->check(CLI::Range(0.0, 1000.0));
+    cmd->add_option("--joint-radius", p.mesh.joint_radius_mm, "Reach of --joint-size around each joint centre, mm")
+        ->check(CLI::Range(0.0, 1000.0))
+        ->capture_default_str();
     cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
         ->capture_default_str();
     cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");

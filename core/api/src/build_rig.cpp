@@ -189,8 +189,16 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
       clock.lap("contacts");
     }
     mesh::MeshHealth health;
+    mesh::MeshParams mesh_params = params.mesh;
+    if (mesh_params.joint_cell_size_mm > 0.0) {  // the joints that bend far: all but those declared plane (the spine's)
+      for (const rig::Joint& joint : rig.skeleton.joints) {
+        if (joint.kind != labels::JointKind::kPlane) {
+          mesh_params.joint_centres_lps.push_back({joint.centre_mm.x(), joint.centre_mm.y(), joint.centre_mm.z()});
+        }
+      }
+    }
     POSEWARP_ASSIGN_OR_RETURN(rig.mesh, mesh::make_cgal_mesher()->mesh(classes, static_cast<int>(names.size()),
-                                                                       params.mesh, hooks, &health));
+                                                                       mesh_params, hooks, &health));
     for (const std::string& warning : health.warnings) rig.skeleton.notes.push_back("mesh: " + warning);
     const int64_t bridging = mesh::separate_bone_segments(rig.mesh);
     if (regions) {

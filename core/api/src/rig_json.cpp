@@ -172,6 +172,10 @@ std::string params_to_json(const BuildParams& p) {
                  {"exude_time_limit_s", p.mesh.exude_time_limit_s},
                  {"parallel_watchdog_s", p.mesh.parallel_watchdog_s},
                  {"max_vertices", p.mesh.max_vertices}};
+  if (p.mesh.joint_cell_size_mm > 0.0) {  // only when set: rigs built without it keep their ids
+    doc["mesh"]["joint_cell_size_mm"] = p.mesh.joint_cell_size_mm;
+    doc["mesh"]["joint_radius_mm"] = p.mesh.joint_radius_mm;
+  }
   doc["weights"] = {{"max_influences", p.weights.max_influences},
                     {"prune_below", p.weights.prune_below},
                     {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},

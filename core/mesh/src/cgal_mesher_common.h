@@ -29,7 +29,13 @@ struct MesherInput {
   LabelVolume classes;  // possibly downsampled
   int segment_count = 0;
   GridDistance bone_distance;
+  std::vector<std::array<double, 3>> joint_centres_grid;  // MeshParams::joint_centres_lps in grid mm
 };
+
+// The largest tet circumradius wanted at a point (grid mm) `bone_mm` from the nearest bone: bone_cell_size_mm at
+// bone, growing by size_growth up to soft_cell_size_mm, and near a joint centre at most joint_cell_size_mm (growing
+// beyond joint_radius_mm).
+double cell_size_at(const MesherInput& input, const MeshParams& params, double x, double y, double z, double bone_mm);
 
 // The number of vertices refinement at these sizes will make, estimated before it starts from the cell size over
 // the body. It errs low (0.5-0.8x on the phantoms): it exists to refuse sizes that could never finish (a 0.25 mm

@@ -37,15 +37,15 @@ class CellSizeField {
   using FT = Kernel::FT;
   using Index = Domain::Index;
 
-  CellSizeField(const GridDistance* distance, const MeshParams* params) : distance_(distance), params_(params) {}
+  CellSizeField(const MesherInput* input, const MeshParams* params) : input_(input), params_(params) {}
 
   FT operator()(const Kernel::Point_3& p, const int, const Index&) const {
-    const double d = distance_->at_grid_mm(p.x(), p.y(), p.z());
-    return std::min(params_->soft_cell_size_mm, params_->bone_cell_size_mm + params_->size_growth * d);
+    const double d = input_->bone_distance.at_grid_mm(p.x(), p.y(), p.z());
+    return cell_size_at(*input_, *params_, p.x(), p.y(), p.z(), d);
   }
 
  private:
-  const GridDistance* distance_;
+  const MesherInput* input_;
   const MeshParams* params_;
 };
 
@@ -84,7 +84,7 @@ Result<TetMesh> run_cgal_mesh_3(const MesherInput& input, const MeshParams& para
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   progress.update(0.05);
 
-  CellSizeField cell_size(&input.bone_distance, &params);
+  CellSizeField cell_size(&input, &params);
   Criteria criteria(p::facet_angle = params.facet_angle_deg, p::facet_size = params.facet_size_mm,
                     p::facet_distance = params.facet_distance_mm,
                     p::cell_radius_edge_ratio = params.cell_radius_edge_ratio, p::cell_size = cell_size);

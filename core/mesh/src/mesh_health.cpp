@@ -44,6 +44,13 @@ Status validate(const MeshParams& p) {
                                     std::to_string(value) + "); finer meshes grow without bound");
     }
   }
+  if (!(p.joint_cell_size_mm == 0.0 || (p.joint_cell_size_mm >= kSmallestMm && p.joint_cell_size_mm <= 1000.0))) {
+    return invalid_argument_error("mesh joint_cell_size_mm must be 0 (off) or 0.25..1000 mm (got " +
+                                  std::to_string(p.joint_cell_size_mm) + ")");
+  }
+  if (!(p.joint_radius_mm >= 0.0 && p.joint_radius_mm <= 1000.0)) {
+    return invalid_argument_error("mesh joint_radius_mm must lie in 0..1000 mm (got " + std::to_string(p.joint_radius_mm) + ")");
+  }
   if (!(p.parallel_watchdog_s >= 0.0) || !std::isfinite(p.parallel_watchdog_s)) {
     return invalid_argument_error("mesh parallel_watchdog_s must be a finite number of seconds, 0 or more (0: none)");
   }

@@ -146,6 +146,32 @@ TEST(BuildRig, CancellationStopsTheBuildWithinASecond) {
 
 // The rig id is a SHA-256 of everything that shapes the rig: the same inputs give the same id, a changed rig spec
 // or body mask another.
+// --joint-size: the build refines the mesh around its hinge and ball joints' centres (finer tets within the radius,
+// the rest as before); the parameters' JSON names it only when set, so rigs built without it keep their ids.
+TEST(BuildRig, JointCellSizeRefinesTheMeshAroundTheSkeletonsJoints) {
+  const Rig& plain = shared_bar_rig();
+  EXPECT_EQ(plain.params_json.find("joint_cell_size_mm"), std::string::npos);
+  BuildParams params = small_bar_params();
+  params.mesh.joint_cell_size_mm = 2.0;
+  params.mesh.joint_radius_mm = 12.0;
+  Result<Rig> refined = build_rig(bar_inputs(), params, {});
+  ASSERT_TRUE(refined.ok()) << refined.status().to_string();
+  EXPECT_NE(refined->params_json.find("joint_cell_size_mm"), std::string::npos);
+  EXPECT_NE(refined->id(), plain.id());
+  auto near_joints = [](const Rig& rig) {
+    int64_t near = 0;
+    for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) centroid += 0.25 * rig.mesh.vertices.row(rig.mesh.tets(t, k)).transpose();
+      for (const rig::Joint& joint : rig.skeleton.joints) near += (centroid - joint.centre_mm).norm() < 12.0;
+    }
+    return near;
+  };
+  EXPECT_GT(near_joints(*refined), 2 * near_joints(plain));
+  params.mesh.joint_cell_size_mm = 0.1;
+  EXPECT_EQ(build_rig(bar_inputs(), params, {}).status().code(), StatusCode::kInvalidArgument);
+}
+
 TEST(BuildRig, TheIdIsDerivedFromEveryInput) {
   const Rig& rig = shared_bar_rig();
   EXPECT_TRUE(is_hex_id(rig.id()));

@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <iostream>
 
 #include "posewarp/labels/body.h"
 #include "posewarp/phantom/phantom.h"
@@ -204,6 +205,45 @@ TEST(MeshHealthCheck, ALostBoneIsAnErrorNamingIt) {
   EXPECT_EQ(health.lost_segments, (std::vector<std::string>{"tibia"}));
 }
 
+// Around a joint centre the tets are as small as joint_cell_size_mm asks; away from it the mesh is as before.
+TEST(CgalMesher, JointCellSizeRefinesAroundTheJointCentresOnly) {
+  phantom::BarParams bar_params;
+  bar_params.length_mm = 160.0;
+  bar_params.bone_count = 3;
+  Result<phantom::Phantom> bar = phantom::make_bar(bar_params);
+  ASSERT_TRUE(bar.ok());
+  ASSERT_FALSE(bar->joints.empty());
+  const BarClasses classes = bar_classes();
+  const Vec3 c = bar->joints.front().centre_mm;
+  const Eigen::Vector3d centre(c[0], c[1], c[2]);
+  MeshParams params = small_sizes();
+  params.parallel = false;
+  Result<TetMesh> plain = make_cgal_mesher()->mesh(classes.classes, 3, params, {}, nullptr);
+  params.joint_cell_size_mm = 2.0;
+  params.joint_radius_mm = 12.0;
+  params.joint_centres_lps = {{c[0], c[1], c[2]}};
+  Result<TetMesh> refined = make_cgal_mesher()->mesh(classes.classes, 3, params, {}, nullptr);
+  ASSERT_TRUE(plain.ok() && refined.ok()) << refined.status().to_string();
+  // Tets whose centroid lies within 12 mm of the joint, and beyond 45 mm of it.
+  auto count = [&](const TetMesh& mesh) {
+    std::pair<int64_t, int64_t> near_far{0, 0};
+    for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 4; ++k) centroid += 0.25 * mesh.vertices.row(mesh.tets(t, k)).transpose();
+      const double d = (centroid - centre).norm();
+      near_far.first += d < 12.0;
+      near_far.second += d > 45.0;
+    }
+    return near_far;
+  };
+  const auto [plain_near, plain_far] = count(*plain);
+  const auto [refined_near, refined_far] = count(*refined);
+  std::cout << "tets within 12 mm of the joint: " << plain_near << " -> " << refined_near << "; beyond 45 mm: "
+            << plain_far << " -> " << refined_far << "\n";
+  EXPECT_GT(refined_near, 3 * plain_near);
+  EXPECT_NEAR(static_cast<double>(refined_far), static_cast<double>(plain_far), 0.25 * static_cast<double>(plain_far));
+}
+
 TEST(MeshParamsCheck, RejectsSizesThatCannotWork) {
   MeshParams params;
   params.facet_angle_deg = 40.0;
@@ -213,6 +253,13 @@ TEST(MeshParamsCheck, RejectsSizesThatCannotWork) {
   EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
   params = MeshParams{};
   params.cell_radius_edge_ratio = 1.0;
+  EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
+  params = MeshParams{};
+  params.joint_cell_size_mm = 0.1;
+  EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
+  params.joint_cell_size_mm = 4.0;
+  EXPECT_TRUE(validate(params).ok());
+  params.joint_radius_mm = -1.0;
   EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
 }
 

@@ -1,6 +1,7 @@
 // Mesher: labelled image (0 outside, 1 soft tissue, 2 + k bone segment k) -> tetrahedra, behind an interface.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -35,6 +36,14 @@ struct MeshParams {
   // Refinement stops with RESOURCE_EXHAUSTED at this many vertices (a body at the default sizes has about 100k; each
   // vertex costs CGAL about 1 KB while it refines).
   int64_t max_vertices = 2'000'000;
+  // Finer tets around the limbs' joints, where a bent joint folds its tissue in a band one tet thick at the default
+  // sizes: within joint_radius_mm of a joint centre at most joint_cell_size_mm, growing by size_growth beyond.
+  // 0 = off (the default).
+  double joint_cell_size_mm = 0.0;
+  double joint_radius_mm = 60.0;
+  // The joint centres (LPS mm) the rig build fills from its skeleton (every joint not declared a plane joint, such
+  // as the spine's) when joint_cell_size_mm is set: derived from the labels, so not part of the parameters' JSON.
+  std::vector<std::array<double, 3>> joint_centres_lps;
 };
 
 // INVALID_ARGUMENT naming the field and its valid range.
