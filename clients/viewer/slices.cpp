@@ -211,13 +211,22 @@ std::vector<std::string> report_lines(const v1::QualityReport& report) {
                                  figure("volume change: %+.2f %%", 100.0 * report.volume_change()),
                                  "new labels: " + label_list(report.new_labels()),
                                  "lost labels: " + label_list(report.lost_labels())};
-  for (const LocalFigures& f : local_figures(report)) {
+  // The soft tissue within the smallest radius of the first moved joints, one short line each (the panel is a
+  // quarter of the window; report.json has every radius).
+  const std::vector<LocalFigures> local = local_figures(report);
+  double inner = std::numeric_limits<double>::infinity();
+  for (const LocalFigures& f : local) inner = std::min(inner, f.radius_mm);
+  constexpr size_t kJoints = 3;
+  size_t joints = 0;
+  for (const LocalFigures& f : local) {
+    if (f.radius_mm != inner) continue;
+    if (++joints > kJoints) continue;
     char text[160];
-    std::snprintf(text, sizeof text, "%s, %.0f mm: %+.1f %% soft tissue, %.1f %% folded, skin in %lld/%lld",
-                  f.joint.c_str(), f.radius_mm, 100.0 * f.volume_change, 100.0 * f.folded_fraction,
-                  static_cast<long long>(f.skin_inside), static_cast<long long>(f.skin_vertices));
+    std::snprintf(text, sizeof text, "%s %.0f mm: %+.1f %% tissue, %.1f %% folded", f.joint.c_str(), f.radius_mm,
+                  100.0 * f.volume_change, 100.0 * f.folded_fraction);
     lines.emplace_back(text);
   }
+  if (joints > kJoints) lines.push_back("and " + std::to_string(joints - kJoints) + " more joints (d saves report.json)");
   return lines;
 }
 

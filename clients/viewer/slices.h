@@ -44,7 +44,8 @@ struct LocalFigures {
 };
 std::vector<LocalFigures> local_figures(const v1::QualityReport& report);
 
-// The quality report's key figures, one per line: the whole body's, then each moved joint's local figures.
+// The quality report's key figures, one per line: the whole body's, then for the first three moved joints the soft
+// tissue's volume change and folded share within the smallest radius (50 mm).
 std::vector<std::string> report_lines(const v1::QualityReport& report);
 // Two methods' reports of one pose side by side, fixed-width: a header with the methods' names, then one row per
 // figure with each method's value (inverted tets, volume change, then for the first `max_joints` moved joints the

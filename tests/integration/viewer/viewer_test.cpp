@@ -382,7 +382,7 @@ TEST(ViewerReport, KeyFiguresReadAsTheyShould) {
       "folded_fraction": 0.095, "skin_vertices": 300, "skin_inside_tissue": 70, "skin_inside_bone": 4}]})");
   const std::vector<std::string> local = view::report_lines(report);
   ASSERT_EQ(local.size(), 6u);
-  EXPECT_EQ(local[5], "knee_left, 50 mm: -14.8 % soft tissue, 9.5 % folded, skin in 74/300");
+  EXPECT_EQ(local[5], "knee_left 50 mm: -14.8 % tissue, 9.5 % folded");
   v1::QualityReport other = report;
   other.set_inverted_tets(0);
   other.set_json(R"({"moved_joints": [{"joint": "knee_left", "radius_mm": 50, "volume_change": -0.178,
