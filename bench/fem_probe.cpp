@@ -38,6 +38,26 @@ void print_row(const char* name, const ClassFigures& c, double total_rest) {
               -100.0 * c.folded_loss / total_rest);
 }
 
+// The segments' rigid transforms of a pose, as the skinning and the solve take them.
+skinning::SegmentTransforms segments_of(const rig::Skeleton& skeleton, const pose::Pose& pose) {
+  skinning::SegmentTransforms segments;
+  const std::vector<pose::RigidTransform> transforms = pose::forward_kinematics(skeleton, pose).value();
+  for (const pose::RigidTransform& t : transforms) {
+    segments.rotation.push_back(t.rotation);
+    segments.translation.push_back(t.translation);
+  }
+  return segments;
+}
+
+// Step k of 9 of a slider dragged from rest to `pose`: every angle scaled by k / 9.
+pose::Pose slider_step(const pose::Pose& pose, int k) {
+  pose::Pose step = pose;
+  for (pose::JointRotation& r : step.joints) {
+    if (r.angles_deg) *r.angles_deg *= k / 9.0;
+  }
+  return step;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -64,6 +84,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   const TetMesh& mesh = engine->rig().mesh;
+  const skinning::RestTetFrames frames = skinning::rest_tet_frames(mesh);
+  const fem::Topology topology = fem::topology(mesh);
   // Which bone segments each vertex belongs to (a vertex of bone tets of two segments belongs to both).
   std::vector<std::set<int>> bones(static_cast<size_t>(mesh.vertex_count()));
   for (int64_t t = 0; t < mesh.tet_count(); ++t) {
@@ -114,14 +136,7 @@ int main(int argc, char** argv) {
     }
     Eigen::MatrixXd posed = result->posed_vertices;
     if (custom || corotational) {
-      const auto transforms = pose::forward_kinematics(engine->rig().skeleton, *pose);
-      skinning::SegmentTransforms segments;
-      for (const pose::RigidTransform& t : *transforms) {
-        segments.rotation.push_back(t.rotation);
-        segments.translation.push_back(t.translation);
-      }
-      const skinning::RestTetFrames frames = skinning::rest_tet_frames(mesh);
-      const fem::Topology topology = fem::topology(mesh);
+      const skinning::SegmentTransforms segments = segments_of(engine->rig().skeleton, *pose);
       fem::FemStats stats;
       const auto start = std::chrono::steady_clock::now();
       const fem::SolveInputs inputs{mesh, frames, topology, engine->rig().weights, segments, posed};
@@ -208,43 +223,28 @@ int main(int argc, char** argv) {
   // A slider dragged from rest to the pose in 9 steps (every angle scaled), fem previews: what each call waits for.
   std::printf("fem preview, the pose reached in 9 slider steps:");
   for (int k = 1; k <= 9; ++k) {
-    pose::Pose step = *pose;
-    for (pose::JointRotation& r : step.joints) {
-      if (r.angles_deg) *r.angles_deg *= k / 9.0;
-    }
     const auto start = std::chrono::steady_clock::now();
-    if (!engine->preview(step, skinning::Method::kFem).ok()) return 1;
+    if (!engine->preview(slider_step(*pose, k), skinning::Method::kFem).ok()) return 1;
     std::printf(" %.0f", 1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
   std::printf(" ms\n");
   // The same steps through the stages, timed apart: CoR skinning of the whole mesh, the solve (free vertices and
-  // system, then 10 iterations going on from the last).
+  // system, then the preview's 5 iterations on the bent tissue going on from the last).
   {
-    const TetMesh& rest = engine->rig().mesh;
-    const skinning::RestTetFrames frames = skinning::rest_tet_frames(rest);
-    const fem::Topology topology = fem::topology(rest);
     fem::SolveCache cache;
     fem::FemParams params;
-    params.max_iterations = 10;
+    params.max_iterations = 5;
     params.continue_from_last = true;
+    params.margin_mm = 0.0;
     for (int k = 1; k <= 9; ++k) {
-      pose::Pose step = *pose;
-      for (pose::JointRotation& r : step.joints) {
-        if (r.angles_deg) *r.angles_deg *= k / 9.0;
-      }
-      const auto transforms = pose::forward_kinematics(engine->rig().skeleton, step);
-      skinning::SegmentTransforms segments;
-      for (const pose::RigidTransform& t : *transforms) {
-        segments.rotation.push_back(t.rotation);
-        segments.translation.push_back(t.translation);
-      }
+      const skinning::SegmentTransforms segments = segments_of(engine->rig().skeleton, slider_step(*pose, k));
       const auto start = std::chrono::steady_clock::now();
-      const Eigen::MatrixXd warm = skinning::skin(skinning::Method::kCor, rest.vertices, engine->rig().weights,
+      const Eigen::MatrixXd warm = skinning::skin(skinning::Method::kCor, mesh.vertices, engine->rig().weights,
                                                   engine->rig().centres, segments).value();
       const double skin_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       fem::FemStats stats;
-      (void)fem::solve({rest, frames, topology, engine->rig().weights, segments, warm, &cache}, params, {}, &stats);
-      std::printf("  step %d: skin %.0f ms, free vertices and system %.0f ms (reused %d), 10 iterations %.0f ms\n", k,
+      (void)fem::solve({mesh, frames, topology, engine->rig().weights, segments, warm, &cache}, params, {}, &stats);
+      std::printf("  step %d: skin %.0f ms, free vertices and system %.0f ms (reused %d), 5 iterations %.0f ms\n", k,
                   1000.0 * skin_s, 1000.0 * stats.factor_seconds, stats.reused_system ? 1 : 0, 1000.0 * stats.iterate_seconds);
     }
   }

@@ -27,16 +27,7 @@ Status validate(const CorotationalParams& params) {
   if (!(params.poisson_ratio >= 0.0 && params.poisson_ratio < 0.5)) {
     return invalid_argument_error("fem poisson_ratio must be in [0, 0.5), got " + std::to_string(params.poisson_ratio));
   }
-  if (params.max_iterations < 1 || params.max_iterations > 10000) {
-    return invalid_argument_error("fem max_iterations must be in [1, 10000], got " + std::to_string(params.max_iterations));
-  }
-  if (!(params.tolerance_mm > 0.0 && params.tolerance_mm <= 100.0)) {
-    return invalid_argument_error("fem tolerance_mm must be in (0, 100], got " + std::to_string(params.tolerance_mm));
-  }
-  if (!(params.margin_mm >= 0.0 && params.margin_mm <= 1000.0)) {
-    return invalid_argument_error("fem margin_mm must be in [0, 1000], got " + std::to_string(params.margin_mm));
-  }
-  return ok_status();
+  return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
 }
 
 Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& in, const CorotationalParams& params,

@@ -11,6 +11,9 @@
 
 namespace posewarp::fem::internal {
 
+// INVALID_ARGUMENT naming the parameter when an iteration limit, tolerance or margin is out of range.
+Status validate_iterations(int max_iterations, double tolerance_mm, double margin_mm);
+
 // INVALID_ARGUMENT when the inputs do not fit the mesh or each other.
 Status check_inputs(const SolveInputs& in);
 

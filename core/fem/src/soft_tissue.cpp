@@ -168,20 +168,28 @@ double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eig
 
 }  // namespace
 
+namespace internal {
+
+Status validate_iterations(int max_iterations, double tolerance_mm, double margin_mm) {
+  if (max_iterations < 1 || max_iterations > 10000) {
+    return invalid_argument_error("fem max_iterations must be in [1, 10000], got " + std::to_string(max_iterations));
+  }
+  if (!(tolerance_mm > 0.0 && tolerance_mm <= 100.0)) {
+    return invalid_argument_error("fem tolerance_mm must be in (0, 100], got " + std::to_string(tolerance_mm));
+  }
+  if (!(margin_mm >= 0.0 && margin_mm <= 1000.0)) {
+    return invalid_argument_error("fem margin_mm must be in [0, 1000], got " + std::to_string(margin_mm));
+  }
+  return ok_status();
+}
+
+}  // namespace internal
+
 Status validate(const FemParams& params) {
   if (!(params.volume_weight >= 0.0 && params.volume_weight <= 1e6)) {
     return invalid_argument_error("fem volume_weight must be in [0, 1e6], got " + std::to_string(params.volume_weight));
   }
-  if (params.max_iterations < 1 || params.max_iterations > 10000) {
-    return invalid_argument_error("fem max_iterations must be in [1, 10000], got " + std::to_string(params.max_iterations));
-  }
-  if (!(params.tolerance_mm > 0.0 && params.tolerance_mm <= 100.0)) {
-    return invalid_argument_error("fem tolerance_mm must be in (0, 100], got " + std::to_string(params.tolerance_mm));
-  }
-  if (!(params.margin_mm >= 0.0 && params.margin_mm <= 1000.0)) {
-    return invalid_argument_error("fem margin_mm must be in [0, 1000], got " + std::to_string(params.margin_mm));
-  }
-  return ok_status();
+  return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
 }
 
 Topology topology(const TetMesh& rest) {
