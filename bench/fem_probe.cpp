@@ -4,6 +4,8 @@
 // 50 mm of each joint the pose moves by how many of their corners are bone vertices (fixed by their bone's rigid
 // motion in every method), and by how many different bones those corners belong to. Per class: rest volume, signed
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
+// steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
+// from the last (a load-stepped solve, measured against the one-step solve).
 // A probe for developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue
 // pinned between two bones by the mesh.
 #include <Eigen/Dense>
@@ -97,6 +99,17 @@ int main(int argc, char** argv) {
     std::optional<fem::FemParams> custom;
     std::optional<fem::CorotationalParams> corotational;
     std::string warm_name = method_name;
+    int load_steps = 1;
+    if (method_name.rfind("steps:", 0) == 0) {  // steps:K:ITERATIONS, the pose reached in K solves going on from each other
+      std::stringstream in(method_name.substr(6));
+      std::string k, it;
+      std::getline(in, k, ':');
+      std::getline(in, it, ':');
+      load_steps = std::stoi(k);
+      warm_name = "cor";
+      custom.emplace();
+      custom->max_iterations = std::stoi(it);
+    }
     if (method_name.rfind("corot:", 0) == 0) {  // corot:POISSON:ITERATIONS:WARM, the co-rotational reference
       std::stringstream in(method_name.substr(6));
       std::string nu, it;
@@ -140,7 +153,25 @@ int main(int argc, char** argv) {
       fem::FemStats stats;
       const auto start = std::chrono::steady_clock::now();
       const fem::SolveInputs inputs{mesh, frames, topology, engine->rig().weights, segments, posed};
-      auto solved = custom ? fem::solve(inputs, *custom, {}, &stats) : fem::solve_corotational(inputs, *corotational, {}, &stats);
+      Result<Eigen::MatrixXd> solved = posed;
+      if (load_steps == 1) {
+        solved = custom ? fem::solve(inputs, *custom, {}, &stats) : fem::solve_corotational(inputs, *corotational, {}, &stats);
+      } else {  // a load-stepped solve: each step's warm start carries the last step's correction (measured worse)
+        fem::SolveCache cache;
+        fem::FemParams step_params = *custom;
+        for (int k = 1; k <= load_steps && solved.ok(); ++k) {
+          pose::Pose step = *pose;
+          for (pose::JointRotation& r : step.joints) {
+            if (r.angles_deg) *r.angles_deg *= static_cast<double>(k) / load_steps;
+          }
+          const skinning::SegmentTransforms step_segments = segments_of(engine->rig().skeleton, step);
+          const Eigen::MatrixXd warm = skinning::skin(skinning::Method::kCor, mesh.vertices, engine->rig().weights,
+                                                      engine->rig().centres, step_segments).value();
+          step_params.continue_from_last = k > 1;
+          solved = fem::solve({mesh, frames, topology, engine->rig().weights, step_segments, warm, &cache}, step_params,
+                              {}, &stats);
+        }
+      }
       if (!solved.ok()) {
         std::fprintf(stderr, "%s\n", solved.status().message().c_str());
         return 1;
