@@ -19,10 +19,13 @@
 
 #include "cli_support.h"
 #include "pacs_options.h"
+#include "posewarp/common/json.h"
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/pacs/dicomweb.h"
 #include "remote.h"
 
@@ -30,12 +33,7 @@ namespace posewarp::cli {
 namespace {
 
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
 using json = nlohmann::json;
-
-double seconds_since(Clock::time_point start) {
-  return std::chrono::duration<double>(Clock::now() - start).count();
-}
 
 // One row: where the study comes from, what to do, where the results go.
 struct Row {
@@ -146,8 +144,8 @@ Result<std::vector<Row>> read_manifest(const std::string& path) {
   const size_t first = text.find_first_not_of(" \t\r\n");
   const bool is_json = fs::path(path).extension() == ".json" || (first != std::string::npos && text[first] == '{');
   if (is_json) {
-    const json doc = json::parse(text, nullptr, false);
-    if (doc.is_discarded() || !doc.is_object() || !doc.contains("rows") || !doc["rows"].is_array()) {
+    POSEWARP_ASSIGN_OR_RETURN(const json doc, parse_json<json>(text, "manifest '" + path + "'"));
+    if (!doc.is_object() || !doc.contains("rows") || !doc["rows"].is_array()) {
       return invalid_argument_error("manifest '" + path +
                                     "' is not JSON with \"rows\": [...] (or a CSV with a header)");
     }
@@ -301,7 +299,7 @@ class Batch {
     }
     say("batch: " + std::to_string(rows_.size()) + " rows, " + std::to_string(rows_.size() - todo.size()) +
         " done before (skipped), " + std::to_string(todo.size()) + " to run with " + std::to_string(o_.jobs) + " jobs");
-    const auto start = Clock::now();
+    const Stopwatch start;
     std::atomic<size_t> next{0};
     std::vector<std::thread> workers;
     std::atomic<bool> finished{false};
@@ -335,7 +333,7 @@ class Batch {
     if (Status s = write_summary(); !s.ok()) return report(s);
     say("batch: " + std::to_string(finished_ok_) + " done, " + std::to_string(failed_) + " failed, " +
         std::to_string(rows_.size() - todo.size()) + " skipped in " +
-        std::to_string(static_cast<int>(seconds_since(start))) + " s; summary in " + o_.summary + ".json and .csv");
+        std::to_string(static_cast<int>(start.seconds())) + " s; summary in " + o_.summary + ".json and .csv");
     return failed_ == 0 ? 0 : 1;
   }
 
@@ -354,12 +352,12 @@ class Batch {
     return ok_status();
   }
 
-  std::string progress_line(size_t total, Clock::time_point start) const {
+  std::string progress_line(size_t total, const Stopwatch& start) const {
     const size_t finished = finished_ok_ + failed_;
     std::string line = "batch: " + std::to_string(finished) + "/" + std::to_string(total) + " rows, " +
                        std::to_string(running_.load()) + " running, " + std::to_string(failed_.load()) + " failed";
     if (finished > 0 && finished < total) {
-      const double eta = seconds_since(start) / static_cast<double>(finished) * static_cast<double>(total - finished);
+      const double eta = start.seconds() / static_cast<double>(finished) * static_cast<double>(total - finished);
       line += ", about " + std::to_string(static_cast<int>(eta)) + " s left";
     }
     return line;
@@ -401,7 +399,7 @@ class Batch {
   Result<std::shared_ptr<Study>> load_study(const Row& row) {
     if (!o_.server.server.empty()) return load_remote_study(row);
     auto study = std::make_shared<Study>();
-    const auto fetch_start = Clock::now();
+    const Stopwatch fetch_start;
     api::BuildInputs inputs;
     // A map of one's own replaces the preset.
     POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
@@ -420,8 +418,8 @@ class Batch {
       inputs.label_map = std::move(dicom.label_map);
       study->dicom = dicom.ct.info;
     }
-    study->fetch_s = seconds_since(fetch_start);
-    const auto rig_start = Clock::now();
+    study->fetch_s = fetch_start.seconds();
+    const Stopwatch rig_start;
     // The rig cache: one file per study (its inputs' key), kept between runs.
     const std::string cached = (fs::path(o_.rig_cache) / (study_content_key(row).substr(0, 32) + ".rig")).string();
     std::optional<api::Rig> rig;
@@ -440,7 +438,7 @@ class Batch {
     POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, api::PoseEngine::create(std::move(*rig)));
     study->engine = std::make_unique<api::PoseEngine>(std::move(engine));
     study->label_map = study->engine->rig().label_map;
-    study->rig_s = seconds_since(rig_start);
+    study->rig_s = rig_start.seconds();
     return study;
   }
 
@@ -448,7 +446,7 @@ class Batch {
   // (the server's store is the rig cache: the same inputs are built once, and a rerun finds the rig at once).
   Result<std::shared_ptr<Study>> load_remote_study(const Row& row) {
     auto study = std::make_shared<Study>();
-    const auto fetch_start = Clock::now();
+    const Stopwatch fetch_start;
     RemoteRigInputs inputs;
     if (!row.labels.empty()) {
       const auto file = [](const std::string& path) -> Result<RemoteVolumeFile> {
@@ -484,13 +482,13 @@ class Batch {
       study->label_map = std::move(dicom.label_map);
       study->dicom = dicom.ct.info;
     }
-    study->fetch_s = seconds_since(fetch_start);
-    const auto rig_start = Clock::now();
+    study->fetch_s = fetch_start.seconds();
+    const Stopwatch rig_start;
     say("row '" + row.id + "': the rig of its study on " + o_.server.server);
     POSEWARP_ASSIGN_OR_RETURN(const std::string rig_id, build_rig_remote(o_.server, inputs));
     POSEWARP_ASSIGN_OR_RETURN(RemotePoser poser, RemotePoser::open(o_.server, rig_id));
     study->remote = std::move(poser);
-    study->rig_s = seconds_since(rig_start);
+    study->rig_s = rig_start.seconds();
     return study;
   }
 
@@ -589,13 +587,13 @@ class Batch {
       request.want_labels = request.want_ct = true;
       Result<skinning::Method> method = skinning::method_from_name(row.method);
       request.method = *method;
-      const auto pose_start = Clock::now();
+      const Stopwatch pose_start;
       Result<Posed> posed = pose(s, request);
-      result.pose_s += seconds_since(pose_start);
+      result.pose_s += pose_start.seconds();
       if (!posed.ok()) return result.error = posed.status().to_string(), result;
       result.figures = key_figures(posed->report_json);
       // Everything is made first; files land through a partial directory, the PACS gets each series whole.
-      const auto encode_start = Clock::now();
+      const Stopwatch encode_start;
       std::optional<api::DicomOutputs> dicom;
       if (s.dicom) {
         if (!posed->result.ct) return result.error = "DATA_LOSS: the posed study has no CT to store", result;
@@ -620,9 +618,9 @@ class Batch {
         if (Status w = write_directory(out, *posed, dicom); !w.ok()) return result.error = w.to_string(), result;
         result.outputs.push_back(out.string());
       }
-      result.encode_s += seconds_since(encode_start);
+      result.encode_s += encode_start.seconds();
       if (row.to_pacs && dicom) {
-        const auto store_start = Clock::now();
+        const Stopwatch store_start;
         // The series and its SEG side by side (the PACS ingests them in two of its workers); a row that fails here
         // is stored again whole by a rerun, under the same UIDs.
         std::future<Status> seg = std::async(
@@ -631,7 +629,7 @@ class Batch {
         const Status seg_stored = seg.get();
         if (stored.ok()) stored = seg_stored;
         if (!stored.ok()) return result.error = stored.to_string(), result;
-        result.store_s += seconds_since(store_start);
+        result.store_s += store_start.seconds();
         result.outputs.push_back("pacs:" + dicom->ct.series_instance_uid);
         result.outputs.push_back("pacs:" + dicom->seg.series_instance_uid);
       }
@@ -679,14 +677,21 @@ class Batch {
             {"warnings", r.contains("warnings") && r["warnings"].is_array() ? r["warnings"].size() : 0}};
   }
 
-  // OUT.partial filled, then renamed to OUT: a row killed midway leaves no OUT that looks finished.
+  // A partial directory filled, then put in place as OUT (AtomicDirectory): a row killed midway leaves no OUT that
+  // looks finished.
   static Status write_directory(const fs::path& out, const Posed& posed,
                                 const std::optional<api::DicomOutputs>& dicom) {
-    const fs::path partial = out.string() + ".partial";
+    // An earlier result of this row (a rerun) is replaced; a directory holding anything else is not touched.
     std::error_code ec;
-    fs::remove_all(partial, ec);
-    fs::create_directories(partial, ec);
-    if (ec) return invalid_argument_error("cannot make '" + partial.string() + "': " + ec.message());
+    fs::create_directories(out.parent_path(), ec);
+    if (ec) return invalid_argument_error("cannot make '" + out.parent_path().string() + "': " + ec.message());
+    if (fs::exists(out, ec) && !fs::is_empty(out, ec) && !fs::exists(out / "report.json", ec)) {
+      return already_exists_error("'" + out.string() +
+                                  "' holds files that are not a posewarp result; choose another out_dir");
+    }
+    POSEWARP_ASSIGN_OR_RETURN(AtomicDirectory directory,
+                              AtomicDirectory::create(out.string(), "row's outputs", AtomicDirectory::Existing::kReplace));
+    const fs::path partial(directory.partial_path());
     POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.result.labels, (partial / "labels.nii.gz").string()));
     if (posed.result.ct) {  // a study given as labels alone has none
       POSEWARP_RETURN_IF_ERROR(api::write_volume(*posed.result.ct, (partial / "ct.nii.gz").string()));
@@ -696,16 +701,7 @@ class Batch {
     if (dicom) {
       POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(*dicom, (partial / "dicom").string()));
     }
-    // An earlier result of this row (a rerun) is replaced; a directory holding anything else is not touched.
-    if (fs::exists(out, ec) && !fs::is_empty(out, ec) && !fs::exists(out / "report.json", ec)) {
-      fs::remove_all(partial, ec);
-      return already_exists_error("'" + out.string() +
-                                  "' holds files that are not a posewarp result; choose another out_dir");
-    }
-    fs::remove_all(out, ec);
-    fs::rename(partial, out, ec);
-    if (ec) return invalid_argument_error("cannot name '" + out.string() + "': " + ec.message());
-    return ok_status();
+    return directory.commit();
   }
 
   // A finished row, appended to the state file and flushed to disk before the next row counts it done.

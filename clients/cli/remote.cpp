@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "cli_support.h"
+#include "posewarp/common/retry.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
@@ -71,19 +72,18 @@ class Remote {
       return ((*stub_).*method)(call.get(), request, response);
     });
   }
-  // Runs `attempt` (one whole call) again while the server answers UNAVAILABLE, waiting 0.5, 1, 2, ... s.
+  // Runs `attempt` (one whole call) again while the server answers UNAVAILABLE, waiting as RetryPolicy says.
   template <typename Attempt>
   grpc::Status with_retries(Attempt&& attempt) const {
     grpc::Status status = attempt();
-    double wait_s = 0.5;
-    for (int retry = 0; retry < retries_ && retryable(status); ++retry) {
+    const RetryPolicy policy{retries_};
+    for (int retry = 1; retry <= policy.retries && retryable(status); ++retry) {
+      const double wait_s = policy.wait_s(retry);
       say("posewarp-server at " + server_ + " is unavailable (" + status.error_message() + "); trying again within " +
           std::to_string(wait_s).substr(0, 3) + " s");
       // Connecting meanwhile: the next try starts as soon as the server is back, or when the wait is over.
-      const auto until = std::chrono::system_clock::now() +
-                         std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::duration<double>(wait_s));
+      const auto until = std::chrono::system_clock::now() + policy.wait(retry);
       if (!channel_->WaitForConnected(until)) std::this_thread::sleep_until(until);
-      wait_s *= 2.0;
       status = attempt();
     }
     return status;

@@ -1,12 +1,12 @@
 // build_rig: body, skeleton, classes, mesh, weights and centres of rotation, timed stage by stage.
 #include <nlohmann/json.hpp>
 
-#include <chrono>
 #include <cstring>
 #include <new>
 
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/sha256.h"
@@ -17,23 +17,6 @@
 #endif
 
 namespace posewarp::api {
-namespace {
-
-class StageClock {
- public:
-  explicit StageClock(Provenance& provenance) : provenance_(provenance) {}
-  void lap(const std::string& stage) {
-    const auto now = std::chrono::steady_clock::now();
-    provenance_.stage_seconds.emplace_back(stage, std::chrono::duration<double>(now - last_).count());
-    last_ = now;
-  }
-
- private:
-  Provenance& provenance_;
-  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
-};
-
-}  // namespace
 
 std::string Rig::id() const {
   return Sha256()
@@ -144,9 +127,10 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
   rig.labels_hash = volume_sha256(inputs.labels);
   if (inputs.ct) rig.ct_hash = volume_sha256(*inputs.ct);
   nlohmann::json stats;
-  StageClock clock(rig.provenance);
+  StageTimer clock(rig.provenance.stage_seconds);
 
-  try {
+  const Status built = guarded("while building the rig of " + grid.describe(),
+                               "lower the mesher's voxel budget or use coarser mesh sizes", [&]() -> Status {
     POSEWARP_ASSIGN_OR_RETURN(rig.skeleton,
                               rig::build_skeleton(inputs.labels, inputs.label_map, inputs.spec, params.skeleton, hooks));
     clock.lap("skeleton");
@@ -290,10 +274,9 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     }
     stats["surfaces"] = {{"count", rig.surfaces.size()}, {"vertices", surface_vertices}};
     clock.lap("surfaces");
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory while building the rig of " + grid.describe() +
-                                    "; lower the mesher's voxel budget or use coarser mesh sizes");
-  }
+    return ok_status();
+  });
+  if (!built.ok()) return built;
   rig.labels = inputs.labels;
   rig.ct = inputs.ct;
   // Each joint's range of motion on this study (`rig info`, GetRig): how far a pose may turn it before bones meet.

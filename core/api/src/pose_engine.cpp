@@ -6,13 +6,13 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <mutex>
 #include <new>
 #include <unordered_map>
 #include <utility>
 
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/fem/soft_tissue.h"
@@ -27,23 +27,6 @@ struct PoseEngine::Fem {
   std::vector<uint8_t> skin;  // the report's skin vertices (fem::skin_vertices), made by the first pose that needs them
   fem::SolveCache cache;      // the last solve's factored system: a slider's next pose frees the same vertices
 };
-namespace {
-
-class Clock {
- public:
-  explicit Clock(std::vector<std::pair<std::string, double>>& laps) : laps_(laps) {}
-  void lap(const std::string& stage) {
-    const auto now = std::chrono::steady_clock::now();
-    laps_.emplace_back(stage, std::chrono::duration<double>(now - last_).count());
-    last_ = now;
-  }
-
- private:
-  std::vector<std::pair<std::string, double>>& laps_;
-  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
-};
-
-}  // namespace
 
 Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
   return guarded("preparing the rig for posing",
@@ -185,42 +168,38 @@ Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& ho
   if (rig.labels.empty()) {
     return failed_precondition_error("the rig holds no source volume to warp; rebuild it with this posewarp version");
   }
-  PoseEngine engine;
-  try {
-    engine.frames_ = skinning::rest_tet_frames(rig.mesh);
-    const ImageGeometry& g = rig.labels.geometry();
-    POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp identity,
-                              resample::TetWarp::build(rig.mesh, rig.mesh.vertices, g, g,
-                                                       Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
-                                                       {}, hooks));
-    engine.rest_owner_ = identity.owner();
-    std::vector<std::vector<Label>> segment_labels;
-    for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
-    POSEWARP_ASSIGN_OR_RETURN(engine.bone_voxels_, resample::bone_voxels(rig.labels, segment_labels));
-    // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
-    POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
-                              labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
-    POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
-    engine.region_ = std::move(regions.segment);
-    engine.separated_ = rig::separated_segments(rig.skeleton);
-    engine.tet_region_.assign(static_cast<size_t>(rig.mesh.tet_count()), -1);
-    for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
-      Eigen::Vector3d c = Eigen::Vector3d::Zero();
-      for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
-      const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
-      // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
-      // undefined; such a centre lies in no voxel.
-      auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
-      const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
-      if (rig.labels.contains(i, j, k)) engine.tet_region_[static_cast<size_t>(t)] = engine.region_[static_cast<size_t>(g.offset(i, j, k))];
-    }
-    engine.rest_label_counts_ = report::label_counts(rig.labels);
-    if (rig.ct) {
-      engine.ct_minimum_ = 0.0f;
-      for (const float v : rig.ct->voxels()) engine.ct_minimum_ = std::min(engine.ct_minimum_, v);
-    }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory preparing the rig for posing");
+  PoseEngine engine;  // create() runs this behind the exception wall ("preparing the rig for posing")
+  engine.frames_ = skinning::rest_tet_frames(rig.mesh);
+  const ImageGeometry& g = rig.labels.geometry();
+  POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp identity,
+                            resample::TetWarp::build(rig.mesh, rig.mesh.vertices, g, g,
+                                                     Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
+                                                     {}, hooks));
+  engine.rest_owner_ = identity.owner();
+  std::vector<std::vector<Label>> segment_labels;
+  for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
+  POSEWARP_ASSIGN_OR_RETURN(engine.bone_voxels_, resample::bone_voxels(rig.labels, segment_labels));
+  // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
+  POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
+                            labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
+  POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
+  engine.region_ = std::move(regions.segment);
+  engine.separated_ = rig::separated_segments(rig.skeleton);
+  engine.tet_region_.assign(static_cast<size_t>(rig.mesh.tet_count()), -1);
+  for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
+    const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
+    // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
+    // undefined; such a centre lies in no voxel.
+    auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
+    const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
+    if (rig.labels.contains(i, j, k)) engine.tet_region_[static_cast<size_t>(t)] = engine.region_[static_cast<size_t>(g.offset(i, j, k))];
+  }
+  engine.rest_label_counts_ = report::label_counts(rig.labels);
+  if (rig.ct) {
+    engine.ct_minimum_ = 0.0f;
+    for (const float v : rig.ct->voxels()) engine.ct_minimum_ = std::min(engine.ct_minimum_, v);
   }
   prepare_preview(rig, engine.preview_);
   engine.fem_ = std::make_shared<Fem>();
@@ -280,7 +259,7 @@ Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHo
 Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const {
   PoseResult result;
   report::QualityReport& qr = result.report;
-  Clock clock(qr.stage_seconds);
+  StageTimer clock(qr.stage_seconds);
   qr.pose_name = request.pose.name;
   qr.method = std::string(skinning::method_name(request.method));
   const TetMesh& mesh = rig_.mesh;

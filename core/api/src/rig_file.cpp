@@ -1,4 +1,5 @@
 // Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
+#include "posewarp/common/json.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/exception_wall.h"
@@ -390,8 +391,10 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
     return read_volume_section(payload, name, *rig.ct);
   }
   if (t == kProvenance) {
+    const Result<nlohmann::json> parsed = parse_json<nlohmann::json>(payload, "rig provenance section");
+    if (!parsed.ok()) return data_loss_error(parsed.status().message());
     try {
-      const nlohmann::json prov = nlohmann::json::parse(payload);
+      const nlohmann::json& prov = *parsed;
       rig.provenance.software_version = prov.value("software_version", "");
       rig.provenance.labels_source = prov.value("labels_source", "");
       rig.provenance.ct_source = prov.value("ct_source", "");

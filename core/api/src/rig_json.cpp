@@ -1,6 +1,7 @@
 // JSON forms of the skeleton and the build parameters.
 #include "rig_json.h"
 
+#include "posewarp/common/json.h"
 #include "posewarp/rig/anatomical_frame.h"
 
 #include <nlohmann/json.hpp>
@@ -64,8 +65,10 @@ std::string skeleton_to_json(const rig::Skeleton& skeleton) {
 }
 
 Result<rig::Skeleton> skeleton_from_json(const std::string& text) {
+  const Result<json> parsed = parse_json<json>(text, "rig skeleton section");
+  if (!parsed.ok()) return data_loss_error(parsed.status().message());
   try {
-    const json doc = json::parse(text);
+    const json& doc = *parsed;
     rig::Skeleton skeleton;
     skeleton.root = doc.at("root").get<int>();
     for (const json& s : doc.at("segments")) {

@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <cstdio>  // renameat2
 #include <cstring>
 #include <filesystem>
 #include <utility>
@@ -117,6 +118,94 @@ Status AtomicFile::commit() {
   }
   committed_ = true;
   // The rename itself reaches the disk with the directory.
+  const int dir = ::open(directory_of(path_).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir >= 0) {
+    ::fsync(dir);
+    ::close(dir);
+  }
+  return ok_status();
+}
+
+AtomicDirectory::AtomicDirectory(std::string path, std::string partial, std::string kind, Existing existing)
+    : path_(std::move(path)), partial_(std::move(partial)), kind_(std::move(kind)), existing_(existing) {}
+
+AtomicDirectory::AtomicDirectory(AtomicDirectory&& other) noexcept
+    : path_(std::move(other.path_)),
+      partial_(std::move(other.partial_)),
+      kind_(std::move(other.kind_)),
+      existing_(other.existing_),
+      committed_(std::exchange(other.committed_, true)) {}
+
+AtomicDirectory::~AtomicDirectory() {
+  std::error_code ignored;
+  if (!committed_) fs::remove_all(partial_, ignored);
+}
+
+Result<AtomicDirectory> AtomicDirectory::create(const std::string& path, std::string_view kind, Existing existing) {
+  static std::atomic<unsigned> counter{0};
+  const std::string target = fs::path(path).lexically_normal().string();
+  const std::string name = fs::path(target).filename().string();
+  if (name.empty() || name == "." || name == "..") {
+    return invalid_argument_error("cannot write " + std::string(kind) + " " + in_quotes(path) +
+                                  ": name a new directory (e.g. 'posed')");
+  }
+  std::error_code ec;
+  if (existing == Existing::kRefuse && fs::exists(target, ec)) {
+    return already_exists_error(in_quotes(path) + " exists already; choose a new directory for the " +
+                                std::string(kind));
+  }
+  if (fs::exists(target, ec) && !fs::is_directory(target, ec)) {
+    return invalid_argument_error("cannot write " + std::string(kind) + " " + in_quotes(path) +
+                                  ": it is a file; name a directory");
+  }
+  const std::string parent = directory_of(target);
+  remove_stale_partial_files(parent);
+  const std::string partial =
+      (fs::path(parent) / partial_file_name(std::to_string(counter.fetch_add(1)) + "-" + name)).string();
+  if (::mkdir(partial.c_str(), 0755) != 0) {
+    const int error = errno;
+    const std::string message = "cannot write " + std::string(kind) + " " + in_quotes(path) + " in " +
+                                in_quotes(parent) + ": " + std::strerror(error);
+    if (error == ENOENT || error == ENOTDIR) return not_found_error(message + " (create the directory first)");
+    if (error == EACCES || error == EPERM || error == EROFS) {
+      return permission_denied_error(message + " (choose a directory you can write to)");
+    }
+    return invalid_argument_error(message);
+  }
+  return AtomicDirectory(target, partial, std::string(kind), existing);
+}
+
+Status AtomicDirectory::commit() {
+  // Every file and folder in it reaches the disk before the directory takes its name.
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(partial_, ec), end; !ec && it != end; it.increment(ec)) {
+    const int fd = ::open(it->path().c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd >= 0) {
+      ::fsync(fd);
+      ::close(fd);
+    }
+  }
+  if (const int fd = ::open(partial_.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); fd >= 0) {
+    ::fsync(fd);
+    ::close(fd);
+  }
+  const bool there = fs::exists(path_, ec);
+  if (there && existing_ == Existing::kRefuse) {
+    return already_exists_error(in_quotes(path_) + " was made while the " + kind_ + " was written; choose a new directory");
+  }
+  if (there) {
+    // One step: the new directory takes the name and the old one takes the partial name, then goes.
+    if (::renameat2(AT_FDCWD, partial_.c_str(), AT_FDCWD, path_.c_str(), RENAME_EXCHANGE) != 0) {
+      return internal_error("could not put " + kind_ + " " + in_quotes(path_) + " in place: " + std::strerror(errno));
+    }
+    committed_ = true;
+    fs::remove_all(partial_, ec);
+  } else {
+    if (::rename(partial_.c_str(), path_.c_str()) != 0) {
+      return internal_error("could not put " + kind_ + " " + in_quotes(path_) + " in place: " + std::strerror(errno));
+    }
+    committed_ = true;
+  }
   const int dir = ::open(directory_of(path_).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dir >= 0) {
     ::fsync(dir);

@@ -143,7 +143,7 @@ int remove_stale_partial_files(const std::string& directory) {
     }
     if (pid <= 0 || (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH)) continue;  // alive, or not ours to judge
     std::error_code removing;
-    if (fs::remove(it->path(), removing)) ++removed;
+    if (fs::remove_all(it->path(), removing) > 0) ++removed;  // a file, or an AtomicDirectory's partial directory
   }
   return removed;
 }

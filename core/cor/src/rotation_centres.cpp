@@ -1,4 +1,5 @@
 // Centres of rotation: tets bucketed by bone pair and clustered on a weight grid, then summed per vertex (eq. 6-7).
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/cor/rotation_centres.h"
 
 #include <Eigen/Core>
@@ -12,6 +13,7 @@
 #include <exception>
 #include <new>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -569,18 +571,12 @@ Result<RotationCentres> compute_brute_force(const TetMesh& mesh, const SkinWeigh
   return out;
 }
 
-template <typename Compute>
-Result<RotationCentres> at_stage_boundary(const TetMesh& mesh, Compute&& compute) {
-  try {
-    return compute();
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error(
-        "out of memory computing centres of rotation for " + std::to_string(mesh.vertex_count()) + " vertices and " +
-        std::to_string(mesh.tet_count()) + " tets; free memory or mesh the body more coarsely");
-  } catch (const std::exception& e) {
-    return internal_error(std::string("computing centres of rotation failed: ") + e.what());
-  }
+// What the exception wall says the centres were being computed for.
+std::string computing_centres(const TetMesh& mesh) {
+  return "computing centres of rotation for " + std::to_string(mesh.vertex_count()) + " vertices and " +
+         std::to_string(mesh.tet_count()) + " tets";
 }
+constexpr std::string_view kCentresAdvice = "free memory or mesh the body more coarsely";
 
 }  // namespace
 
@@ -604,13 +600,13 @@ Status validate(const CorParams& params) {
 Result<RotationCentres> rotation_centres(const TetMesh& mesh, const SkinWeights& weights, const CorParams& params,
                                          const ProgressHooks& hooks, CorStats* stats) {
   POSEWARP_RETURN_IF_ERROR(validate_all(mesh, weights, params));
-  return at_stage_boundary(mesh, [&] { return compute_clustered(mesh, weights, params, hooks, stats); });
+  return guarded(computing_centres(mesh), kCentresAdvice, [&] { return compute_clustered(mesh, weights, params, hooks, stats); });
 }
 
 Result<RotationCentres> rotation_centres_brute_force(const TetMesh& mesh, const SkinWeights& weights,
                                                      const CorParams& params) {
   POSEWARP_RETURN_IF_ERROR(validate_all(mesh, weights, params));
-  return at_stage_boundary(mesh, [&] { return compute_brute_force(mesh, weights, params); });
+  return guarded(computing_centres(mesh), kCentresAdvice, [&] { return compute_brute_force(mesh, weights, params); });
 }
 
 }  // namespace posewarp::cor

@@ -6,20 +6,16 @@
 
 #include <algorithm>
 #include <array>
-#include <chrono>
 #include <string>
 #include <vector>
 
 #include "internal.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/fem/soft_tissue.h"
+#include "posewarp/common/stopwatch.h"
 
 namespace posewarp::fem {
 namespace {
-
-double seconds_since(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
 
 }  // namespace
 
@@ -38,7 +34,7 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& in, const Corotati
   FemStats local_stats;
   FemStats& st = stats ? *stats : local_stats;
   st = FemStats{};
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch start;
   const TetMesh& mesh = in.rest;
   const std::vector<int32_t> free_vertices = internal::free_vertices(in, params.margin_mm);
   Eigen::MatrixXd posed = in.warm;
@@ -121,11 +117,11 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& in, const Corotati
   }
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
   llt.analyzePattern(matrix);
-  st.factor_seconds = seconds_since(start);
+  st.factor_seconds = start.seconds();
 
   // Each iteration: the element rotations from the current positions (polar decomposition of F), then the linear
   // system sum_e R K_e (R^T x - X) = 0 for the free vertices, the bone and border vertices held where they are.
-  const auto iterate_start = std::chrono::steady_clock::now();
+  const Stopwatch iterate_start;
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> x(static_cast<Eigen::Index>(solve_vertices.size()), 3);
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> rest(static_cast<Eigen::Index>(solve_vertices.size()), 3);
   for (size_t i = 0; i < solve_vertices.size(); ++i) {
@@ -206,7 +202,7 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& in, const Corotati
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
     if (step <= params.tolerance_mm) break;
   }
-  st.iterate_seconds = seconds_since(iterate_start);
+  st.iterate_seconds = iterate_start.seconds();
   for (Eigen::Index i = 0; i < nf; ++i) posed.row(free_vertices[static_cast<size_t>(i)]) = x.row(i);
   progress.finish();
   return posed;

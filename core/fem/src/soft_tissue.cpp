@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -22,6 +21,7 @@
 #include <utility>
 
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
 #include "internal.h"
 
 namespace posewarp::fem {
@@ -69,10 +69,6 @@ using internal::gradient;
 using internal::signed_svd;
 
 using SparseMatrix = Eigen::SparseMatrix<double>;
-
-double seconds_since(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
 
 // Builds a compressed row list of `count` rows from (row, value) pairs.
 void compress(int64_t count, const std::vector<std::pair<int32_t, int32_t>>& pairs, std::vector<int64_t>& start,
@@ -423,7 +419,7 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   FemStats local_stats;
   FemStats& st = stats ? *stats : local_stats;
   st = FemStats{};
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch start;
   std::vector<int32_t> free_vertices = internal::free_vertices(in, params.margin_mm);
   Eigen::MatrixXd posed = in.warm;
   const auto nf = static_cast<Eigen::Index>(free_vertices.size());
@@ -445,11 +441,11 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
   Eigen::MatrixXd constant(nf, 3);
   for (Eigen::Index i = 0; i < nf; ++i) constant.row(i) = sys.pull * in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
   for (const auto& [i, j, l] : sys.coupling) constant.row(i) -= l * in.warm.row(sys.solve_vertices[static_cast<size_t>(j)]);
-  st.factor_seconds = seconds_since(start);
+  st.factor_seconds = start.seconds();
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
   // 3. Local and global steps until no vertex moves more than the tolerance, on the solve's packed vertices.
-  const auto iterate_start = std::chrono::steady_clock::now();
+  const Stopwatch iterate_start;
   const std::vector<int32_t>& solve_tets = sys.solve_tets;
   const std::vector<Eigen::Matrix<double, 3, 4>>& gradients = sys.gradients;
   const std::vector<std::array<int32_t, 4>>& slot_corners = sys.slot_corners;
@@ -560,7 +556,7 @@ Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, co
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
     if (st.last_step_mm <= params.tolerance_mm) break;
   }
-  st.iterate_seconds = seconds_since(iterate_start);
+  st.iterate_seconds = iterate_start.seconds();
   for (Eigen::Index i = 0; i < nf; ++i) posed.row(sys.free_vertices[static_cast<size_t>(i)]) = x_solve.row(i);
   sys.last_solution = x_solve.topRows(nf);
   sys.last_warm.resize(nf, 3);

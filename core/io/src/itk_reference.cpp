@@ -1,4 +1,5 @@
 // ITK reference resamplers and displacement-field output.
+#include "posewarp/common/atomic_file.h"
 #include "posewarp/io/itk_reference.h"
 
 #include <itkDisplacementFieldTransform.h>
@@ -18,7 +19,6 @@
 #include <algorithm>
 #include <filesystem>
 
-#include <unistd.h>
 
 #include "itk_geometry.h"
 #include "posewarp/common/parallel.h"
@@ -131,12 +131,10 @@ Status write_displacement_field(const std::vector<float>& field, const ImageGeom
   detail::set_itk_geometry(image.GetPointer(), geometry);
   image->Allocate();
   std::copy_n(field.data(), field.size(), reinterpret_cast<float*>(image->GetBufferPointer()));
-  const std::filesystem::path target(path);
-  const std::filesystem::path temporary =
-      target.parent_path() / (".posewarp-partial-" + std::to_string(::getpid()) + "-" + target.filename().string());
+  const std::string name = std::filesystem::path(path).filename().string();
+  POSEWARP_ASSIGN_OR_RETURN(AtomicFile file, AtomicFile::create(path, "displacement field"));
   try {
     auto writer = itk::ImageFileWriter<FloatField>::New();
-    const std::string name = target.filename().string();
     auto ends = [&name](const std::string& suffix) {
       return name.size() >= suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0;
     };
@@ -151,19 +149,14 @@ Status write_displacement_field(const std::vector<float>& field, const ImageGeom
                                     "': use .nii.gz, .nrrd or .mha");
     }
     writer->SetInput(image);
-    writer->SetFileName(temporary.string());
+    writer->SetFileName(file.partial_path());
     writer->SetUseCompression(true);
     writer->Update();
   } catch (const itk::ExceptionObject& error) {
-    std::error_code ignored;
-    std::filesystem::remove(temporary, ignored);
     return invalid_argument_error("writing displacement field '" + path + "' failed: " + error.GetDescription() +
                                   " (use .nii.gz, .nrrd or .mha)");
   }
-  std::error_code ec;
-  std::filesystem::rename(temporary, target, ec);
-  if (ec) return internal_error("could not move '" + path + "' into place: " + ec.message());
-  return ok_status();
+  return file.commit();
 }
 
 }  // namespace posewarp::io

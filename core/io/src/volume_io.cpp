@@ -279,12 +279,9 @@ Result<typename Image3<Pixel>::Pointer> read_itk_image(const std::string& path, 
     reader->SetFileName(path);
     reader->Update();
     return typename Image3<Pixel>::Pointer(reader->GetOutput());
-  } catch (const itk::ExceptionObject& error) {
+  } catch (const itk::ExceptionObject& error) {  // ITK's word for a damaged file (its out of memory passes on)
     return data_loss_error("cannot read the voxels of " + in_quotes(path) + " (truncated or corrupt file?): " +
                            itk_reason(error));
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory reading " + in_quotes(path) + " (" +
-                                    header.geometry.describe() + ")");
   }
 }
 
@@ -460,12 +457,8 @@ Status write_file(const typename Image3<Out>::Pointer& image, const std::string&
 template <typename Out, typename In>
 Status write_as(const Volume<In>& volume, const std::string& path, VolumeFormat format, const WriteOptions& options,
                 const std::string& modality) {
-  typename Image3<Out>::Pointer image;
-  try {
-    image = to_itk_image<Out>(volume);
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory preparing " + in_quotes(path));
-  }
+  // write_volume() runs this behind the exception wall ("writing 'path'").
+  const typename Image3<Out>::Pointer image = to_itk_image<Out>(volume);
   if (format == VolumeFormat::kDicomSeries) {
     return write_dicom_series<Out>(image, volume.geometry(), path, modality,
                                    std::is_same_v<In, Label> ? "posewarp labels" : "posewarp");
@@ -557,8 +550,8 @@ static Result<LabelVolume> read_label_volume_unguarded(const std::string& path, 
   const PixelType type = header.pixel_type;
   const bool exact_as_int32 = type == PixelType::kUInt8 || type == PixelType::kInt8 || type == PixelType::kUInt16 ||
                               type == PixelType::kInt16 || type == PixelType::kInt32;
-  LabelVolume labels;
-  try {
+  return guarded("reading " + in_quotes(path) + " (" + header.geometry.describe() + ")", [&]() -> Result<LabelVolume> {
+    LabelVolume labels;
     if (exact_as_int32) {
       POSEWARP_ASSIGN_OR_RETURN(auto image, read_itk_image<int32_t>(path, header, series));
       labels = LabelVolume(geometry_from_image(*image));
@@ -581,11 +574,9 @@ static Result<LabelVolume> read_label_volume_unguarded(const std::string& path, 
         labels.data()[v] = static_cast<Label>(value);
       }
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory reading " + in_quotes(path) + " (" + header.geometry.describe() + ")");
-  }
-  labels.set_source_type(type);
-  return labels;
+    labels.set_source_type(type);
+    return labels;
+  });
 }
 
 Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions& options) {
@@ -595,8 +586,9 @@ Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions
 static Result<IntensityVolume> read_intensity_volume_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
   const auto& [header, series] = opened;
-  IntensityVolume intensities;
-  try {
+  return guarded("reading " + in_quotes(path) + " (" + header.geometry.describe() + ")",
+                 [&]() -> Result<IntensityVolume> {
+    IntensityVolume intensities;
     POSEWARP_ASSIGN_OR_RETURN(auto image, read_itk_image<float>(path, header, series));
     intensities = IntensityVolume(geometry_from_image(*image));
     std::copy_n(image->GetBufferPointer(), intensities.voxel_count(), intensities.data());
@@ -608,11 +600,9 @@ static Result<IntensityVolume> read_intensity_volume_unguarded(const std::string
                                     std::to_string(bad - first) +
                                     "; a voxel must be a number (replace them, e.g. with the background value)");
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory reading " + in_quotes(path) + " (" + header.geometry.describe() + ")");
-  }
-  intensities.set_source_type(header.pixel_type);
-  return intensities;
+    intensities.set_source_type(header.pixel_type);
+    return intensities;
+  });
 }
 
 Result<IntensityVolume> read_intensity_volume(const std::string& path, const ReadOptions& options) {

@@ -1,4 +1,5 @@
 // LabelMap validation, JSON form and census against a label volume.
+#include "posewarp/common/json.h"
 #include "posewarp/labels/label_map.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
@@ -174,13 +175,7 @@ std::optional<std::string> LabelMap::joint_name(std::string_view segment_a, std:
 
 Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source) {
   const std::string where(source);
-  POSEWARP_RETURN_IF_ERROR(check_json_depth(json_text, "label map " + where));
-  json doc;
-  try {
-    doc = json::parse(json_text);
-  } catch (const json::exception& error) {  // parse_error, and out_of_range for a number past a double (1e999)
-    return invalid_argument_error("label map " + where + " is not valid JSON: " + error.what());
-  }
+  POSEWARP_ASSIGN_OR_RETURN(json doc, parse_json<json>(json_text, "label map " + where));
   try {
     if (!doc.is_object()) return invalid_argument_error("label map " + where + " must be a JSON object");
     if (doc.contains("format") && doc["format"].get<std::string>() != kFormat) {

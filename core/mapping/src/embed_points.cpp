@@ -1,4 +1,5 @@
 // embed_points and deform_points: surface vertices carried from the rest tets to the posed tets by barycentrics.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/mapping/tet_locator.h"
 
 #include <algorithm>
@@ -64,22 +65,18 @@ Result<Embedding> embed_points(const TetMesh& rest, const Eigen::MatrixXd& point
   StageProgress progress(hooks, "embed");
   Embedding embedding;
   std::vector<double> distance;
-  try {
+  // Locate the points in the order of their hash cells, so that the tets of a cell are read once for all of its
+  // points rather than once per point.
+  std::vector<int32_t> order;
+  const Status allocated = guarded("embedding " + std::to_string(n) + " points", [&]() -> Status {
     embedding.tet.resize(n);
     embedding.barycentric.resize(n, 4);
     embedding.inside.assign(static_cast<size_t>(n), 0);
     distance.assign(static_cast<size_t>(n), 0.0);
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory embedding " + std::to_string(n) + " points");
-  }
-  // Locate the points in the order of their hash cells, so that the tets of a cell are read once for all of its
-  // points rather than once per point.
-  std::vector<int32_t> order;
-  try {
     order = spatial_order(locator, points);
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory ordering " + std::to_string(n) + " points to embed");
-  }
+    return ok_status();
+  });
+  if (!allocated.ok()) return allocated;
   std::atomic<bool> cancelled{false};
   parallel_for(0, n, 2048, [&](int64_t begin, int64_t end) {
     if (cancelled.load(std::memory_order_relaxed)) return;

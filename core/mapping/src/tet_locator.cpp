@@ -1,5 +1,6 @@
 // TetLocator: Teschner's spatial hash over tet bounding boxes, containment by barycentrics, ring search for the
 // nearest tet of points outside the mesh.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/mapping/tet_locator.h"
 
 #include <Eigen/Dense>
@@ -99,8 +100,8 @@ Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
   }
   const int64_t nv = mesh.vertex_count();
   const int64_t nt = mesh.tet_count();
-  TetLocator locator;
-  try {
+  return guarded("building the tet locator for " + std::to_string(nt) + " tets", [&]() -> Result<TetLocator> {
+    TetLocator locator;
     locator.vertices_.resize(static_cast<size_t>(nv) * 3);
     for (int64_t v = 0; v < nv; ++v) {
       for (int a = 0; a < 3; ++a) locator.vertices_[static_cast<size_t>(3 * v + a)] = mesh.vertices(v, a);
@@ -222,10 +223,8 @@ Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
         locator.entry_tet_[slot] = static_cast<int32_t>(t);
       });
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory building the tet locator for " + std::to_string(nt) + " tets");
-  }
-  return locator;
+    return locator;
+  });
 }
 
 int64_t TetLocator::bucket_of(int64_t i, int64_t j, int64_t k) const {

@@ -10,6 +10,7 @@
 #include <new>
 #include <thread>
 
+#include "posewarp/common/exception_wall.h"
 #include "cgal_mesher_common.h"
 
 namespace posewarp::mesh {
@@ -191,7 +192,8 @@ class CgalMesher final : public Mesher {
       return invalid_argument_error("the mesher takes 1..253 bone segments (got " + std::to_string(segment_count) + ")");
     }
     StageProgress progress(hooks, "mesh");
-    try {
+    return guarded("while meshing " + classes.geometry().describe(), "lower the voxel budget or use coarser mesh sizes",
+                   [&]() -> Result<TetMesh> {
       const Index3 factor = downsample_factor_for(classes.geometry(), params.voxel_budget);
       if (health) health->downsample_factor = factor;
       detail::MesherInput input{downsample_classes(classes, factor), segment_count, detail::GridDistance(LabelVolume())};
@@ -235,12 +237,7 @@ class CgalMesher final : public Mesher {
       }
       if (mesh.ok()) progress.finish();
       return mesh;
-    } catch (const std::bad_alloc&) {
-      return resource_exhausted_error("out of memory while meshing " + classes.geometry().describe() +
-                                      "; lower the voxel budget or use coarser mesh sizes");
-    } catch (const std::exception& error) {
-      return internal_error(std::string("the CGAL mesher failed: ") + error.what());
-    }
+    });
   }
 };
 

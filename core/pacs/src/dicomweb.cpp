@@ -1,4 +1,6 @@
 // DICOMweb over libcurl: QIDO-RS, WADO-RS (streamed to disk) and STOW-RS, with retries.
+#include "posewarp/common/json.h"
+#include "posewarp/common/retry.h"
 #include "posewarp/pacs/dicomweb.h"
 
 #include <curl/curl.h>
@@ -151,8 +153,9 @@ Result<DicomWebClient::Response> DicomWebClient::request(const std::string& meth
                                                          const std::vector<BodyPiece>* body,
                                                          const std::string& body_file) const {
   std::string last_error;
-  for (int attempt = 0; attempt <= std::max(0, options_.retries); ++attempt) {
-    if (attempt > 0) std::this_thread::sleep_for(std::chrono::milliseconds(500 << std::min(attempt - 1, 5)));
+  const RetryPolicy retry{std::max(0, options_.retries)};
+  for (int attempt = 0; attempt <= retry.retries; ++attempt) {
+    if (attempt > 0) std::this_thread::sleep_for(retry.wait(attempt));
     std::unique_ptr<CURL, void (*)(CURL*)> curl(curl_easy_init(), curl_easy_cleanup);
     if (!curl) return internal_error("cannot start an HTTP request (libcurl)");
     struct curl_slist* list = nullptr;
@@ -239,9 +242,12 @@ Result<std::vector<DicomWebRecord>> DicomWebClient::search(const std::string& pa
     return invalid_argument_error("the PACS answered HTTP " + std::to_string(r.status) + " to the search " + path +
                                   (query.empty() ? "" : "?" + query));
   }
-  const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);
-  if (doc.is_discarded() || !doc.is_array())
-    return data_loss_error("the PACS's search answer is not a DICOM JSON array");
+  const Result<nlohmann::json> parsed = parse_json<nlohmann::json>(r.body, "the PACS's search answer");
+  if (!parsed.ok() || !parsed->is_array()) {
+    return data_loss_error("the PACS's search answer is not a DICOM JSON array" +
+                           (parsed.ok() ? std::string() : " (" + parsed.status().message() + ")"));
+  }
+  const nlohmann::json& doc = *parsed;
   std::vector<DicomWebRecord> records;
   for (const nlohmann::json& item : doc) {
     if (!item.is_object()) continue;
@@ -327,12 +333,12 @@ Status DicomWebClient::stow(std::vector<BodyPiece> parts, const std::string& stu
                "Accept: application/dicom+json", "Expect:"},  // no "100-continue" wait: the body goes at once
               &body));
   // 200: all stored; 202: some failed (FailedSOPSequence, 0008,1198); 409: none stored.
-  const nlohmann::json doc = nlohmann::json::parse(r.body, nullptr, false);
-  const bool failures = !doc.is_discarded() && doc.is_object() && doc.contains("00081198") &&
-                        doc["00081198"].contains("Value") && !doc["00081198"]["Value"].empty();
+  const Result<nlohmann::json> doc = parse_json<nlohmann::json>(r.body, "the PACS's store answer");
+  const bool failures = doc.ok() && doc->is_object() && doc->contains("00081198") &&
+                        (*doc)["00081198"].contains("Value") && !(*doc)["00081198"]["Value"].empty();
   if (r.status == 200 && !failures) return ok_status();
   return invalid_argument_error("the PACS did not store every instance (HTTP " + std::to_string(r.status) + ")" +
-                                (failures ? ": " + std::to_string(doc["00081198"]["Value"].size()) + " failed" : ""));
+                                (failures ? ": " + std::to_string((*doc)["00081198"]["Value"].size()) + " failed" : ""));
 }
 
 Result<std::vector<std::string>> split_multipart_file(const std::string& file, const std::string& content_type,

@@ -10,6 +10,7 @@
 #include "json_util.h"
 #include "posewarp/pose/pose.h"
 #include "posewarp/common/input_file.h"
+#include "posewarp/common/json.h"
 
 namespace posewarp::pose {
 
@@ -30,51 +31,10 @@ std::string number_text(double value) {
   return out.str();
 }
 
-bool mentions_non_finite(const std::string& text) {
-  std::string lower(text.size(), ' ');
-  std::transform(text.begin(), text.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
-  return lower.find("nan") != std::string::npos || lower.find("inf") != std::string::npos;
-}
-
 }  // namespace
 
 Result<Json> parse_json(const std::string& text, const std::string& what) {
-  POSEWARP_RETURN_IF_ERROR(check_json_depth(text, what));
-  // nlohmann keeps the last of two equal keys; a pose that names a joint twice is a mistake worth reporting.
-  std::vector<std::set<std::string>> open_objects;
-  std::string duplicate;
-  const Json::parser_callback_t callback = [&](int /*depth*/, Json::parse_event_t event, Json& parsed) {
-    switch (event) {
-      case Json::parse_event_t::object_start: open_objects.emplace_back(); break;
-      case Json::parse_event_t::object_end:
-        if (!open_objects.empty()) open_objects.pop_back();
-        break;
-      case Json::parse_event_t::key:
-        if (!open_objects.empty() && parsed.is_string() &&
-            !open_objects.back().insert(parsed.get<std::string>()).second && duplicate.empty()) {
-          duplicate = parsed.get<std::string>();
-        }
-        break;
-      default: break;
-    }
-    return true;
-  };
-  Json doc;
-  try {
-    doc = Json::parse(text, callback);
-  } catch (const Json::exception& error) {
-    // parse_error for bad syntax, out_of_range for a number too large for a double (1e999).
-    std::string message = what + " is not valid JSON: " + error.what();
-    if (error.id == 406 || mentions_non_finite(text)) {
-      message += " (JSON has no NaN or Infinity: write every number as a finite value)";
-    }
-    return invalid_argument_error(message);
-  }
-  if (!duplicate.empty()) {
-    return invalid_argument_error(what + ": key \"" + duplicate +
-                                  "\" appears twice in one object; give each joint or field only once");
-  }
-  return doc;
+  return posewarp::parse_json<Json>(text, what);
 }
 
 Result<std::string> read_text_file(const std::string& path, std::string_view kind) {

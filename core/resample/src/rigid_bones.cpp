@@ -1,4 +1,5 @@
 // Bone voxels of a source grid: segment per voxel, index boxes, soft-tissue substitutes for bone voxels.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/resample/rigid_bones.h"
 
 #include <algorithm>
@@ -13,8 +14,8 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
     return invalid_argument_error("too many bone segments for the voxel map (" + std::to_string(segment_labels.size()) +
                                   ")");
   }
-  BoneVoxels bones;
-  try {
+  return guarded("mapping the bone voxels of " + labels.geometry().describe(), [&]() -> Result<BoneVoxels> {
+    BoneVoxels bones;
     std::unordered_map<Label, int16_t> segment_of;
     for (size_t k = 0; k < segment_labels.size(); ++k) {
       for (const Label value : segment_labels[k]) segment_of[value] = static_cast<int16_t>(k);
@@ -78,10 +79,8 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
     for (int64_t v = 0; v < n; ++v) {
       if (bones.substitute[static_cast<size_t>(v)] < 0) bones.substitute[static_cast<size_t>(v)] = static_cast<int32_t>(v);
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory mapping the bone voxels of " + labels.geometry().describe());
-  }
-  return bones;
+    return bones;
+  });
 }
 
 }  // namespace posewarp::resample

@@ -1,6 +1,7 @@
 // TetWarp: rasterize the posed tets that move off the root over output slabs (each thread owns whole slabs, as ITK
 // threads over output regions), resolve folds (bones win), extend the covered voxels' maps over the skin shell,
 // classify the rest through the rest ownership, then sample the source.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/resample/tet_warp.h"
 
 #include <Eigen/Dense>
@@ -224,7 +225,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     reach[a] = std::min(reach[a], kMaxShellVoxels);  // the default on a much finer output grid
   }
 
-  try {
+  const Status prepared = guarded("preparing the warp onto " + output.describe(), [&]() -> Status {
     const IndexSpace out_space = index_space(output);
     const IndexSpace src_space = index_space(source);
     const int64_t nt = rest.tet_count();
@@ -595,7 +596,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
     // its source voxels; a bone that follows the background where a moving tet or the shell would sample it.
     std::vector<WarpStats> slab_stats(static_cast<size_t>(slab_count));
     const int16_t* bone_of = bones ? bones->voxels->segment.data() : nullptr;
-    const bool guarded = bones && bones->region && bones->tet_region && bones->separated;
+    const bool guard_contacts = bones && bones->region && bones->tet_region && bones->separated;
     auto bone_at = [&](const double* map, double i, double j, double k) -> int {
       double src[3];
       apply_map(map, i, j, k, src);
@@ -701,7 +702,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                   ++background;
                 }
                 conflicted += conflict[static_cast<size_t>(local)];
-                if (guarded) guard_contact(o, i, j, k);
+                if (guard_contacts) guard_contact(o, i, j, k);
                 if (segment_count > 0) claim_bone(o, i, j, k);
                 continue;
               }
@@ -737,7 +738,7 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
                 ++background;
               }
               conflicted += conflict[static_cast<size_t>(local)];
-              if (guarded) guard_contact(o, i, j, k);
+              if (guard_contacts) guard_contact(o, i, j, k);
               if (segment_count > 0) claim_bone(o, i, j, k);
             }
           }
@@ -761,9 +762,9 @@ Result<TetWarp> TetWarp::build(const TetMesh& rest, const Eigen::MatrixXd& posed
       warp.stats_.contact_guarded_voxels += st.contact_guarded_voxels;
       for (const auto& [pair, count] : st.bone_overlap_voxels) warp.stats_.bone_overlap_voxels[pair] += count;
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory preparing the warp onto " + output.describe());
-  }
+    return ok_status();
+  });
+  if (!prepared.ok()) return prepared;
   progress.finish();
   return warp;
 }
@@ -806,12 +807,10 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   if (!labels.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the label volume is not on the grid the rig was built from");
   }
-  LabelVolume out;
-  try {
-    out = LabelVolume(output_, label_background_);
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory for the output labels (" + output_.describe() + ")");
-  }
+  POSEWARP_ASSIGN_OR_RETURN(LabelVolume out, guarded("for the output labels (" + output_.describe() + ")",
+                                                       [&]() -> Result<LabelVolume> {
+                                                         return LabelVolume(output_, label_background_);
+                                                       }));
   out.set_source_type(labels.source_type());
   const Index3& m = source_.size;
   const Label* in = labels.data();
@@ -841,12 +840,10 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   if (!source.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the intensity volume is not on the grid the rig was built from");
   }
-  IntensityVolume out;
-  try {
-    out = IntensityVolume(output_, intensity_background_);
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory for the output intensities (" + output_.describe() + ")");
-  }
+  POSEWARP_ASSIGN_OR_RETURN(IntensityVolume out, guarded("for the output intensities (" + output_.describe() + ")",
+                                                           [&]() -> Result<IntensityVolume> {
+                                                             return IntensityVolume(output_, intensity_background_);
+                                                           }));
   out.set_source_type(source.source_type());
   const Index3& m = source_.size;
   const float* in = source.data();

@@ -7,6 +7,7 @@
 #include <map>
 #include <sstream>
 
+#include "posewarp/common/json.h"
 #include "posewarp/common/input_file.h"
 #include "posewarp/rig/skeleton.h"
 
@@ -14,13 +15,7 @@ namespace posewarp::rig {
 
 Result<RigSpec> rig_spec_from_json(const std::string& text, const std::string& source) {
   using json = nlohmann::json;
-  POSEWARP_RETURN_IF_ERROR(check_json_depth(text, "rig spec " + source));
-  json doc;
-  try {
-    doc = json::parse(text);
-  } catch (const json::exception& error) {  // parse_error, and out_of_range for a number past a double (1e999)
-    return invalid_argument_error("rig spec " + source + " is not valid JSON: " + error.what());
-  }
+  POSEWARP_ASSIGN_OR_RETURN(const json doc, parse_json<json>(text, "rig spec " + source));
   RigSpec spec;
   try {
     if (!doc.is_object()) return invalid_argument_error("rig spec " + source + " must be a JSON object");

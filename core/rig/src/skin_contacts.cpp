@@ -1,5 +1,6 @@
 // Skin contacts: nearest-bone regions of the body, their depth below the skin, and the cut between regions that
 // must move apart.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/rig/skin_contacts.h"
 
 #include "posewarp/common/tet_mesh.h"
@@ -77,8 +78,8 @@ Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& la
   if (!labels.geometry().same_grid(body.geometry())) {
     return invalid_argument_error("the body mask is not on the labels' grid");
   }
-  BodyRegions regions;
-  try {
+  return guarded("finding the body regions of " + labels.geometry().describe(), [&]() -> Result<BodyRegions> {
+    BodyRegions regions;
     const ImageGeometry& g = labels.geometry();
     const int64_t nv = labels.voxel_count();
     std::unordered_map<Label, int16_t> segment_of;
@@ -105,10 +106,8 @@ Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& la
     for (int64_t v = 0; v < nv; ++v) {
       if (regions.depth_mm[static_cast<size_t>(v)] >= kFar) regions.depth_mm[static_cast<size_t>(v)] = 0.0f;
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory finding the body regions of " + labels.geometry().describe());
-  }
-  return regions;
+    return regions;
+  });
 }
 
 std::vector<uint8_t> separated_segments(const Skeleton& skeleton) {

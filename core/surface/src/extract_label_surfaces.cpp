@@ -285,7 +285,8 @@ static Result<std::vector<SurfaceMesh>> extract_label_surfaces_unguarded(const L
   }
   detail::install_quiet_vtk_output();
   StageProgress progress(hooks, "surfaces");
-  try {
+  const Status extracted = guarded("extracting label surfaces from " + labels.geometry().describe(),
+                                   "ask for fewer labels or decimate more", [&]() -> Status {
     std::vector<Label> values;
     std::vector<std::string> names;
     for (const auto& [value, name] : wanted) {
@@ -312,12 +313,9 @@ static Result<std::vector<SurfaceMesh>> extract_label_surfaces_unguarded(const L
       done += work[s];
       if (mesh.triangles.rows() > 0) surfaces.push_back(std::move(mesh));
     }
-  } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory extracting label surfaces from " + labels.geometry().describe() +
-                                    "; ask for fewer labels or decimate more");
-  } catch (const std::exception& error) {
-    return internal_error(std::string("surface extraction failed: ") + error.what());
-  }
+    return ok_status();
+  });
+  if (!extracted.ok()) return extracted;
   progress.finish();
   return surfaces;
 }

@@ -96,28 +96,22 @@ Eigen::SparseMatrix<double> fem_laplacian(const TetMesh& mesh) {
   // K is symmetric, so row v assembled in sorted column order is also column v of the column-major result.
   // Pass 1 counts the distinct neighbours of each vertex (itself included), pass 2 fills the values. Each chunk
   // keeps a vertex-sized stamp array to recognise neighbours already seen, without sorting.
-  std::atomic<bool> out_of_memory{false};
   std::vector<int32_t> row_size(static_cast<size_t>(vertex_count), 0);
   parallel_for(0, vertex_count, row_grain(vertex_count), [&](int64_t begin, int64_t end) {
-    try {
-      std::vector<int32_t> seen_by(static_cast<size_t>(vertex_count), -1);
-      for (int64_t v = begin; v < end; ++v) {
-        int32_t size = 0;
-        for (int64_t k = first[v]; k < first[v + 1]; ++k) {
-          for (const int32_t u : corners[incident[k] / 4]) {
-            if (seen_by[u] != v) {
-              seen_by[u] = static_cast<int32_t>(v);
-              ++size;
-            }
+    std::vector<int32_t> seen_by(static_cast<size_t>(vertex_count), -1);
+    for (int64_t v = begin; v < end; ++v) {
+      int32_t size = 0;
+      for (int64_t k = first[v]; k < first[v + 1]; ++k) {
+        for (const int32_t u : corners[incident[k] / 4]) {
+          if (seen_by[u] != v) {
+            seen_by[u] = static_cast<int32_t>(v);
+            ++size;
           }
         }
-        row_size[v] = size;
       }
-    } catch (const std::bad_alloc&) {
-      out_of_memory = true;
+      row_size[v] = size;
     }
   });
-  if (out_of_memory) throw std::bad_alloc();
 
   int64_t nonzeros = 0;
   for (int64_t v = 0; v < vertex_count; ++v) nonzeros += row_size[v];
@@ -132,35 +126,30 @@ Eigen::SparseMatrix<double> fem_laplacian(const TetMesh& mesh) {
   std::vector<int32_t>().swap(row_size);
 
   parallel_for(0, vertex_count, row_grain(vertex_count), [&](int64_t begin, int64_t end) {
-    try {
-      std::vector<int32_t> seen_by(static_cast<size_t>(vertex_count), -1);
-      std::vector<int32_t> slot(static_cast<size_t>(vertex_count), 0);  // position of column u within the row
-      for (int64_t v = begin; v < end; ++v) {
-        int* row_columns = inner + outer[v];
-        int size = 0;
-        for (int64_t k = first[v]; k < first[v + 1]; ++k) {
-          for (const int32_t u : corners[incident[k] / 4]) {
-            if (seen_by[u] != v) {
-              seen_by[u] = static_cast<int32_t>(v);
-              row_columns[size++] = u;
-            }
+    std::vector<int32_t> seen_by(static_cast<size_t>(vertex_count), -1);
+    std::vector<int32_t> slot(static_cast<size_t>(vertex_count), 0);  // position of column u within the row
+    for (int64_t v = begin; v < end; ++v) {
+      int* row_columns = inner + outer[v];
+      int size = 0;
+      for (int64_t k = first[v]; k < first[v + 1]; ++k) {
+        for (const int32_t u : corners[incident[k] / 4]) {
+          if (seen_by[u] != v) {
+            seen_by[u] = static_cast<int32_t>(v);
+            row_columns[size++] = u;
           }
         }
-        std::sort(row_columns, row_columns + size);
-        for (int i = 0; i < size; ++i) slot[row_columns[i]] = i;
-        double* row_values = values + outer[v];
-        std::fill(row_values, row_values + size, 0.0);
-        for (int64_t k = first[v]; k < first[v + 1]; ++k) {
-          const Corners& tet = corners[incident[k] / 4];
-          const std::array<double, 4> row = element_row(points, tet, static_cast<int>(incident[k] % 4));
-          for (int b = 0; b < 4; ++b) row_values[slot[tet[b]]] += row[b];
-        }
       }
-    } catch (const std::bad_alloc&) {
-      out_of_memory = true;
+      std::sort(row_columns, row_columns + size);
+      for (int i = 0; i < size; ++i) slot[row_columns[i]] = i;
+      double* row_values = values + outer[v];
+      std::fill(row_values, row_values + size, 0.0);
+      for (int64_t k = first[v]; k < first[v + 1]; ++k) {
+        const Corners& tet = corners[incident[k] / 4];
+        const std::array<double, 4> row = element_row(points, tet, static_cast<int>(incident[k] % 4));
+        for (int b = 0; b < 4; ++b) row_values[slot[tet[b]]] += row[b];
+      }
     }
   });
-  if (out_of_memory) throw std::bad_alloc();
   return stiffness;
 }
 

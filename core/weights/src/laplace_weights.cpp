@@ -1,4 +1,5 @@
 // laplace_weights: bone ownership, mesh pieces, one CHOLMOD factorization for all segments, clamp and top-k.
+#include "posewarp/common/exception_wall.h"
 #include "posewarp/weights/laplace_weights.h"
 
 #include <Eigen/CholmodSupport>
@@ -6,7 +7,6 @@
 #include <Eigen/SparseCholesky>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -17,16 +17,17 @@
 #include <numeric>
 #include <utility>
 #include <vector>
+#include <string_view>
 
 #include "point_kd_tree.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/weights/fem_laplacian.h"
+#include "posewarp/common/stopwatch.h"
 
 namespace posewarp::weights {
 namespace {
 
 using SparseMatrix = Eigen::SparseMatrix<double>;
-using Clock = std::chrono::steady_clock;
 
 constexpr int kMaxInfluences = 8;
 constexpr double kMaxPruneBelow = 0.01;
@@ -37,10 +38,6 @@ constexpr int64_t kMetisOnlyRows = 5000;
 constexpr double kAssembledFraction = 0.25;
 constexpr double kFactoredFraction = 0.75;
 constexpr double kSolvedFraction = 0.85;
-
-double seconds_since(Clock::time_point start) {
-  return std::chrono::duration<double>(Clock::now() - start).count();
-}
 
 std::string format_mm(const Eigen::Vector3d& p) {
   char text[96];
@@ -308,7 +305,7 @@ const char* cholmod_ordering_name(int ordering) {
 // CHOLMOD supernodal LL^T. OK with *solution filled; CANCELLED; or OK with *solution empty and *failure set.
 Status solve_cholmod(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, StageProgress& progress, WeightStats* stats,
                      Eigen::MatrixXd* solution, std::string* failure) {
-  auto start = Clock::now();
+  Stopwatch start;
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
   cholmod_common& common = llt.cholmod();
   common.print = 0;  // failures are reported through the Status and stats, not on stdout
@@ -329,7 +326,7 @@ Status solve_cholmod(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, Stage
     *failure = "CHOLMOD analysis failed with status " + std::to_string(common.status);
     return ok_status();
   }
-  stats->ordering_seconds = seconds_since(start);
+  stats->ordering_seconds = start.seconds();
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
   llt.factorize(k_ff);
   if (common.status < CHOLMOD_OK || llt.info() != Eigen::Success) {
@@ -337,20 +334,20 @@ Status solve_cholmod(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, Stage
                (llt.info() != Eigen::Success ? " (K_ff not numerically positive definite)" : "");
     return ok_status();
   }
-  stats->factor_seconds = seconds_since(start);
+  stats->factor_seconds = start.seconds();
   stats->ordering = cholmod_ordering_name(common.method[common.selected].ordering);
   stats->factor_nonzeros = static_cast<int64_t>(common.lnz);
   stats->factor_flops = common.fl;
   progress.update(kFactoredFraction);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-  start = Clock::now();
+  start.restart();
   Eigen::MatrixXd x = llt.solve(rhs);
   if (llt.info() != Eigen::Success || !x.allFinite()) {
     *failure = "CHOLMOD solve failed with status " + std::to_string(common.status);
     return ok_status();
   }
-  stats->solve_seconds = seconds_since(start);
+  stats->solve_seconds = start.seconds();
   *solution = std::move(x);
   return ok_status();
 }
@@ -358,31 +355,31 @@ Status solve_cholmod(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, Stage
 // Eigen's SimplicialLDLT with AMD ordering: slower on 3D meshes, but needs nothing outside Eigen.
 Status solve_simplicial(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, StageProgress& progress,
                         WeightStats* stats, Eigen::MatrixXd* solution) {
-  auto start = Clock::now();
+  Stopwatch start;
   Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
   ldlt.analyzePattern(k_ff);
-  stats->ordering_seconds = seconds_since(start);
+  stats->ordering_seconds = start.seconds();
   ldlt.factorize(k_ff);
   if (ldlt.info() != Eigen::Success) {
     return failed_precondition_error(
         "the stiffness matrix of the free vertices could not be factored (not numerically positive definite); "
         "the mesh probably holds near-degenerate tets: re-mesh with sliver exudation on");
   }
-  stats->factor_seconds = seconds_since(start);
+  stats->factor_seconds = start.seconds();
   stats->ordering = "amd";
   stats->factor_nonzeros = static_cast<int64_t>(ldlt.matrixL().nestedExpression().nonZeros());
   stats->factor_flops = 0.0;
   progress.update(kFactoredFraction);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-  start = Clock::now();
+  start.restart();
   Eigen::MatrixXd x = ldlt.solve(rhs);
   if (ldlt.info() != Eigen::Success || !x.allFinite()) {
     return failed_precondition_error(
         "solving for the weights gave non-finite values; the mesh probably holds near-degenerate tets: re-mesh "
         "with sliver exudation on");
   }
-  stats->solve_seconds = seconds_since(start);
+  stats->solve_seconds = start.seconds();
   *solution = std::move(x);
   return ok_status();
 }
@@ -393,7 +390,7 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   POSEWARP_RETURN_IF_ERROR(validate(params));
   POSEWARP_RETURN_IF_ERROR(check_mesh(mesh));
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-  const auto assemble_start = Clock::now();
+  const Stopwatch assemble_start;
   const int64_t vertex_count = mesh.vertex_count();
   const int segment_count = mesh.segment_count;
   stats->segments = segment_count;
@@ -425,7 +422,7 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   if (free_count == 0) {
     stats->solver = "none";
     stats->max_raw_weight = 1.0;
-    stats->assemble_seconds = seconds_since(assemble_start);
+    stats->assemble_seconds = assemble_start.seconds();
     progress.update(kSolvedFraction);
     return solution;
   }
@@ -478,7 +475,7 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
       }
     }
   });
-  stats->assemble_seconds = seconds_since(assemble_start);
+  stats->assemble_seconds = assemble_start.seconds();
   progress.update(kAssembledFraction);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
@@ -501,7 +498,7 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   progress.update(kSolvedFraction);
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
-  const auto finish_start = Clock::now();
+  const Stopwatch finish_start;
   solution.free_weights = x.transpose();
   Eigen::MatrixXd().swap(x);
   const Eigen::MatrixXd& w = solution.free_weights;
@@ -544,17 +541,17 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   // Bone and island vertices hold exact 0 and 1.
   stats->min_raw_weight = std::min(0.0, -below_zero.value());
   stats->max_raw_weight = std::max(1.0, above_one.value());
-  stats->finish_seconds = seconds_since(finish_start);
+  stats->finish_seconds = finish_start.seconds();
   return solution;
 }
 
-Status out_of_memory_status(const TetMesh& mesh) {
-  return resource_exhausted_error("out of memory computing skinning weights for a mesh of " +
-                                  std::to_string(mesh.vertex_count()) + " vertices and " +
-                                  std::to_string(mesh.segment_count) +
-                                  " segments; mesh more coarsely (larger MeshParams cell sizes) or use a machine "
-                                  "with more memory");
+// What the exception wall says the weights were doing, and what to do when memory ran out.
+std::string computing_weights(const TetMesh& mesh) {
+  return "computing skinning weights for a mesh of " + std::to_string(mesh.vertex_count()) + " vertices and " +
+         std::to_string(mesh.segment_count) + " segments";
 }
+constexpr std::string_view kWeightsAdvice =
+    "mesh more coarsely (larger MeshParams cell sizes) or use a machine with more memory";
 
 }  // namespace
 
@@ -578,10 +575,10 @@ Result<SkinWeights> laplace_weights(const TetMesh& mesh, const WeightsParams& pa
   WeightStats local_stats;
   WeightStats* out_stats = stats ? stats : &local_stats;
   *out_stats = WeightStats();
-  try {
+  return guarded(computing_weights(mesh), kWeightsAdvice, [&]() -> Result<SkinWeights> {
     StageProgress progress(hooks, "weights");
     POSEWARP_ASSIGN_OR_RETURN(HarmonicSolution solution, solve_harmonic(mesh, params, progress, out_stats));
-    const auto finish_start = Clock::now();
+    const Stopwatch finish_start;
     const int segment_count = solution.segment_count;
     const int influences = std::min(params.max_influences, segment_count);
     const int64_t vertex_count = mesh.vertex_count();
@@ -647,14 +644,10 @@ Result<SkinWeights> laplace_weights(const TetMesh& mesh, const WeightsParams& pa
     });
     out_stats->max_partition_error = partition.value();
     out_stats->max_partition_error_float = partition_float.value();
-    out_stats->finish_seconds += seconds_since(finish_start);
+    out_stats->finish_seconds += finish_start.seconds();
     progress.finish();
     return result;
-  } catch (const std::bad_alloc&) {
-    return out_of_memory_status(mesh);
-  } catch (const std::exception& e) {
-    return internal_error(std::string("computing skinning weights failed: ") + e.what());
-  }
+  });
 }
 
 Result<Eigen::MatrixXd> laplace_weights_dense(const TetMesh& mesh, const WeightsParams& params,
@@ -662,7 +655,7 @@ Result<Eigen::MatrixXd> laplace_weights_dense(const TetMesh& mesh, const Weights
   WeightStats local_stats;
   WeightStats* out_stats = stats ? stats : &local_stats;
   *out_stats = WeightStats();
-  try {
+  return guarded(computing_weights(mesh), kWeightsAdvice, [&]() -> Result<Eigen::MatrixXd> {
     StageProgress progress(hooks, "weights");
     POSEWARP_ASSIGN_OR_RETURN(HarmonicSolution solution, solve_harmonic(mesh, params, progress, out_stats));
     const int64_t vertex_count = mesh.vertex_count();
@@ -677,11 +670,7 @@ Result<Eigen::MatrixXd> laplace_weights_dense(const TetMesh& mesh, const Weights
     }
     progress.finish();
     return dense;
-  } catch (const std::bad_alloc&) {
-    return out_of_memory_status(mesh);
-  } catch (const std::exception& e) {
-    return internal_error(std::string("computing skinning weights failed: ") + e.what());
-  }
+  });
 }
 
 }  // namespace posewarp::weights

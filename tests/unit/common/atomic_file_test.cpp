@@ -92,5 +92,48 @@ TEST(AtomicFile, ThreadsWritingTheSameTargetNeverMixTheirBytes) {
   EXPECT_EQ(names_in(dir.path()), std::vector<std::string>{"shared"});
 }
 
+TEST(AtomicDirectory, AppearsWholeOnCommitAndNotAtAllWithout) {
+  ScratchDir dir;
+  const std::string target = dir.file("posed");
+  {
+    Result<AtomicDirectory> out = AtomicDirectory::create(target, "posed files", AtomicDirectory::Existing::kRefuse);
+    ASSERT_TRUE(out.ok()) << out.status().to_string();
+    write_bytes((std::filesystem::path(out->partial_path()) / "labels.nii").string(), "labels");
+    EXPECT_FALSE(std::filesystem::exists(target));
+  }  // abandoned: nothing under the name, no partial directory
+  EXPECT_TRUE(names_in(dir.path()).empty());
+  Result<AtomicDirectory> out = AtomicDirectory::create(target, "posed files", AtomicDirectory::Existing::kRefuse);
+  ASSERT_TRUE(out.ok());
+  write_bytes((std::filesystem::path(out->partial_path()) / "labels.nii").string(), "labels");
+  ASSERT_TRUE(out->commit().ok());
+  EXPECT_EQ(read_bytes(dir.file("posed/labels.nii")), "labels");
+  EXPECT_EQ(names_in(dir.path()), std::vector<std::string>{"posed"});
+}
+
+TEST(AtomicDirectory, AnExistingTargetIsRefusedOrReplacedInOneStep) {
+  ScratchDir dir;
+  const std::string target = dir.file("row");
+  std::filesystem::create_directory(target);
+  write_bytes(dir.file("row/old.txt"), "old");
+  const Result<AtomicDirectory> refused = AtomicDirectory::create(target, "outputs", AtomicDirectory::Existing::kRefuse);
+  EXPECT_EQ(refused.status().code(), StatusCode::kAlreadyExists);
+  Result<AtomicDirectory> out = AtomicDirectory::create(target, "outputs", AtomicDirectory::Existing::kReplace);
+  ASSERT_TRUE(out.ok());
+  write_bytes((std::filesystem::path(out->partial_path()) / "new.txt").string(), "new");
+  ASSERT_TRUE(out->commit().ok());
+  EXPECT_EQ(names_in(target), std::vector<std::string>{"new.txt"});
+  EXPECT_EQ(names_in(dir.path()), std::vector<std::string>{"row"});  // the old one went with its partial name
+}
+
+TEST(AtomicDirectory, APartialDirectoryOfADeadWriterGoesWithTheNextWrite) {
+  ScratchDir dir;
+  // A writer killed midway: its pid (far above any pid_max) is not a live process.
+  const std::filesystem::path stale = dir.path() / ".posewarp-partial-999999999-0-row";
+  std::filesystem::create_directories(stale / "dicom");
+  write_bytes((stale / "dicom" / "1.dcm").string(), "half");
+  ASSERT_TRUE(write_file_atomically(dir.file("other.json"), "{}", "report").ok());
+  EXPECT_EQ(names_in(dir.path()), std::vector<std::string>{"other.json"});
+}
+
 }  // namespace
 }  // namespace posewarp

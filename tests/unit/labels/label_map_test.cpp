@@ -82,6 +82,7 @@ TEST(LabelMap, MalformedMapsGiveClearErrors) {
        "segment 'b'"},
       {R"({"labels": [{"value": 1, "name": "a", "role": "bone"}], "root_segment": "pelvis"})", "root segment"},
       {R"({"labels": {"value": 1}})", "\"labels\" array"},
+      {R"({"name": "a", "name": "b", "labels": []})", "\"name\" appears twice"},  // the strict reader of every input
   };
   for (const auto& [text, expected] : cases) {
     Result<LabelMap> map = label_map_from_json(text, "case");

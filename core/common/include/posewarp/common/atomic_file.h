@@ -43,6 +43,40 @@ class AtomicFile {
   bool committed_ = false;
 };
 
+// A directory that appears whole or not at all (a batch row's outputs, a viewer's saved pose): its files are written
+// into a partial directory beside the target (named as AtomicFile's partial files, so the next write into the same
+// parent removes those of dead writers), then commit() flushes it and renames it over the target. Files written
+// inside it need not be atomic themselves: nothing is under the target's name until commit().
+class AtomicDirectory {
+ public:
+  enum class Existing { kRefuse, kReplace };
+  // Creates the partial directory. The target's parent must exist; with Existing::kRefuse a target that exists is
+  // ALREADY_EXISTS before any work.
+  static Result<AtomicDirectory> create(const std::string& path, std::string_view kind, Existing existing);
+
+  AtomicDirectory(AtomicDirectory&& other) noexcept;
+  AtomicDirectory& operator=(AtomicDirectory&& other) = delete;
+  AtomicDirectory(const AtomicDirectory&) = delete;
+  AtomicDirectory& operator=(const AtomicDirectory&) = delete;
+  // Removes the partial directory unless commit() succeeded.
+  ~AtomicDirectory();
+
+  // Where to write the directory's files.
+  const std::string& partial_path() const { return partial_; }
+  // Flushes the partial directory's files and itself, then puts it in place: renamed to the target, or, with
+  // Existing::kReplace and a target there, exchanged with it in one step (the old one is then removed).
+  Status commit();
+
+ private:
+  AtomicDirectory(std::string path, std::string partial, std::string kind, Existing existing);
+
+  std::string path_;
+  std::string partial_;
+  std::string kind_;
+  Existing existing_ = Existing::kRefuse;
+  bool committed_ = false;
+};
+
 // The whole of `bytes` into `path`, atomically.
 Status write_file_atomically(const std::string& path, std::string_view bytes, std::string_view kind);
 

@@ -8,25 +8,35 @@
 #include <new>
 #include <string>
 #include <string_view>
+#include <utility>
 
 #include "posewarp/common/result.h"
 
 namespace posewarp {
 
 // Runs `body` (returning Status or Result<T>). std::bad_alloc becomes RESOURCE_EXHAUSTED, any other exception
-// INTERNAL; both messages start with `doing` ("reading 'ct.nii.gz'") so the user knows which step failed.
+// INTERNAL; both messages start with `doing` ("reading 'ct.nii.gz'") so the user knows which step failed, and the
+// first says what to do: `advice` ("lower the voxel budget or use coarser mesh sizes"), or free memory and use less.
+// This is the only place posewarp catches an exception (and the std::exception of a third-party reader whose
+// messages are the user's answer; see surface_io).
 template <typename Body>
-auto guarded(std::string_view doing, Body&& body) -> decltype(body()) {
+auto guarded(std::string_view doing, std::string_view advice, Body&& body) -> decltype(body()) {
   try {
     return body();
   } catch (const std::bad_alloc&) {
-    return resource_exhausted_error("out of memory " + std::string(doing) +
-                                    "; free memory, or use a smaller volume or coarser settings");
+    return resource_exhausted_error("out of memory " + std::string(doing) + "; " + std::string(advice));
   } catch (const std::exception& error) {
     return internal_error("unexpected failure " + std::string(doing) + ": " + error.what());
   } catch (...) {
     return internal_error("unexpected failure " + std::string(doing) + " (an exception of unknown type)");
   }
+}
+
+inline constexpr std::string_view kFreeMemoryAdvice = "free memory, or use a smaller volume or coarser settings";
+
+template <typename Body>
+auto guarded(std::string_view doing, Body&& body) -> decltype(body()) {
+  return guarded(doing, kFreeMemoryAdvice, std::forward<Body>(body));
 }
 
 }  // namespace posewarp

@@ -20,7 +20,7 @@ struct DicomWebOptions {
   std::string ca_file;             // a CA bundle of one's own
   int connect_timeout_s = 10;
   int timeout_s = 120;  // a transfer slower than 1 kB/s for this long ends (a large one that moves does not)
-  int retries = 3;      // on connection errors and 5xx: waits 0.5, 1, 2 s ...
+  int retries = 3;      // on connection errors and 5xx: waits 0.5, 1, 2 s ... (RetryPolicy)
 };
 
 // One QIDO-RS result: its attributes by keyword (StudyInstanceUID, SeriesInstanceUID, Modality, ...), first values
