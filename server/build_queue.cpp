@@ -19,7 +19,9 @@ BuildQueue::BuildQueue(RigStore& store, Metrics& metrics, BuildQueueOptions opti
   if (store_.index().shared()) lease_thread_ = std::thread([this] { lease_keeper(); });
 }
 
-BuildQueue::~BuildQueue() { shutdown(); }
+BuildQueue::~BuildQueue() {
+  shutdown();
+}
 
 void BuildQueue::persist(const Job& job) {
   OperationRecord record = record_from(job.operation, job.request);
@@ -37,7 +39,8 @@ Result<v1::Operation> BuildQueue::submit(const v1::BuildRigRequest& request, uin
   auto job = std::make_shared<Job>();
   job->request = request;
   job->key = key;
-  job->operation.set_id(api::sha256_hex(key + std::to_string(std::chrono::system_clock::now().time_since_epoch().count()) +
+  job->operation.set_id(api::sha256_hex(key +
+                                        std::to_string(std::chrono::system_clock::now().time_since_epoch().count()) +
                                         std::to_string(unique))
                             .substr(0, 32));
   job->operation.set_state(v1::Operation::QUEUED);
@@ -101,8 +104,8 @@ void BuildQueue::lease_keeper() {
     if (Status s = store_.index().renew_operations(options_.replica, options_.lease_s); !s.ok()) {
       spdlog::warn("cannot renew this replica's build leases: {}", s.message());
     }
-    Result<int> failed = store_.index().fail_expired_operations(
-        static_cast<int>(StatusCode::kAborted), "the replica running the build stopped; build again");
+    Result<int> failed = store_.index().fail_expired_operations(static_cast<int>(StatusCode::kAborted),
+                                                                "the replica running the build stopped; build again");
     if (failed.ok() && *failed > 0) spdlog::warn("{} build(s) of a stopped replica marked failed", *failed);
     lock.lock();
   }
@@ -116,7 +119,8 @@ Result<bool> BuildQueue::claim(const std::shared_ptr<Job>& job, const std::strin
     if (!told) {
       spdlog::info("operation={} rig={} is being built by another replica; waiting for it", job->operation.id(),
                    rig_id.substr(0, 16));
-      set_operation(job, [](v1::Operation& op) { op.set_stage("waiting for another replica's build"); }, false);
+      set_operation(
+          job, [](v1::Operation& op) { op.set_stage("waiting for another replica's build"); }, false);
       metrics_.count("builds_waited_for_another_replica");
       told = true;
     }
@@ -132,17 +136,21 @@ void BuildQueue::set_operation(const std::shared_ptr<Job>& job, const std::funct
   {
     std::lock_guard<std::mutex> lock(mutex_);
     change(job->operation);
-    job->operation.set_elapsed_s(std::chrono::duration<double>(std::chrono::steady_clock::now() - job->started).count());
+    job->operation.set_elapsed_s(
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - job->started).count());
     if (persist) this->persist(*job);
   }
   changed_.notify_all();
 }
 
 void BuildQueue::succeeded(const std::shared_ptr<Job>& job, const std::string& rig_id) {
-  set_operation(job, [&](v1::Operation& op) {
-    op.set_state(v1::Operation::SUCCEEDED);
-    op.set_rig_id(rig_id);
-  }, true);
+  set_operation(
+      job,
+      [&](v1::Operation& op) {
+        op.set_state(v1::Operation::SUCCEEDED);
+        op.set_rig_id(rig_id);
+      },
+      true);
 }
 
 void BuildQueue::finish(const std::shared_ptr<Job>& job, const Status& status,
@@ -152,12 +160,15 @@ void BuildQueue::finish(const std::shared_ptr<Job>& job, const Status& status,
   metrics_.observe("build", code, std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
   spdlog::info("operation={} build status={} s={:.1f}", job->operation.id(), code,
                std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
-  set_operation(job, [&](v1::Operation& op) {
-    if (status.ok()) return;
-    op.set_state(status.code() == StatusCode::kCancelled ? v1::Operation::CANCELLED : v1::Operation::FAILED);
-    op.set_error_code(static_cast<int32_t>(g.error_code()));
-    op.set_error_message(g.error_message());
-  }, true);
+  set_operation(
+      job,
+      [&](v1::Operation& op) {
+        if (status.ok()) return;
+        op.set_state(status.code() == StatusCode::kCancelled ? v1::Operation::CANCELLED : v1::Operation::FAILED);
+        op.set_error_code(static_cast<int32_t>(g.error_code()));
+        op.set_error_message(g.error_message());
+      },
+      true);
 }
 
 Result<api::BuildInputs> BuildQueue::inputs_of(const v1::BuildRigRequest& request) {
@@ -213,10 +224,13 @@ Status BuildQueue::build_here(const std::shared_ptr<Job>& job, const api::BuildI
   hooks.threads = options_.threads;
   hooks.cancel_requested = job->cancel.as_hook();
   hooks.on_progress = [&](std::string_view stage, double fraction) {
-    set_operation(job, [&](v1::Operation& op) {
-      op.set_stage(std::string(stage));
-      op.set_stage_fraction(fraction);
-    }, false);
+    set_operation(
+        job,
+        [&](v1::Operation& op) {
+          op.set_stage(std::string(stage));
+          op.set_stage_fraction(fraction);
+        },
+        false);
   };
   POSEWARP_ASSIGN_OR_RETURN(const api::Rig rig, api::build_rig(inputs, params, hooks));
   if (job->cancel.cancelled()) return cancelled_error("the build was cancelled");

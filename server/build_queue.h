@@ -24,11 +24,11 @@
 namespace posewarp::server {
 
 struct BuildQueueOptions {
-  int workers = 1;                      // builds running at once
-  int queue = 4;                        // builds waiting for a worker
-  int threads = 0;                      // threads of a build (0: all cores)
-  std::string replica = "posewarp";     // this replica's name in a shared index (owner of its builds)
-  int lease_s = 30;                     // a shared index's build leases, renewed every third of it
+  int workers = 1;                   // builds running at once
+  int queue = 4;                     // builds waiting for a worker
+  int threads = 0;                   // threads of a build (0: all cores)
+  std::string replica = "posewarp";  // this replica's name in a shared index (owner of its builds)
+  int lease_s = 30;                  // a shared index's build leases, renewed every third of it
 };
 
 class BuildQueue {
@@ -58,7 +58,7 @@ class BuildQueue {
   struct Job {
     v1::Operation operation;  // guarded by mutex_
     v1::BuildRigRequest request;
-    std::string key;          // the request without its name: identical builds share one operation
+    std::string key;  // the request without its name: identical builds share one operation
     CancelFlag cancel;
     std::chrono::steady_clock::time_point started;
   };
@@ -80,15 +80,14 @@ class BuildQueue {
   std::shared_ptr<Job> live(const std::string& id);
   // Under mutex_.
   void persist(const Job& job);
-  void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change,
-                     bool persist);
+  void set_operation(const std::shared_ptr<Job>& job, const std::function<void(v1::Operation&)>& change, bool persist);
 
   RigStore& store_;
   Metrics& metrics_;
   BuildQueueOptions options_;
   mutable std::mutex mutex_;
-  std::condition_variable changed_;  // a queued build, a build's progress, or the stop
-  std::map<std::string, std::shared_ptr<Job>> operations_;  // this run's builds
+  std::condition_variable changed_;                          // a queued build, a build's progress, or the stop
+  std::map<std::string, std::shared_ptr<Job>> operations_;   // this run's builds
   std::map<std::string, std::shared_ptr<Job>> live_by_key_;  // queued or running
   std::deque<std::shared_ptr<Job>> queue_;
   int running_ = 0;

@@ -18,7 +18,8 @@ std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) 
   const auto it = metadata.find("x-request-id");
   if (it != metadata.end() && it->second.size() <= 64 && !it->second.empty()) {
     const std::string id(it->second.data(), it->second.size());
-    if (std::all_of(id.begin(), id.end(), [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_'; })) {
+    if (std::all_of(id.begin(), id.end(),
+                    [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '_'; })) {
       return id;
     }
   }

@@ -29,7 +29,9 @@ struct CallFrame {
 };
 
 // The status of a call whose client went away (or stalled: Call::done makes that DEADLINE_EXCEEDED).
-inline Status client_gone() { return cancelled_error("the client went away"); }
+inline Status client_gone() {
+  return cancelled_error("the client went away");
+}
 
 class Call {
  public:

@@ -75,7 +75,8 @@ EngineCache::EngineResult EngineCache::load(const std::string& rig_id) {
     // Never served: moved aside for a person to look at, and the client told to rebuild.
     if (Status q = store_.quarantine_rig(rig_id, rig.status().message()); !q.ok()) spdlog::error("{}", q.message());
     spdlog::error("rig={} failed its checks on load and was quarantined", rig_id.substr(0, 16));
-    return data_loss_error("rig " + rig_id + " failed its checksums in the store and was quarantined; build it "
+    return data_loss_error("rig " + rig_id +
+                           " failed its checksums in the store and was quarantined; build it "
                            "again (or upload a good copy with UploadRig)");
   }
   if (!rig.ok()) return rig.status();

@@ -68,8 +68,9 @@ Result<v1::Volume> Intake::store_raw(Call& call, const v1::UploadVolumeHeader& h
 Result<api::VolumeHeader> Intake::read_staged(Call& call, bool labels, const std::string& path) {
   POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader h, api::read_header(path, read_options_));
   const int64_t voxels = h.geometry.voxel_count();
-  POSEWARP_ASSIGN_OR_RETURN(const MemoryBudget::Reservation memory,
-                            call.reserve(memory_, voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload"));
+  POSEWARP_ASSIGN_OR_RETURN(
+      const MemoryBudget::Reservation memory,
+      call.reserve(memory_, voxels * (pixel_type_bytes(h.pixel_type) + 4), "reading this upload"));
   if (labels) {
     POSEWARP_ASSIGN_OR_RETURN(const LabelVolume volume, api::read_label_volume(path, read_options_));
     POSEWARP_RETURN_IF_ERROR(api::check_labels_look_like_labels(volume, "the uploaded label volume"));

@@ -39,14 +39,12 @@ posewarp::Result<std::vector<std::string>> config_arguments(int argc, char** arg
         args.push_back(value.is_string() ? value.get<std::string>() : value.dump());
       }
     } catch (const nlohmann::json::exception& error) {
-      return invalid_argument_error("server config '" + path + "' is not a JSON object of options (" +
-                                    error.what() + "); see --help for their names");
+      return invalid_argument_error("server config '" + path + "' is not a JSON object of options (" + error.what() +
+                                    "); see --help for their names");
     }
   }
   return args;
 }
-
-
 
 // The flags as given, before the sizes in MB and seconds become the service's bytes and milliseconds.
 struct Flags {
@@ -64,16 +62,24 @@ struct Flags {
 void add_work_options(CLI::App& app, Flags& f) {
   posewarp::server::ServiceOptions& options = f.config.service;
   app.add_option("--config", f.config_file, "JSON config file of these options");
-  app.add_option("--listen", f.config.listen, "Address to listen on (HOST:PORT; port 0 picks a free one)")->capture_default_str();
+  app.add_option("--listen", f.config.listen, "Address to listen on (HOST:PORT; port 0 picks a free one)")
+      ->capture_default_str();
   app.add_option("--store", f.config.store_dir, "Store directory (uploaded volumes, rigs, index.sqlite)")->required();
-  app.add_option("--store-quota-gb", f.quota_gb, "Largest store (volumes and rigs), GB; 0 = no quota")->capture_default_str();
-  app.add_option("--build-workers", options.build_workers, "Builds running at once")->capture_default_str()->check(CLI::Range(1, 64));
+  app.add_option("--store-quota-gb", f.quota_gb, "Largest store (volumes and rigs), GB; 0 = no quota")
+      ->capture_default_str();
+  app.add_option("--build-workers", options.build_workers, "Builds running at once")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 64));
   app.add_option("--build-queue", options.build_queue, "Builds that may wait for a worker")
-      ->capture_default_str()->check(CLI::Range(0, 1000));
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1000));
   app.add_option("--build-threads", options.build_threads, "Threads of a build (0 = all cores)")->capture_default_str();
   app.add_option("--pose-slots", options.pose_slots, "Poses running at once (0 = as many as cores)")
-      ->capture_default_str()->check(CLI::Range(0, 256));
-  app.add_option("--pose-queue", options.pose_queue, "Poses that may wait for a slot")->capture_default_str()->check(CLI::Range(0, 10000));
+      ->capture_default_str()
+      ->check(CLI::Range(0, 256));
+  app.add_option("--pose-queue", options.pose_queue, "Poses that may wait for a slot")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 10000));
   app.add_option("--pose-threads", options.pose_threads, "Threads of one pose (0 = all cores)")->capture_default_str();
   app.add_option("--memory-mb", f.memory_mb,
                  "The server's memory ceiling, MB (default 3/4 of the machine's): loaded rigs (--cache-mb), poses and "
@@ -107,7 +113,9 @@ void add_limit_options(CLI::App& app, Flags& f) {
                  "Declared sizes of one client's uploads in progress together, MB (0 = --max-upload-mb)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  app.add_option("--max-upload-mb", f.max_upload_mb, "Largest uploaded file, MB")->capture_default_str()->check(CLI::PositiveNumber);
+  app.add_option("--max-upload-mb", f.max_upload_mb, "Largest uploaded file, MB")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   app.add_option("--max-volume-voxels", options.max_volume_voxels,
                  "Largest uploaded volume, voxels (also what reading it may allocate)")
       ->capture_default_str()
@@ -118,21 +126,29 @@ void add_limit_options(CLI::App& app, Flags& f) {
   app.add_option("--max-output-mb", f.max_output_mb, "Largest output of one pose, MB (0 = the whole memory budget)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  app.add_option("--max-message-mb", f.config.max_message_mb, "Largest gRPC message received, MB")->capture_default_str()->check(CLI::Range(1, 1024));
-  app.add_option("--max-streams", f.config.max_streams, "Concurrent streams per client connection")->capture_default_str()->check(CLI::Range(1, 10000));
+  app.add_option("--max-message-mb", f.config.max_message_mb, "Largest gRPC message received, MB")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1024));
+  app.add_option("--max-streams", f.config.max_streams, "Concurrent streams per client connection")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000));
   app.add_option("--preview-streams-per-client", options.preview_streams_per_client,
-                 "Open preview streams per client address")->capture_default_str()->check(CLI::Range(1, 1000));
+                 "Open preview streams per client address")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
 }
 
 void add_operation_options(CLI::App& app, Flags& f) {
   posewarp::server::ServerConfig& c = f.config;
-  app.add_option("--token-file", c.token_file, "Bearer tokens, one per line: calls without one get UNAUTHENTICATED "
-                                               "(health stays open); re-read on SIGHUP");
+  app.add_option("--token-file", c.token_file,
+                 "Bearer tokens, one per line: calls without one get UNAUTHENTICATED "
+                 "(health stays open); re-read on SIGHUP");
   app.add_option("--tls-cert", c.tls_cert, "TLS certificate chain (PEM); with --tls-key the server speaks TLS only");
   app.add_option("--tls-key", c.tls_key, "TLS private key (PEM)");
   app.add_option("--tls-client-ca", c.tls_client_ca, "CA (PEM) that client certificates must chain to: mutual TLS");
   app.add_option("--metrics-listen", c.metrics_listen, "HOST:PORT for Prometheus metrics at /metrics (off when empty)");
-  app.add_option("--shutdown-grace-s", c.grace_s, "On SIGTERM, seconds running poses get to finish")->capture_default_str();
+  app.add_option("--shutdown-grace-s", c.grace_s, "On SIGTERM, seconds running poses get to finish")
+      ->capture_default_str();
   app.add_option("--log-level", c.log_level, "trace, debug, info, warn, error")->capture_default_str();
   app.add_option("--database", c.store.database,
                  "PostgreSQL index shared by replicas of one store directory (a libpq connection string or "
@@ -153,8 +169,11 @@ std::string finish_config(Flags& f) {
   if (f.cache_mb == 0) f.cache_mb = std::min<int64_t>(f.memory_mb / 3, 8192);
   constexpr int64_t kBaseMb = 256;  // the server itself: libraries, gRPC's buffers, the index
   if (f.memory_mb < f.cache_mb + kBaseMb + 256) {
-    return "--memory-mb " + std::to_string(f.memory_mb) + " leaves less than 256 MB for poses and uploads after "
-           "--cache-mb " + std::to_string(f.cache_mb) + " and the server's own 256 MB; raise --memory-mb or lower "
+    return "--memory-mb " + std::to_string(f.memory_mb) +
+           " leaves less than 256 MB for poses and uploads after "
+           "--cache-mb " +
+           std::to_string(f.cache_mb) +
+           " and the server's own 256 MB; raise --memory-mb or lower "
            "--cache-mb";
   }
   options.cache_bytes = f.cache_mb << 20;
@@ -180,12 +199,13 @@ std::string finish_config(Flags& f) {
 
 int main(int argc, char** argv) {
   using namespace posewarp;
-  CLI::App app{"posewarp-server: uploads, rig builds and poses over gRPC (package posewarp.v1, proto/).\n"
-               "Every option can also be given in a JSON config file (--config) under the same name without dashes,\n"
-               "e.g. {\"store\": \"/srv/posewarp\", \"pose-slots\": 4, \"token-file\": \"/etc/posewarp/tokens\"};\n"
-               "the command line wins over the file. Signals: SIGTERM/SIGINT stop gracefully, SIGHUP re-reads the\n"
-               "token file.",
-               "posewarp-server"};
+  CLI::App app{
+      "posewarp-server: uploads, rig builds and poses over gRPC (package posewarp.v1, proto/).\n"
+      "Every option can also be given in a JSON config file (--config) under the same name without dashes,\n"
+      "e.g. {\"store\": \"/srv/posewarp\", \"pose-slots\": 4, \"token-file\": \"/etc/posewarp/tokens\"};\n"
+      "the command line wins over the file. Signals: SIGTERM/SIGINT stop gracefully, SIGHUP re-reads the\n"
+      "token file.",
+      "posewarp-server"};
   Flags flags;
   const int64_t machine_mb = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) >> 20;
   flags.memory_mb = machine_mb * 3 / 4;

@@ -53,18 +53,20 @@ class VolumeSender {
 
   template <typename T>
   void send(std::shared_ptr<const Volume<T>> volume, PixelType type, ChunkField field) {
-    last_ = std::async(std::launch::async, [this, before = std::move(last_), volume = std::move(volume), type,
-                                            field]() mutable -> Status {
-      if (before.valid()) {
-        if (Status s = before.get(); !s.ok()) return s;
-      }
-      if (!encoding_.format)
-        return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
-      Result<std::string> bytes = api::encode_volume(*volume, *encoding_.format, encoding_.gzip, type);
-      if (!bytes.ok()) return internal_error("encoding a posed volume failed: " + bytes.status().message());
-      return write_samples(write_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8, chunk_bytes_,
-                           field);
-    });
+    last_ =
+        std::async(std::launch::async,
+                   [this, before = std::move(last_), volume = std::move(volume), type, field]() mutable -> Status {
+                     if (before.valid()) {
+                       if (Status s = before.get(); !s.ok()) return s;
+                     }
+                     if (!encoding_.format)
+                       return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
+                     Result<std::string> bytes = api::encode_volume(*volume, *encoding_.format, encoding_.gzip, type);
+                     if (!bytes.ok())
+                       return internal_error("encoding a posed volume failed: " + bytes.status().message());
+                     return write_samples(write_, bytes->data(), static_cast<int64_t>(bytes->size()), PixelType::kUInt8,
+                                          chunk_bytes_, field);
+                   });
   }
 
   // Waits for every volume handed over; OK, or why one was not sent.
@@ -114,8 +116,9 @@ Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api
     case v1::FILE_FORMAT_NIFTI: e.format = api::VolumeFormat::kNifti; break;
     case v1::FILE_FORMAT_NRRD: e.format = api::VolumeFormat::kNrrd, e.gzip = true; break;
     default:
-      return invalid_argument_error("a pose's volumes come as raw samples, NIfTI (.nii, .nii.gz) or NRRD bytes; "
-                                    "ask for one of those (MHA is not offered)");
+      return invalid_argument_error(
+          "a pose's volumes come as raw samples, NIfTI (.nii, .nii.gz) or NRRD bytes; "
+          "ask for one of those (MHA is not offered)");
   }
   if (request.samples() == v1::SAMPLE_TYPE_STORED) {
     // The study's own types, as the CLI writes them; the wire carries no 64-bit integers (labels fit int32).
@@ -168,7 +171,8 @@ v1::PoseResponse pose_header(const api::PosePlan& plan, const api::Rig& rig, con
   put_grid(plan.output_grid, header->mutable_grid());
   const uint64_t voxels = static_cast<uint64_t>(plan.output_grid.voxel_count());
   const bool raw = !encoding.format.has_value();
-  if (core.want_labels && raw) header->set_label_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding.label_type)));
+  if (core.want_labels && raw)
+    header->set_label_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding.label_type)));
   if (core.want_ct && raw) header->set_ct_bytes(voxels * static_cast<uint64_t>(pixel_type_bytes(encoding.ct_type)));
   header->set_surface_count(core.want_surfaces ? static_cast<int32_t>(rig.surfaces.size() + core.extra_surfaces.size())
                                                : 0);

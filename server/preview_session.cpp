@@ -44,8 +44,8 @@ bool PreviewUpdates::next(v1::PreviewRequest* update, uint64_t* dropped) {
   return true;
 }
 
-v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped, const api::PreviewResult& preview,
-                                   PreviewSession& session,
+v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped,
+                                   const api::PreviewResult& preview, PreviewSession& session,
                                    std::chrono::steady_clock::time_point start) {
   v1::PreviewResponse answer;
   answer.set_sequence(update.sequence());

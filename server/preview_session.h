@@ -52,8 +52,8 @@ struct PreviewSession {
 
 // The answer to `update`: the posed surfaces (with their topology the first time) and joint centres, with the
 // time since `start`.
-v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped, const api::PreviewResult& preview,
-                                   PreviewSession& session,
+v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped,
+                                   const api::PreviewResult& preview, PreviewSession& session,
                                    std::chrono::steady_clock::time_point start);
 // A refused update, answered with its code and message; the stream goes on.
 v1::PreviewResponse preview_refusal(const v1::PreviewRequest& update, uint64_t dropped, int32_t code,

@@ -91,8 +91,10 @@ int run(const ServerConfig& config) {
       RigStore::open(config.store_dir, config.store, [](const std::string& line) { spdlog::warn("{}", line); });
   if (!store.ok()) return refuse_to_start(store.status().to_string());
   if (!loopback(config.listen) && config.tls_cert.empty()) {
-    spdlog::warn("listening on {} without TLS: tokens and studies cross the network in clear; give --tls-cert and "
-                 "--tls-key, or keep the server on loopback behind a TLS proxy", config.listen);
+    spdlog::warn(
+        "listening on {} without TLS: tokens and studies cross the network in clear; give --tls-cert and "
+        "--tls-key, or keep the server on loopback behind a TLS proxy",
+        config.listen);
   }
   // SIGTERM, SIGINT and SIGHUP go to a waiting thread, not to whichever thread runs when they arrive.
   sigset_t signals;
@@ -117,8 +119,8 @@ int run(const ServerConfig& config) {
     return refuse_to_start("cannot listen on " + config.listen + " (in use, or not an address of this machine)");
   }
   server->GetHealthCheckService()->SetServingStatus(true);
-  std::printf("posewarp-server listening on %s:%d, store %s\n", config.listen.substr(0, config.listen.rfind(':')).c_str(),
-              port, config.store_dir.c_str());
+  std::printf("posewarp-server listening on %s:%d, store %s\n",
+              config.listen.substr(0, config.listen.rfind(':')).c_str(), port, config.store_dir.c_str());
   std::fflush(stdout);
   spdlog::info("serving on port {} ({}{}{})", port, config.tls_cert.empty() ? "plaintext" : "TLS",
                config.tls_client_ca.empty() ? "" : ", client certificates required",

@@ -29,25 +29,25 @@
 namespace posewarp::server {
 
 struct ServiceOptions {
-  int build_workers = 1;                       // builds running at once
-  int build_queue = 4;                         // builds waiting for a worker; past it RESOURCE_EXHAUSTED
-  int build_threads = 0;                       // threads of a build (0: all cores)
-  int pose_slots = 0;                          // poses running at once (0: as many as cores)
-  int pose_queue = 32;                         // poses waiting for a slot; past it RESOURCE_EXHAUSTED
-  int pose_threads = 0;                        // threads of one pose (0: all cores)
-  int64_t cache_bytes = int64_t{8} << 30;      // loaded engines kept, by Rig::footprint_bytes()
-  int64_t max_upload_bytes = int64_t{4} << 30; // one uploaded file
+  int build_workers = 1;                         // builds running at once
+  int build_queue = 4;                           // builds waiting for a worker; past it RESOURCE_EXHAUSTED
+  int build_threads = 0;                         // threads of a build (0: all cores)
+  int pose_slots = 0;                            // poses running at once (0: as many as cores)
+  int pose_queue = 32;                           // poses waiting for a slot; past it RESOURCE_EXHAUSTED
+  int pose_threads = 0;                          // threads of one pose (0: all cores)
+  int64_t cache_bytes = int64_t{8} << 30;        // loaded engines kept, by Rig::footprint_bytes()
+  int64_t max_upload_bytes = int64_t{4} << 30;   // one uploaded file
   int64_t max_volume_voxels = int64_t{1} << 28;  // one uploaded volume (and what the readers allocate for it)
   int64_t max_output_voxels = int64_t{1} << 28;  // one pose's output grid
   int64_t max_output_bytes = 0;                  // one pose's outputs (0: the whole memory budget)
   // Poses and uploads in flight together, by their estimates (the engine cache's cache_bytes come on top).
   int64_t memory_bytes = int64_t{4} << 30;
-  int stall_timeout_ms = 10000;                // a stream that makes no progress this long is cancelled
-  ClientLimitOptions client;                   // per client (its token, else its address)
-  int preview_streams_per_client = 4;          // open preview streams per client
-  double test_pause_in_pose_s = 0.0;           // test hook: a pose holds its slot this long before posing
-  std::string replica = "posewarp";            // this replica's name in a shared index (owner of its builds)
-  int lease_s = 30;                            // a shared index's build leases, renewed every third of it
+  int stall_timeout_ms = 10000;        // a stream that makes no progress this long is cancelled
+  ClientLimitOptions client;           // per client (its token, else its address)
+  int preview_streams_per_client = 4;  // open preview streams per client
+  double test_pause_in_pose_s = 0.0;   // test hook: a pose holds its slot this long before posing
+  std::string replica = "posewarp";    // this replica's name in a shared index (owner of its builds)
+  int lease_s = 30;                    // a shared index's build leases, renewed every third of it
 };
 
 class PosewarpService final : public v1::Posewarp::Service {

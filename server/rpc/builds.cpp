@@ -17,16 +17,19 @@ Status PosewarpService::check_build_volumes(const v1::BuildRigRequest& request) 
   const bool labels_wrong = labels->kind == "intensity";
   const bool ct_wrong = ct && ct->kind == "labels";
   if (labels_wrong && ct_wrong) {
-    return invalid_argument_error("labels_volume_id names an intensity volume and ct_volume_id a label volume: they "
-                                  "are swapped");
+    return invalid_argument_error(
+        "labels_volume_id names an intensity volume and ct_volume_id a label volume: they "
+        "are swapped");
   }
   if (labels_wrong) {
-    return invalid_argument_error("labels_volume_id names a volume uploaded as VOLUME_KIND_INTENSITY (a CT or MRI); "
-                                  "give the segmentation's id");
+    return invalid_argument_error(
+        "labels_volume_id names a volume uploaded as VOLUME_KIND_INTENSITY (a CT or MRI); "
+        "give the segmentation's id");
   }
   if (ct_wrong) {
-    return invalid_argument_error("ct_volume_id names a volume uploaded as VOLUME_KIND_LABELS (a segmentation); give "
-                                  "the CT's id");
+    return invalid_argument_error(
+        "ct_volume_id names a volume uploaded as VOLUME_KIND_LABELS (a segmentation); give "
+        "the CT's id");
   }
   return ok_status();
 }

@@ -42,8 +42,9 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   if (!memory.ok()) return call.done(memory.status());
   const PoseWrite write = [&call, writer](const v1::PoseResponse& message) { return call.write(writer, message); };
   if (!write(pose_header(*plan, rig, core, *encoding, request->format()))) return call.done(client_gone());
-  return call.done(stream_pose(**engine, std::move(core), call.hooks(options_.pose_threads), *encoding, chunk_bytes,
-                               write, [&slot] { slot->release(); }, [&call] { return call.stream().stalled(); }));
+  return call.done(stream_pose(
+      **engine, std::move(core), call.hooks(options_.pose_threads), *encoding, chunk_bytes, write,
+      [&slot] { slot->release(); }, [&call] { return call.stream().stalled(); }));
 }
 
 }  // namespace posewarp::server

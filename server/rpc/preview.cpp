@@ -16,17 +16,17 @@ v1::PreviewResponse PosewarpService::answer_preview(Call& call, PreviewSession& 
   };
   if (!session.engine) {
     call.set_rig(update.rig_id());
-    Result<EngineCache::Engine> loaded =
-        api::is_hex_id(update.rig_id())
-            ? engines_.get(update.rig_id())
-            : Result<EngineCache::Engine>(invalid_argument_error("the first preview update names the rig (64 hex digits)"));
+    Result<EngineCache::Engine> loaded = api::is_hex_id(update.rig_id())
+                                             ? engines_.get(update.rig_id())
+                                             : Result<EngineCache::Engine>(invalid_argument_error(
+                                                   "the first preview update names the rig (64 hex digits)"));
     if (!loaded.ok()) return refusal(loaded.status());
     session.engine = *loaded;
   }
   const auto start = std::chrono::steady_clock::now();
   Result<api::Pose> pose = check_preview_request(update);
-  Result<api::PreviewResult> preview =
-      pose.ok() ? session.engine->preview(*pose, method_of(update.method())) : Result<api::PreviewResult>(pose.status());
+  Result<api::PreviewResult> preview = pose.ok() ? session.engine->preview(*pose, method_of(update.method()))
+                                                 : Result<api::PreviewResult>(pose.status());
   if (!preview.ok()) return refusal(preview.status());
   return preview_answer(update, dropped, *preview, session, start);
 }

@@ -36,20 +36,22 @@ grpc::Status PosewarpService::DownloadRig(grpc::ServerContext* context, const v1
   if (Result<api::Rig> check = api::rig_from_bytes(*bytes, "rig " + stored->id); !check.ok()) {
     engines_.evict(stored->id);
     (void)store_->quarantine_rig(stored->id, check.status().message());
-    return call.done(data_loss_error("rig " + stored->id + " failed its checksums in the store and was quarantined; "
+    return call.done(data_loss_error("rig " + stored->id +
+                                     " failed its checksums in the store and was quarantined; "
                                      "build it again"));
   }
   const std::string sha = api::sha256_hex(*bytes);
-  const bool sent = stream_chunks(bytes->data(), bytes->size(), uint64_t{1} << 20, [&](uint64_t offset, std::string data) {
-    v1::RigChunk chunk;
-    chunk.set_offset(offset);
-    chunk.set_data(std::move(data));
-    if (offset == 0) {
-      chunk.set_size_bytes(bytes->size());
-      chunk.set_sha256(sha);
-    }
-    return call.write(writer, chunk);
-  });
+  const bool sent =
+      stream_chunks(bytes->data(), bytes->size(), uint64_t{1} << 20, [&](uint64_t offset, std::string data) {
+        v1::RigChunk chunk;
+        chunk.set_offset(offset);
+        chunk.set_data(std::move(data));
+        if (offset == 0) {
+          chunk.set_size_bytes(bytes->size());
+          chunk.set_sha256(sha);
+        }
+        return call.write(writer, chunk);
+      });
   return call.done(sent ? ok_status() : client_gone());
 }
 
@@ -59,7 +61,8 @@ grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::Serv
   if (call.refused()) return call.refusal();
   v1::UploadRigRequest part;
   if (!call.read(reader, &part)) return call.done(client_gone());
-  if (!part.has_header()) return call.done(invalid_argument_error("a rig upload starts with its header (size_bytes, sha256)"));
+  if (!part.has_header())
+    return call.done(invalid_argument_error("a rig upload starts with its header (size_bytes, sha256)"));
   const v1::UploadRigHeader header = part.header();
   if (Status s = check_rig_upload_header(header, request_limits()); !s.ok()) return call.done(s);
   StagedUpload upload;
@@ -70,7 +73,8 @@ grpc::Status PosewarpService::UploadRig(grpc::ServerContext* context, grpc::Serv
   Result<MemoryBudget::Reservation> memory =
       call.reserve(memory_, static_cast<int64_t>(header.size_bytes()) * 3, "this rig upload");
   if (!memory.ok()) return call.done(memory.status());
-  Result<std::string> bytes = api::read_text_input(upload.path, "rig upload", static_cast<int64_t>(header.size_bytes()));
+  Result<std::string> bytes =
+      api::read_text_input(upload.path, "rig upload", static_cast<int64_t>(header.size_bytes()));
   if (!bytes.ok()) return call.done(bytes.status());
   Result<api::Rig> rig = api::rig_from_bytes(*bytes, "uploaded rig");
   if (!rig.ok()) return call.done(rig.status());

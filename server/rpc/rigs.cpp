@@ -70,7 +70,8 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
                                            grpc::ServerWriter<v1::RigAsset>* writer) {
   Call call(frame_, context, "GetRigAssets", request->rig_id());
   if (call.refused()) return call.refusal();
-  if (!api::is_hex_id(request->rig_id())) return call.done(invalid_argument_error("a rig id is 64 lowercase hex digits"));
+  if (!api::is_hex_id(request->rig_id()))
+    return call.done(invalid_argument_error("a rig id is 64 lowercase hex digits"));
   Result<EngineCache::Engine> engine = engines_.get(request->rig_id());
   if (!engine.ok()) return call.done(engine.status());
   const api::Rig& rig = (*engine)->rig();
@@ -79,7 +80,8 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
   if (!call.write(writer, asset)) return call.done(client_gone());
   // Each surface's role, for a viewer: a bone segment's label, the skin (label 0), or another tissue.
   std::set<Label> bone_labels;
-  for (const rig::Segment& segment : rig.skeleton.segments) bone_labels.insert(segment.labels.begin(), segment.labels.end());
+  for (const rig::Segment& segment : rig.skeleton.segments)
+    bone_labels.insert(segment.labels.begin(), segment.labels.end());
   for (const surface::SurfaceMesh& mesh : rig.surfaces) {
     const std::string role = mesh.label == 0 ? "skin" : bone_labels.count(mesh.label) ? "bone" : "tissue";
     Result<v1::RigAsset> part = surface_asset(mesh, role, request->format());

@@ -27,8 +27,8 @@ grpc::Status PosewarpService::UploadVolume(grpc::ServerContext* context,
   if (Status s = intake_.stage(call, reader, header.size_bytes(), header.sha256(), file_name, &upload); !s.ok()) {
     return call.done(s);
   }
-  Result<v1::Volume> stored = plan->raw ? intake_.store_raw(call, header, *plan, upload)
-                                        : intake_.store_file(call, header, *plan, upload);
+  Result<v1::Volume> stored =
+      plan->raw ? intake_.store_raw(call, header, *plan, upload) : intake_.store_file(call, header, *plan, upload);
   if (!stored.ok()) return call.done(stored.status());
   *response = std::move(stored).value();
   return call.done(ok_status());

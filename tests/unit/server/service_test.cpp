@@ -241,8 +241,7 @@ TEST(ServiceInProcess, ATokenIsRequiredWhenTheServiceHasTokens) {
   const grpc::Status without = service.stub().ListRigs(context().get(), {}, &rigs);
   EXPECT_EQ(without.error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_NE(without.error_message().find("bearer token"), std::string::npos) << without.error_message();
-  EXPECT_EQ(service.stub().ListRigs(context("wrong").get(), {}, &rigs).error_code(),
-            grpc::StatusCode::UNAUTHENTICATED);
+  EXPECT_EQ(service.stub().ListRigs(context("wrong").get(), {}, &rigs).error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_TRUE(service.stub().ListRigs(context("s3cret-token").get(), {}, &rigs).ok());
 }
 
