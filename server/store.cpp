@@ -118,8 +118,13 @@ Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
   POSEWARP_ASSIGN_OR_RETURN(const int interrupted,
                             index_->fail_unfinished_operations(10, "the server stopped during the build; build again"));
   if (interrupted > 0) log("store: " + std::to_string(interrupted) + " build(s) left running were marked failed");
+  POSEWARP_RETURN_IF_ERROR(reconcile_rigs(log));
+  return reconcile_volumes(log);
+}
 
-  // Rigs: rows without a file are dropped; files without a row are checked and adopted, or quarantined.
+// Rigs: rows without a file are dropped; files without a row are checked and adopted, or quarantined.
+Status RigStore::reconcile_rigs(const std::function<void(const std::string&)>& log) {
+  const fs::path root(directory_);
   std::set<std::string> indexed;
   for (std::string after;;) {
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigRecord> page, index_->rigs(after, 1000));
@@ -159,8 +164,14 @@ Status RigStore::reconcile(const std::function<void(const std::string&)>& log) {
     POSEWARP_RETURN_IF_ERROR(index_->put_rig(record));
     log("store: rig file " + id + " had no row (a crash after its write); checked and adopted");
   }
+  return ok_status();
+}
 
-  // Volumes: rows without a file are dropped; a file without a row is adopted when its bytes hash to its name.
+// Volumes: rows without a file are dropped; a file without a row is adopted when its bytes hash to its name.
+Status RigStore::reconcile_volumes(const std::function<void(const std::string&)>& log) {
+  const fs::path root(directory_);
+  const bool shared = index_->shared();
+  std::error_code ec;
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<VolumeRecord> volumes, index_->volumes());
   std::set<std::string> volume_ids;
   for (const VolumeRecord& v : volumes) {

@@ -155,6 +155,8 @@ class RigStore {
   RigStore(std::string directory, StoreOptions options, std::unique_ptr<StoreIndex> index)
       : directory_(std::move(directory)), options_(options), index_(std::move(index)) {}
   Status reconcile(const std::function<void(const std::string&)>& log);
+  Status reconcile_rigs(const std::function<void(const std::string&)>& log);
+  Status reconcile_volumes(const std::function<void(const std::string&)>& log);
   Status check_quota(uint64_t more_bytes);
 
   std::string directory_;

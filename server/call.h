@@ -1,0 +1,83 @@
+// One call's frame: the token check, the stall watch over its stream, its deadline, then at its end the status
+// converted for gRPC (the one place a handler's Status becomes a grpc::Status), the log line and the metrics.
+#pragma once
+
+#include <grpcpp/server_context.h>
+#include <grpcpp/support/status.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "admission.h"
+#include "auth.h"
+#include "metrics.h"
+#include "posewarp/api/files.h"
+
+namespace posewarp::server {
+
+// What every call of one service shares.
+struct CallFrame {
+  StallWatch& stall_watch;
+  const Tokens& tokens;
+  Metrics& metrics;
+  std::string store_directory;  // named in no message a client gets
+  std::atomic<uint64_t> next_request{1};
+};
+
+// The status of a call whose client went away (or stalled: Call::done makes that DEADLINE_EXCEEDED).
+inline Status client_gone() {
+  return cancelled_error("the client went away");
+}
+
+class Call {
+ public:
+  Call(CallFrame& frame, grpc::ServerContext* context, const char* method, std::string rig_id = "");
+  Call(const Call&) = delete;
+  Call& operator=(const Call&) = delete;
+
+  // The token was missing or not one this server accepts: the call ends with refusal().
+  bool refused() const { return !refusal_.ok(); }
+  grpc::Status refusal() { return done(refusal_); }
+  void set_rig(const std::string& rig_id) { rig_id_ = rig_id; }
+  // Who the call comes from, for the per-client limits.
+  std::string client() const { return client_of(*context_); }
+
+  // One Write or Read of the call's stream, under the stall watch: false when the client went away or stalled.
+  template <typename Writer, typename Message>
+  bool write(Writer* writer, const Message& message) {
+    return stream_->io([&] { return writer->Write(message); });
+  }
+  template <typename Reader, typename Message>
+  bool read(Reader* reader, Message* message) {
+    return stream_->io([&] { return reader->Read(message); });
+  }
+  StallWatch::Stream& stream() { return *stream_; }
+  bool cancelled() const { return context_->IsCancelled(); }
+  grpc::ServerContext* context() const { return context_; }
+
+  // The engine's hooks for this call: `threads`, its cancel and its deadline.
+  ProgressHooks hooks(int threads) const;
+  // `bytes` of `memory` for `what`, waiting for room until the call's deadline (a minute without one) or until the
+  // client goes away.
+  Result<MemoryBudget::Reservation> reserve(MemoryBudget& memory, int64_t bytes, const std::string& what) const;
+
+  // The call's answer: `status` for gRPC (server paths out), DEADLINE_EXCEEDED for a stalled stream or a passed
+  // deadline; logged and counted.
+  grpc::Status done(const Status& status);
+
+ private:
+  CallFrame& frame_;
+  grpc::ServerContext* context_;
+  const char* method_;
+  std::string rig_id_;
+  std::string request_id_;
+  std::chrono::steady_clock::time_point start_;
+  std::unique_ptr<StallWatch::Stream> stream_;
+  Status refusal_;
+};
+
+}  // namespace posewarp::server
