@@ -77,12 +77,12 @@ void BuildQueue::worker() {
       job = queue_.front();
       queue_.pop_front();
       job->operation.set_state(v1::Operation::RUNNING);
-      job->started = std::chrono::steady_clock::now();
+      job->started.restart();
       ++running_;
       persist(*job);
     }
     changed_.notify_all();
-    const auto started = std::chrono::steady_clock::now();
+    const Stopwatch started;
     finish(job, build(job), started);
     {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -137,7 +137,7 @@ void BuildQueue::set_operation(const std::shared_ptr<Job>& job, const std::funct
     std::lock_guard<std::mutex> lock(mutex_);
     change(job->operation);
     job->operation.set_elapsed_s(
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - job->started).count());
+        job->started.seconds());
     if (persist) this->persist(*job);
   }
   changed_.notify_all();
@@ -154,12 +154,12 @@ void BuildQueue::succeeded(const std::shared_ptr<Job>& job, const std::string& r
 }
 
 void BuildQueue::finish(const std::shared_ptr<Job>& job, const Status& status,
-                        std::chrono::steady_clock::time_point started) {
+                        const Stopwatch& started) {
   const grpc::Status g = to_grpc(status, store_.directory());
   const std::string code = status_code_name(status.code()).data();
-  metrics_.observe("build", code, std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
+  metrics_.observe("build", code, started.seconds());
   spdlog::info("operation={} build status={} s={:.1f}", job->operation.id(), code,
-               std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
+               started.seconds());
   set_operation(
       job,
       [&](v1::Operation& op) {

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "metrics.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/v1/posewarp.pb.h"
@@ -60,7 +61,7 @@ class BuildQueue {
     v1::BuildRigRequest request;
     std::string key;  // the request without its name: identical builds share one operation
     CancelFlag cancel;
-    std::chrono::steady_clock::time_point started;
+    Stopwatch started;
   };
 
   void worker();
@@ -73,7 +74,7 @@ class BuildQueue {
   Status build(const std::shared_ptr<Job>& job);
   // The build's rig, built here and put in the store.
   Status build_here(const std::shared_ptr<Job>& job, const api::BuildInputs& inputs, const api::BuildParams& params);
-  void finish(const std::shared_ptr<Job>& job, const Status& status, std::chrono::steady_clock::time_point started);
+  void finish(const std::shared_ptr<Job>& job, const Status& status, const Stopwatch& started);
   void succeeded(const std::shared_ptr<Job>& job, const std::string& rig_id);
   Status watch_row(const std::string& id, const std::function<bool(const v1::Operation&)>& write,
                    const std::function<bool()>& cancelled);

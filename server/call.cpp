@@ -36,7 +36,6 @@ Call::Call(CallFrame& frame, grpc::ServerContext* context, const char* method, s
       method_(method),
       rig_id_(std::move(rig_id)),
       request_id_(request_id_of(context, frame.next_request++)),
-      start_(std::chrono::steady_clock::now()),
       stream_(frame.stall_watch.watch(context)) {
   if (!frame_.tokens.enabled()) return;
   const auto& metadata = context->client_metadata();
@@ -80,7 +79,7 @@ grpc::Status Call::done(const Status& result) {
     // gRPC cancels a call whose deadline passed: that is the client's deadline, not a cancel.
     status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the client's deadline passed before the call ended");
   }
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  const double seconds = start_.seconds();
   const std::string code = status_code_name(static_cast<StatusCode>(status.error_code())).data();
   frame_.metrics.observe(method_, code, seconds);
   if (status.ok() && std::string_view(method_) == "Pose" && api::is_hex_id(rig_id_)) {

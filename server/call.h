@@ -15,6 +15,7 @@
 #include "admission.h"
 #include "auth.h"
 #include "metrics.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/files.h"
 
 namespace posewarp::server {
@@ -75,7 +76,7 @@ class Call {
   const char* method_;
   std::string rig_id_;
   std::string request_id_;
-  std::chrono::steady_clock::time_point start_;
+  Stopwatch start_;
   std::unique_ptr<StallWatch::Stream> stream_;
   Status refusal_;
 };

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/json.h"
 #include "posewarp/api/files.h"
 #include "server.h"
 
@@ -27,20 +28,19 @@ posewarp::Result<std::vector<std::string>> config_arguments(int argc, char** arg
     if (arg.rfind("--config=", 0) == 0) path = arg.substr(9);
     if (path.empty()) continue;
     POSEWARP_ASSIGN_OR_RETURN(const std::string text, api::read_text_input(path, "server config"));
-    try {
-      const nlohmann::json config = nlohmann::json::parse(text);
-      if (!config.is_object()) throw nlohmann::json::type_error::create(302, "not an object", nullptr);
-      for (const auto& [key, value] : config.items()) {
-        if (value.is_boolean()) {
-          if (value.get<bool>()) args.push_back("--" + key);
-          continue;
-        }
-        args.push_back("--" + key);
-        args.push_back(value.is_string() ? value.get<std::string>() : value.dump());
+    POSEWARP_ASSIGN_OR_RETURN(const nlohmann::json config,
+                              parse_json<nlohmann::json>(text, "server config '" + path + "'"));
+    if (!config.is_object()) {
+      return invalid_argument_error("server config '" + path +
+                                    "' is not a JSON object of options; see --help for their names");
+    }
+    for (const auto& [key, value] : config.items()) {
+      if (value.is_boolean()) {
+        if (value.get<bool>()) args.push_back("--" + key);
+        continue;
       }
-    } catch (const nlohmann::json::exception& error) {
-      return invalid_argument_error("server config '" + path + "' is not a JSON object of options (" + error.what() +
-                                    "); see --help for their names");
+      args.push_back("--" + key);
+      args.push_back(value.is_string() ? value.get<std::string>() : value.dump());
     }
   }
   return args;

@@ -46,7 +46,7 @@ bool PreviewUpdates::next(v1::PreviewRequest* update, uint64_t* dropped) {
 
 v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped,
                                    const api::PreviewResult& preview, PreviewSession& session,
-                                   std::chrono::steady_clock::time_point start) {
+                                   const Stopwatch& start) {
   v1::PreviewResponse answer;
   answer.set_sequence(update.sequence());
   answer.set_dropped(dropped);
@@ -65,7 +65,7 @@ v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dr
   for (const Eigen::Vector3d& c : preview.joint_centres) {
     for (int a = 0; a < 3; ++a) answer.add_joint_centres(c[a]);
   }
-  answer.set_server_ms(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  answer.set_server_ms(1000.0 * start.seconds());
   return answer;
 }
 

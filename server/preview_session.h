@@ -14,6 +14,7 @@
 #include <string>
 #include <thread>
 
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
@@ -54,7 +55,7 @@ struct PreviewSession {
 // time since `start`.
 v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dropped,
                                    const api::PreviewResult& preview, PreviewSession& session,
-                                   std::chrono::steady_clock::time_point start);
+                                   const Stopwatch& start);
 // A refused update, answered with its code and message; the stream goes on.
 v1::PreviewResponse preview_refusal(const v1::PreviewRequest& update, uint64_t dropped, int32_t code,
                                     const std::string& message);

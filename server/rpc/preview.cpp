@@ -1,6 +1,7 @@
 // Preview: a bidirectional stream of poses answered with surfaces, newest update first (preview_session.h).
 #include <chrono>
 
+#include "posewarp/common/stopwatch.h"
 #include "convert.h"
 #include "service.h"
 #include "status_map.h"
@@ -23,7 +24,7 @@ v1::PreviewResponse PosewarpService::answer_preview(Call& call, PreviewSession& 
     if (!loaded.ok()) return refusal(loaded.status());
     session.engine = *loaded;
   }
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch start;
   Result<api::Pose> pose = check_preview_request(update);
   Result<api::PreviewResult> preview = pose.ok() ? session.engine->preview(*pose, method_of(update.method()))
                                                  : Result<api::PreviewResult>(pose.status());

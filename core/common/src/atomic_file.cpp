@@ -35,6 +35,27 @@ Status refuse_directory(const std::string& path, std::string_view kind) {
                                 in_quotes((fs::path(path) / "<name>").string()) + ")");
 }
 
+// The error of a partial file or directory that could not be made in `directory`: NOT_FOUND for a missing
+// directory, PERMISSION_DENIED for one that cannot be written, INVALID_ARGUMENT otherwise.
+Status creation_error(int error, const std::string& path, std::string_view kind, const std::string& directory) {
+  const std::string message = "cannot write " + std::string(kind) + " " + in_quotes(path) + " in " +
+                              in_quotes(directory) + ": " + std::strerror(error);
+  if (error == ENOENT || error == ENOTDIR) return not_found_error(message + " (create the directory first)");
+  if (error == EACCES || error == EPERM || error == EROFS) {
+    return permission_denied_error(message + " (choose a directory you can write to)");
+  }
+  return invalid_argument_error(message);
+}
+
+// A file's or directory's contents (and, for a directory, its entries) on the disk.
+void sync_to_disk(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd >= 0) {
+    ::fsync(fd);
+    ::close(fd);
+  }
+}
+
 }  // namespace
 
 AtomicFile::AtomicFile(std::string path, std::string partial, std::string kind, int fd)
@@ -63,16 +84,7 @@ Result<AtomicFile> AtomicFile::create(const std::string& path, std::string_view 
                                                fs::path(path).filename().string()))
           .string();
   const int fd = ::open(partial.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) {
-    const int error = errno;
-    const std::string message = "cannot write " + std::string(kind) + " " + in_quotes(path) + " in " +
-                                in_quotes(directory) + ": " + std::strerror(error);
-    if (error == ENOENT || error == ENOTDIR) return not_found_error(message + " (create the directory first)");
-    if (error == EACCES || error == EPERM || error == EROFS) {
-      return permission_denied_error(message + " (choose a directory you can write to)");
-    }
-    return invalid_argument_error(message);
-  }
+  if (fd < 0) return creation_error(errno, path, kind, directory);
   return AtomicFile(path, partial, std::string(kind), fd);
 }
 
@@ -118,11 +130,7 @@ Status AtomicFile::commit() {
   }
   committed_ = true;
   // The rename itself reaches the disk with the directory.
-  const int dir = ::open(directory_of(path_).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dir >= 0) {
-    ::fsync(dir);
-    ::close(dir);
-  }
+  sync_to_disk(directory_of(path_));
   return ok_status();
 }
 
@@ -162,16 +170,7 @@ Result<AtomicDirectory> AtomicDirectory::create(const std::string& path, std::st
   remove_stale_partial_files(parent);
   const std::string partial =
       (fs::path(parent) / partial_file_name(std::to_string(counter.fetch_add(1)) + "-" + name)).string();
-  if (::mkdir(partial.c_str(), 0755) != 0) {
-    const int error = errno;
-    const std::string message = "cannot write " + std::string(kind) + " " + in_quotes(path) + " in " +
-                                in_quotes(parent) + ": " + std::strerror(error);
-    if (error == ENOENT || error == ENOTDIR) return not_found_error(message + " (create the directory first)");
-    if (error == EACCES || error == EPERM || error == EROFS) {
-      return permission_denied_error(message + " (choose a directory you can write to)");
-    }
-    return invalid_argument_error(message);
-  }
+  if (::mkdir(partial.c_str(), 0755) != 0) return creation_error(errno, path, kind, parent);
   return AtomicDirectory(target, partial, std::string(kind), existing);
 }
 
@@ -179,16 +178,9 @@ Status AtomicDirectory::commit() {
   // Every file and folder in it reaches the disk before the directory takes its name.
   std::error_code ec;
   for (fs::recursive_directory_iterator it(partial_, ec), end; !ec && it != end; it.increment(ec)) {
-    const int fd = ::open(it->path().c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd >= 0) {
-      ::fsync(fd);
-      ::close(fd);
-    }
+    sync_to_disk(it->path().string());
   }
-  if (const int fd = ::open(partial_.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); fd >= 0) {
-    ::fsync(fd);
-    ::close(fd);
-  }
+  sync_to_disk(partial_);
   const bool there = fs::exists(path_, ec);
   if (there && existing_ == Existing::kRefuse) {
     return already_exists_error(in_quotes(path_) + " was made while the " + kind_ + " was written; choose a new directory");
@@ -206,11 +198,7 @@ Status AtomicDirectory::commit() {
     }
     committed_ = true;
   }
-  const int dir = ::open(directory_of(path_).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dir >= 0) {
-    ::fsync(dir);
-    ::close(dir);
-  }
+  sync_to_disk(directory_of(path_));
   return ok_status();
 }
 
