@@ -546,7 +546,8 @@ Result<VolumeHeader> read_header(const std::string& path, const ReadOptions& opt
 
 static Result<LabelVolume> read_label_volume_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
-  const auto& [header, series] = opened;
+  const VolumeHeader& header = opened.first;  // named, not bound: a lambda below captures them
+  const DicomSeries& series = opened.second;
   const PixelType type = header.pixel_type;
   const bool exact_as_int32 = type == PixelType::kUInt8 || type == PixelType::kInt8 || type == PixelType::kUInt16 ||
                               type == PixelType::kInt16 || type == PixelType::kInt32;
@@ -585,7 +586,8 @@ Result<LabelVolume> read_label_volume(const std::string& path, const ReadOptions
 
 static Result<IntensityVolume> read_intensity_volume_unguarded(const std::string& path, const ReadOptions& options) {
   POSEWARP_ASSIGN_OR_RETURN(auto opened, open_volume(path, options));
-  const auto& [header, series] = opened;
+  const VolumeHeader& header = opened.first;  // named, not bound: a lambda below captures them
+  const DicomSeries& series = opened.second;
   return guarded("reading " + in_quotes(path) + " (" + header.geometry.describe() + ")",
                  [&]() -> Result<IntensityVolume> {
     IntensityVolume intensities;
