@@ -16,9 +16,9 @@
 #include <vector>
 
 #include "metrics.h"
-#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/api/support.h"
 #include "posewarp/v1/posewarp.pb.h"
 #include "store.h"
 

@@ -15,8 +15,8 @@
 #include "admission.h"
 #include "auth.h"
 #include "metrics.h"
-#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/support.h"
 
 namespace posewarp::server {
 

@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/common/json.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/support.h"
 #include "server.h"
 
 namespace {

@@ -14,8 +14,8 @@
 #include <string>
 #include <thread>
 
-#include "posewarp/common/stopwatch.h"
 #include "posewarp/api/pose_engine.h"
+#include "posewarp/api/support.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 namespace posewarp::server {

@@ -9,8 +9,7 @@
 #include <vector>
 
 #include "posewarp/api/files.h"
-#include "posewarp/common/progress.h"
-#include "posewarp/common/status.h"
+#include "posewarp/api/support.h"
 
 namespace posewarp::cli {
 

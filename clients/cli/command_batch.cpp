@@ -19,13 +19,11 @@
 
 #include "cli_support.h"
 #include "pacs_options.h"
-#include "posewarp/common/json.h"
-#include "posewarp/common/atomic_file.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
-#include "posewarp/common/stopwatch.h"
+#include "posewarp/api/support.h"
 #include "posewarp/pacs/dicomweb.h"
 #include "remote.h"
 

@@ -6,7 +6,7 @@
 #include <new>
 
 #include "cli_support.h"
-#include "posewarp/common/parallel.h"
+#include "posewarp/api/support.h"
 
 int main(int argc, char** argv) {
   using namespace posewarp;

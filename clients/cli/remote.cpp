@@ -14,9 +14,9 @@
 #include <thread>
 
 #include "cli_support.h"
-#include "posewarp/common/retry.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
+#include "posewarp/api/support.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 #include <nlohmann/json.hpp>

@@ -1,5 +1,4 @@
-// posewarp-view's files, written whole or not at all (core/common's AtomicFile and AtomicDirectory): a crash leaves
-// no half file under the name asked for.
+// posewarp-view's files: written to NAME.partial, then renamed, so a crash leaves no half file under NAME.
 #include "files.h"
 
 #include <vtkCellArray.h>
@@ -8,11 +7,13 @@
 #include <vtkSmartPointer.h>
 #include <vtkXMLPolyDataWriter.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <cctype>
 #include <filesystem>
+#include <fstream>
 #include <set>
-
-#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::view {
 namespace fs = std::filesystem;
@@ -26,10 +27,23 @@ std::string file_name(const std::string& name, size_t index) {
   return safe.empty() ? "surface_" + std::to_string(index) : safe;
 }
 
-// False with the status's message in `error` unless it is OK.
-bool succeeded(const Status& status, std::string* error) {
-  if (!status.ok()) *error = status.message();
-  return status.ok();
+// The file's bytes on the disk before it takes its name.
+bool flush_to_disk(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY);
+  if (fd < 0) return false;
+  const bool synced = ::fsync(fd) == 0;
+  return ::close(fd) == 0 && synced;
+}
+
+bool commit(const fs::path& partial, const fs::path& path, std::string* error) {
+  std::error_code ec;
+  if (flush_to_disk(partial)) fs::rename(partial, path, ec);
+  if (ec || fs::exists(partial)) {
+    fs::remove(partial, ec);
+    *error = "cannot write '" + path.string() + "'" + (ec ? ": " + ec.message() : " (disk full?)");
+    return false;
+  }
+  return true;
 }
 
 bool write_surface(const v1::Surface& surface, const fs::path& path, std::string* error) {
@@ -45,34 +59,50 @@ bool write_surface(const v1::Surface& surface, const fs::path& path, std::string
   auto mesh = vtkSmartPointer<vtkPolyData>::New();
   mesh->SetPoints(points);
   mesh->SetPolys(triangles);
-  Result<AtomicFile> file = AtomicFile::create(path.string(), "surface");
-  if (!file.ok()) return succeeded(file.status(), error);
+  const fs::path partial = path.string() + ".partial";
   auto writer = vtkSmartPointer<vtkXMLPolyDataWriter>::New();
   writer->SetInputData(mesh);
   writer->SetDataModeToBinary();
-  writer->SetFileName(file->partial_path().c_str());
+  writer->SetFileName(partial.c_str());
   if (writer->Write() == 0) {
+    std::error_code ec;
+    fs::remove(partial, ec);
     *error = "cannot write '" + path.string() + "' (disk full or directory not writable?)";
     return false;
   }
-  return succeeded(file->commit(), error);
+  return commit(partial, path, error);
 }
 
 }  // namespace
 
 bool write_file(const std::string& path, const std::string& text, std::string* error) {
-  return succeeded(write_file_atomically(path, text, "file"), error);
+  const fs::path partial = path + ".partial";
+  {
+    std::ofstream out(partial, std::ios::binary | std::ios::trunc);
+    out.write(text.data(), static_cast<std::streamsize>(text.size()));
+    out.close();
+    if (!out) {
+      std::error_code ec;
+      fs::remove(partial, ec);
+      *error = "cannot write '" + path + "' (disk full or directory not writable?)";
+      return false;
+    }
+  }
+  return commit(partial, path, error);
 }
 
 bool save_posed(const PosedVolumes& posed, const std::string& dir, std::string* error) {
-  // Everything goes into a partial directory that becomes DIR once whole: a failed save leaves no DIR that looks done.
-  Result<AtomicDirectory> directory = AtomicDirectory::create(dir, "posed files", AtomicDirectory::Existing::kRefuse);
-  if (!directory.ok()) return succeeded(directory.status(), error);
-  const fs::path partial(directory->partial_path());
+  // Everything goes into DIR.partial, which becomes DIR once whole: a failed save leaves no DIR that looks done.
+  const fs::path root(dir), partial(dir + ".partial");
   std::error_code ec;
+  if (fs::exists(root, ec)) {
+    *error = "'" + dir + "' exists already; choose a new directory for the posed files";
+    return false;
+  }
+  fs::remove_all(partial, ec);
   fs::create_directories(partial / "surfaces", ec);
   if (ec) {
-    *error = "cannot make the directory '" + (partial / "surfaces").string() + "': " + ec.message();
+    *error = "cannot make the directory '" + partial.string() + "': " + ec.message();
     return false;
   }
   bool ok = write_file((partial / "labels.nii.gz").string(), posed.labels, error) &&
@@ -89,7 +119,13 @@ bool save_posed(const PosedVolumes& posed, const std::string& dir, std::string* 
     }
     ok = write_surface(posed.surfaces[i], partial / "surfaces" / (name + ".vtp"), error);
   }
-  return ok && succeeded(directory->commit(), error);
+  if (ok) {
+    fs::rename(partial, root, ec);
+    if (ec) *error = "cannot name the posed files '" + dir + "': " + ec.message();
+    ok = !ec;
+  }
+  if (!ok) fs::remove_all(partial, ec);
+  return ok;
 }
 
 }  // namespace posewarp::view

@@ -1,5 +1,4 @@
 // The VTK scene and the controller the sliders drive.
-#include "posewarp/common/atomic_file.h"
 #include "scene.h"
 
 #include <vtkActor.h>
@@ -578,20 +577,21 @@ bool Scene::snapshot(const std::string& png_path, std::string* error) {
   grab->SetInputBufferTypeToRGB();
   grab->ReadFrontBufferOff();
   grab->Update();
-  Result<AtomicFile> file = AtomicFile::create(png_path, "snapshot");
-  if (!file.ok()) {
-    *error = file.status().message();
-    return false;
-  }
   auto writer = vtkSmartPointer<vtkPNGWriter>::New();
-  writer->SetFileName(file->partial_path().c_str());
+  const std::string partial = png_path + ".partial";
+  writer->SetFileName(partial.c_str());
   writer->SetInputConnection(grab->GetOutputPort());
   writer->Write();
-  const Status written = writer->GetErrorCode() == 0
-                             ? file->commit()
-                             : internal_error("cannot write the snapshot '" + png_path + "' (is the disk full?)");
-  if (!written.ok()) *error = written.message();
-  return written.ok();
+  std::error_code ec;
+  if (writer->GetErrorCode() != 0 || !std::filesystem::exists(partial, ec) ||
+      std::filesystem::file_size(partial, ec) == 0) {
+    std::filesystem::remove(partial, ec);
+    *error = "cannot write the snapshot '" + png_path + "' (is its directory there and writable?)";
+    return false;
+  }
+  std::filesystem::rename(partial, png_path, ec);
+  if (ec) *error = "cannot write the snapshot '" + png_path + "': " + ec.message();
+  return !ec;
 }
 
 const char* method_name(v1::Method method) {

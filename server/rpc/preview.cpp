@@ -1,7 +1,7 @@
 // Preview: a bidirectional stream of poses answered with surfaces, newest update first (preview_session.h).
 #include <chrono>
 
-#include "posewarp/common/stopwatch.h"
+#include "posewarp/api/support.h"
 #include "convert.h"
 #include "service.h"
 #include "status_map.h"

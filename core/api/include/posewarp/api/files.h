@@ -3,9 +3,7 @@
 
 #include <string>
 
-#include "posewarp/common/atomic_file.h"
-#include "posewarp/common/input_file.h"
-#include "posewarp/common/sha256.h"
+#include "posewarp/api/support.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
 #include "posewarp/labels/label_map.h"
@@ -20,14 +18,7 @@
 
 namespace posewarp::api {
 
-// Files in general: inputs read whole within a limit, outputs written atomically, content ids.
-using posewarp::AtomicFile;
-using posewarp::is_hex_id;
-using posewarp::read_text_input;
-using posewarp::remove_stale_partial_files;
-using posewarp::Sha256;
-using posewarp::sha256_hex;
-using posewarp::write_file_atomically;
+// Files in general (atomic writes, bounded reads, content ids): posewarp/api/support.h.
 
 // Volumes (NIfTI, NRRD, MetaImage, DICOM series) and displacement fields.
 using io::encode_volume;
