@@ -17,8 +17,8 @@ namespace posewarp {
 // Runs `body` (returning Status or Result<T>). std::bad_alloc becomes RESOURCE_EXHAUSTED, any other exception
 // INTERNAL; both messages start with `doing` ("reading 'ct.nii.gz'") so the user knows which step failed, and the
 // first says what to do: `advice` ("lower the voxel budget or use coarser mesh sizes"), or free memory and use less.
-// This is the only place posewarp catches an exception (and the std::exception of a third-party reader whose
-// messages are the user's answer; see surface_io).
+// No stage catches std::bad_alloc itself; the only other catches turn a library's own error into its meaning (ITK's
+// ExceptionObject on a damaged file, nlohmann's type errors, a mesh reader's exception: the user's input is bad).
 template <typename Body>
 auto guarded(std::string_view doing, std::string_view advice, Body&& body) -> decltype(body()) {
   try {
