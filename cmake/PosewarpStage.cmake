@@ -34,5 +34,8 @@ function(posewarp_add_test name)
   target_compile_definitions(${name} PRIVATE
     POSEWARP_SAMPLE_DIR="${PROJECT_SOURCE_DIR}/data/totalsegmentator_example"
     POSEWARP_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
-  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${ARG_LABELS}")
+  # One label word (gtest_discover_tests flattens a list in PROPERTIES): "unit;server" becomes "unit-server", which
+  # `ctest -L server` matches.
+  string(JOIN "-" label ${ARG_LABELS})
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS "${label}")
 endfunction()
