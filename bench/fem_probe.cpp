@@ -133,7 +133,7 @@ int main(int argc, char** argv) {
       custom->volume_weight = std::stod(w);
       custom->max_iterations = std::stoi(it);
     }
-    auto method = skinning::method_from_name(warm_name);
+    auto method = api::method_from_name(warm_name);
     if (!method.ok()) {
       std::fprintf(stderr, "%s\n", method.status().message().c_str());
       return 1;
@@ -255,7 +255,7 @@ int main(int argc, char** argv) {
   std::printf("fem preview, the pose reached in 9 slider steps:");
   for (int k = 1; k <= 9; ++k) {
     const auto start = std::chrono::steady_clock::now();
-    if (!engine->preview(slider_step(*pose, k), skinning::Method::kFem).ok()) return 1;
+    if (!engine->preview(slider_step(*pose, k), api::Method::kFem).ok()) return 1;
     std::printf(" %.0f", 1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
   std::printf(" ms\n");

@@ -21,10 +21,12 @@
 #include "posewarp/common/parallel.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
-#include "posewarp/mapping/tet_locator.h"
 #include "posewarp/labels/presets.h"
+#include "posewarp/mapping/tet_locator.h"
 #include "posewarp/phantom/phantom.h"
+#include "posewarp/pose/pose.h"
 #include "posewarp/resample/tet_warp.h"
+#include "posewarp/skinning/skinning.h"
 
 namespace {
 
@@ -96,8 +98,11 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   }
   const ImageGeometry& grid = engine->rig().labels.geometry();
   const double voxels = static_cast<double>(grid.voxel_count());
-  nlohmann::json row{{"case", name}, {"voxels", grid.voxel_count()}, {"tet_vertices", engine->rig().mesh.vertex_count()},
-                     {"tets", engine->rig().mesh.tet_count()}, {"threads", thread_count()},
+  nlohmann::json row{{"case", name},
+                     {"voxels", grid.voxel_count()},
+                     {"tet_vertices", engine->rig().mesh.vertex_count()},
+                     {"tets", engine->rig().mesh.tet_count()},
+                     {"threads", thread_count()},
                      {"engine_create_ms", 1000.0 * create_s}};
   std::printf("%-14s engine created in %.0f ms\n", name.c_str(), 1000.0 * create_s);
 
@@ -118,7 +123,8 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
       points.row(i) = p.transpose();
     }
     mapping::Embedding embedding;
-    const double embed_s = best_of(repeats, [&] { embedding = std::move(mapping::embed_points(mesh, points, {})).value(); });
+    const double embed_s =
+        best_of(repeats, [&] { embedding = std::move(mapping::embed_points(mesh, points, {})).value(); });
     const double deform_s = best_of(repeats, [&] { (void)mapping::deform_points(embedding, mesh, mesh.vertices); });
     row["embed_1M_ms"] = 1000.0 * embed_s;
     row["deform_1M_ms"] = 1000.0 * deform_s;
@@ -143,7 +149,7 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 
   // The same pose with the soft tissue's steady state (fem): CoR, then the solve, then the same warp.
   api::PoseRequest fem = whole;
-  fem.method = skinning::Method::kFem;
+  fem.method = api::Method::kFem;
   double fem_solve_s = std::numeric_limits<double>::infinity();
   const double fem_s = best_of(repeats, [&] {
     const api::PoseResult result = std::move(engine->pose(fem)).value();
@@ -159,17 +165,16 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   // The preview (posed rest surfaces only): what a slider waits for. 200 calls each (fem 20), p50 and p99.
   int64_t surface_vertices = 0;
   for (const surface::SurfaceMesh& m : engine->rig().surfaces) surface_vertices += m.vertices.rows();
-  for (const skinning::Method method :
-       {skinning::Method::kCor, skinning::Method::kDqs, skinning::Method::kLbs, skinning::Method::kFem}) {
+  for (const api::Method method : {api::Method::kCor, api::Method::kDqs, api::Method::kLbs, api::Method::kFem}) {
     std::vector<double> ms;
-    const int calls = method == skinning::Method::kFem ? 20 : 200;  // fem: tenths of a second each
+    const int calls = method == api::Method::kFem ? 20 : 200;  // fem: tenths of a second each
     for (int i = 0; i < calls; ++i) {
       const auto start = std::chrono::steady_clock::now();
       (void)engine->preview(pose, method);
       ms.push_back(1000.0 * std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
     }
     std::sort(ms.begin(), ms.end());
-    const std::string method_name(skinning::method_name(method));
+    const std::string method_name(api::method_name(method));
     const double p50 = ms[ms.size() / 2], p99 = ms[ms.size() * 99 / 100 - 1];
     row["preview_ms"][method_name] = {{"p50", p50}, {"p99", p99}};
     std::printf("%-14s preview %-4s (%lld surface vertices): p50 %.2f ms, p99 %.2f ms\n", name.c_str(),
@@ -197,9 +202,12 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   const size_t root = static_cast<size_t>(engine_rig.skeleton.root);
   const double all_tets_s = best_of(repeats, [&] {
     const resample::TetWarp warp =
-        std::move(resample::TetWarp::build(engine_rig.mesh, with_fields.posed_vertices, engine_rig.labels.geometry(),
-                                           with_fields.output_grid, with_fields.segment_rotation[root],
-                                           with_fields.segment_translation[root], nullptr, {}, {}))
+        std::move(resample::TetWarp::build({.rest = engine_rig.mesh,
+                                            .posed = with_fields.posed_vertices,
+                                            .source = engine_rig.labels.geometry(),
+                                            .output = with_fields.output_grid,
+                                            .background_rotation = with_fields.segment_rotation[root],
+                                            .background_translation = with_fields.segment_translation[root]}))
             .value();
     (void)warp.warp_labels(engine_rig.labels);
     (void)warp.warp_intensities(ct, resample::Interpolation::kLinear);
@@ -211,12 +219,15 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   row["warp_mvoxels_per_s"] = 2.0 * voxels / (warp_ms / 1000.0) / 1e6;
   row["itk_mvoxels_per_s"] = 2.0 * voxels / (itk_ms / 1000.0) / 1e6;
   row["speedup_vs_itk"] = itk_ms / warp_ms;
-  std::printf("%-14s %9.0f voxels %8lld tet vertices: whole pose %7.1f ms | warp labels+CT %7.1f ms (%6.1f Mvox/s) vs ITK %8.1f ms (%5.1f Mvox/s): %4.1fx\n",
-              name.c_str(), voxels, static_cast<long long>(engine->rig().mesh.vertex_count()), 1000.0 * whole_s, warp_ms,
-              row["warp_mvoxels_per_s"].get<double>(), itk_ms, row["itk_mvoxels_per_s"].get<double>(), itk_ms / warp_ms);
+  std::printf(
+      "%-14s %9.0f voxels %8lld tet vertices: whole pose %7.1f ms | warp labels+CT %7.1f ms (%6.1f Mvox/s) vs ITK "
+      "%8.1f ms (%5.1f Mvox/s): %4.1fx\n",
+      name.c_str(), voxels, static_cast<long long>(engine->rig().mesh.vertex_count()), 1000.0 * whole_s, warp_ms,
+      row["warp_mvoxels_per_s"].get<double>(), itk_ms, row["itk_mvoxels_per_s"].get<double>(), itk_ms / warp_ms);
   std::printf("               every tet rasterized (worst case): warp labels+CT %7.1f ms (%6.1f Mvox/s): %4.1fx ITK\n",
               1000.0 * all_tets_s, 2.0 * voxels / all_tets_s / 1e6, itk_ms / (1000.0 * all_tets_s));
-  std::printf("               rasterized tets %lld of %lld; stages:", static_cast<long long>(with_fields.report.rasterized_tets),
+  std::printf("               rasterized tets %lld of %lld; stages:",
+              static_cast<long long>(with_fields.report.rasterized_tets),
               static_cast<long long>(engine->rig().mesh.tet_count()));
   for (const auto& [stage, seconds] : stages) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
   std::printf("\n");
@@ -261,7 +272,8 @@ int main(int argc, char** argv) {
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(1, std::atoi(argv[++i]));
     } else {
-      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--body-mvoxels M] [--repeats R]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--body-mvoxels M] [--repeats R]\n",
+                   argv[0]);
       return 2;
     }
   }

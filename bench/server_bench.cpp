@@ -13,6 +13,8 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
+#include "posewarp/client/connection.h"
+#include "posewarp/client/pose_answer.h"
 #include "posewarp/phantom/phantom.h"
 #include "bench_rigs.h"
 #include "server_process.h"
@@ -26,6 +28,15 @@ using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
 using bench::percentile;
+
+// A client's connection to the server under test, as the CLI and the viewer make theirs.
+std::unique_ptr<client::Connection> connect_to(const ServerProcess& server) {
+  client::CallError error;
+  std::unique_ptr<client::Connection> connection =
+      client::Connection::open({"127.0.0.1:" + std::to_string(server.port())}, &error);
+  if (!connection) throw std::runtime_error(error.message);
+  return connection;
+}
 
 nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
                           const std::string& pose_json, int repeats, bool latency_only) {
@@ -58,6 +69,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
                        {}, work / (name + "-server.log"));
   if (server.port() == 0) throw std::runtime_error("the server did not start: " + server.log());
   auto stub = v1::Posewarp::NewStub(server.channel());
+  const std::unique_ptr<client::Connection> connection = connect_to(server);  // poses: the clients' own library
   // Rig upload, then the rig's first load from the store (a cold cache: read, check, engine created).
   v1::Rig uploaded;
   const auto upload_start = Clock::now();
@@ -93,8 +105,8 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   std::vector<double> server_ms;
   for (int r = 0; r < repeats; ++r) {
     const auto start = Clock::now();
-    const PoseAnswer answer = pose_remote(*stub, request);
-    if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
+    client::PoseAnswer answer;
+    if (const client::CallError e = client::pose(*connection, request, &answer); e.failed()) throw std::runtime_error(e.message);
     server_ms.push_back(1e3 * seconds_since(start));
     row["volume_mb_per_pose"] = static_cast<double>(answer.labels.size() + answer.ct.size()) / 1e6;
     if (r + 1 == repeats) {
@@ -128,12 +140,12 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     const auto start = Clock::now();
     for (int c = 0; c < clients; ++c) {
       running.push_back(std::async(std::launch::async, [&] {
-        auto own = v1::Posewarp::NewStub(server.channel());
+        const std::unique_ptr<client::Connection> own = connect_to(server);
         std::vector<double> ms;
         for (int i = 0; i < per_client; ++i) {
           const auto t = Clock::now();
-          const PoseAnswer answer = pose_remote(*own, request);
-          if (!answer.status.ok()) throw std::runtime_error(answer.status.error_message());
+          client::PoseAnswer answer;
+          if (const client::CallError e = client::pose(*own, request, &answer); e.failed()) throw std::runtime_error(e.message);
           ms.push_back(1e3 * seconds_since(t));
         }
         return ms;
@@ -182,7 +194,8 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   double after_10 = 0.0, after_100 = 0.0;
   for (int i = 1; i <= 100; ++i) {
     request.set_want_ct(i % 2 == 0);
-    if (!pose_remote(*stub, request).status.ok()) throw std::runtime_error("pose failed");
+    client::PoseAnswer answer;
+    if (client::pose(*connection, request, &answer).failed()) throw std::runtime_error("pose failed");
     if (i == 10) after_10 = metric(scrape_metrics(metrics_port), "process_resident_memory_bytes");
     if (i == 100) after_100 = metric(scrape_metrics(metrics_port), "process_resident_memory_bytes");
   }

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "posewarp/api/joint_range.h"
+#include "posewarp/api/rig_info.h"
 
 namespace posewarp::server {
 
@@ -17,12 +18,12 @@ void put_grid(const ImageGeometry& g, v1::Grid* grid) {
   for (size_t e = 0; e < 9; ++e) grid->add_direction(g.direction[e]);
 }
 
-skinning::Method method_of(v1::Method method) {
+api::Method method_of(v1::Method method) {
   switch (method) {
-    case v1::METHOD_DQS: return skinning::Method::kDqs;
-    case v1::METHOD_LBS: return skinning::Method::kLbs;
-    case v1::METHOD_FEM: return skinning::Method::kFem;
-    default: return skinning::Method::kCor;  // METHOD_COR and METHOD_UNSPECIFIED (method_from refused the rest)
+    case v1::METHOD_DQS: return api::Method::kDqs;
+    case v1::METHOD_LBS: return api::Method::kLbs;
+    case v1::METHOD_FEM: return api::Method::kFem;
+    default: return api::Method::kCor;  // METHOD_COR and METHOD_UNSPECIFIED (method_from refused the rest)
   }
 }
 
@@ -51,14 +52,15 @@ void put_rig_row(const RigRecord& record, v1::Rig* message) {
 }
 
 void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton) {
-  for (const rig::Segment& s : rig.skeleton.segments) skeleton->add_segments(s.name);
-  for (const rig::Joint& j : rig.skeleton.joints) {
+  const api::SkeletonInfo info = api::describe_skeleton(rig);
+  for (const api::SegmentInfo& s : info.segments) skeleton->add_segments(s.name);
+  for (const api::JointInfo& j : info.joints) {
     v1::Joint* joint = skeleton->add_joints();
     joint->set_name(j.name);
-    joint->set_parent(rig.skeleton.segments[static_cast<size_t>(j.parent)].name);
-    joint->set_child(rig.skeleton.segments[static_cast<size_t>(j.child)].name);
+    joint->set_parent(j.parent);
+    joint->set_child(j.child);
     for (int a = 0; a < 3; ++a) joint->add_centre_mm(j.centre_mm[a]);
-    joint->set_kind(std::string(api::joint_kind_name(j.kind)));
+    joint->set_kind(j.kind);
     for (int a = 0; a < 3; ++a) {
       joint->add_flexion_axis(j.frame(a, 0));
       joint->add_abduction_axis(j.frame(a, 1));
@@ -94,7 +96,7 @@ void put_rig(const RigRecord& record, const api::Rig& rig, v1::Rig* message) {
   message->set_has_ct(rig.ct.has_value());
 }
 
-void put_surface(const surface::SurfaceMesh& mesh, bool with_vertices, v1::Surface* message) {
+void put_surface(const SurfaceMesh& mesh, bool with_vertices, v1::Surface* message) {
   message->set_name(mesh.name);
   message->set_label(mesh.label);
   if (with_vertices) {
@@ -109,8 +111,8 @@ void put_surface(const surface::SurfaceMesh& mesh, bool with_vertices, v1::Surfa
   }
 }
 
-void put_report(const report::QualityReport& report, v1::QualityReport* message) {
-  message->set_json(report::to_json(report));
+void put_report(const QualityReport& report, v1::QualityReport* message) {
+  message->set_json(api::report_to_json(report));
   message->set_inverted_tets(report.mesh.inverted_tets);
   message->set_bone_rigidity_error_mm(report.bone_rigidity_error_mm);
   message->set_volume_change(report.mesh.body_volume_change);

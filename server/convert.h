@@ -14,7 +14,7 @@ namespace posewarp::server {
 void put_grid(const ImageGeometry& geometry, v1::Grid* grid);
 
 // A checked method (requests.h: method_from) as the engine names it.
-skinning::Method method_of(v1::Method method);
+api::Method method_of(v1::Method method);
 // The pixel type on the wire; UNSPECIFIED for 64-bit integers, which the proto does not carry.
 v1::PixelType wire_pixel_type(PixelType type);
 
@@ -22,8 +22,8 @@ v1::PixelType wire_pixel_type(PixelType type);
 void put_rig(const RigRecord& record, const api::Rig& rig, v1::Rig* message);
 void put_rig_row(const RigRecord& record, v1::Rig* message);
 void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton);
-void put_surface(const surface::SurfaceMesh& mesh, bool with_vertices, v1::Surface* message);
-void put_report(const report::QualityReport& report, v1::QualityReport* message);
+void put_surface(const SurfaceMesh& mesh, bool with_vertices, v1::Surface* message);
+void put_report(const QualityReport& report, v1::QualityReport* message);
 
 // Operations between the index's rows and the wire.
 v1::Operation operation_from(const OperationRecord& record);

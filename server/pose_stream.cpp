@@ -94,7 +94,7 @@ Status send_rest(const api::PoseResult& result, bool want_fields, uint64_t chunk
                                            static_cast<int64_t>(result.forward_field.size()), PixelType::kFloat32,
                                            chunk, &v1::PoseResponse::mutable_forward_field));
   }
-  for (const surface::SurfaceMesh& s : result.surfaces) {
+  for (const SurfaceMesh& s : result.surfaces) {
     v1::PoseResponse m;
     put_surface(s, true, m.mutable_surface());
     if (!write(m)) return client_gone();
@@ -144,7 +144,7 @@ api::PoseRequest engine_request(CheckedPose checked, const v1::PoseRequest& requ
               : checked.grid == v1::GRID_POLICY_GIVEN ? api::GridPolicy::kGiven
                                                       : api::GridPolicy::kInput;
   core.given_grid = checked.given_grid;
-  core.ct_interpolation = request.nearest_ct() ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
+  core.ct_interpolation = request.nearest_ct() ? api::Interpolation::kNearest : api::Interpolation::kLinear;
   core.want_labels = request.want_labels();
   core.want_ct = request.want_ct() && rig.ct.has_value();
   core.want_surfaces = request.want_surfaces();

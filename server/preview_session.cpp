@@ -50,7 +50,7 @@ v1::PreviewResponse preview_answer(const v1::PreviewRequest& update, uint64_t dr
   v1::PreviewResponse answer;
   answer.set_sequence(update.sequence());
   answer.set_dropped(dropped);
-  const std::vector<surface::SurfaceMesh>& rest = session.engine->rig().surfaces;
+  const std::vector<SurfaceMesh>& rest = session.engine->rig().surfaces;
   for (size_t i = 0; i < preview.surface_vertices.size(); ++i) {
     v1::SurfacePositions* positions = answer.add_surfaces();
     positions->set_name(rest[i].name);

@@ -24,7 +24,8 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/support.h"
-#include "posewarp/pacs/dicomweb.h"
+#include "posewarp/api/pacs.h"
+#include "batch_manifest.h"
 #include "remote.h"
 
 namespace posewarp::cli {
@@ -32,204 +33,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
-
-// One row: where the study comes from, what to do, where the results go.
-struct Row {
-  std::string id;
-  std::string labels, ct, label_map, preset = "totalsegmentator";  // files
-  std::string dicom_ct, dicom_seg;                                 // a DICOM series directory and its SEG
-  std::string pacs_study, ct_series, seg_series;                   // a study in the PACS
-  std::string pose, animation;
-  std::string method = "cor";
-  std::string out_dir;
-  bool to_pacs = false;
-  std::string study_key() const {
-    return json{{"labels", labels},         {"ct", ct},
-                {"label_map", label_map},   {"preset", preset},
-                {"dicom_ct", dicom_ct},     {"dicom_seg", dicom_seg},
-                {"pacs_study", pacs_study}, {"ct_series", ct_series},
-                {"seg_series", seg_series}}
-        .dump();
-  }
-};
-
-constexpr const char* kColumns[] = {"id",       "labels",    "ct",         "label_map", "preset",
-                                    "dicom_ct", "dicom_seg", "pacs_study", "ct_series", "seg_series",
-                                    "pose",     "animation", "method",     "out_dir",   "to_pacs"};
-
-Status set_field(Row& row, const std::string& key, const std::string& value, const std::string& where) {
-  std::string* fields[] = {&row.id,       &row.labels,    &row.ct,         &row.label_map, &row.preset,
-                           &row.dicom_ct, &row.dicom_seg, &row.pacs_study, &row.ct_series, &row.seg_series,
-                           &row.pose,     &row.animation, &row.method,     &row.out_dir};
-  for (size_t i = 0; i < std::size(fields); ++i) {
-    if (key == kColumns[i]) {
-      // An empty value clears a default (a row of files in a manifest whose defaults name DICOM), except for the
-      // method and the preset, which keep theirs.
-      if (!value.empty() || (key != "method" && key != "preset")) *fields[i] = value;
-      return ok_status();
-    }
-  }
-  if (key == "to_pacs") {
-    row.to_pacs = value == "true" || value == "1" || value == "yes";
-    return ok_status();
-  }
-  return invalid_argument_error(where + ": unknown field '" + key +
-                                "'; a row has: id, labels, ct, label_map, preset, "
-                                "dicom_ct, dicom_seg, pacs_study, ct_series, seg_series, pose, animation, method, "
-                                "out_dir, to_pacs");
-}
-
-// One CSV line's fields (double quotes around a field that holds commas; "" inside it is a quote).
-std::vector<std::string> csv_fields(const std::string& line) {
-  std::vector<std::string> out(1);
-  bool quoted = false;
-  for (size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (quoted && c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-      out.back() += '"';
-      ++i;
-    } else if (c == '"') {
-      quoted = !quoted;
-    } else if (c == ',' && !quoted) {
-      out.emplace_back();
-    } else if (c != '\r') {
-      out.back() += c;
-    }
-  }
-  return out;
-}
-
-std::string csv_field(const std::string& value) {
-  if (value.find_first_of(",\"\n") == std::string::npos) return value;
-  std::string quoted = "\"";
-  for (char c : value) quoted += c == '"' ? std::string("\"\"") : std::string(1, c);
-  return quoted + "\"";
-}
-
-// Paths in a manifest are relative to the manifest's directory.
-void resolve(Row& row, const fs::path& base) {
-  for (std::string* path :
-       {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose, &row.animation, &row.out_dir}) {
-    if (!path->empty() && fs::path(*path).is_relative()) *path = (base / *path).lexically_normal().string();
-    while (path->size() > 1 && path->back() == '/') path->pop_back();
-  }
-}
-
-Status check_row(const Row& row, const std::string& where) {
-  const int sources = (!row.labels.empty()) + (!row.dicom_seg.empty()) + (!row.pacs_study.empty());
-  if (sources != 1) {
-    return invalid_argument_error(where + ": give one input: labels (+ ct), dicom_ct + dicom_seg, or pacs_study");
-  }
-  if (!row.dicom_seg.empty() && row.dicom_ct.empty())
-    return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
-  if (row.pose.empty() == row.animation.empty()) return invalid_argument_error(where + ": give a pose or an animation");
-  if (row.method != "cor" && row.method != "dqs" && row.method != "lbs" && row.method != "fem") {
-    return invalid_argument_error(where + ": method must be cor, dqs, lbs or fem, not '" + row.method + "'");
-  }
-  if (row.out_dir.empty() && !row.to_pacs) return invalid_argument_error(where + ": give out_dir, to_pacs or both");
-  if (row.to_pacs && !row.labels.empty()) {
-    return invalid_argument_error(where +
-                                  ": to_pacs stores a derived series into the study it came from; a row "
-                                  "from files has none (export it with posewarp dicom export first)");
-  }
-  return ok_status();
-}
-
-Result<std::vector<Row>> read_manifest(const std::string& path) {
-  POSEWARP_ASSIGN_OR_RETURN(const std::string text, api::read_text_input(path, "batch manifest"));
-  const fs::path base = fs::path(path).parent_path();
-  std::vector<Row> rows;
-  const size_t first = text.find_first_not_of(" \t\r\n");
-  const bool is_json = fs::path(path).extension() == ".json" || (first != std::string::npos && text[first] == '{');
-  if (is_json) {
-    POSEWARP_ASSIGN_OR_RETURN(const json doc, parse_json<json>(text, "manifest '" + path + "'"));
-    if (!doc.is_object() || !doc.contains("rows") || !doc["rows"].is_array()) {
-      return invalid_argument_error("manifest '" + path +
-                                    "' is not JSON with \"rows\": [...] (or a CSV with a header)");
-    }
-    const json defaults = doc.value("defaults", json::object());
-    for (size_t i = 0; i < doc["rows"].size(); ++i) {
-      const std::string where = "manifest '" + path + "' row " + std::to_string(i + 1);
-      Row row;
-      for (const json* source : {&defaults, &doc["rows"][i]}) {
-        if (!source->is_object()) return invalid_argument_error(where + " is not an object");
-        for (const auto& [key, value] : source->items()) {
-          const std::string v = value.is_string()    ? value.get<std::string>()
-                                : value.is_boolean() ? (value.get<bool>() ? "true" : "false")
-                                                     : value.dump();
-          POSEWARP_RETURN_IF_ERROR(set_field(row, key, v, where));
-        }
-      }
-      rows.push_back(row);
-    }
-  } else {
-    std::istringstream lines(text);
-    std::string line;
-    std::vector<std::string> header;
-    for (int number = 1; std::getline(lines, line); ++number) {
-      if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
-      if (header.empty()) {
-        header = csv_fields(line);
-        continue;
-      }
-      const std::vector<std::string> fields = csv_fields(line);
-      const std::string where = "manifest '" + path + "' line " + std::to_string(number);
-      if (fields.size() > header.size()) return invalid_argument_error(where + " has more fields than the header");
-      Row row;
-      for (size_t i = 0; i < fields.size(); ++i) POSEWARP_RETURN_IF_ERROR(set_field(row, header[i], fields[i], where));
-      rows.push_back(row);
-    }
-  }
-  std::set<std::string> ids, outs;
-  for (size_t i = 0; i < rows.size(); ++i) {
-    Row& row = rows[i];
-    if (row.id.empty()) row.id = "row" + std::to_string(i + 1);
-    if (!ids.insert(row.id).second)
-      return invalid_argument_error("manifest '" + path + "': two rows are called '" + row.id + "'");
-    resolve(row, base);
-    POSEWARP_RETURN_IF_ERROR(check_row(row, "manifest '" + path + "' row '" + row.id + "'"));
-    if (!row.out_dir.empty() && !outs.insert(row.out_dir).second) {
-      return invalid_argument_error("manifest '" + path + "': two rows write to '" + row.out_dir +
-                                    "'; give each its own out_dir");
-    }
-  }
-  if (rows.empty()) return invalid_argument_error("manifest '" + path + "' has no rows");
-  return rows;
-}
-
-// What a study's rig depends on: its inputs and their files' sizes and times (the rig cache's key).
-std::string study_content_key(const Row& row) {
-  nlohmann::json key{{"study", row.study_key()}, {"version", POSEWARP_VERSION}};
-  std::vector<std::string> files{row.labels, row.ct, row.dicom_seg, row.label_map};
-  std::error_code ec;
-  if (!row.dicom_ct.empty() && fs::is_directory(row.dicom_ct, ec)) {
-    for (const auto& entry : fs::directory_iterator(row.dicom_ct, ec)) files.push_back(entry.path().string());
-  }
-  for (const std::string& file : files) {
-    if (file.empty() || !fs::is_regular_file(file, ec)) continue;
-    key[file] = std::to_string(fs::file_size(file, ec)) + "@" +
-                std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
-  }
-  return api::sha256_hex(key.dump());
-}
-
-std::string pose_hash(const Row& row) {
-  const std::string& file = row.pose.empty() ? row.animation : row.pose;
-  Result<std::string> text = api::read_text_input(file, "pose");
-  return text.ok() ? api::sha256_hex(*text) : file;
-}
-
-// A row done: its study's content, its pose, its method, and where its result goes. A rerun skips a row whose key
-// the state file holds.
-std::string row_key(const Row& row) {
-  return api::sha256_hex(nlohmann::json{
-      {"study", study_content_key(row)},
-      {"pose", pose_hash(row)},
-      {"method", row.method},
-      {"out_dir", row.out_dir},
-      {"to_pacs",
-       row.to_pacs}}.dump());
-}
 
 struct BatchOptions {
   std::string manifest, state, summary, rig_cache;
@@ -248,7 +51,7 @@ struct Study {
   std::unique_ptr<api::PoseEngine> engine;
   std::mutex posing;
   std::optional<RemotePoser> remote;     // with --server: the study's rig there (the server runs poses side by side)
-  labels::LabelMap label_map;            // the rig's, naming the segments of a SEG
+  api::LabelMap label_map;            // the rig's, naming the segments of a SEG
   std::optional<api::SeriesInfo> dicom;  // the source CT series, for derived series
   double fetch_s = 0, rig_s = 0;
   bool rig_cached = false;
@@ -345,8 +148,8 @@ class Batch {
       }
       return ok_status();
     }
-    POSEWARP_ASSIGN_OR_RETURN(const pacs::DicomWebOptions options, dicomweb_options(o_.pacs));
-    pacs_ = std::make_unique<pacs::DicomWebClient>(options);
+    POSEWARP_ASSIGN_OR_RETURN(const api::DicomWebOptions options, dicomweb_options(o_.pacs));
+    pacs_ = std::make_unique<api::DicomWebClient>(options);
     return ok_status();
   }
 
@@ -400,7 +203,7 @@ class Batch {
     const Stopwatch fetch_start;
     api::BuildInputs inputs;
     // A map of one's own replaces the preset.
-    POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
+    POSEWARP_ASSIGN_OR_RETURN(api::LabelMap map,
                               load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string(),
                                              "name a label_map file in the row"));
     if (!row.labels.empty()) {
@@ -462,7 +265,7 @@ class Batch {
       }
       inputs.name = fs::path(row.labels).filename().string();
     } else {
-      POSEWARP_ASSIGN_OR_RETURN(labels::LabelMap map,
+      POSEWARP_ASSIGN_OR_RETURN(api::LabelMap map,
                                 load_label_map(row.label_map, row.label_map.empty() ? row.preset : std::string(),
                                                "name a label_map file in the row"));
       POSEWARP_ASSIGN_OR_RETURN(api::DicomStudy dicom, read_dicom(row, map));
@@ -491,7 +294,7 @@ class Batch {
   }
 
   // A row's DICOM study: from a directory and a SEG file, or fetched from the PACS.
-  Result<api::DicomStudy> read_dicom(const Row& row, const labels::LabelMap& map) {
+  Result<api::DicomStudy> read_dicom(const Row& row, const api::LabelMap& map) {
     api::DicomStudy dicom;
     if (!row.dicom_seg.empty()) {
       POSEWARP_ASSIGN_OR_RETURN(dicom, api::read_dicom_study(row.dicom_ct, row.dicom_seg, map));
@@ -503,12 +306,12 @@ class Batch {
   }
 
   // The CT series and SEG of a study in the PACS (the series named by the row, else its CT and its SEG).
-  Result<api::DicomStudy> fetch_from_pacs(const Row& row, const labels::LabelMap& map) {
+  Result<api::DicomStudy> fetch_from_pacs(const Row& row, const api::LabelMap& map) {
     std::string ct_series = row.ct_series, seg_series = row.seg_series;
     if (ct_series.empty() || seg_series.empty()) {
-      POSEWARP_ASSIGN_OR_RETURN(const std::vector<pacs::DicomWebRecord> series, pacs_->search_series(row.pacs_study));
+      POSEWARP_ASSIGN_OR_RETURN(const std::vector<api::DicomWebRecord> series, pacs_->search_series(row.pacs_study));
       size_t most = 0;
-      for (const pacs::DicomWebRecord& s : series) {
+      for (const api::DicomWebRecord& s : series) {
         const std::string modality = s.count("Modality") ? s.at("Modality") : "";
         const size_t count =
             s.count("NumberOfSeriesRelatedInstances") ? std::stoul("0" + s.at("NumberOfSeriesRelatedInstances")) : 0;
@@ -567,13 +370,13 @@ class Batch {
       std::lock_guard<std::mutex> lock(studies_mutex_);
       if (charged_.insert(row.study_key()).second) result.fetch_s = s.fetch_s, result.rig_s = s.rig_s;
     }
-    std::vector<pose::Pose> poses;
+    std::vector<Pose> poses;
     if (!row.pose.empty()) {
-      Result<pose::Pose> p = api::read_pose(row.pose);
+      Result<Pose> p = api::read_pose(row.pose);
       if (!p.ok()) return result.error = p.status().to_string(), result;
       poses.push_back(*p);
     } else {
-      Result<pose::Animation> a = api::read_animation(row.animation);
+      Result<api::Animation> a = api::read_animation(row.animation);
       if (!a.ok()) return result.error = a.status().to_string(), result;
       poses = a->frames;
     }
@@ -583,7 +386,7 @@ class Batch {
       api::PoseRequest request;
       request.pose = poses[f];
       request.want_labels = request.want_ct = true;
-      Result<skinning::Method> method = skinning::method_from_name(row.method);
+      Result<api::Method> method = api::method_from_name(row.method);
       request.method = *method;
       const Stopwatch pose_start;
       Result<Posed> posed = pose(s, request);
@@ -656,7 +459,7 @@ class Batch {
       std::lock_guard<std::mutex> lock(s.posing);
       POSEWARP_ASSIGN_OR_RETURN(posed.result, s.engine->pose(request));
     }
-    posed.report_json = report::to_json(posed.result.report);
+    posed.report_json = api::report_to_json(posed.result.report);
     return posed;
   }
 
@@ -762,7 +565,7 @@ class Batch {
   std::vector<Row> rows_;
   std::vector<std::string> keys_;
   std::vector<RowResult> results_;
-  std::unique_ptr<pacs::DicomWebClient> pacs_;
+  std::unique_ptr<api::DicomWebClient> pacs_;
   std::mutex studies_mutex_, state_mutex_;
   std::map<std::string, std::shared_future<Result<std::shared_ptr<Study>>>> studies_;
   std::set<std::string> charged_;
@@ -775,11 +578,11 @@ Result<std::vector<Row>> rows_from_query(const BatchOptions& o) {
   if (o.pacs.url.empty()) return invalid_argument_error("--query searches a PACS: give --pacs URL");
   if (o.pose.empty() == o.animation.empty()) return invalid_argument_error("--query needs --pose or --animation");
   if (o.out_dir.empty() && !o.to_pacs) return invalid_argument_error("--query needs --out-dir DIR, --to-pacs or both");
-  POSEWARP_ASSIGN_OR_RETURN(const pacs::DicomWebOptions options, dicomweb_options(o.pacs));
-  POSEWARP_ASSIGN_OR_RETURN(const std::vector<pacs::DicomWebRecord> studies,
-                            pacs::DicomWebClient(options).search_studies(o.query));
+  POSEWARP_ASSIGN_OR_RETURN(const api::DicomWebOptions options, dicomweb_options(o.pacs));
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<api::DicomWebRecord> studies,
+                            api::DicomWebClient(options).search_studies(o.query));
   std::vector<Row> rows;
-  for (const pacs::DicomWebRecord& study : studies) {
+  for (const api::DicomWebRecord& study : studies) {
     Row row;
     row.pacs_study = study.count("StudyInstanceUID") ? study.at("StudyInstanceUID") : "";
     if (row.pacs_study.empty()) continue;

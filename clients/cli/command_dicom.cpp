@@ -66,9 +66,9 @@ int run_dicom_info(const InfoOptions& o) {
   Result<api::DicomStudy> study = api::read_dicom_study(o.ct_dir, o.seg_path, *map);
   if (!study.ok()) return report(study.status());
   for (const api::Segment& s : study->segments) {
-    const labels::LabelEntry* entry = study->label_map.find(s.number);
+    const api::LabelEntry* entry = study->label_map.find(s.number);
     std::printf("segment %3d  %-28s %s\n", s.number, s.label.c_str(),
-                entry != nullptr ? std::string(labels::role_name(entry->role)).c_str() : "?");
+                entry != nullptr ? std::string(api::role_name(entry->role)).c_str() : "?");
   }
   for (const std::string& warning : study->warnings) say("warning: " + warning);
   return 0;
@@ -81,9 +81,9 @@ struct StoreOptions {
 
 // Each path (a DICOM file, or a directory of them) stored with one STOW-RS request.
 int run_store(const StoreOptions& o) {
-  Result<pacs::DicomWebOptions> options = dicomweb_options(o.pacs);
+  Result<api::DicomWebOptions> options = dicomweb_options(o.pacs);
   if (!options.ok()) return report(options.status());
-  const pacs::DicomWebClient client(*options);
+  const api::DicomWebClient client(*options);
   for (const std::string& path : o.paths) {
     Result<std::vector<std::string>> files = api::list_dicom_files(path);
     if (!files.ok()) return report(files.status());

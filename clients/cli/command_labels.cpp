@@ -16,7 +16,7 @@ void add_label_commands(CLI::App& app) {
     cmd->add_option("name", *name, "Preset name")->required()->check(CLI::IsMember(api::preset_names()));
     cmd->add_option("-o,--out", *out, "Output JSON file (default: stdout)");
     cmd->callback([name, out] {
-      Result<labels::LabelMap> map = api::load_label_map("", *name);
+      Result<api::LabelMap> map = api::load_label_map("", *name);
       if (!map.ok()) throw CLI::RuntimeError(report(map.status()));
       if (out->empty()) {
         std::cout << api::label_map_to_json(*map);
@@ -31,7 +31,7 @@ void add_label_commands(CLI::App& app) {
     CLI::App* cmd = group->add_subcommand("check", "Validate a label map JSON file and summarize it");
     cmd->add_option("map", *path, "Label map JSON")->required();
     cmd->callback([path] {
-      Result<labels::LabelMap> map = api::read_label_map(*path);
+      Result<api::LabelMap> map = api::read_label_map(*path);
       if (!map.ok()) throw CLI::RuntimeError(report(map.status()));
       std::cout << map->name() << ": " << map->entries().size() << " labels, " << map->bone_segments().size()
                 << " bone segments, " << map->joint_names().size() << " joint names"

@@ -65,22 +65,22 @@ std::string forward_field_path(const std::string& path) {
 
 Result<api::PoseRequest> make_request(const OutputOptions& o) {
   api::PoseRequest request;
-  POSEWARP_ASSIGN_OR_RETURN(request.method, skinning::method_from_name(o.method));
+  POSEWARP_ASSIGN_OR_RETURN(request.method, api::method_from_name(o.method));
   request.fem = o.fem;
-  request.ct_interpolation = o.nearest_ct ? resample::Interpolation::kNearest : resample::Interpolation::kLinear;
+  request.ct_interpolation = o.nearest_ct ? api::Interpolation::kNearest : api::Interpolation::kLinear;
   if (!o.grid_like.empty()) {
     POSEWARP_ASSIGN_OR_RETURN(const api::VolumeHeader header, api::read_header(o.grid_like, read_options()));
-    request.grid = resample::GridPolicy::kGiven;
+    request.grid = api::GridPolicy::kGiven;
     request.given_grid = header.geometry;
   } else if (o.grid == "grow") {
-    request.grid = resample::GridPolicy::kGrow;
+    request.grid = api::GridPolicy::kGrow;
   } else if (o.grid != "input") {
     return invalid_argument_error("unknown --grid '" + o.grid + "'; use input or grow (or --grid-like IMAGE)");
   }
-  request.resample.max_output_voxels = global_options().max_voxels;
-  request.resample.max_output_bytes = o.max_output_mb << 20;
+  request.limits.max_voxels = global_options().max_voxels;
+  request.limits.max_bytes = o.max_output_mb << 20;
   for (const std::string& path : o.extra_surfaces) {
-    POSEWARP_ASSIGN_OR_RETURN(surface::SurfaceMesh mesh, api::read_surface(path));
+    POSEWARP_ASSIGN_OR_RETURN(SurfaceMesh mesh, api::read_surface(path));
     request.extra_surfaces.push_back(std::move(mesh));
   }
   return request;
@@ -91,7 +91,7 @@ Status write_surfaces(const api::PoseResult& result, const std::string& dir, con
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return invalid_argument_error("cannot create " + dir + ": " + ec.message());
-  for (const surface::SurfaceMesh& s : result.surfaces) {
+  for (const SurfaceMesh& s : result.surfaces) {
     POSEWARP_RETURN_IF_ERROR(api::write_surface(s, (fs::path(dir) / (s.name + "." + format)).string()));
   }
   say("wrote " + std::to_string(result.surfaces.size()) + " surfaces to " + dir);
@@ -124,7 +124,7 @@ Status write_outputs(const api::PoseResult& result, const std::string& report_js
 }
 
 void summarize(const api::PoseResult& result) {
-  const report::QualityReport& r = result.report;
+  const QualityReport& r = result.report;
   std::string line = "pose '" + r.pose_name + "' (" + r.method + "): " + std::to_string(r.mesh.inverted_tets) +
                      " inverted tets, det " + fixed(r.mesh.det_min, 3) + ".." + fixed(r.mesh.det_max, 3) +
                      ", soft-tissue volume " + fixed(100.0 * r.mesh.soft_tissue_volume_change, 2) +
@@ -138,7 +138,7 @@ void summarize(const api::PoseResult& result) {
         " overlapping pairs; " + std::to_string(r.skin_contact_voxels) +
         " voxels kept from showing tissue across a skin contact");
   }
-  for (const report::JointRegionChange& c : r.joint_regions) {
+  for (const JointRegionChange& c : r.joint_regions) {
     say("  " + c.joint + " within " + std::to_string(static_cast<int>(c.radius_mm)) + " mm: soft tissue " +
         fixed(100.0 * c.volume_change, 1) + "%, folded " + fixed(100.0 * c.folded_fraction, 2) + "%, stretched " +
         fixed(100.0 * c.stretched_fraction, 2) + "%, skin passed into the tissue facing it " +
@@ -194,7 +194,7 @@ bool same_place(const ImageGeometry& a, const ImageGeometry& b) {
 
 // The posed CT and labels as a derived CT series and a SEG of the source series' study (--dicom-out).
 Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const api::PoseResult& result,
-                   const labels::LabelMap& map, const std::string& pose_name) {
+                   const api::LabelMap& map, const std::string& pose_name) {
   if (!result.ct || !result.labels) return internal_error("the pose returned no CT or labels for the DICOM output");
   api::DerivedSeriesOptions options;
   options.uid_root = o.uid_root;
@@ -218,7 +218,7 @@ int run_pose(const PoseOptions& o) {
   if (Status s = refuse_overwriting_inputs(outputs, inputs); !s.ok()) return report(s);
   if (Status s = check_output_files(outputs); !s.ok()) return report(s);
   if (Status s = refuse_directories({o.report_out}); !s.ok()) return report(s);
-  Result<pose::Pose> pose = api::read_pose(o.pose_path);
+  Result<Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
   // DICOM out needs the source series: its patient, study and images are what the derived series refer to.
   std::optional<api::SeriesInfo> dicom_source;
@@ -241,6 +241,7 @@ int run_pose(const PoseOptions& o) {
   Result<api::PoseRequest> request = make_request(o.output);
   if (!request.ok()) return report(request.status());
   request->pose = *pose;
+  request->pose_source = "pose file '" + o.pose_path + "'";  // a pose that does not fit the rig names its file
   request->want_labels = !o.labels_out.empty() || !o.report_out.empty() || !o.dicom_out.empty();
   request->want_ct = !o.ct_out.empty() || !o.dicom_out.empty();
   request->want_fields = !o.field_out.empty();
@@ -249,7 +250,7 @@ int run_pose(const PoseOptions& o) {
     Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
     if (!poser.ok()) return report(poser.status());
     // For DICOM out, the rig (its label map names the segments; its grid must be --dicom-source's), before posing.
-    std::optional<labels::LabelMap> map;
+    std::optional<api::LabelMap> map;
     if (dicom_source) {
       Result<api::Rig> rig = poser->rig();
       if (!rig.ok()) return report(rig.status());
@@ -274,14 +275,10 @@ int run_pose(const PoseOptions& o) {
   if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
     return report(foreign_dicom_source(o.dicom_source));
   }
-  // Checked here too (pose() checks again) so that a pose that does not fit the rig names its file.
-  if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
-    return report(fits.with_context("pose file '" + o.pose_path + "'"));
-  }
   Result<api::PoseResult> result = engine->pose(*request, progress_bar());
   if (!result.ok()) return report(result.status());
   summarize(*result);
-  Status written = write_outputs(*result, report::to_json(result->report), o.labels_out, o.ct_out, o.field_out,
+  Status written = write_outputs(*result, api::report_to_json(result->report), o.labels_out, o.ct_out, o.field_out,
                                  o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
   if (dicom_source) {
@@ -310,7 +307,7 @@ int run_compare(const CompareOptions& o) {
   }
   std::vector<api::PoseRequest> requests;
   for (const std::string& name : o.methods) {
-    Result<skinning::Method> method = skinning::method_from_name(name);
+    Result<api::Method> method = api::method_from_name(name);
     if (!method.ok()) return report(method.status().with_context("--methods"));
     for (const api::PoseRequest& earlier : requests) {
       if (earlier.method == *method) return report(invalid_argument_error("--methods names '" + name + "' twice"));
@@ -324,9 +321,12 @@ int run_compare(const CompareOptions& o) {
   if (Status s = refuse_overwriting_inputs({o.json_out}, {o.rig_path, o.pose_path}); !s.ok()) return report(s);
   if (Status s = check_output_files({o.json_out}); !s.ok()) return report(s);
   if (Status s = refuse_directories({o.json_out}); !s.ok()) return report(s);
-  Result<pose::Pose> pose = api::read_pose(o.pose_path);
+  Result<Pose> pose = api::read_pose(o.pose_path);
   if (!pose.ok()) return report(pose.status());
-  for (api::PoseRequest& request : requests) request.pose = *pose;
+  for (api::PoseRequest& request : requests) {
+    request.pose = *pose;
+    request.pose_source = "pose file '" + o.pose_path + "'";
+  }
   std::vector<nlohmann::json> reports;
   if (!o.connection.server.empty()) {
     Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
@@ -339,13 +339,10 @@ int run_compare(const CompareOptions& o) {
   } else {
     Result<api::PoseEngine> engine = load_engine(o.rig_path);
     if (!engine.ok()) return report(engine.status());
-    if (Status fits = pose::validate_pose(*pose, engine->rig().skeleton); !fits.ok()) {
-      return report(fits.with_context("pose file '" + o.pose_path + "'"));
-    }
     for (const api::PoseRequest& request : requests) {
       Result<api::PoseResult> result = engine->pose(request, progress_bar());
       if (!result.ok()) return report(result.status());
-      reports.push_back(nlohmann::json::parse(report::to_json(result->report), nullptr, false));
+      reports.push_back(nlohmann::json::parse(api::report_to_json(result->report), nullptr, false));
     }
   }
   for (const nlohmann::json& r : reports) {
@@ -449,15 +446,15 @@ int run_animate(const AnimateOptions& o) {
     if (!opened.ok()) return report(opened.status());
     poser = std::move(opened).value();
   }
-  Result<pose::Animation> animation = [&]() -> Result<pose::Animation> {
+  Result<api::Animation> animation = [&]() -> Result<api::Animation> {
     if (!o.animation_path.empty()) return api::read_animation(o.animation_path);
     if (o.bvh_path.empty() || o.map_path.empty()) {
       return invalid_argument_error("give --bvh FILE with --map MAP (or --animation FILE.json)");
     }
-    POSEWARP_ASSIGN_OR_RETURN(const pose::BvhMap map, api::read_bvh_map(o.map_path));
-    if (engine) return api::read_bvh(o.bvh_path, map, engine->rig().skeleton, first, last);
-    POSEWARP_ASSIGN_OR_RETURN(const rig::Skeleton skeleton, poser->skeleton());  // BVH retargeting needs it
-    return api::read_bvh(o.bvh_path, map, skeleton, first, last);
+    POSEWARP_ASSIGN_OR_RETURN(const api::BvhMap map, api::read_bvh_map(o.map_path));
+    if (engine) return api::read_bvh(o.bvh_path, map, engine->rig(), first, last);
+    POSEWARP_ASSIGN_OR_RETURN(const api::Rig rig, poser->rig());  // BVH retargeting needs its skeleton
+    return api::read_bvh(o.bvh_path, map, rig, first, last);
   }();
   if (!animation.ok()) return report(animation.status());
   std::error_code ec;
@@ -474,7 +471,7 @@ int run_animate(const AnimateOptions& o) {
     Result<RemotePoseResult> answer = [&]() -> Result<RemotePoseResult> {
       if (poser) return poser->pose(*request);
       POSEWARP_ASSIGN_OR_RETURN(api::PoseResult result, engine->pose(*request, {}));
-      const std::string json = report::to_json(result.report);
+      const std::string json = api::report_to_json(result.report);
       return RemotePoseResult{std::move(result), engine->rig().labels.geometry(), json, {}};
     }();
     if (!answer.ok()) return report(answer.status().with_context("frame " + std::to_string(f)));

@@ -13,6 +13,7 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/api/joint_range.h"
+#include "posewarp/api/rig_info.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/vtk_export.h"
 #include "remote.h"
@@ -89,13 +90,13 @@ int run_build(BuildOptions& options) {
     inputs.body = std::move(body).value();
   }
   if (!options.spec_path.empty()) {
-    Result<rig::RigSpec> spec = rig::read_rig_spec(options.spec_path);
+    Result<api::RigSpec> spec = api::read_rig_spec(options.spec_path);
     if (!spec.ok()) return report(spec.status());
     inputs.spec = std::move(spec).value();
   }
   options.params.mesh.parallel = !options.sequential;
   options.params.weights.islands =
-      options.islands_fail ? weights::IslandPolicy::kFail : weights::IslandPolicy::kAttachNearest;
+      options.islands_fail ? api::IslandPolicy::kFail : api::IslandPolicy::kAttachNearest;
   const double read_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   Result<api::Rig> rig = api::build_rig(inputs, options.params, progress_bar());
@@ -104,13 +105,14 @@ int run_build(BuildOptions& options) {
   const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   say("rig " + rig->id() + " written to " + options.out);
-  say("  " + std::to_string(rig->skeleton.segments.size()) + " segments, " +
-      std::to_string(rig->skeleton.joints.size()) + " joints, " + std::to_string(rig->mesh.vertex_count()) +
-      " vertices, " + std::to_string(rig->mesh.tet_count()) + " tets");
-  for (const std::string& note : rig->skeleton.notes) say("  note: " + note);
-  if (!rig->skeleton.missing_segments.empty()) {
+  const api::SkeletonInfo skeleton = api::describe_skeleton(*rig);
+  say("  " + std::to_string(skeleton.segments.size()) + " segments, " + std::to_string(skeleton.joints.size()) +
+      " joints, " + std::to_string(rig->mesh.vertex_count()) + " vertices, " + std::to_string(rig->mesh.tet_count()) +
+      " tets");
+  for (const std::string& note : skeleton.notes) say("  note: " + note);
+  if (!skeleton.missing_segments.empty()) {
     std::string missing;
-    for (const std::string& name : rig->skeleton.missing_segments) missing += (missing.empty() ? "" : ", ") + name;
+    for (const std::string& name : skeleton.missing_segments) missing += (missing.empty() ? "" : ", ") + name;
     say("  not in this study: " + missing);
   }
   std::string timings = "  timings: read " + fixed(read_seconds, 2) + " s";
@@ -120,96 +122,96 @@ int run_build(BuildOptions& options) {
   return 0;
 }
 
-int run_info(const std::string& path, bool as_json) {
-  api::remove_stale_partial_files(std::filesystem::path(path).parent_path().string());
-  const auto start = std::chrono::steady_clock::now();
-  Result<api::Rig> rig = api::load_rig(path);
-  if (!rig.ok()) return report(rig.status());
-  const double load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  const rig::Skeleton& s = rig->skeleton;
+// One joint of `rig info --json`, with its range of motion.
+json joint_json(const api::JointInfo& joint, const std::vector<api::MotionRange>& ranges) {
+  auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
+  json entry{{"name", joint.name},
+             {"parent", joint.parent},
+             {"child", joint.child},
+             {"centre_mm", triple(joint.centre_mm)},
+             {"method", joint.method},
+             {"kind", joint.kind},
+             {"side", joint.side},
+             {"declared", joint.declared},
+             {"contact_area_mm2", joint.contact_area_mm2},
+             // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
+             {"flexion_axis", triple(joint.frame.col(0))},
+             {"flexion_moves_child", joint.flexion_moves_child},
+             {"abduction_axis", triple(joint.frame.col(1))},
+             {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
+             {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
+             {"internal_rotation_sign", joint.internal_rotation_sign}};
+  if (joint.method == "sphere-fit" || joint.method == "cylinder-fit") {
+    entry["fit_radius_mm"] = joint.fit_radius_mm;
+    entry["fit_rms_mm"] = joint.fit_rms_mm;
+  }
+  if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
+  // [negative, positive] degrees each way; a bound short of 150 is where the bones meet (more than 1 ml).
+  for (const api::MotionRange& m : ranges) {
+    entry["range_deg"][m.motion] = {0.0 - m.negative_deg, m.positive_deg};  // 0.0 - x: no "-0"
+    entry["range_stopped_by_bone"][m.motion] = {m.negative_stopped, m.positive_stopped};
+  }
+  return entry;
+}
+
+// `rig info --json`: the rig's grid, skeleton (each joint's range of motion: how far it turns before its bones meet
+// a bone that does not move with them, measured at build, or here for a rig built before that), mesh, timings,
+// statistics, parameters and provenance.
+Result<json> info_json(const std::string& path, const api::Rig& rig, double load_seconds) {
+  const api::SkeletonInfo s = api::describe_skeleton(rig);
   json doc;
   doc["path"] = path;
-  doc["id"] = rig->id();
-  doc["content_hash"] = api::content_hash(*rig);
+  doc["id"] = rig.id();
+  doc["content_hash"] = api::content_hash(rig);
   doc["load_seconds"] = load_seconds;
-  doc["source_grid"] = {{"size", rig->source_geometry.size},
-                        {"spacing_mm", rig->source_geometry.spacing},
-                        {"origin_mm", rig->source_geometry.origin},
-                        {"direction", rig->source_geometry.direction}};
+  doc["source_grid"] = {{"size", rig.source_geometry.size},
+                        {"spacing_mm", rig.source_geometry.spacing},
+                        {"origin_mm", rig.source_geometry.origin},
+                        {"direction", rig.source_geometry.direction}};
   json segments = json::array();
-  for (const rig::Segment& segment : s.segments) {
+  for (const api::SegmentInfo& segment : s.segments) {
     segments.push_back({{"name", segment.name},
                         {"labels", segment.labels},
                         {"voxels", segment.voxels},
                         {"centroid_mm", {segment.centroid_mm.x(), segment.centroid_mm.y(), segment.centroid_mm.z()}}});
   }
-  // Each joint's range: how far it turns before its bones meet a bone that does not move with them; measured at
-  // build, or here for a rig built before that.
   std::vector<std::vector<api::MotionRange>> ranges;
-  for (const auto& joint : s.joints) ranges.push_back(joint.ranges);
-  if (std::any_of(s.joints.begin(), s.joints.end(), [](const auto& joint) { return joint.ranges.empty(); })) {
-    Result<std::vector<api::JointRange>> measured = api::joint_ranges(*rig);
-    if (!measured.ok()) return report(measured.status());
-    for (size_t j = 0; j < ranges.size() && j < measured->size(); ++j) ranges[j] = (*measured)[j].motions;
+  for (const api::JointInfo& joint : s.joints) ranges.push_back(joint.ranges);
+  if (std::any_of(s.joints.begin(), s.joints.end(), [](const api::JointInfo& joint) { return joint.ranges.empty(); })) {
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<api::JointRange> measured, api::joint_ranges(rig));
+    for (size_t j = 0; j < ranges.size() && j < measured.size(); ++j) ranges[j] = measured[j].motions;
   }
   json joints = json::array();
-  auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
-  for (size_t index = 0; index < s.joints.size(); ++index) {
-    const rig::Joint& joint = s.joints[index];
-    json entry{
-        {"name", joint.name},
-        {"parent", s.segments[static_cast<size_t>(joint.parent)].name},
-        {"child", s.segments[static_cast<size_t>(joint.child)].name},
-        {"centre_mm", triple(joint.centre_mm)},
-        {"method", joint.method},
-        {"kind", labels::joint_kind_name(joint.kind)},
-        {"side", rig::body_side_name(joint.side)},
-        {"declared", joint.declared},
-        {"contact_area_mm2", joint.contact_area_mm2},
-        // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
-        {"flexion_axis", triple(joint.frame.col(0))},
-        {"flexion_moves_child", labels::flexion_direction_name(joint.flexion)},
-        {"abduction_axis", triple(joint.frame.col(1))},
-        {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
-        {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
-        {"internal_rotation_sign", joint.internal_rotation_sign}};
-    if (joint.method == "sphere-fit" || joint.method == "cylinder-fit") {
-      entry["fit_radius_mm"] = joint.sphere_radius_mm;
-      entry["fit_rms_mm"] = joint.sphere_rms_mm;
-    }
-    if (joint.hinge_axis.norm() > 0.5) entry["hinge_axis"] = triple(joint.hinge_axis);
-    // [negative, positive] degrees each way; a bound short of 150 is where the bones meet (more than 1 ml).
-    for (const api::MotionRange& m : ranges[index]) {
-      entry["range_deg"][m.motion] = {0.0 - m.negative_deg, m.positive_deg};  // 0.0 - x: no "-0"
-      entry["range_stopped_by_bone"][m.motion] = {m.negative_stopped, m.positive_stopped};
-    }
-    joints.push_back(std::move(entry));
-  }
-  doc["root"] = s.segments[static_cast<size_t>(s.root)].name;
+  for (size_t index = 0; index < s.joints.size(); ++index) joints.push_back(joint_json(s.joints[index], ranges[index]));
+  doc["root"] = s.root;
   doc["segments"] = segments;
   doc["joints"] = joints;
   doc["missing_segments"] = s.missing_segments;
   doc["notes"] = s.notes;
-  doc["mesh"] = {{"vertices", rig->mesh.vertex_count()}, {"tets", rig->mesh.tet_count()}};
+  doc["mesh"] = {{"vertices", rig.mesh.vertex_count()}, {"tets", rig.mesh.tet_count()}};
   json stages = json::object();
-  for (const auto& [stage, seconds] : rig->provenance.stage_seconds) stages[stage] = seconds;
+  for (const auto& [stage, seconds] : rig.provenance.stage_seconds) stages[stage] = seconds;
   doc["stage_seconds"] = stages;
-  doc["stats"] = json::parse(rig->provenance.stats_json.empty() ? "{}" : rig->provenance.stats_json);
-  doc["params"] = json::parse(rig->params_json.empty() ? "{}" : rig->params_json);
-  doc["provenance"] = {{"software_version", rig->provenance.software_version},
-                       {"labels", rig->provenance.labels_source},
-                       {"ct", rig->provenance.ct_source},
-                       {"labels_hash", rig->labels_hash},
-                       {"ct_hash", rig->ct_hash}};
-  if (as_json) {
-    std::cout << doc.dump(2) << '\n';
-    return 0;
-  }
+  doc["stats"] = json::parse(rig.provenance.stats_json.empty() ? "{}" : rig.provenance.stats_json);
+  doc["params"] = json::parse(rig.params_json.empty() ? "{}" : rig.params_json);
+  doc["provenance"] = {{"software_version", rig.provenance.software_version},
+                       {"labels", rig.provenance.labels_source},
+                       {"ct", rig.provenance.ct_source},
+                       {"labels_hash", rig.labels_hash},
+                       {"ct_hash", rig.ct_hash}};
+  return doc;
+}
+
+// `rig info` for a reader: the same document, in lines.
+void print_info(const std::string& path, const api::Rig& rig, const json& doc, double load_seconds) {
+  const json& provenance = doc["provenance"];
+  const std::string ct = provenance["ct"].get<std::string>();
   std::cout
       << "rig " << doc["id"].get<std::string>() << " (" << path << ", loaded in " << fixed(load_seconds, 3) << " s)\n"
-      << "  built by posewarp " << rig->provenance.software_version << " from " << rig->provenance.labels_source
-      << (rig->provenance.ct_source.empty() ? "" : " + " + rig->provenance.ct_source) << "\n"
-      << "  mesh: " << rig->mesh.vertex_count() << " vertices, " << rig->mesh.tet_count() << " tets\n"
+      << "  built by posewarp " << provenance["software_version"].get<std::string>() << " from "
+      << provenance["labels"].get<std::string>() << (ct.empty() ? "" : " + " + ct) << "\n"
+      << "  mesh: " << doc["mesh"]["vertices"].get<int64_t>() << " vertices, " << doc["mesh"]["tets"].get<int64_t>()
+      << " tets\n"
       << "  root: " << doc["root"].get<std::string>() << "\n"
       << "  joints (axes in LPS: x patient left, y posterior, z superior; a positive angle turns the child about\n"
       << "  the axis by the right-hand rule: flexion moves the child's far end the way shown, abduction away\n"
@@ -217,7 +219,7 @@ int run_info(const std::string& path, bool as_json) {
   auto axis_text = [](const json& v) {
     return "(" + fixed(v[0], 2) + ", " + fixed(v[1], 2) + ", " + fixed(v[2], 2) + ")";
   };
-  for (const json& joint : joints) {
+  for (const json& joint : doc["joints"]) {
     const auto& c = joint["centre_mm"];
     std::cout << "    " << std::left << std::setw(20) << joint["name"].get<std::string>() << std::setw(16)
               << joint["parent"].get<std::string>() << "-> " << std::setw(16) << joint["child"].get<std::string>()
@@ -237,10 +239,24 @@ int run_info(const std::string& path, bool as_json) {
               << w.value("solver", std::string("?")) << "\n";
   }
   std::cout << "  timings:";
-  for (const auto& [stage, seconds] : rig->provenance.stage_seconds)
-    std::cout << " " << stage << " " << fixed(seconds, 2) << " s";
+  for (const auto& [stage, seconds] : rig.provenance.stage_seconds) std::cout << " " << stage << " " << fixed(seconds, 2) << " s";
   std::cout << "\n";
-  for (const std::string& note : s.notes) std::cout << "  note: " << note << "\n";
+  for (const json& note : doc["notes"]) std::cout << "  note: " << note.get<std::string>() << "\n";
+}
+
+int run_info(const std::string& path, bool as_json) {
+  api::remove_stale_partial_files(std::filesystem::path(path).parent_path().string());
+  const Stopwatch stopwatch;
+  Result<api::Rig> rig = api::load_rig(path);
+  if (!rig.ok()) return report(rig.status());
+  const double load_seconds = stopwatch.seconds();
+  Result<json> doc = info_json(path, *rig, load_seconds);
+  if (!doc.ok()) return report(doc.status());
+  if (as_json) {
+    std::cout << doc->dump(2) << '\n';
+  } else {
+    print_info(path, *rig, *doc, load_seconds);
+  }
   return 0;
 }
 

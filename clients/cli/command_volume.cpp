@@ -136,7 +136,7 @@ struct InspectOptions {
   std::string preset;
   std::string out_dir;
   bool as_json = false;
-  labels::BodyParams body;
+  api::BodyMaskParams body;
 };
 
 int run_inspect(const InspectOptions& options) {
@@ -153,7 +153,7 @@ int run_inspect(const InspectOptions& options) {
   }
   Result<api::StudyInspection> study = api::inspect_study(*seg, ct ? &*ct : nullptr, *map, options.body);
   if (!study.ok()) return report(study.status());
-  const labels::LabelCensus& census = study->census;
+  const api::LabelCensus& census = study->census;
   const ImageGeometry& g = seg->geometry();
   const int64_t body_voxels = study->body_voxels;
 
@@ -176,8 +176,8 @@ int run_inspect(const InspectOptions& options) {
   doc["absent_bone_segments"] = census.absent_bone_segments;
   json tissues = json::array();
   for (const auto& [value, count] : census.voxel_counts) {
-    const labels::LabelEntry* entry = map->find(value);
-    if (value == 0 || (entry && entry->role == labels::LabelRole::kBone)) continue;
+    const api::LabelEntry* entry = map->find(value);
+    if (value == 0 || (entry && entry->role == api::LabelRole::kBone)) continue;
     tissues.push_back({{"value", value}, {"name", entry ? entry->name : "unknown"}, {"voxels", count}});
   }
   doc["tissues"] = tissues;

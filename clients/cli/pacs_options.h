@@ -6,7 +6,7 @@
 #include <string>
 
 #include "posewarp/api/files.h"
-#include "posewarp/pacs/dicomweb.h"
+#include "posewarp/api/pacs.h"
 
 namespace posewarp::cli {
 
@@ -25,9 +25,9 @@ inline void add_pacs_options(CLI::App* cmd, PacsOptions& o) {
 }
 
 // The client's options, the secrets read from their files (first line).
-inline Result<pacs::DicomWebOptions> dicomweb_options(const PacsOptions& o) {
+inline Result<api::DicomWebOptions> dicomweb_options(const PacsOptions& o) {
   if (o.url.empty()) return invalid_argument_error("give --pacs URL (the PACS's DICOMweb root)");
-  pacs::DicomWebOptions options;
+  api::DicomWebOptions options;
   options.base_url = o.url;
   options.username = o.user;
   options.verify_tls = !o.insecure;

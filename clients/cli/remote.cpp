@@ -17,6 +17,8 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/support.h"
+#include "posewarp/client/connection.h"
+#include "posewarp/client/pose_answer.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 #include <nlohmann/json.hpp>
@@ -27,93 +29,33 @@ namespace {
 namespace fs = std::filesystem;
 
 // A failed call as the local commands report it: the server's code is the core's, so the exit code table holds.
-Status status_of(const grpc::Status& status, const std::string& server);
+Status status_of(const grpc::Status& status, const std::string& server) {
+  const client::CallError error = client::error_of(status, server);
+  return Status(static_cast<StatusCode>(error.code), error.message);
+}
 int report_rpc(const grpc::Status& status, const std::string& server) {
   return report(status_of(status, server));
 }
 
-// The channel and what every call carries: the bearer token, and the rig id (so a load balancer can keep each rig
-// on one replica).
-class Remote {
- public:
-  static Result<Remote> open(const Connection& c) {
-    Remote remote;
-    remote.server_ = c.server;
-    std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
-    if (!c.tls_ca.empty()) {
-      grpc::SslCredentialsOptions ssl;
-      POSEWARP_ASSIGN_OR_RETURN(ssl.pem_root_certs, api::read_text_input(c.tls_ca, "TLS CA certificate"));
-      credentials = grpc::SslCredentials(ssl);
-    }
-    if (!c.token_file.empty()) {
-      POSEWARP_ASSIGN_OR_RETURN(std::string token, api::read_text_input(c.token_file, "token file", 1 << 16));
-      const size_t first = token.find_first_not_of(" \t\r\n");
-      const size_t last = token.find_last_not_of(" \t\r\n");
-      if (first == std::string::npos) return invalid_argument_error("token file '" + c.token_file + "' is empty");
-      remote.token_ = token.substr(first, last - first + 1);
-    }
-    grpc::ChannelArguments arguments;
-    arguments.SetMaxReceiveMessageSize(64 << 20);
-    // Reconnect as quickly as with_retries tries again (gRPC's default first backoff is 1 s, growing to 120 s).
-    arguments.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 250);
-    arguments.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 250);
-    arguments.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 2000);
-    remote.channel_ = grpc::CreateCustomChannel(c.server, credentials, arguments);
-    remote.stub_ = v1::Posewarp::NewStub(remote.channel_);
-    remote.retries_ = c.retries;
-    return remote;
-  }
-  // A unary call with the token and the rig id, tried again while the server is unavailable.
-  template <typename Request, typename Response>
-  grpc::Status unary(grpc::Status (v1::Posewarp::Stub::*method)(grpc::ClientContext*, const Request&, Response*),
-                     const Request& request, Response* response, const std::string& rig_id = "") const {
-    return with_retries([&] {
-      const auto call = context(rig_id);
-      return ((*stub_).*method)(call.get(), request, response);
-    });
-  }
-  // Runs `attempt` (one whole call) again while the server answers UNAVAILABLE, waiting as RetryPolicy says.
-  template <typename Attempt>
-  grpc::Status with_retries(Attempt&& attempt) const {
-    grpc::Status status = attempt();
-    const RetryPolicy policy{retries_};
-    for (int retry = 1; retry <= policy.retries && retryable(status); ++retry) {
-      const double wait_s = policy.wait_s(retry);
-      say("posewarp-server at " + server_ + " is unavailable (" + status.error_message() + "); trying again within " +
-          std::to_string(wait_s).substr(0, 3) + " s");
-      // Connecting meanwhile: the next try starts as soon as the server is back, or when the wait is over.
-      const auto until = std::chrono::system_clock::now() + policy.wait(retry);
-      if (!channel_->WaitForConnected(until)) std::this_thread::sleep_until(until);
-      status = attempt();
-    }
-    return status;
-  }
-  // UNAVAILABLE (no server, or a proxy with no replica to reach), or a stream a proxy cut in the middle of its
-  // answer because its replica went away (nginx resets the stream: INTERNAL, "RST_STREAM"). Every call is safe to
-  // repeat: uploads and rigs are content-addressed, a build joins its operation, poses only read.
-  static bool retryable(const grpc::Status& status) {
-    return status.error_code() == grpc::StatusCode::UNAVAILABLE ||
-           (status.error_code() == grpc::StatusCode::INTERNAL &&
-            status.error_message().find("RST_STREAM") != std::string::npos);
-  }
-  v1::Posewarp::Stub* operator->() const { return stub_.get(); }
-  const std::shared_ptr<grpc::Channel>& channel() const { return channel_; }
-  v1::Posewarp::Stub& operator*() const { return *stub_; }
-  const std::string& server() const { return server_; }
-  // A call's context with the token and the rig id.
-  std::unique_ptr<grpc::ClientContext> context(const std::string& rig_id = "") const {
-    auto context = std::make_unique<grpc::ClientContext>();
-    if (!token_.empty()) context->AddMetadata("authorization", "Bearer " + token_);
-    if (!rig_id.empty()) context->AddMetadata("x-posewarp-rig", rig_id);
-    return context;
-  }
+// The client library's connection (token, TLS, each call's metadata), shared by a command's calls.
+using Remote = std::shared_ptr<const client::Connection>;
 
- private:
-  std::string server_, token_;
-  int retries_ = 0;
-  std::shared_ptr<grpc::Channel> channel_;
-  std::unique_ptr<v1::Posewarp::Stub> stub_;
-};
+// The connection for a command's --server options: a call the server refuses as unavailable is tried again as
+// RetryPolicy says, each wait said on stderr.
+Result<Remote> connect(const Connection& c) {
+  const RetryPolicy policy{c.retries};
+  client::Retries retries{c.retries, [policy](int n) { return policy.wait(n); },
+                          [server = c.server](const grpc::Status& failed, std::chrono::milliseconds wait) {
+                            say("posewarp-server at " + server + " is unavailable (" + failed.error_message() +
+                                "); trying again within " + std::to_string(wait.count() / 1000.0).substr(0, 3) +
+                                " s");
+                          }};
+  client::CallError error;
+  std::unique_ptr<client::Connection> opened =
+      client::Connection::open({c.server, c.token_file, c.tls_ca}, &error, std::move(retries));
+  if (!opened) return Status(static_cast<StatusCode>(error.code), error.message);
+  return Remote(std::move(opened));
+}
 
 // A rig id where --server wants one (a rig path there is the usual slip).
 Status check_rig_id(const std::string& rig_id) {
@@ -122,15 +64,6 @@ Status check_rig_id(const std::string& rig_id) {
       "with --server the rig is a rig id (64 hex digits, from `posewarp rig build "
       "--server` or `posewarp rig list --server`), not '" +
       rig_id + "'");
-}
-
-// A failed call as a Status: the server's code is the core's; UNAVAILABLE says where it tried.
-Status status_of(const grpc::Status& status, const std::string& server) {
-  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-    return unavailable_error("cannot reach posewarp-server at " + server + ": " + status.error_message() +
-                             " (is it running, and is the address right?)");
-  }
-  return Status(static_cast<StatusCode>(status.error_code()), status.error_message());
 }
 
 v1::FileFormat format_of(const std::string& path) {
@@ -146,7 +79,7 @@ v1::FileFormat format_of(const std::string& path) {
 }
 
 Result<std::string> upload(const Remote& stub, const RemoteVolumeFile& file, v1::VolumeKind kind) {
-  const std::string& server = stub.server();
+  const std::string& server = stub->server();
   const v1::FileFormat format = format_of(file.name);
   if (format == v1::FILE_FORMAT_UNSPECIFIED) {
     return invalid_argument_error("'" + file.name +
@@ -155,9 +88,9 @@ Result<std::string> upload(const Remote& stub, const RemoteVolumeFile& file, v1:
   }
   const std::string& bytes = file.bytes;
   v1::Volume volume;
-  const grpc::Status status = stub.with_retries([&] {
-    const auto context = stub.context();
-    auto writer = stub->UploadVolume(context.get(), &volume);
+  const grpc::Status status = stub->with_retries([&] {
+    const auto context = stub->context();
+    auto writer = stub->stub().UploadVolume(context.get(), &volume);
     v1::UploadVolumeRequest part;
     part.mutable_header()->set_kind(kind);
     part.mutable_header()->set_format(format);
@@ -224,7 +157,7 @@ Result<Volume<T>> volume_from_samples(const std::string& bytes, v1::PixelType sa
 
 Result<std::string> build_rig_remote(const Connection& connection, const RemoteRigInputs& inputs,
                                      const std::function<void(const std::string&, double)>& on_stage) {
-  POSEWARP_ASSIGN_OR_RETURN(const Remote stub, Remote::open(connection));
+  POSEWARP_ASSIGN_OR_RETURN(const Remote stub, connect(connection));
   const std::string& server = connection.server;
   v1::BuildRigRequest request;
   POSEWARP_ASSIGN_OR_RETURN(*request.mutable_labels_volume_id(), upload(stub, inputs.labels, v1::VOLUME_KIND_LABELS));
@@ -236,15 +169,15 @@ Result<std::string> build_rig_remote(const Connection& connection, const RemoteR
   request.set_rig_spec_json(inputs.rig_spec_json);
   request.set_name(inputs.name.empty() ? inputs.labels.name : inputs.name);
   v1::Operation operation;
-  if (grpc::Status s = stub.unary(&v1::Posewarp::Stub::BuildRig, request, &operation); !s.ok()) {
+  if (grpc::Status s = stub->unary(&v1::Posewarp::Stub::BuildRig, request, &operation); !s.ok()) {
     return status_of(s, server);  // a build request is idempotent: the same inputs share one operation
   }
   // The operation's stream until it ends; a stream cut by a restarting server is watched again.
-  const grpc::Status watched = stub.with_retries([&] {
-    const auto context = stub.context();
+  const grpc::Status watched = stub->with_retries([&] {
+    const auto context = stub->context();
     v1::GetOperationRequest watch;
     watch.set_operation_id(operation.id());
-    auto reader = stub->WatchOperation(context.get(), watch);
+    auto reader = stub->stub().WatchOperation(context.get(), watch);
     v1::Operation state;
     while (reader->Read(&state)) {
       operation = state;
@@ -295,22 +228,17 @@ int run_build_remote(const RemoteBuild& o) {
 }
 
 int run_list_remote(const Connection& connection) {
-  Result<Remote> remote = Remote::open(connection);
+  Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());
-  const std::string& server = connection.server;
-  v1::ListRigsRequest request;
-  request.set_page_size(1000);
-  for (;;) {
-    v1::ListRigsResponse page;
-    if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::ListRigs, request, &page); !s.ok())
-      return report_rpc(s, server);
-    for (const v1::Rig& rig : page.rigs()) {
-      std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
-                  static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
-    }
-    if (page.next_page_token().empty()) return 0;
-    request.set_page_token(page.next_page_token());
+  std::vector<v1::Rig> rigs;
+  if (const client::CallError e = (*remote)->list_rigs(&rigs); e.failed()) {
+    return report(Status(static_cast<StatusCode>(e.code), e.message));
   }
+  for (const v1::Rig& rig : rigs) {
+    std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
+                static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
+  }
+  return 0;
 }
 
 struct RemotePoser::State {
@@ -325,7 +253,7 @@ RemotePoser::~RemotePoser() = default;
 
 Result<RemotePoser> RemotePoser::open(const Connection& connection, const std::string& rig_id) {
   POSEWARP_RETURN_IF_ERROR(check_rig_id(rig_id));
-  POSEWARP_ASSIGN_OR_RETURN(Remote remote, Remote::open(connection));
+  POSEWARP_ASSIGN_OR_RETURN(Remote remote, connect(connection));
   return RemotePoser(std::make_unique<State>(State{std::move(remote), rig_id}));
 }
 
@@ -344,27 +272,27 @@ v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_
   v1::PoseRequest request;
   request.set_rig_id(rig_id);
   request.set_pose_json(api::pose_to_json(r.pose));
-  request.set_method(r.method == skinning::Method::kDqs   ? v1::METHOD_DQS
-                     : r.method == skinning::Method::kLbs ? v1::METHOD_LBS
-                     : r.method == skinning::Method::kFem ? v1::METHOD_FEM
+  request.set_method(r.method == api::Method::kDqs   ? v1::METHOD_DQS
+                     : r.method == api::Method::kLbs ? v1::METHOD_LBS
+                     : r.method == api::Method::kFem ? v1::METHOD_FEM
                                                           : v1::METHOD_COR);
-  if (r.grid == resample::GridPolicy::kGrow) request.set_grid(v1::GRID_POLICY_GROW);
-  if (r.grid == resample::GridPolicy::kGiven && r.given_grid) {
+  if (r.grid == api::GridPolicy::kGrow) request.set_grid(v1::GRID_POLICY_GROW);
+  if (r.grid == api::GridPolicy::kGiven && r.given_grid) {
     request.set_grid(v1::GRID_POLICY_GIVEN);
     put_grid(*r.given_grid, request.mutable_given_grid());
   }
-  if (r.method == skinning::Method::kFem && (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0)) {
+  if (r.method == api::Method::kFem && (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0)) {
     request.mutable_fem()->set_max_iterations(static_cast<uint32_t>(std::max(0, r.fem.max_iterations)));
     request.mutable_fem()->set_volume_weight(r.fem.volume_weight);
   }
-  request.set_nearest_ct(r.ct_interpolation == resample::Interpolation::kNearest);
+  request.set_nearest_ct(r.ct_interpolation == api::Interpolation::kNearest);
   request.set_want_labels(r.want_labels);
   request.set_want_ct(r.want_ct);
   request.set_want_surfaces(r.want_surfaces);
   request.set_want_fields(r.want_fields);
-  request.set_max_output_bytes(static_cast<uint64_t>(std::max<int64_t>(0, r.resample.max_output_bytes)));
+  request.set_max_output_bytes(static_cast<uint64_t>(std::max<int64_t>(0, r.limits.max_bytes)));
   request.set_samples(v1::SAMPLE_TYPE_STORED);  // what the files hold, in the fewest bytes
-  for (const surface::SurfaceMesh& mesh : r.extra_surfaces) {
+  for (const SurfaceMesh& mesh : r.extra_surfaces) {
     v1::Surface* m = request.add_meshes();
     m->set_name(mesh.name);
     m->set_label(mesh.label);
@@ -387,55 +315,26 @@ std::vector<float> floats_of(const std::string& bytes) {
 }  // namespace
 
 Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest& core) const {
-  const Remote& remote = state_->remote;
   const v1::PoseRequest request = proto_request(core, state_->rig_id);
-  v1::PoseHeader header;
-  std::string labels, ct, inverse, forward;
-  RemotePoseResult answer;
-  const grpc::Status status = remote.with_retries([&] {
-    header.Clear();
-    labels.clear(), ct.clear(), inverse.clear(), forward.clear();
-    answer = RemotePoseResult{};
-    const auto context = remote.context(state_->rig_id);
-    auto reader = remote->Pose(context.get(), request);
-    v1::PoseResponse part;
-    while (reader->Read(&part)) {
-      switch (part.part_case()) {
-        case v1::PoseResponse::kHeader:
-          header = part.header();
-          labels.reserve(header.label_bytes());
-          ct.reserve(header.ct_bytes());
-          break;
-        case v1::PoseResponse::kLabels: labels += part.labels().data(); break;
-        case v1::PoseResponse::kCt: ct += part.ct().data(); break;
-        case v1::PoseResponse::kInverseField: inverse += part.inverse_field().data(); break;
-        case v1::PoseResponse::kForwardField: forward += part.forward_field().data(); break;
-        case v1::PoseResponse::kSurface: {
-          const v1::Surface& s = part.surface();
-          surface::SurfaceMesh mesh;
-          mesh.name = s.name();
-          mesh.label = s.label();
-          mesh.vertices.resize(s.vertices_size() / 3, 3);
-          for (int i = 0; i < s.vertices_size(); ++i) mesh.vertices(i / 3, i % 3) = s.vertices(i);
-          mesh.triangles.resize(s.triangles_size() / 3, 3);
-          for (int i = 0; i < s.triangles_size(); ++i) mesh.triangles(i / 3, i % 3) = s.triangles(i);
-          answer.result.surfaces.push_back(std::move(mesh));
-          break;
-        }
-        case v1::PoseResponse::kReport:
-          answer.report_json = part.report().json();
-          answer.warnings.assign(part.report().warnings().begin(), part.report().warnings().end());
-          break;
-        default: break;
-      }
-    }
-    return reader->Finish();
-  });
-  if (!status.ok()) return status_of(status, remote.server());
-  if (labels.size() != header.label_bytes() || ct.size() != header.ct_bytes() ||
-      inverse.size() != header.inverse_field_bytes() || forward.size() != header.forward_field_bytes()) {
-    return data_loss_error("the server's answer ended early; run the pose again");
+  client::PoseAnswer wire;
+  if (const client::CallError e = client::pose(*state_->remote, request, &wire); e.failed()) {
+    return Status(static_cast<StatusCode>(e.code), e.message);
   }
+  RemotePoseResult answer;
+  for (const v1::Surface& s : wire.surfaces) {
+    SurfaceMesh mesh;
+    mesh.name = s.name();
+    mesh.label = s.label();
+    mesh.vertices.resize(s.vertices_size() / 3, 3);
+    for (int i = 0; i < s.vertices_size(); ++i) mesh.vertices(i / 3, i % 3) = s.vertices(i);
+    mesh.triangles.resize(s.triangles_size() / 3, 3);
+    for (int i = 0; i < s.triangles_size(); ++i) mesh.triangles(i / 3, i % 3) = s.triangles(i);
+    answer.result.surfaces.push_back(std::move(mesh));
+  }
+  answer.report_json = wire.report.json();
+  answer.warnings.assign(wire.report.warnings().begin(), wire.report.warnings().end());
+  const v1::PoseHeader& header = wire.header;
+  const std::string &labels = wire.labels, &ct = wire.ct, &inverse = wire.inverse_field, &forward = wire.forward_field;
   const ImageGeometry grid = grid_of(header.grid());
   answer.result.output_grid = grid;
   if (core.want_labels) {
@@ -460,10 +359,10 @@ Result<std::string> download_rig(const Remote& remote, const std::string& rig_id
   request.set_rig_id(rig_id);
   std::string bytes, sha;
   uint64_t size = 0;
-  const grpc::Status status = remote.with_retries([&] {
+  const grpc::Status status = remote->with_retries([&] {
     bytes.clear();
-    const auto context = remote.context(rig_id);
-    auto reader = remote->DownloadRig(context.get(), request);
+    const auto context = remote->context(rig_id);
+    auto reader = remote->stub().DownloadRig(context.get(), request);
     v1::RigChunk chunk;
     while (reader->Read(&chunk)) {
       if (chunk.offset() == 0) {
@@ -475,7 +374,7 @@ Result<std::string> download_rig(const Remote& remote, const std::string& rig_id
     }
     return reader->Finish();
   });
-  if (!status.ok()) return status_of(status, remote.server());
+  if (!status.ok()) return status_of(status, remote->server());
   if (bytes.size() != size || api::sha256_hex(bytes) != sha) {
     return data_loss_error("the rig arrived incomplete or altered (size or SHA-256 differ); try again");
   }
@@ -483,12 +382,6 @@ Result<std::string> download_rig(const Remote& remote, const std::string& rig_id
 }
 
 }  // namespace
-
-Result<rig::Skeleton> RemotePoser::skeleton() const {
-  POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, download_rig(state_->remote, state_->rig_id));
-  POSEWARP_ASSIGN_OR_RETURN(api::Rig rig, api::rig_from_bytes(bytes, "rig " + state_->rig_id));
-  return std::move(rig.skeleton);
-}
 
 Result<api::Rig> RemotePoser::rig() const {
   POSEWARP_ASSIGN_OR_RETURN(const std::string bytes, download_rig(state_->remote, state_->rig_id));
@@ -513,12 +406,12 @@ nlohmann::json joint_json(const v1::Joint& j) {
 
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
-  Result<Remote> remote = Remote::open(connection);
+  Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
   v1::Rig rig;
-  if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::GetRig, request, &rig, rig_id); !s.ok()) {
+  if (grpc::Status s = (*remote)->unary(&v1::Posewarp::Stub::GetRig, request, &rig, rig_id); !s.ok()) {
     return report_rpc(s, connection.server);
   }
   if (as_json) {
@@ -554,12 +447,12 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
 
 int run_delete_remote(const Connection& connection, const std::string& rig_id) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
-  Result<Remote> remote = Remote::open(connection);
+  Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
   v1::DeleteRigResponse deleted;
-  if (grpc::Status s = remote->unary(&v1::Posewarp::Stub::DeleteRig, request, &deleted, rig_id); !s.ok()) {
+  if (grpc::Status s = (*remote)->unary(&v1::Posewarp::Stub::DeleteRig, request, &deleted, rig_id); !s.ok()) {
     return report_rpc(s, connection.server);
   }
   say("deleted rig " + rig_id + " on " + connection.server);
@@ -569,7 +462,7 @@ int run_delete_remote(const Connection& connection, const std::string& rig_id) {
 int run_export_remote(const Connection& connection, const std::string& rig_id, const std::string& rig_out) {
   if (Status s = check_rig_id(rig_id); !s.ok()) return report(s);
   if (Status s = check_output_files({rig_out}); !s.ok()) return report(s);
-  Result<Remote> remote = Remote::open(connection);
+  Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());
   Result<std::string> bytes = download_rig(*remote, rig_id);
   if (!bytes.ok()) return report(bytes.status());
@@ -579,12 +472,12 @@ int run_export_remote(const Connection& connection, const std::string& rig_id, c
 }
 
 int run_health_remote(const Connection& connection, double timeout_s) {
-  Result<Remote> remote = Remote::open(connection);
+  Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());
   // grpc.health.v1 through the generic stub: the request (service "", the whole server) is empty; the answer's
   // field 1 is the serving status (1 = SERVING).
-  grpc::GenericStub stub(remote->channel());
-  const auto context = remote->context();
+  grpc::GenericStub stub((*remote)->channel());
+  const auto context = (*remote)->context();
   context->set_deadline(std::chrono::system_clock::now() +
                         std::chrono::milliseconds(static_cast<int64_t>(timeout_s * 1000)));
   const grpc::Slice empty(std::string{});

@@ -70,9 +70,8 @@ class RemotePoser {
   ~RemotePoser();
   // The engine's request sent as the proto's (pose, method, grid, outputs wanted, the user's meshes, limits).
   Result<RemotePoseResult> pose(const api::PoseRequest& request) const;
-  // The rig's skeleton (BVH retargeting needs it): the rig file downloaded, checked and read.
-  Result<rig::Skeleton> skeleton() const;
-  // The whole rig, the same way (its source grid, and the label map naming the segments of a DICOM SEG).
+  // The whole rig, downloaded, checked and read (its source grid, the label map naming the segments of a DICOM SEG,
+  // the skeleton BVH retargeting needs).
   Result<api::Rig> rig() const;
 
  private:
@@ -117,9 +116,6 @@ inline Result<RemotePoser> RemotePoser::open(const Connection&, const std::strin
   return unimplemented_error("this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)");
 }
 inline Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest&) const {
-  return unimplemented_error("no remote mode");
-}
-inline Result<rig::Skeleton> RemotePoser::skeleton() const {
   return unimplemented_error("no remote mode");
 }
 inline Result<api::Rig> RemotePoser::rig() const {

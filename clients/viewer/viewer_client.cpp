@@ -5,34 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
-#include <sstream>
 
 namespace posewarp::view {
-namespace {
-
-CallError error_of(const grpc::Status& status, const std::string& server) {
-  if (status.ok()) return {};
-  if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-    return {status.error_code(), "cannot reach posewarp-server at " + server +
-                                     " (is it running, and is the address "
-                                     "right?): " +
-                                     status.error_message()};
-  }
-  return {status.error_code(), status.error_message()};
-}
-
-bool read_file(const std::string& path, std::string* text) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return false;
-  std::ostringstream out;
-  out << in.rdbuf();
-  *text = out.str();
-  return true;
-}
-
-}  // namespace
-
 bool Pose::is_rest() const {
   for (const auto& [joint, a] : joints) {
     if (!a.is_zero()) return false;
@@ -160,68 +134,18 @@ std::optional<Pose> pose_from_json(const std::string& text, std::string* error) 
 
 std::unique_ptr<ViewerClient> ViewerClient::connect(const ServerAddress& address, CallError* error) {
   auto client = std::unique_ptr<ViewerClient>(new ViewerClient());
-  client->server_ = address.server;
-  std::shared_ptr<grpc::ChannelCredentials> credentials = grpc::InsecureChannelCredentials();
-  if (!address.tls_ca.empty()) {
-    grpc::SslCredentialsOptions ssl;
-    if (!read_file(address.tls_ca, &ssl.pem_root_certs)) {
-      *error = {grpc::StatusCode::INVALID_ARGUMENT, "cannot read the TLS CA certificate '" + address.tls_ca + "'"};
-      return nullptr;
-    }
-    credentials = grpc::SslCredentials(ssl);
-  }
-  if (!address.token_file.empty()) {
-    std::string token;
-    if (!read_file(address.token_file, &token)) {
-      *error = {grpc::StatusCode::INVALID_ARGUMENT, "cannot read the token file '" + address.token_file + "'"};
-      return nullptr;
-    }
-    // The first line (a server's token file may hold several; a client sends one).
-    const size_t first = token.find_first_not_of(" \t\r\n");
-    const size_t end = first == std::string::npos ? first : token.find_first_of("\r\n", first);
-    const size_t last = token.find_last_not_of(" \t", end == std::string::npos ? std::string::npos : end - 1);
-    if (first == std::string::npos) {
-      *error = {grpc::StatusCode::INVALID_ARGUMENT, "the token file '" + address.token_file + "' is empty"};
-      return nullptr;
-    }
-    client->token_ = token.substr(first, last - first + 1);
-  }
-  grpc::ChannelArguments arguments;
-  arguments.SetMaxReceiveMessageSize(256 << 20);
-  // A server that vanished without closing is noticed within half a minute, not at the next TCP timeout.
-  arguments.SetInt(GRPC_ARG_KEEPALIVE_TIME_MS, 20000);
-  arguments.SetInt(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, 10000);
-  client->channel_ = grpc::CreateCustomChannel(address.server, credentials, arguments);
-  client->stub_ = v1::Posewarp::NewStub(client->channel_);
+  client->connection_ = client::Connection::open(address, error);
+  if (!client->connection_) return nullptr;
   return client;
 }
 
-std::unique_ptr<grpc::ClientContext> ViewerClient::context(const std::string& rig_id) const {
-  auto context = std::make_unique<grpc::ClientContext>();
-  if (!token_.empty()) context->AddMetadata("authorization", "Bearer " + token_);
-  if (!rig_id.empty()) context->AddMetadata("x-posewarp-rig", rig_id);
-  return context;
-}
-
-CallError ViewerClient::list_rigs(std::vector<v1::Rig>* rigs) const {
-  v1::ListRigsRequest request;
-  request.set_page_size(1000);
-  for (;;) {
-    v1::ListRigsResponse page;
-    const auto call = context();
-    call->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
-    if (CallError e = error_of(stub_->ListRigs(call.get(), request, &page), server_); e.failed()) return e;
-    rigs->insert(rigs->end(), page.rigs().begin(), page.rigs().end());
-    if (page.next_page_token().empty()) return {};
-    request.set_page_token(page.next_page_token());
-  }
-}
+CallError ViewerClient::list_rigs(std::vector<v1::Rig>* rigs) const { return connection_->list_rigs(rigs); }
 
 CallError ViewerClient::rig(const std::string& rig_id, v1::Rig* rig) const {
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
   const auto call = context(rig_id);
-  return error_of(stub_->GetRig(call.get(), request, rig), server_);
+  return connection_->error_of(stub().GetRig(call.get(), request, rig));
 }
 
 CallError ViewerClient::assets(const std::string& rig_id, RigAssets* assets) const {
@@ -229,13 +153,13 @@ CallError ViewerClient::assets(const std::string& rig_id, RigAssets* assets) con
   request.set_rig_id(rig_id);
   request.set_format(v1::ASSET_FORMAT_RAW);
   const auto call = context(rig_id);
-  auto reader = stub_->GetRigAssets(call.get(), request);
+  auto reader = stub().GetRigAssets(call.get(), request);
   v1::RigAsset part;
   while (reader->Read(&part)) {
     if (part.has_skeleton()) assets->skeleton = part.skeleton();
     if (part.has_surface()) assets->surfaces.push_back(part.surface());
   }
-  return error_of(reader->Finish(), server_);
+  return connection_->error_of(reader->Finish());
 }
 
 PreviewSession::PreviewSession(const ViewerClient& client, const std::string& rig_id)
@@ -376,50 +300,21 @@ VolumeRequest::~VolumeRequest() {
 
 void VolumeRequest::run(v1::PoseRequest request) {
   auto reader = client_.stub().Pose(context_.get(), request);
-  v1::PoseResponse part;
   PosedVolumes result;
   result.pose_json = request.pose_json();
-  uint64_t label_total = 0, ct_total = 0;
-  while (reader->Read(&part)) {
-    uint64_t received = 0;
-    if (part.has_header()) {
-      result.header = part.header();
-      label_total = result.header.label_bytes(), ct_total = result.header.ct_bytes();
-    } else if (part.has_labels() || part.has_ct()) {
-      const v1::VolumeChunk& chunk = part.has_labels() ? part.labels() : part.ct();
-      std::string& bytes = part.has_labels() ? result.labels : result.ct;
-      uint64_t& total = part.has_labels() ? label_total : ct_total;
-      if (chunk.total_bytes() > 0) total = chunk.total_bytes();
-      if (chunk.offset() != bytes.size()) {
+  const grpc::Status status =
+      client::read_pose(*context_, *reader, &result, [this](uint64_t received, uint64_t expected) {
         std::lock_guard<std::mutex> lock(mutex_);
-        error_ = {grpc::StatusCode::DATA_LOSS, "the server sent a chunk out of order"};
-        context_->TryCancel();
-        break;
-      }
-      bytes += chunk.data();
-      received = chunk.data().size();
-    } else if (part.has_surface()) {
-      result.surfaces.push_back(part.surface());
-    } else if (part.has_report()) {
-      result.report = part.report();
-    }
-    std::lock_guard<std::mutex> lock(mutex_);
-    received_ += received;
-    expected_ = label_total + ct_total;
-  }
-  const grpc::Status status = reader->Finish();
+        received_ = received;
+        expected_ = expected;
+      });
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!error_.failed()) {
-    if (status.error_code() == grpc::StatusCode::UNAVAILABLE) {
-      error_ = {status.error_code(),
-                "cannot reach posewarp-server at " + client_.server() + ": " + status.error_message()};
-    } else if (!status.ok()) {
-      error_ = {status.error_code(), status.error_message()};
+  if (!error_.failed()) {  // not cancelled
+    if (!status.ok()) {
+      error_ = client_.connection().error_of(status);
     } else if (!request.want_labels() && !request.want_ct()) {  // a report only
       if (result.report.json().empty()) error_ = {grpc::StatusCode::DATA_LOSS, "the server's answer held no report"};
-    } else if (result.labels.empty() || result.ct.empty() ||
-               (request.format() == v1::FILE_FORMAT_RAW &&
-                (result.labels.size() != label_total || result.ct.size() != ct_total))) {
+    } else if (result.labels.empty() || result.ct.empty()) {
       error_ = {grpc::StatusCode::DATA_LOSS, "the server's answer ended before the volumes were complete"};
     }
   }

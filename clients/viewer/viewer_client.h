@@ -16,22 +16,15 @@
 #include <thread>
 #include <vector>
 
+#include "posewarp/client/connection.h"
+#include "posewarp/client/pose_answer.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 namespace posewarp::view {
 
-struct ServerAddress {
-  std::string server;      // HOST:PORT
-  std::string token_file;  // one line: the bearer token
-  std::string tls_ca;      // PEM of the CA that signed the server's certificate
-};
-
-// A call that failed, as the user should read it.
-struct CallError {
-  grpc::StatusCode code = grpc::StatusCode::OK;
-  std::string message;
-  bool failed() const { return code != grpc::StatusCode::OK; }
-};
+// Where the server is and how to reach it, and a failed call as the user should read it: the client library's.
+using ServerAddress = client::Address;
+using CallError = client::CallError;
 
 struct RigAssets {
   v1::Skeleton skeleton;
@@ -68,14 +61,15 @@ class ViewerClient {
   CallError rig(const std::string& rig_id, v1::Rig* rig) const;
   CallError assets(const std::string& rig_id, RigAssets* assets) const;
 
-  std::unique_ptr<grpc::ClientContext> context(const std::string& rig_id = "") const;
-  v1::Posewarp::Stub& stub() const { return *stub_; }
-  const std::string& server() const { return server_; }
+  std::unique_ptr<grpc::ClientContext> context(const std::string& rig_id = "") const {
+    return connection_->context(rig_id);
+  }
+  v1::Posewarp::Stub& stub() const { return connection_->stub(); }
+  const std::string& server() const { return connection_->server(); }
+  const client::Connection& connection() const { return *connection_; }
 
  private:
-  std::string server_, token_;
-  std::shared_ptr<grpc::Channel> channel_;
-  std::unique_ptr<v1::Posewarp::Stub> stub_;
+  std::unique_ptr<client::Connection> connection_;
 };
 
 // A preview stream for sliders: send() does not wait for an answer (it may wait briefly while gRPC's flow control
@@ -125,11 +119,7 @@ class PreviewSession {
 
 // A posed volume as the Pose call answers it: raw samples (the header's sample types) for the slices, or the bytes
 // of NIfTI files and the posed surfaces for saving.
-struct PosedVolumes {
-  v1::PoseHeader header;
-  std::string labels, ct;
-  std::vector<v1::Surface> surfaces;
-  v1::QualityReport report;
+struct PosedVolumes : client::PoseAnswer {
   std::string pose_json;  // what was asked
 };
 

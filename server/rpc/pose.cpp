@@ -31,8 +31,8 @@ grpc::Status PosewarpService::Pose(grpc::ServerContext* context, const v1::PoseR
   const api::Rig& rig = (*engine)->rig();
   const uint64_t chunk_bytes = checked->chunk_bytes;
   api::PoseRequest core = engine_request(std::move(checked).value(), *request, rig);
-  core.resample.max_output_bytes = output_budget(request->max_output_bytes());
-  core.resample.max_output_voxels = options_.max_output_voxels;
+  core.limits.max_bytes = output_budget(request->max_output_bytes());
+  core.limits.max_voxels = options_.max_output_voxels;
   Result<VolumeEncoding> encoding = volume_encoding(*request, rig);
   if (!encoding.ok()) return call.done(encoding.status());
   Result<api::PosePlan> plan = (*engine)->plan(core);

@@ -3,13 +3,14 @@
 #include <set>
 
 #include "convert.h"
+#include "posewarp/api/rig_info.h"
 #include "service.h"
 
 namespace posewarp::server {
 namespace {
 
 // One surface of a rig as an asset: VTP bytes or the proto's mesh, with its role for a viewer.
-Result<v1::RigAsset> surface_asset(const surface::SurfaceMesh& mesh, const std::string& role, v1::AssetFormat format) {
+Result<v1::RigAsset> surface_asset(const SurfaceMesh& mesh, const std::string& role, v1::AssetFormat format) {
   v1::RigAsset part;
   if (format == v1::ASSET_FORMAT_VTP) {
     POSEWARP_ASSIGN_OR_RETURN(std::string vtp, api::surface_to_vtp_bytes(mesh));
@@ -79,12 +80,9 @@ grpc::Status PosewarpService::GetRigAssets(grpc::ServerContext* context, const v
   put_skeleton(rig, asset.mutable_skeleton());
   if (!call.write(writer, asset)) return call.done(client_gone());
   // Each surface's role, for a viewer: a bone segment's label, the skin (label 0), or another tissue.
-  std::set<Label> bone_labels;
-  for (const rig::Segment& segment : rig.skeleton.segments)
-    bone_labels.insert(segment.labels.begin(), segment.labels.end());
-  for (const surface::SurfaceMesh& mesh : rig.surfaces) {
-    const std::string role = mesh.label == 0 ? "skin" : bone_labels.count(mesh.label) ? "bone" : "tissue";
-    Result<v1::RigAsset> part = surface_asset(mesh, role, request->format());
+  const std::vector<std::string> roles = api::surface_roles(rig);
+  for (size_t i = 0; i < rig.surfaces.size(); ++i) {
+    Result<v1::RigAsset> part = surface_asset(rig.surfaces[i], roles[i], request->format());
     if (!part.ok()) return call.done(part.status());
     if (!call.write(writer, *part)) return call.done(client_gone());
   }

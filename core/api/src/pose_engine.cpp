@@ -1,4 +1,5 @@
 // PoseEngine: forward kinematics, skinning, tet maps, the volume warp and the quality report, timed per stage.
+// A pose runs as numbered steps (pose_unguarded), each a function of its own over what create() prepared.
 #include "posewarp/api/pose_engine.h"
 
 #include <Eigen/Dense>
@@ -7,20 +8,82 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <mutex>
-#include <new>
 #include <unordered_map>
 #include <utility>
 
-#include "posewarp/common/stopwatch.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/fem/soft_tissue.h"
 #include "posewarp/pose/forward_kinematics.h"
+#include "posewarp/report/quality_report.h"
+#include "posewarp/resample/tet_warp.h"
+#include "posewarp/skinning/skinning.h"
+#include "posewarp/skinning/tet_maps.h"
 
 namespace posewarp::api {
 
-struct PoseEngine::Fem {
+namespace {
+
+// The api's names for the stages' settings.
+skinning::Method stage_method(Method method) {
+  switch (method) {
+    case Method::kDqs: return skinning::Method::kDqs;
+    case Method::kLbs: return skinning::Method::kLbs;
+    case Method::kFem: return skinning::Method::kFem;
+    case Method::kCor: break;
+  }
+  return skinning::Method::kCor;
+}
+
+resample::GridPolicy stage_grid(GridPolicy grid) {
+  switch (grid) {
+    case GridPolicy::kGrow: return resample::GridPolicy::kGrow;
+    case GridPolicy::kGiven: return resample::GridPolicy::kGiven;
+    case GridPolicy::kInput: break;
+  }
+  return resample::GridPolicy::kInput;
+}
+
+resample::ResampleParams stage_resample(const OutputLimits& limits) {
+  resample::ResampleParams params;
+  params.max_output_voxels = limits.max_voxels;
+  params.max_output_bytes = limits.max_bytes;
+  return params;
+}
+
+}  // namespace
+
+std::string report_to_json(const QualityReport& report) {
+  return report::to_json(report);
+}
+
+std::string_view method_name(Method method) {
+  return skinning::method_name(stage_method(method));
+}
+
+Result<Method> method_from_name(std::string_view name) {
+  POSEWARP_ASSIGN_OR_RETURN(const skinning::Method method, skinning::method_from_name(name));
+  for (const Method m : {Method::kCor, Method::kDqs, Method::kLbs, Method::kFem}) {
+    if (stage_method(m) == method) return m;
+  }
+  return invalid_argument_error("unknown method '" + std::string(name) + "'");
+}
+
+// The preview's share of the rig: the tets holding a surface vertex, on their own vertices, with those vertices'
+// weights and centres, and the surfaces embedded in them.
+struct PreviewRig {
+  TetMesh mesh;
+  SkinWeights weights;
+  RotationCentres centres;
+  std::vector<mapping::Embedding> embeddings;
+};
+
+// The fem method's share (its mesh topology, the report's skin vertices, the last solve), made by the first request
+// that needs it and shared by copies of the engine.
+struct FemState {
   std::once_flag once;
   fem::Topology topology;
   std::once_flag skin_once;
@@ -28,12 +91,27 @@ struct PoseEngine::Fem {
   fem::SolveCache cache;      // the last solve's factored system: a slider's next pose frees the same vertices
 };
 
-Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
-  return guarded("preparing the rig for posing",
-                 [&] { return in_arena(hooks.threads, [&] { return create_unguarded(std::move(rig), hooks); }); });
+struct PoseEngine::Prepared {
+  Rig rig;
+  skinning::RestTetFrames frames;
+  std::map<Label, int64_t> rest_label_counts;  // the report's "before" counts, once
+  std::vector<int32_t> rest_owner;   // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
+  resample::BoneVoxels bone_voxels;  // which source voxel is which bone: bones rigid at voxel level
+  std::vector<int16_t> region;       // per source voxel: nearest-bone region (skin contacts)
+  std::vector<int16_t> tet_region;   // per tet: the region at its rest centroid
+  std::vector<uint8_t> separated;    // regions that must not show each other's tissue
+  float ct_minimum = 0.0f;           // the CT's lowest value: the warp's background is never below it
+  PreviewRig preview;
+  mutable FemState fem;
+};
+
+const Rig& PoseEngine::rig() const {
+  return prepared_->rig;
 }
 
 namespace {
+
+using Prepared = PoseEngine::Prepared;
 
 // The segments' rigid transforms as the skinning takes them.
 skinning::SegmentTransforms segment_transforms(const std::vector<pose::RigidTransform>& transforms) {
@@ -65,8 +143,7 @@ std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const p
 }
 
 // Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
-template <typename Preview>
-void prepare_preview(const Rig& rig, Preview& preview) {
+void prepare_preview(const Rig& rig, PreviewRig& preview) {
   std::unordered_map<int32_t, int32_t> tet_index, vertex_index;
   std::vector<int32_t> tets, vertices;
   for (const mapping::Embedding& e : rig.embeddings) {
@@ -106,197 +183,52 @@ void prepare_preview(const Rig& rig, Preview& preview) {
   preview.mesh.segment_count = rig.mesh.segment_count;
 }
 
-}  // namespace
-
-Result<Eigen::MatrixXd> PoseEngine::posed_vertices(skinning::Method method, const skinning::SegmentTransforms& segments,
-                                                   const ProgressHooks& hooks) const {
-  if (method != skinning::Method::kFem) {
-    return skinning::skin(method, rig_.mesh.vertices, rig_.weights, rig_.centres, segments);
-  }
-  POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinning::skin(skinning::Method::kCor, rig_.mesh.vertices,
-                                                                       rig_.weights, rig_.centres, segments));
-  return soft_tissue(warm, segments, hooks);
+// The segments' transforms of a pose; a pose that does not fit the rig is INVALID_ARGUMENT naming where it came
+// from. forward_kinematics validates the pose: the one check a pose gets.
+Result<std::vector<RigidTransform>> kinematics(const Prepared& p, const Pose& pose, const std::string& source) {
+  Result<std::vector<RigidTransform>> transforms = pose::forward_kinematics(p.rig.skeleton, pose);
+  if (!transforms.ok() && !source.empty()) return transforms.status().with_context(source);
+  return transforms;
 }
 
-Result<Eigen::MatrixXd> PoseEngine::soft_tissue(const Eigen::MatrixXd& warm, const skinning::SegmentTransforms& segments,
-                                                const ProgressHooks& hooks, int max_iterations,
-                                                const FemOptions& options) const {
-  std::call_once(fem_->once, [&] { fem_->topology = fem::topology(rig_.mesh); });
+// The soft tissue's steady state from skinned (CoR) vertices. With `max_iterations` (a preview's), at most that many,
+// going on from where the last solve on the same free vertices ended; 0: the solve's own, from the warm start.
+Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& warm,
+                                    const skinning::SegmentTransforms& segments, const ProgressHooks& hooks,
+                                    int max_iterations = 0, const FemOptions& options = {}) {
+  std::call_once(p.fem.once, [&] { p.fem.topology = fem::topology(p.rig.mesh); });
   POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
   if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
     params.max_iterations = max_iterations;
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
   }
-  return fem::solve({rig_.mesh, frames_, fem_->topology, rig_.weights, segments, warm, &fem_->cache}, params, hooks);
+  return fem::solve({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, warm, &p.fem.cache}, params, hooks);
 }
 
-Result<PreviewResult> PoseEngine::preview(const pose::Pose& pose, skinning::Method method) const {
-  return guarded("previewing the pose", [&]() -> Result<PreviewResult> {
-    POSEWARP_RETURN_IF_ERROR(pose::validate_pose(pose, rig_.skeleton));
-    POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
-                              pose::forward_kinematics(rig_.skeleton, pose));
-    const skinning::SegmentTransforms segments = segment_transforms(transforms);
-    PreviewResult result;
-    if (method == skinning::Method::kFem) {
-      // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
-      // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
-      // slider moves and settles when it stops.
-      constexpr int kPreviewIterations = 5;
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinning::skin(skinning::Method::kCor, rig_.mesh.vertices,
-                                                                           rig_.weights, rig_.centres, segments));
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(warm, segments, {}, kPreviewIterations));
-      for (const mapping::Embedding& e : rig_.embeddings) {
-        result.surface_vertices.push_back(mapping::deform_points(e, rig_.mesh, posed));
-      }
-    } else {
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, skinning::skin(method, preview_.mesh.vertices,
-                                                                            preview_.weights, preview_.centres, segments));
-      for (const mapping::Embedding& e : preview_.embeddings) {
-        result.surface_vertices.push_back(mapping::deform_points(e, preview_.mesh, posed));
-      }
-    }
-    // A joint centre moves with its parent segment (the child turns about it).
-    for (const rig::Joint& joint : rig_.skeleton.joints) {
-      result.joint_centres.push_back(transforms[static_cast<size_t>(joint.parent)].apply(joint.centre_mm));
-    }
-    return result;
-  });
+// The skinned tet vertices of a method other than fem (fem starts from CoR's: soft_tissue).
+Result<Eigen::MatrixXd> skinned(const Prepared& p, Method method, const skinning::SegmentTransforms& segments) {
+  const skinning::Method m = method == Method::kFem ? skinning::Method::kCor : stage_method(method);
+  return skinning::skin(m, p.rig.mesh.vertices, p.rig.weights, p.rig.centres, segments);
 }
 
-Result<PoseEngine> PoseEngine::create_unguarded(Rig rig, const ProgressHooks& hooks) {
-  if (rig.labels.empty()) {
-    return failed_precondition_error("the rig holds no source volume to warp; rebuild it with this posewarp version");
-  }
-  PoseEngine engine;  // create() runs this behind the exception wall ("preparing the rig for posing")
-  engine.frames_ = skinning::rest_tet_frames(rig.mesh);
-  const ImageGeometry& g = rig.labels.geometry();
-  POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp identity,
-                            resample::TetWarp::build(rig.mesh, rig.mesh.vertices, g, g,
-                                                     Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(), nullptr,
-                                                     {}, hooks));
-  engine.rest_owner_ = identity.owner();
-  std::vector<std::vector<Label>> segment_labels;
-  for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
-  POSEWARP_ASSIGN_OR_RETURN(engine.bone_voxels_, resample::bone_voxels(rig.labels, segment_labels));
-  // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
-  POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
-                            labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
-  POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
-  engine.region_ = std::move(regions.segment);
-  engine.separated_ = rig::separated_segments(rig.skeleton);
-  engine.tet_region_.assign(static_cast<size_t>(rig.mesh.tet_count()), -1);
-  for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
-    const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
-    // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
-    // undefined; such a centre lies in no voxel.
-    auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
-    const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
-    if (rig.labels.contains(i, j, k)) engine.tet_region_[static_cast<size_t>(t)] = engine.region_[static_cast<size_t>(g.offset(i, j, k))];
-  }
-  engine.rest_label_counts_ = report::label_counts(rig.labels);
-  if (rig.ct) {
-    engine.ct_minimum_ = 0.0f;
-    for (const float v : rig.ct->voxels()) engine.ct_minimum_ = std::min(engine.ct_minimum_, v);
-  }
-  prepare_preview(rig, engine.preview_);
-  engine.fem_ = std::make_shared<Fem>();
-  engine.rig_ = std::move(rig);
-  return engine;
-}
-
-Result<PosePlan> PoseEngine::check_output_budget(const PoseRequest& request, const ImageGeometry& grid) const {
-  // Per output voxel the warp's owner code, labels (stored as 32-bit), CT and the inverse field; the forward field
-  // per source voxel.
-  PosePlan plan;
-  plan.output_grid = grid;
-  const int64_t per_voxel = 4 + (request.want_labels ? 4 : 0) + (request.want_ct && rig_.ct ? 4 : 0) +
-                            (request.want_fields ? 12 : 0);
-  plan.output_bytes = grid.voxel_count() * per_voxel + (request.want_fields ? rig_.labels.voxel_count() * 12 : 0);
-  plan.budget_bytes = request.resample.max_output_bytes;
-  if (plan.budget_bytes <= 0) {
-    plan.budget_bytes = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) / 2;
-  }
-  if (plan.output_bytes > plan.budget_bytes) {
-    return resource_exhausted_error("this pose's output (" + grid.describe() + ") would take " +
-                                    std::to_string(plan.output_bytes >> 20) + " MB, over the budget of " +
-                                    std::to_string(plan.budget_bytes >> 20) +
-                                    " MB; use a coarser or smaller grid, or leave out the fields or the CT");
-  }
-  return plan;
-}
-
-Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
-  return guarded("planning the pose", [&]() -> Result<PosePlan> {
-    if (request.method == skinning::Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
-    if (!(request.want_labels || request.want_ct || request.want_fields)) return PosePlan{};
-    const rig::Skeleton& skeleton = rig_.skeleton;
-    POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
-    Eigen::MatrixXd posed;
-    if (request.grid == resample::GridPolicy::kGrow) {  // the grown grid holds the posed body
-      POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
-                                pose::forward_kinematics(skeleton, request.pose));
-      const skinning::SegmentTransforms segments = segment_transforms(transforms);
-      // fem moves only soft tissue between bones that CoR has placed: its grid is CoR's (the pose checks its own).
-      const skinning::Method method =
-          request.method == skinning::Method::kFem ? skinning::Method::kCor : request.method;
-      POSEWARP_ASSIGN_OR_RETURN(posed, posed_vertices(method, segments, {}));
-    }
-    POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry grid,
-                              resample::output_geometry(request.grid, rig_.labels.geometry(), posed,
-                                                        request.given_grid ? &*request.given_grid : nullptr,
-                                                        request.resample));
-    return check_output_budget(request, grid);
-  });
-}
-
-Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
-  return guarded("posing", [&] { return in_arena(hooks.threads, [&] { return pose_unguarded(request, hooks); }); });
-}
-
-Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const ProgressHooks& hooks) const {
-  PoseResult result;
-  report::QualityReport& qr = result.report;
-  StageTimer clock(qr.stage_seconds);
-  qr.pose_name = request.pose.name;
-  qr.method = std::string(skinning::method_name(request.method));
-  const TetMesh& mesh = rig_.mesh;
-  const rig::Skeleton& skeleton = rig_.skeleton;
-
-  // 1. Forward kinematics: one rigid transform per segment.
-  POSEWARP_RETURN_IF_ERROR(pose::validate_pose(request.pose, skeleton));
-  if (request.method == skinning::Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
-  POSEWARP_ASSIGN_OR_RETURN(const std::vector<pose::RigidTransform> transforms,
-                            pose::forward_kinematics(skeleton, request.pose));
-  const skinning::SegmentTransforms segments = segment_transforms(transforms);
-  result.segment_rotation = segments.rotation;
-  result.segment_translation = segments.translation;
-  clock.lap("kinematics");
-
-  // 2. Skinning of the tet vertices (fem: CoR, then the soft tissue's steady state).
-  const bool fem = request.method == skinning::Method::kFem;
-  POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices,
-                            posed_vertices(fem ? skinning::Method::kCor : request.method, segments, hooks));
-  clock.lap("skinning");
-  if (fem) {
-    POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices, soft_tissue(result.posed_vertices, segments, hooks, 0, request.fem));
-    clock.lap("fem");
-  }
-
-  // 3. Mesh quality: inversions, volume change, bone rigidity.
-  const Eigen::VectorXd det = skinning::tet_determinants(mesh, frames_, result.posed_vertices);
-  qr.mesh = report::mesh_change(mesh, det, frames_.rest_volume);
-  std::vector<std::string> names;
-  for (const rig::Segment& s : skeleton.segments) names.push_back(s.name);
+// Step 3 of a pose: mesh quality (inversions, volume change, bone rigidity), joints past their range and the soft
+// tissue and skin around each moved joint.
+void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTransforms& segments,
+                 const std::vector<std::string>& names, PoseResult& result) {
+  const TetMesh& mesh = p.rig.mesh;
+  const rig::Skeleton& skeleton = p.rig.skeleton;
+  QualityReport& qr = result.report;
+  const Eigen::VectorXd det = skinning::tet_determinants(mesh, p.frames, result.posed_vertices);
+  qr.mesh = report::mesh_change(mesh, det, p.frames.rest_volume);
   qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
-  const ImageGeometry& source = rig_.labels.geometry();
+  const ImageGeometry& source = p.rig.labels.geometry();
   const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
-  for (const report::SegmentRigidity& s : qr.rigidity) qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
+  for (const SegmentRigidity& s : qr.rigidity)
+    qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
   qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
   std::vector<std::pair<std::string, Eigen::Vector3d>> moved_joints;
-  for (const pose::JointRotation& rotation : request.pose.joints) {
+  for (const JointRotation& rotation : pose.joints) {
     const int j = skeleton.joint_index(rotation.joint);
     const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
     const Eigen::Matrix3d turn = pose::joint_rotation_in_lps(joint, rotation);
@@ -313,151 +245,377 @@ Result<PoseResult> PoseEngine::pose_unguarded(const PoseRequest& request, const 
     }
   }
   const std::vector<double> radii{50.0, 100.0};
-  qr.joint_regions = report::joint_region_changes(mesh, det, frames_.rest_volume, moved_joints, radii);
-  if (!moved_joints.empty()) std::call_once(fem_->skin_once, [&] { fem_->skin = fem::skin_vertices(mesh); });
+  qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
+  if (!moved_joints.empty()) std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(mesh); });
   for (size_t j = 0; j < moved_joints.size(); ++j) {
     const std::vector<fem::Penetration> inside =
-        fem::penetration(mesh, result.posed_vertices, fem_->skin, moved_joints[j].second, radii);
+        fem::penetration(mesh, result.posed_vertices, p.fem.skin, moved_joints[j].second, radii);
     for (size_t r = 0; r < radii.size(); ++r) {
-      report::JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
+      JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
       change.skin_vertices = inside[r].skin_vertices;
       change.skin_inside_tissue = inside[r].inside_tissue;
       change.skin_inside_bone = inside[r].inside_bone;
     }
   }
+}
+
+// Step 4: each surface vertex follows its rest tet's barycentric combination of posed tet vertices.
+Status pose_surfaces(const Prepared& p, const PoseRequest& request, PoseResult& result) {
+  const TetMesh& mesh = p.rig.mesh;
+  for (size_t i = 0; i < p.rig.surfaces.size(); ++i) {
+    SurfaceMesh posed = p.rig.surfaces[i];
+    posed.vertices = mapping::deform_points(p.rig.embeddings[i], mesh, result.posed_vertices);
+    result.surfaces.push_back(std::move(posed));
+  }
+  for (const SurfaceMesh& extra : request.extra_surfaces) {
+    POSEWARP_ASSIGN_OR_RETURN(const mapping::Embedding e, mapping::embed_points(mesh, extra.vertices, {}));
+    SurfaceMesh posed = extra;
+    posed.vertices = mapping::deform_points(e, mesh, result.posed_vertices);
+    result.surfaces.push_back(std::move(posed));
+  }
+  return ok_status();
+}
+
+// The warp's figures in the report.
+void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& names, PoseResult& result) {
+  QualityReport& qr = result.report;
+  const resample::WarpStats& stats = warp.stats();
+  qr.covered_voxels = stats.covered_voxels;
+  qr.conflicted_voxels = stats.conflicted_voxels;
+  qr.extrapolated_voxels = stats.extrapolated_voxels;
+  qr.background_voxels = stats.background_voxels;
+  qr.degenerate_tets = stats.degenerate_tets;
+  qr.rasterized_tets = warp.rasterized_tets();
+  qr.bone_voxels = stats.bone_voxels;
+  qr.skin_contact_voxels = stats.contact_guarded_voxels;
+  const ImageGeometry& g = result.output_grid;
+  for (const auto& [pair, count] : stats.bone_overlap_voxels) {
+    qr.bone_overlaps.push_back({names[static_cast<size_t>(pair.first)], names[static_cast<size_t>(pair.second)], count,
+                                static_cast<double>(count) * g.spacing[0] * g.spacing[1] * g.spacing[2] / 1000.0});
+  }
+}
+
+// The label report, which needs only the posed labels: counts before and after, names, each bone's voxel deviation.
+void report_labels(const Prepared& p, const resample::TetWarp& warp, const LabelVolume& posed,
+                   const std::vector<std::string>& names, QualityReport& qr) {
+  qr.labels = report::label_change(p.rest_label_counts, report::label_counts(posed));
+  for (const auto& [value, counts] : qr.labels.voxels) {
+    if (const labels::LabelEntry* entry = p.rig.label_map.find(value)) qr.label_names[value] = entry->name;
+  }
+  const std::vector<std::pair<double, double>> deviation = warp.bone_deviation_mm();
+  for (size_t k = 0; k < deviation.size(); ++k) {
+    qr.voxel_rigidity.push_back({names[k], deviation[k].first, deviation[k].second});
+    qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
+  }
+}
+
+// The forward field on the source grid: each bone voxel moves with its bone, every other source voxel with the rest
+// tet that covers it, a voxel outside the mesh with the root.
+void forward_field(const Prepared& p, const skinning::SegmentTransforms& segments, const RigidTransform& root,
+                   PoseResult& result) {
+  const TetMesh& mesh = p.rig.mesh;
+  const ImageGeometry& source = p.rig.labels.geometry();
+  result.forward_field.assign(static_cast<size_t>(source.voxel_count()) * 3, 0.0f);
+  const Eigen::MatrixXd& posed = result.posed_vertices;
+  parallel_for(0, source.size[2], 1, [&](int64_t k0, int64_t k1) {
+    for (int64_t k = k0; k < k1; ++k) {
+      for (int64_t j = 0; j < source.size[1]; ++j) {
+        for (int64_t i = 0; i < source.size[0]; ++i) {
+          const int64_t v = source.offset(i, j, k);
+          const Vec3 at = source.index_to_physical({double(i), double(j), double(k)});
+          const Eigen::Vector3d x(at[0], at[1], at[2]);
+          int32_t t = p.rest_owner[static_cast<size_t>(v)];
+          if (t <= -2) t = -2 - t;
+          Eigen::Vector3d moved;
+          const int16_t bone = p.bone_voxels.segment[static_cast<size_t>(v)];
+          if (bone != resample::BoneVoxels::kNone) {  // a bone voxel moves with its bone, exactly
+            moved = segments.rotation[static_cast<size_t>(bone)] * x + segments.translation[static_cast<size_t>(bone)];
+          } else if (t >= 0) {
+            Eigen::Matrix3d inv;
+            for (int r = 0; r < 3; ++r)
+              for (int c = 0; c < 3; ++c) inv(r, c) = p.frames.rest_inverse(t, 3 * r + c);
+            const Eigen::Vector3d lambda = inv * (x - mesh.vertices.row(mesh.tets(t, 0)).transpose());
+            moved = posed.row(mesh.tets(t, 0)).transpose();
+            for (int c = 0; c < 3; ++c) {
+              moved += lambda(c) * (posed.row(mesh.tets(t, c + 1)) - posed.row(mesh.tets(t, 0))).transpose();
+            }
+          } else {
+            moved = root.apply(x);
+          }
+          for (int a = 0; a < 3; ++a)
+            result.forward_field[static_cast<size_t>(3 * v + a)] = static_cast<float>(moved(a) - x(a));
+        }
+      }
+    }
+  });
+}
+
+// The segments' names, in the skeleton's order (the report's rows).
+std::vector<std::string> segment_names(const rig::Skeleton& skeleton) {
+  std::vector<std::string> names;
+  for (const rig::Segment& s : skeleton.segments) names.push_back(s.name);
+  return names;
+}
+
+// Per tet: the body region at its rest centroid (-1 outside the grid), for the warp's skin-contact guard.
+std::vector<int16_t> tet_regions(const Rig& rig, const std::vector<int16_t>& region) {
+  const ImageGeometry& g = rig.labels.geometry();
+  std::vector<int16_t> tet_region(static_cast<size_t>(rig.mesh.tet_count()), -1);
+  for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
+    const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
+    // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
+    // undefined; such a centre lies in no voxel.
+    auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
+    const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
+    if (rig.labels.contains(i, j, k))
+      tet_region[static_cast<size_t>(t)] = region[static_cast<size_t>(g.offset(i, j, k))];
+  }
+  return tet_region;
+}
+
+}  // namespace
+
+Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
+  return guarded("preparing the rig for posing", [&] {
+    return in_arena(hooks.threads, [&]() -> Result<PoseEngine> {
+      if (rig.labels.empty()) {
+        return failed_precondition_error(
+            "the rig holds no source volume to warp; rebuild it with this posewarp version");
+      }
+      auto p = std::make_shared<Prepared>();
+      p->frames = skinning::rest_tet_frames(rig.mesh);
+      const ImageGeometry& g = rig.labels.geometry();
+      POSEWARP_ASSIGN_OR_RETURN(
+          resample::TetWarp identity,
+          resample::TetWarp::build({.rest = rig.mesh, .posed = rig.mesh.vertices, .source = g, .output = g}, hooks));
+      p->rest_owner = identity.owner();
+      std::vector<std::vector<Label>> segment_labels;
+      for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
+      POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels, resample::bone_voxels(rig.labels, segment_labels));
+      // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
+      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
+                                labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
+      POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
+      p->region = std::move(regions.segment);
+      p->separated = rig::separated_segments(rig.skeleton);
+      p->tet_region = tet_regions(rig, p->region);
+      p->rest_label_counts = report::label_counts(rig.labels);
+      if (rig.ct) {
+        for (const float v : rig.ct->voxels()) p->ct_minimum = std::min(p->ct_minimum, v);
+      }
+      prepare_preview(rig, p->preview);
+      p->rig = std::move(rig);
+      return PoseEngine(std::move(p));
+    });
+  });
+}
+
+Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const {
+  return guarded("previewing the pose", [&]() -> Result<PreviewResult> {
+    const Prepared& p = *prepared_;
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms, kinematics(p, pose, ""));
+    const skinning::SegmentTransforms segments = segment_transforms(transforms);
+    PreviewResult result;
+    if (method == Method::kFem) {
+      // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
+      // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
+      // slider moves and settles when it stops.
+      constexpr int kPreviewIterations = 5;
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinned(p, Method::kCor, segments));
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, kPreviewIterations));
+      for (const mapping::Embedding& e : p.rig.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, p.rig.mesh, posed));
+      }
+    } else {
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed,
+                                skinning::skin(stage_method(method), p.preview.mesh.vertices, p.preview.weights,
+                                               p.preview.centres, segments));
+      for (const mapping::Embedding& e : p.preview.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, p.preview.mesh, posed));
+      }
+    }
+    // A joint centre moves with its parent segment (the child turns about it).
+    for (const rig::Joint& joint : p.rig.skeleton.joints) {
+      result.joint_centres.push_back(transforms[static_cast<size_t>(joint.parent)].apply(joint.centre_mm));
+    }
+    return result;
+  });
+}
+
+namespace {
+
+// The plan for an output grid; RESOURCE_EXHAUSTED over the budget.
+Result<PosePlan> check_output_budget(const Prepared& p, const PoseRequest& request, const ImageGeometry& grid) {
+  // Per output voxel the warp's owner code, labels (stored as 32-bit), CT and the inverse field; the forward field
+  // per source voxel.
+  PosePlan plan;
+  plan.output_grid = grid;
+  const int64_t per_voxel =
+      4 + (request.want_labels ? 4 : 0) + (request.want_ct && p.rig.ct ? 4 : 0) + (request.want_fields ? 12 : 0);
+  plan.output_bytes = grid.voxel_count() * per_voxel + (request.want_fields ? p.rig.labels.voxel_count() * 12 : 0);
+  plan.budget_bytes = request.limits.max_bytes;
+  if (plan.budget_bytes <= 0) {
+    plan.budget_bytes = static_cast<int64_t>(::sysconf(_SC_PHYS_PAGES)) * ::sysconf(_SC_PAGE_SIZE) / 2;
+  }
+  if (plan.output_bytes > plan.budget_bytes) {
+    return resource_exhausted_error("this pose's output (" + grid.describe() + ") would take " +
+                                    std::to_string(plan.output_bytes >> 20) + " MB, over the budget of " +
+                                    std::to_string(plan.budget_bytes >> 20) +
+                                    " MB; use a coarser or smaller grid, or leave out the fields or the CT");
+  }
+  return plan;
+}
+
+// The output grid of a request, given the posed tet vertices (used only to grow the grid).
+Result<ImageGeometry> output_grid(const Prepared& p, const PoseRequest& request, const Eigen::MatrixXd& posed) {
+  return resample::output_geometry(stage_grid(request.grid), p.rig.labels.geometry(), posed,
+                                   request.given_grid ? &*request.given_grid : nullptr, stage_resample(request.limits));
+}
+
+}  // namespace
+
+Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
+  return guarded("planning the pose", [&]() -> Result<PosePlan> {
+    const Prepared& p = *prepared_;
+    if (request.method == Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
+    if (!(request.want_labels || request.want_ct || request.want_fields)) return PosePlan{};
+    Eigen::MatrixXd posed;
+    if (request.grid == GridPolicy::kGrow) {  // the grown grid holds the posed body
+      POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms,
+                                kinematics(p, request.pose, request.pose_source));
+      // fem moves only soft tissue between bones that CoR has placed: its grid is CoR's (the pose checks its own).
+      POSEWARP_ASSIGN_OR_RETURN(posed, skinned(p, request.method, segment_transforms(transforms)));
+    } else {
+      Status fits = pose::validate_pose(request.pose, p.rig.skeleton);
+      if (!fits.ok() && !request.pose_source.empty()) fits = fits.with_context(request.pose_source);
+      POSEWARP_RETURN_IF_ERROR(fits);
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry grid, output_grid(p, request, posed));
+    return check_output_budget(p, request, grid);
+  });
+}
+
+namespace {
+
+// Step 5 of a pose: the volume warp, each volume handed to its callback as soon as it is complete (a server sends it
+// while the rest is computed), then the label report, which needs only the labels, then the fields.
+Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinning::SegmentTransforms& segments,
+                    const RigidTransform& root, const std::vector<std::string>& names, const ProgressHooks& hooks,
+                    StageTimer& clock, PoseResult& result) {
+  QualityReport& qr = result.report;
+  POSEWARP_ASSIGN_OR_RETURN(result.output_grid, output_grid(p, request, result.posed_vertices));
+  POSEWARP_RETURN_IF_ERROR(check_output_budget(p, request, result.output_grid).status());
+  resample::ResampleParams params = stage_resample(request.limits);
+  if (p.rig.ct) params.intensity_background = std::max(p.ct_minimum, params.intensity_background);
+  resample::RigidBones bones;
+  bones.voxels = &p.bone_voxels;
+  bones.rotation = segments.rotation;
+  bones.translation = segments.translation;
+  bones.region = &p.region;
+  bones.tet_region = &p.tet_region;
+  bones.separated = &p.separated;
+  POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
+                            resample::TetWarp::build({.rest = p.rig.mesh,
+                                                      .posed = result.posed_vertices,
+                                                      .source = p.rig.labels.geometry(),
+                                                      .output = result.output_grid,
+                                                      .background_rotation = root.rotation,
+                                                      .background_translation = root.translation,
+                                                      .rest_owner = &p.rest_owner,
+                                                      .params = params,
+                                                      .bones = &bones},
+                                                     hooks));
+  report_warp(warp, names, result);
+  clock.lap("warp-prepare");
+  std::shared_ptr<const LabelVolume> handed_out;  // the labels given to labels_ready: the report reads them
+  const LabelVolume* posed_labels = nullptr;
+  if (request.want_labels) {
+    POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(p.rig.labels));
+    clock.lap("warp-labels");
+    if (request.labels_ready) {
+      handed_out = std::make_shared<const LabelVolume>(std::move(labels));
+      posed_labels = handed_out.get();
+      request.labels_ready(handed_out);
+    } else {
+      posed_labels = &result.labels.emplace(std::move(labels));
+    }
+  }
+  if (request.want_ct && p.rig.ct) {
+    const resample::Interpolation interpolation = request.ct_interpolation == Interpolation::kNearest
+                                                      ? resample::Interpolation::kNearest
+                                                      : resample::Interpolation::kLinear;
+    POSEWARP_ASSIGN_OR_RETURN(IntensityVolume ct, warp.warp_intensities(*p.rig.ct, interpolation));
+    clock.lap("warp-ct");
+    if (request.ct_ready) {
+      request.ct_ready(std::make_shared<const IntensityVolume>(std::move(ct)));
+    } else {
+      result.ct = std::move(ct);
+    }
+  }
+  if (request.want_labels) {
+    POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
+    report_labels(p, warp, *posed_labels, names, qr);
+    clock.lap("report-labels");
+  }
+  if (request.want_fields) {
+    result.inverse_field = warp.inverse_displacement();
+    forward_field(p, segments, root, result);
+    clock.lap("fields");
+  }
+  return ok_status();
+}
+
+// A pose's steps, timed: 1 forward kinematics, 2 skinning (fem: CoR, then the soft tissue's steady state), 3 the mesh
+// report, 4 surfaces, 5 the volume warp with its report.
+Result<PoseResult> pose_unguarded(const Prepared& p, const PoseRequest& request, const ProgressHooks& hooks) {
+  PoseResult result;
+  QualityReport& qr = result.report;
+  StageTimer clock(qr.stage_seconds);
+  qr.pose_name = request.pose.name;
+  qr.method = std::string(method_name(request.method));
+
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms,
+                            kinematics(p, request.pose, request.pose_source));
+  if (request.method == Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
+  const skinning::SegmentTransforms segments = segment_transforms(transforms);
+  result.segment_rotation = segments.rotation;
+  result.segment_translation = segments.translation;
+  clock.lap("kinematics");
+
+  POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices, skinned(p, request.method, segments));
+  clock.lap("skinning");
+  if (request.method == Method::kFem) {
+    POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices,
+                              soft_tissue(p, result.posed_vertices, segments, hooks, 0, request.fem));
+    clock.lap("fem");
+  }
+
+  const std::vector<std::string> names = segment_names(p.rig.skeleton);
+  report_mesh(p, request.pose, segments, names, result);
   clock.lap("report-mesh");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
 
-  // 4. Surfaces: each vertex follows its rest tet's barycentric combination of posed tet vertices.
   if (request.want_surfaces) {
-    for (size_t i = 0; i < rig_.surfaces.size(); ++i) {
-      surface::SurfaceMesh posed = rig_.surfaces[i];
-      posed.vertices = mapping::deform_points(rig_.embeddings[i], mesh, result.posed_vertices);
-      result.surfaces.push_back(std::move(posed));
-    }
-    for (const surface::SurfaceMesh& extra : request.extra_surfaces) {
-      POSEWARP_ASSIGN_OR_RETURN(const mapping::Embedding e, mapping::embed_points(mesh, extra.vertices, {}));
-      surface::SurfaceMesh posed = extra;
-      posed.vertices = mapping::deform_points(e, mesh, result.posed_vertices);
-      result.surfaces.push_back(std::move(posed));
-    }
+    POSEWARP_RETURN_IF_ERROR(pose_surfaces(p, request, result));
     clock.lap("surfaces");
   }
 
-  // 5. The volume warp.
   if (request.want_labels || request.want_ct || request.want_fields) {
-    const pose::RigidTransform& root = transforms[static_cast<size_t>(skeleton.root)];
-    POSEWARP_ASSIGN_OR_RETURN(result.output_grid,
-                              resample::output_geometry(request.grid, source, result.posed_vertices,
-                                                        request.given_grid ? &*request.given_grid : nullptr,
-                                                        request.resample));
-    POSEWARP_RETURN_IF_ERROR(check_output_budget(request, result.output_grid).status());
-    resample::ResampleParams params = request.resample;
-    if (rig_.ct) params.intensity_background = std::max(ct_minimum_, params.intensity_background);
-    resample::RigidBones bones;
-    bones.voxels = &bone_voxels_;
-    bones.rotation = segments.rotation;
-    bones.translation = segments.translation;
-    bones.region = &region_;
-    bones.tet_region = &tet_region_;
-    bones.separated = &separated_;
-    POSEWARP_ASSIGN_OR_RETURN(resample::TetWarp warp,
-                              resample::TetWarp::build(mesh, result.posed_vertices, source, result.output_grid,
-                                                       root.rotation, root.translation, &rest_owner_, params, hooks,
-                                                       &bones));
-    const resample::WarpStats& stats = warp.stats();
-    qr.covered_voxels = stats.covered_voxels;
-    qr.conflicted_voxels = stats.conflicted_voxels;
-    qr.extrapolated_voxels = stats.extrapolated_voxels;
-    qr.background_voxels = stats.background_voxels;
-    qr.degenerate_tets = stats.degenerate_tets;
-    qr.rasterized_tets = warp.rasterized_tets();
-    qr.bone_voxels = stats.bone_voxels;
-    qr.skin_contact_voxels = stats.contact_guarded_voxels;
-    for (const auto& [pair, count] : stats.bone_overlap_voxels) {
-      qr.bone_overlaps.push_back({names[static_cast<size_t>(pair.first)], names[static_cast<size_t>(pair.second)], count,
-                                  static_cast<double>(count) * result.output_grid.spacing[0] *
-                                      result.output_grid.spacing[1] * result.output_grid.spacing[2] / 1000.0});
-    }
-    clock.lap("warp-prepare");
-    // The volumes first, each handed to its callback as soon as it is complete (a server sends it while the rest
-    // is computed), then the label report, which needs only the labels.
-    std::shared_ptr<const LabelVolume> handed_out;  // the labels given to labels_ready: the report reads them
-    const LabelVolume* posed_labels = nullptr;
-    if (request.want_labels) {
-      POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(rig_.labels));
-      clock.lap("warp-labels");
-      if (request.labels_ready) {
-        handed_out = std::make_shared<const LabelVolume>(std::move(labels));
-        posed_labels = handed_out.get();
-        request.labels_ready(handed_out);
-      } else {
-        posed_labels = &result.labels.emplace(std::move(labels));
-      }
-    }
-    if (request.want_ct && rig_.ct) {
-      POSEWARP_ASSIGN_OR_RETURN(IntensityVolume ct, warp.warp_intensities(*rig_.ct, request.ct_interpolation));
-      clock.lap("warp-ct");
-      if (request.ct_ready) {
-        request.ct_ready(std::make_shared<const IntensityVolume>(std::move(ct)));
-      } else {
-        result.ct = std::move(ct);
-      }
-    }
-    if (request.want_labels) {
-      POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
-      qr.labels = report::label_change(rest_label_counts_, report::label_counts(*posed_labels));
-      for (const auto& [value, counts] : qr.labels.voxels) {
-        if (const labels::LabelEntry* entry = rig_.label_map.find(value)) qr.label_names[value] = entry->name;
-      }
-      const std::vector<std::pair<double, double>> deviation = warp.bone_deviation_mm();
-      for (size_t k = 0; k < deviation.size(); ++k) {
-        qr.voxel_rigidity.push_back({names[k], deviation[k].first, deviation[k].second});
-        qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
-      }
-      clock.lap("report-labels");
-    }
-    if (request.want_fields) {
-      result.inverse_field = warp.inverse_displacement();
-      // Forward field on the source grid: each bone voxel moves with its bone, every other source voxel with the rest
-      // tet that covers it.
-      result.forward_field.assign(static_cast<size_t>(source.voxel_count()) * 3, 0.0f);
-      const Eigen::MatrixXd& posed = result.posed_vertices;
-      parallel_for(0, source.size[2], 1, [&](int64_t k0, int64_t k1) {
-        for (int64_t k = k0; k < k1; ++k) {
-          for (int64_t j = 0; j < source.size[1]; ++j) {
-            for (int64_t i = 0; i < source.size[0]; ++i) {
-              const int64_t v = source.offset(i, j, k);
-              const Vec3 p = source.index_to_physical({double(i), double(j), double(k)});
-              const Eigen::Vector3d x(p[0], p[1], p[2]);
-              int32_t t = rest_owner_[static_cast<size_t>(v)];
-              if (t <= -2) t = -2 - t;
-              Eigen::Vector3d moved;
-              const int16_t bone = bone_voxels_.segment[static_cast<size_t>(v)];
-              if (bone != resample::BoneVoxels::kNone) {  // a bone voxel moves with its bone, exactly
-                moved = segments.rotation[static_cast<size_t>(bone)] * x + segments.translation[static_cast<size_t>(bone)];
-              } else if (t >= 0) {
-                Eigen::Matrix3d inv;
-                for (int r = 0; r < 3; ++r)
-                  for (int c = 0; c < 3; ++c) inv(r, c) = frames_.rest_inverse(t, 3 * r + c);
-                const Eigen::Vector3d lambda = inv * (x - mesh.vertices.row(mesh.tets(t, 0)).transpose());
-                moved = posed.row(mesh.tets(t, 0)).transpose();
-                for (int c = 0; c < 3; ++c) {
-                  moved += lambda(c) * (posed.row(mesh.tets(t, c + 1)) - posed.row(mesh.tets(t, 0))).transpose();
-                }
-              } else {
-                moved = root.apply(x);
-              }
-              for (int a = 0; a < 3; ++a) result.forward_field[static_cast<size_t>(3 * v + a)] = static_cast<float>(moved(a) - x(a));
-            }
-          }
-        }
-      });
-      clock.lap("fields");
-    }
+    const RigidTransform& root = transforms[static_cast<size_t>(p.rig.skeleton.root)];
+    POSEWARP_RETURN_IF_ERROR(warp_volumes(p, request, segments, root, names, hooks, clock, result));
   }
-  report::add_warnings(qr, voxel);
+  const ImageGeometry& source = p.rig.labels.geometry();
+  report::add_warnings(qr, std::min({source.spacing[0], source.spacing[1], source.spacing[2]}));
   return result;
+}
+
+}  // namespace
+
+Result<PoseResult> PoseEngine::pose(const PoseRequest& request, const ProgressHooks& hooks) const {
+  return guarded("posing",
+                 [&] { return in_arena(hooks.threads, [&] { return pose_unguarded(*prepared_, request, hooks); }); });
 }
 
 }  // namespace posewarp::api

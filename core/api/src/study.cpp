@@ -5,9 +5,15 @@
 #include <fstream>
 
 #include "posewarp/api/files.h"
+#include "posewarp/api/rig.h"
 #include "posewarp/common/atomic_file.h"
 
 namespace posewarp::api {
+
+Result<pose::Animation> read_bvh(const std::string& path, const pose::BvhMap& map, const Rig& rig, int first,
+                                 int last) {
+  return pose::read_bvh(path, map, rig.skeleton, first, last);
+}
 
 Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset) {
   if (!path.empty() && !preset.empty()) return invalid_argument_error("give either --label-map or --preset, not both");

@@ -558,7 +558,9 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
     put(DCM_WindowWidth, "400");
     const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
     for (size_t i = 0; i < per_slice; ++i) {
-      const float v = std::isfinite(slice[i]) ? std::nearbyint(slice[i]) : 0.0f;
+      // Half away from zero, as the volume writers round (io: lround): a posed value of exactly -118.5 is -119 in the
+      // series and in the NIfTI of the same pose alike.
+      const float v = std::isfinite(slice[i]) ? std::round(slice[i]) : 0.0f;
       const float bounded = std::clamp(v, -32768.0f, 32767.0f);
       clipped += bounded != v;
       samples[i] = static_cast<Sint16>(bounded);

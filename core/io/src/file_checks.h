@@ -39,4 +39,12 @@ Status check_metaimage_header(const std::string& path);
 // compressed or not (ITK's reader only prints a warning when it reads short).
 Status check_metaimage_file(const std::string& path);
 
+// Shared by the checks: a path in quotes for a message; the bytes a zlib or gzip stream in `path` from `offset`
+// inflates to, reading at most until `limit` bytes came out (-1 when corrupt or truncated); a detached data file named
+// in a header, `inline_word` (LOCAL) or a plain file name beside the header.
+std::string in_quotes(const std::string& path);
+int64_t inflated_size(const std::string& path, int64_t offset, int64_t limit);
+Status check_data_file_name(const std::string& path, const std::string& name, const char* field,
+                            const char* inline_word);
+
 }  // namespace posewarp::io::detail

@@ -519,8 +519,8 @@ TEST_F(ServerService, PoseOptionsGiveWhatTheEngineGivesInProcess) {
   Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig).value());
   ASSERT_TRUE(engine.ok());
   // A user's mesh: two triangles on four vertices of the rig's first rest surface.
-  const surface::SurfaceMesh& skin = engine->rig().surfaces.front();
-  surface::SurfaceMesh mine;
+  const SurfaceMesh& skin = engine->rig().surfaces.front();
+  SurfaceMesh mine;
   mine.name = "needle";
   mine.vertices = skin.vertices.topRows(4);
   mine.triangles.resize(2, 3);
@@ -575,7 +575,7 @@ TEST_F(ServerService, PoseOptionsGiveWhatTheEngineGivesInProcess) {
   EXPECT_EQ(fields.header.forward_field_bytes(), fields.forward_field.size());
   ASSERT_EQ(fields.surfaces, static_cast<int>(expected->surfaces.size()));
   EXPECT_EQ(fields.last_surface.name(), "needle");
-  const surface::SurfaceMesh& posed = expected->surfaces.back();
+  const SurfaceMesh& posed = expected->surfaces.back();
   ASSERT_EQ(fields.last_surface.vertices_size(), posed.vertices.size());
   for (int i = 0; i < fields.last_surface.vertices_size(); ++i) {
     EXPECT_EQ(fields.last_surface.vertices(i), posed.vertices(i / 3, i % 3));

@@ -12,6 +12,7 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig.h"
 #include "posewarp/phantom/phantom.h"
+#include "posewarp/pose/pose.h"
 #include "posewarp/rig/skin_contacts.h"
 
 namespace posewarp::api {
@@ -45,18 +46,18 @@ const BodyRig& body_rig() {
   return rig;
 }
 
-pose::Pose single(const std::string& joint, double flexion, double abduction = 0.0) {
-  pose::Pose p;
+Pose single(const std::string& joint, double flexion, double abduction = 0.0) {
+  Pose p;
   p.name = joint;
   p.joints.push_back(pose::anatomical_rotation(joint, flexion, abduction));
   return p;
 }
 
-Result<PoseResult> run(const pose::Pose& p, skinning::Method method, bool fields = true) {
+Result<PoseResult> run(const Pose& p, api::Method method, bool fields = true) {
   PoseRequest request;
   request.pose = p;
   request.method = method;
-  request.grid = resample::GridPolicy::kGrow;
+  request.grid = api::GridPolicy::kGrow;
   request.want_ct = false;
   request.want_surfaces = false;
   request.want_fields = fields;
@@ -77,8 +78,8 @@ std::map<Label, int> segment_of_labels(const rig::Skeleton& skeleton) {
   return segment;
 }
 
-const std::vector<std::pair<std::string, pose::Pose>>& test_poses() {
-  static const std::vector<std::pair<std::string, pose::Pose>> poses{
+const std::vector<std::pair<std::string, Pose>>& test_poses() {
+  static const std::vector<std::pair<std::string, Pose>> poses{
       {"knee flexion 90", single("knee_left", 90)},
       {"elbow flexion 90", single("elbow_right", 90)},
       {"shoulder abduction 90", single("shoulder_left", 0, 90)},
@@ -93,8 +94,8 @@ TEST(BodyPosing, EveryBoneVoxelFollowsItsBoneRigidlyForEveryMethod) {
   const std::map<Label, int> segment_of = segment_of_labels(rig.skeleton);
   const ImageGeometry& source = rig.labels.geometry();
   for (const auto& [name, p] : test_poses()) {
-    for (const skinning::Method method : {skinning::Method::kCor, skinning::Method::kDqs, skinning::Method::kLbs}) {
-      SCOPED_TRACE(name + ", " + std::string(skinning::method_name(method)));
+    for (const api::Method method : {api::Method::kCor, api::Method::kDqs, api::Method::kLbs}) {
+      SCOPED_TRACE(name + ", " + std::string(api::method_name(method)));
       Result<PoseResult> result = run(p, method);
       ASSERT_TRUE(result.ok()) << result.status().to_string();
       const ImageGeometry& out = result->output_grid;
@@ -135,14 +136,14 @@ TEST(BodyPosing, HingesFlexWithoutBoneOverlapAndCorKeepsLocalVolume) {
   for (const auto& [joint, name] : std::vector<std::pair<std::string, std::string>>{{"knee_left", "knee"},
                                                                                     {"elbow_right", "elbow"}}) {
     SCOPED_TRACE(name);
-    Result<PoseResult> cor = run(single(joint, 90), skinning::Method::kCor, false);
-    Result<PoseResult> lbs = run(single(joint, 90), skinning::Method::kLbs, false);
+    Result<PoseResult> cor = run(single(joint, 90), api::Method::kCor, false);
+    Result<PoseResult> lbs = run(single(joint, 90), api::Method::kLbs, false);
     ASSERT_TRUE(cor.ok() && lbs.ok());
     double overlap_ml = 0.0;
-    for (const report::BoneOverlap& o : cor->report.bone_overlaps) overlap_ml += o.volume_ml;
+    for (const BoneOverlap& o : cor->report.bone_overlaps) overlap_ml += o.volume_ml;
     EXPECT_LT(overlap_ml, 2.0);
-    const report::JointRegionChange* cor_100 = nullptr;
-    const report::JointRegionChange* lbs_100 = nullptr;
+    const JointRegionChange* cor_100 = nullptr;
+    const JointRegionChange* lbs_100 = nullptr;
     for (const auto& c : cor->report.joint_regions) if (c.radius_mm == 100.0) cor_100 = &c;
     for (const auto& c : lbs->report.joint_regions) if (c.radius_mm == 100.0) lbs_100 = &c;
     ASSERT_NE(cor_100, nullptr);
@@ -160,7 +161,7 @@ TEST(BodyPosing, HingesFlexWithoutBoneOverlapAndCorKeepsLocalVolume) {
 TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
   struct Case {
     std::string name;
-    pose::Pose pose;
+    Pose pose;
     std::string joint;
   };
   for (const Case& c : std::vector<Case>{{"knee 90", single("knee_left", 90), "knee_left"},
@@ -168,13 +169,13 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
                                          {"elbow 120", single("elbow_right", 120), "elbow_right"},
                                          {"shoulder abduction 30", single("shoulder_left", 0, 30), "shoulder_left"}}) {
     SCOPED_TRACE(c.name);
-    Result<PoseResult> cor = run(c.pose, skinning::Method::kCor, false);
-    Result<PoseResult> fem = run(c.pose, skinning::Method::kFem, false);
+    Result<PoseResult> cor = run(c.pose, api::Method::kCor, false);
+    Result<PoseResult> fem = run(c.pose, api::Method::kFem, false);
     ASSERT_TRUE(cor.ok() && fem.ok()) << fem.status().to_string();
     EXPECT_EQ(fem->report.method, "fem");
     EXPECT_EQ(fem->report.bone_voxel_deviation_mm, cor->report.bone_voxel_deviation_mm);
     for (const double radius : {50.0, 100.0}) {
-      const report::JointRegionChange *cr = nullptr, *fr = nullptr;
+      const JointRegionChange *cr = nullptr, *fr = nullptr;
       for (const auto& r : cor->report.joint_regions) if (r.radius_mm == radius) cr = &r;
       for (const auto& r : fem->report.joint_regions) if (r.radius_mm == radius) fr = &r;
       ASSERT_NE(cr, nullptr);
@@ -213,7 +214,7 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
     if (c.name == "knee 90") {
       // Without contact the back of the thigh passes into the calf (issue 21, item 2, still open): the report says
       // so rather than hiding it.
-      const report::JointRegionChange& cr = cor->report.joint_regions.back();
+      const JointRegionChange& cr = cor->report.joint_regions.back();
       ASSERT_EQ(cr.radius_mm, 100.0);
       EXPECT_GT(cr.skin_inside_tissue, 0);
       EXPECT_TRUE(std::any_of(cor->report.warnings.begin(), cor->report.warnings.end(), [](const std::string& w) {
@@ -255,10 +256,10 @@ TEST(BodyPosing, JointRangesSayWhereBonesMeet) {
   // Past the knee's stop, the posed bones overlap.
   ASSERT_TRUE(knee.positive_stopped);
   const double past_deg = std::min(knee.positive_deg + 25.0, 150.0);
-  Result<PoseResult> past = run(single("knee_left", past_deg), skinning::Method::kCor, false);
+  Result<PoseResult> past = run(single("knee_left", past_deg), api::Method::kCor, false);
   ASSERT_TRUE(past.ok());
   double overlap_ml = 0.0;
-  for (const report::BoneOverlap& o : past->report.bone_overlaps) overlap_ml += o.volume_ml;
+  for (const BoneOverlap& o : past->report.bone_overlaps) overlap_ml += o.volume_ml;
   EXPECT_GT(overlap_ml, 0.5);
   // ... and the report says the pose is past the knee's range, with the pose's angle, whether the pose gave angles
   // or a quaternion; a pose within the range says nothing.
@@ -272,16 +273,16 @@ TEST(BodyPosing, JointRangesSayWhereBonesMeet) {
     warned |= w.find("'knee_left' flexion") != std::string::npos && w.find("past its range") != std::string::npos;
   }
   EXPECT_TRUE(warned);
-  pose::Pose quaternion;
+  Pose quaternion;
   pose::JointRotation turn;
   turn.joint = "knee_left";
   turn.rotation = Eigen::Quaterniond(Eigen::AngleAxisd(past_deg * M_PI / 180.0, Eigen::Vector3d::UnitX()));
   quaternion.joints.push_back(turn);
-  Result<PoseResult> same = run(quaternion, skinning::Method::kCor, false);
+  Result<PoseResult> same = run(quaternion, api::Method::kCor, false);
   ASSERT_TRUE(same.ok());
   ASSERT_EQ(same->report.past_range.size(), 1u);
   EXPECT_NEAR(same->report.past_range[0].angle_deg, past_deg, 1e-6);
-  Result<PoseResult> within = run(single("knee_left", knee.positive_deg - 5.0), skinning::Method::kCor, false);
+  Result<PoseResult> within = run(single("knee_left", knee.positive_deg - 5.0), api::Method::kCor, false);
   ASSERT_TRUE(within.ok());
   EXPECT_TRUE(within->report.past_range.empty());
   RangeParams bad;
@@ -295,7 +296,7 @@ TEST(BodyPosing, ReportedLocalVolumeChangeAgreesWithTheForwardField) {
   const Rig& rig = body_rig().engine->rig();
   const ImageGeometry& g = rig.labels.geometry();
   const std::map<Label, int> segment_of = segment_of_labels(rig.skeleton);
-  Result<PoseResult> result = run(single("knee_left", 60), skinning::Method::kCor);
+  Result<PoseResult> result = run(single("knee_left", 60), api::Method::kCor);
   ASSERT_TRUE(result.ok());
   const rig::Joint& knee = rig.skeleton.joints[static_cast<size_t>(rig.skeleton.joint_index("knee_left"))];
   const std::vector<float>& u = result->forward_field;
@@ -330,7 +331,7 @@ TEST(BodyPosing, ReportedLocalVolumeChangeAgreesWithTheForwardField) {
   }
   ASSERT_GT(rest, 1000.0);
   const double from_field = posed / rest - 1.0;
-  const report::JointRegionChange* reported = nullptr;
+  const JointRegionChange* reported = nullptr;
   for (const auto& c : result->report.joint_regions) if (c.radius_mm == 100.0) reported = &c;
   ASSERT_NE(reported, nullptr);
   EXPECT_NEAR(reported->volume_change, from_field, 0.05) << "report " << reported->volume_change << ", field " << from_field;
@@ -351,10 +352,10 @@ TEST(BodyPosing, NoTissueIsDraggedAcrossASkinContact) {
   const std::map<Label, int> segment_of = segment_of_labels(rig.skeleton);
   const std::vector<uint8_t> separated = rig::separated_segments(rig.skeleton);
   const size_t n = rig.skeleton.segments.size();
-  for (const auto& [joint, posed] : std::vector<std::pair<std::string, pose::Pose>>{
+  for (const auto& [joint, posed] : std::vector<std::pair<std::string, Pose>>{
            {"shoulder_left", single("shoulder_left", 0, 90)}, {"hip_right", single("hip_right", 90)}}) {
     SCOPED_TRACE(joint);
-    Result<PoseResult> result = run(posed, skinning::Method::kCor);
+    Result<PoseResult> result = run(posed, api::Method::kCor);
     ASSERT_TRUE(result.ok());
     const rig::Joint& moved = rig.skeleton.joints[static_cast<size_t>(rig.skeleton.joint_index(joint))];
     const ImageGeometry& out = result->output_grid;

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "posewarp/io/itk_reference.h"
+#include "posewarp/pose/pose.h"
 #include "rig_test_support.h"
 
 namespace posewarp::api {
@@ -28,8 +29,8 @@ const PoseEngine& bar_engine() {
   return engine;
 }
 
-pose::Pose joint_pose(const std::string& joint, double flexion, double rotation) {
-  pose::Pose p;
+Pose joint_pose(const std::string& joint, double flexion, double rotation) {
+  Pose p;
   p.name = joint;
   p.joints.push_back(pose::anatomical_rotation(joint, flexion, 0.0, rotation));
   return p;
@@ -52,16 +53,16 @@ std::map<Label, double> dice_per_label(const LabelVolume& a, const LabelVolume& 
 
 TEST(Posing, IdentityPoseGivesBackTheInputWithEveryMethod) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
+  for (const api::Method method : {api::Method::kLbs, api::Method::kDqs, api::Method::kCor, api::Method::kFem}) {
     PoseRequest request;
     request.pose.name = "identity";
     request.method = method;
     Result<PoseResult> result = engine.pose(request);
     ASSERT_TRUE(result.ok()) << result.status().to_string();
-    EXPECT_EQ(result->labels->voxels(), engine.rig().labels.voxels()) << skinning::method_name(method);
+    EXPECT_EQ(result->labels->voxels(), engine.rig().labels.voxels()) << api::method_name(method);
     ASSERT_TRUE(result->ct.has_value());
     for (int64_t v = 0; v < result->ct->voxel_count(); ++v) {
-      ASSERT_NEAR(result->ct->data()[v], engine.rig().ct->data()[v], 1e-3) << skinning::method_name(method) << " voxel " << v;
+      ASSERT_NEAR(result->ct->data()[v], engine.rig().ct->data()[v], 1e-3) << api::method_name(method) << " voxel " << v;
     }
     EXPECT_EQ(result->report.mesh.inverted_tets, 0);
     EXPECT_LT(result->report.bone_rigidity_error_mm, 1e-9);
@@ -74,7 +75,7 @@ TEST(Posing, PureRootRotationAgreesWithItksResampler) {
   request.pose.name = "root";
   request.pose.root.rotation = Eigen::AngleAxisd(0.5, Eigen::Vector3d(1.0, 0.2, 0.1).normalized()).toRotationMatrix();
   request.pose.root.translation = Eigen::Vector3d(3.0, -2.0, 5.0);
-  request.grid = resample::GridPolicy::kGrow;
+  request.grid = api::GridPolicy::kGrow;
   Result<PoseResult> result = engine.pose(request);
   ASSERT_TRUE(result.ok()) << result.status().to_string();
   // Every segment moves with the root transform.
@@ -91,15 +92,15 @@ TEST(Posing, PureRootRotationAgreesWithItksResampler) {
 
 TEST(Posing, BonesStayRigidInABentBar) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
+  for (const api::Method method : {api::Method::kLbs, api::Method::kDqs, api::Method::kCor, api::Method::kFem}) {
     PoseRequest request;
     request.pose = joint_pose("joint_2_3", 60.0, 0.0);
     request.method = method;
-    request.grid = resample::GridPolicy::kGrow;
+    request.grid = api::GridPolicy::kGrow;
     Result<PoseResult> result = engine.pose(request);
     ASSERT_TRUE(result.ok()) << result.status().to_string();
     const double voxel = engine.rig().labels.geometry().spacing[0];
-    EXPECT_LT(result->report.bone_rigidity_error_mm, voxel) << skinning::method_name(method);
+    EXPECT_LT(result->report.bone_rigidity_error_mm, voxel) << api::method_name(method);
     // Each bone's voxels match that bone moved by its segment's rigid transform.
     for (size_t k = 0; k < engine.rig().skeleton.segments.size(); ++k) {
       const rig::Segment& segment = engine.rig().skeleton.segments[k];
@@ -119,7 +120,7 @@ TEST(Posing, BonesStayRigidInABentBar) {
         if (std::find(segment.labels.begin(), segment.labels.end(), l) != segment.labels.end()) ours.data()[v] = l;
       }
       for (const auto& [label, dice] : dice_per_label(ours, *expected, 1)) {
-        EXPECT_GE(dice, 0.97) << skinning::method_name(method) << " " << segment.name;
+        EXPECT_GE(dice, 0.97) << api::method_name(method) << " " << segment.name;
       }
     }
   }
@@ -155,7 +156,7 @@ TEST(Posing, BadRequestsAreClearErrors) {
   EXPECT_EQ(r1.status().code(), StatusCode::kInvalidArgument);
   EXPECT_NE(r1.status().message().find("joint_1_2"), std::string::npos) << r1.status().message();
   PoseRequest huge;
-  huge.grid = resample::GridPolicy::kGiven;
+  huge.grid = api::GridPolicy::kGiven;
   ImageGeometry grid = engine.rig().labels.geometry();
   grid.size = {50000, 50000, 50000};
   huge.given_grid = grid;
@@ -163,7 +164,7 @@ TEST(Posing, BadRequestsAreClearErrors) {
   // Within the voxel limit but over a byte budget: refused before allocating, saying how much it would take.
   PoseRequest over_budget;
   over_budget.want_fields = true;
-  over_budget.resample.max_output_bytes = 1 << 20;
+  over_budget.limits.max_bytes = 1 << 20;
   const Status budget = engine.pose(over_budget).status();
   EXPECT_EQ(budget.code(), StatusCode::kResourceExhausted);
   EXPECT_NE(budget.message().find("over the budget of 1 MB"), std::string::npos) << budget.to_string();
@@ -234,7 +235,7 @@ TEST(Posing, SurfacesFollowTheirTetsAndBonesMoveRigidly) {
   ASSERT_TRUE(posed.ok());
   const double voxel = engine.rig().labels.geometry().spacing[0];
   for (size_t i = 0; i < posed->surfaces.size(); ++i) {
-    const surface::SurfaceMesh& before = engine.rig().surfaces[i];
+    const SurfaceMesh& before = engine.rig().surfaces[i];
     if (before.label < 10) continue;  // bones are labels 10..12
     const int k = engine.rig().skeleton.segment_index(before.name);
     ASSERT_GE(k, 0);
@@ -258,7 +259,7 @@ TEST(Posing, SurfacesFollowTheirTetsAndBonesMoveRigidly) {
   }
   // A user's mesh in rest space is embedded and deformed too.
   PoseRequest extra = bent;
-  surface::SurfaceMesh marker;
+  SurfaceMesh marker;
   marker.name = "marker";
   marker.vertices = engine.rig().surfaces.front().vertices.topRows(3);
   marker.triangles.resize(1, 3);
@@ -289,17 +290,17 @@ TEST(Posing, CorKeepsTheBarsSoftTissueVolumeWhereLbsLosesIt) {
   for (const auto& [name, flexion, twist] : {std::tuple{"bend", 90.0, 0.0}, std::tuple{"twist", 0.0, 90.0}}) {
     std::map<std::string, double> change, local;
     std::map<std::string, int64_t> inverted;
-    for (const skinning::Method method :
-         {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
+    for (const api::Method method :
+         {api::Method::kLbs, api::Method::kDqs, api::Method::kCor, api::Method::kFem}) {
       PoseRequest request;
       request.pose = joint_pose("joint_2_3", flexion, twist);
       request.method = method;
       request.want_labels = request.want_ct = false;
       Result<PoseResult> result = engine->pose(request);
       ASSERT_TRUE(result.ok());
-      change[std::string(skinning::method_name(method))] = result->report.mesh.soft_tissue_volume_change;
-      local[std::string(skinning::method_name(method))] = result->report.mesh.soft_tissue_local_volume_error;
-      inverted[std::string(skinning::method_name(method))] = result->report.mesh.inverted_tets;
+      change[std::string(api::method_name(method))] = result->report.mesh.soft_tissue_volume_change;
+      local[std::string(api::method_name(method))] = result->report.mesh.soft_tissue_local_volume_error;
+      inverted[std::string(api::method_name(method))] = result->report.mesh.inverted_tets;
     }
     std::cout << name << ": soft-tissue volume change lbs " << change["lbs"] << ", dqs " << change["dqs"] << ", cor "
               << change["cor"] << ", fem " << change["fem"] << "; local volume error lbs " << local["lbs"] << ", dqs "
@@ -339,7 +340,7 @@ TEST(Posing, CancellationAndDeadlinesEndAPoseMidWarp) {
   const PoseEngine& engine = bar_engine();
   PoseRequest request;
   request.pose = joint_pose("joint_2_3", 60.0, 0.0);
-  request.grid = resample::GridPolicy::kGrow;
+  request.grid = api::GridPolicy::kGrow;
   CancelFlag flag;
   std::chrono::steady_clock::time_point cancelled_at;
   ProgressHooks hooks;
@@ -370,7 +371,7 @@ TEST(Posing, SixteenThreadsPosingOneEngineGetIdenticalResults) {
   const PoseEngine& engine = bar_engine();
   PoseRequest request;
   request.pose = joint_pose("joint_2_3", 45.0, 10.0);
-  request.grid = resample::GridPolicy::kGrow;
+  request.grid = api::GridPolicy::kGrow;
   request.want_ct = true;
   Result<PoseResult> reference = engine.pose(request);
   ASSERT_TRUE(reference.ok()) << reference.status().to_string();
@@ -401,7 +402,7 @@ TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
   const PoseEngine& engine = bar_engine();
   PoseRequest request;
   request.pose = joint_pose("joint_2_3", 60.0, 0.0);
-  request.grid = resample::GridPolicy::kGrow;
+  request.grid = api::GridPolicy::kGrow;
   Result<PosePlan> plan = engine.plan(request);
   ASSERT_TRUE(plan.ok()) << plan.status().to_string();
   Result<PoseResult> result = engine.pose(request);
@@ -409,7 +410,7 @@ TEST(Posing, PlanKnowsTheGridAndTheBytesBeforePosing) {
   EXPECT_TRUE(plan->output_grid.same_grid(result->output_grid, 0.0));
   const int64_t returned = result->labels->voxel_count() * 4 + result->ct->voxel_count() * 4;
   EXPECT_EQ(plan->output_bytes, returned * 3 / 2);
-  request.resample.max_output_bytes = plan->output_bytes - 1;
+  request.limits.max_bytes = plan->output_bytes - 1;
   const Status refused = engine.plan(request).status();
   EXPECT_EQ(refused.code(), StatusCode::kResourceExhausted);
   EXPECT_EQ(engine.pose(request).status().code(), StatusCode::kResourceExhausted);
@@ -429,7 +430,7 @@ TEST(Posing, FemOptionsTuneTheSolveAndOutOfRangeIsRefused) {
   const PoseEngine& engine = bar_engine();
   PoseRequest request;
   request.pose = joint_pose("joint_2_3", 70.0, 0.0);
-  request.method = skinning::Method::kFem;
+  request.method = api::Method::kFem;
   request.want_labels = request.want_ct = request.want_surfaces = false;
   Result<PoseResult> steady = engine.pose(request);
   ASSERT_TRUE(steady.ok()) << steady.status().to_string();
@@ -445,7 +446,7 @@ TEST(Posing, FemOptionsTuneTheSolveAndOutOfRangeIsRefused) {
   request.fem.max_iterations = 0;
   request.fem.volume_weight = -1.0;
   EXPECT_EQ(engine.pose(request).status().code(), StatusCode::kInvalidArgument);
-  request.method = skinning::Method::kCor;  // the other methods do not read them
+  request.method = api::Method::kCor;  // the other methods do not read them
   EXPECT_TRUE(engine.pose(request).ok());
 }
 
@@ -453,7 +454,7 @@ TEST(Posing, FemOptionsTuneTheSolveAndOutOfRangeIsRefused) {
 // fem it takes the solve's first iterations, so its surfaces are within a few millimetres of the full pose's.
 TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
   const PoseEngine& engine = bar_engine();
-  for (const skinning::Method method : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor, skinning::Method::kFem}) {
+  for (const api::Method method : {api::Method::kLbs, api::Method::kDqs, api::Method::kCor, api::Method::kFem}) {
     PoseRequest request;
     request.pose = joint_pose("joint_2_3", 50.0, 20.0);
     request.method = method;
@@ -463,13 +464,13 @@ TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
     Result<PreviewResult> preview = engine.preview(request.pose, method);
     ASSERT_TRUE(preview.ok()) << preview.status().to_string();
     ASSERT_EQ(preview->surface_vertices.size(), engine.rig().surfaces.size());
-    const double tolerance = method == skinning::Method::kFem ? 5.0 : 1e-9;
+    const double tolerance = method == api::Method::kFem ? 5.0 : 1e-9;
     for (size_t i = 0; i < preview->surface_vertices.size(); ++i) {
       EXPECT_LT((preview->surface_vertices[i] - full->surfaces[i].vertices).cwiseAbs().maxCoeff(), tolerance)
           << engine.rig().surfaces[i].name;
     }
   }
-  EXPECT_EQ(engine.preview(joint_pose("nowhere", 1.0, 0.0), skinning::Method::kCor).status().code(),
+  EXPECT_EQ(engine.preview(joint_pose("nowhere", 1.0, 0.0), api::Method::kCor).status().code(),
             StatusCode::kInvalidArgument);
 }
 

@@ -41,8 +41,7 @@ const Scene& bar_scene() {
     mp.parallel = false;
     s.mesh = *mesh::make_cgal_mesher()->mesh(classes, 3, mp, {}, nullptr);
     const ImageGeometry& g = s.phantom.labels.geometry();
-    Result<TetWarp> identity = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
-                                              Eigen::Vector3d::Zero(), nullptr, {}, {});
+    Result<TetWarp> identity = TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g});
     s.rest_owner = identity->owner();
     return s;
   }();
@@ -55,8 +54,8 @@ TEST(TetWarp, IdentityPoseGivesBackTheInputVoxelForVoxel) {
   // With the rest owner no tet moves and nothing is rasterized; without it every tet is.
   for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
     SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
-    Result<TetWarp> warp = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
-                                          Eigen::Vector3d::Zero(), rest_owner, {}, {});
+    Result<TetWarp> warp =
+        TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g, .rest_owner = rest_owner});
     ASSERT_TRUE(warp.ok()) << warp.status().to_string();
     EXPECT_EQ(warp->rasterized_tets(), rest_owner ? 0 : s.mesh.tet_count());
     Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
@@ -76,7 +75,8 @@ TEST(TetWarp, IdentityPoseGivesBackTheInputVoxelForVoxel) {
 TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
-  const Eigen::Matrix3d r = Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d(1, 0.3, 0.2).normalized()).toRotationMatrix();
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(25.0 * M_PI / 180.0, Eigen::Vector3d(1, 0.3, 0.2).normalized()).toRotationMatrix();
   const Eigen::Vector3d t(4.0, -3.0, 6.0);
   const Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
   Result<ImageGeometry> out = output_geometry(GridPolicy::kGrow, g, posed, nullptr, {});
@@ -86,22 +86,28 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   Result<LabelVolume> itk = io::itk_resample_rigid_labels(s.phantom.labels, rotation, {t(0), t(1), t(2)}, *out);
   ASSERT_TRUE(itk.ok()) << itk.status().to_string();
   for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
-  SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
-  Result<TetWarp> warp = TetWarp::build(s.mesh, posed, g, *out, r, t, rest_owner, {}, {});
-  ASSERT_TRUE(warp.ok());
-  Result<LabelVolume> ours = warp->warp_labels(s.phantom.labels);
-  ASSERT_TRUE(ours.ok());
-  std::map<Label, int64_t> a, b, both;
-  for (int64_t v = 0; v < ours->voxel_count(); ++v) {
-    ++a[ours->data()[v]];
-    ++b[itk->data()[v]];
-    if (ours->data()[v] == itk->data()[v]) ++both[ours->data()[v]];
-  }
-  for (const auto& [label, count] : b) {
-    if (label == 0 || count < 100) continue;
-    const double dice = 2.0 * static_cast<double>(both[label]) / static_cast<double>(a[label] + count);
-    EXPECT_GE(dice, 0.99) << "label " << label;
-  }
+    SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
+    Result<TetWarp> warp = TetWarp::build({.rest = s.mesh,
+                                           .posed = posed,
+                                           .source = g,
+                                           .output = *out,
+                                           .background_rotation = r,
+                                           .background_translation = t,
+                                           .rest_owner = rest_owner});
+    ASSERT_TRUE(warp.ok());
+    Result<LabelVolume> ours = warp->warp_labels(s.phantom.labels);
+    ASSERT_TRUE(ours.ok());
+    std::map<Label, int64_t> a, b, both;
+    for (int64_t v = 0; v < ours->voxel_count(); ++v) {
+      ++a[ours->data()[v]];
+      ++b[itk->data()[v]];
+      if (ours->data()[v] == itk->data()[v]) ++both[ours->data()[v]];
+    }
+    for (const auto& [label, count] : b) {
+      if (label == 0 || count < 100) continue;
+      const double dice = 2.0 * static_cast<double>(both[label]) / static_cast<double>(a[label] + count);
+      EXPECT_GE(dice, 0.99) << "label " << label;
+    }
   }
 }
 
@@ -111,8 +117,8 @@ TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   // A non-rigid deformation: shear the upper half.
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
-  Result<TetWarp> warp = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
+  Result<TetWarp> warp =
+      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.rest_owner});
   ASSERT_TRUE(warp.ok());
   Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
   const std::set<Label> before(s.phantom.labels.voxels().begin(), s.phantom.labels.voxels().end());
@@ -139,8 +145,8 @@ TetMesh soft_and_bone_tets() {
 
 LabelVolume soft_and_bone_labels(const ImageGeometry& g) {
   LabelVolume labels(g, 0);
-  labels.at(1, 1, 1) = 5;    // soft tissue
-  labels.at(11, 11, 11) = 7; // bone
+  labels.at(1, 1, 1) = 5;     // soft tissue
+  labels.at(11, 11, 11) = 7;  // bone
   return labels;
 }
 
@@ -152,8 +158,7 @@ TEST(TetWarp, FoldsLetBonesWinAndAreCounted) {
   ImageGeometry g;
   g.size = {20, 20, 20};
   const LabelVolume labels = soft_and_bone_labels(g);
-  Result<TetWarp> warp = TetWarp::build(mesh, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), nullptr, {}, {});
+  Result<TetWarp> warp = TetWarp::build({.rest = mesh, .posed = posed, .source = g, .output = g});
   ASSERT_TRUE(warp.ok());
   EXPECT_GT(warp->stats().conflicted_voxels, 0);
   Result<LabelVolume> out = warp->warp_labels(labels);
@@ -166,14 +171,13 @@ TEST(TetWarp, AMovingSoftTetFoldedOntoAStillBoneLosesAndLeavesNoGhost) {
   ImageGeometry g;
   g.size = {20, 20, 20};
   const LabelVolume labels = soft_and_bone_labels(g);
-  Result<TetWarp> identity = TetWarp::build(mesh, mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
-                                            Eigen::Vector3d::Zero(), nullptr, {}, {});
+  Result<TetWarp> identity = TetWarp::build({.rest = mesh, .posed = mesh.vertices, .source = g, .output = g});
   ASSERT_TRUE(identity.ok());
   const std::vector<int32_t> rest_owner = identity->owner();
   Eigen::MatrixXd posed = mesh.vertices;
   posed.topRows(4).rowwise() += Eigen::RowVector3d(10, 10, 10);
-  Result<TetWarp> warp = TetWarp::build(mesh, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), &rest_owner, {}, {});
+  Result<TetWarp> warp =
+      TetWarp::build({.rest = mesh, .posed = posed, .source = g, .output = g, .rest_owner = &rest_owner});
   ASSERT_TRUE(warp.ok());
   EXPECT_EQ(warp->rasterized_tets(), 1);
   EXPECT_GT(warp->stats().conflicted_voxels, 0);
@@ -188,10 +192,9 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
   // Shear the upper half only: the lower half follows the (identity) background.
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
-  Result<TetWarp> full = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), nullptr, {}, {});
-  Result<TetWarp> lean = TetWarp::build(s.mesh, posed, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
+  Result<TetWarp> full = TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g});
+  Result<TetWarp> lean =
+      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.rest_owner});
   ASSERT_TRUE(full.ok() && lean.ok());
   EXPECT_GT(lean->rasterized_tets(), 0);
   EXPECT_LT(lean->rasterized_tets(), s.mesh.tet_count());
@@ -203,7 +206,8 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
   const std::vector<int32_t> full_owner = full->owner();
   int64_t body = 0, differ = 0;
   for (int64_t v = 0; v < g.voxel_count(); ++v) {
-    const Label expected = full_owner[static_cast<size_t>(v)] == -1 && s.rest_owner[static_cast<size_t>(v)] != -1 ? 0 : a->data()[v];
+    const Label expected =
+        full_owner[static_cast<size_t>(v)] == -1 && s.rest_owner[static_cast<size_t>(v)] != -1 ? 0 : a->data()[v];
     body += expected != 0;
     differ += expected != b->data()[v];
   }
@@ -218,8 +222,7 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
   // Every tet rasterized: body voxels the mesh surface leaves out must come back through the shell, as labels.
-  Result<TetWarp> warp = TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(),
-                                        Eigen::Vector3d::Zero(), nullptr, {}, {});
+  Result<TetWarp> warp = TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g});
   ASSERT_TRUE(warp.ok());
   EXPECT_GT(warp->stats().extrapolated_voxels, 0);
   const std::vector<int32_t> owner = warp->owner();
@@ -233,8 +236,7 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
   EXPECT_LT(outside_mesh, body / 10);
   ResampleParams wide;
   wide.shell_mm = 100.0;
-  EXPECT_EQ(TetWarp::build(s.mesh, s.mesh.vertices, g, g, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero(),
-                           nullptr, wide, {})
+  EXPECT_EQ(TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g, .params = wide})
                 .status()
                 .code(),
             StatusCode::kInvalidArgument);
@@ -246,14 +248,19 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
   fine.spacing = {g.spacing[0] / 6.0, g.spacing[1] / 6.0, g.spacing[2] / 6.0};
   fine.size = {8, 8, 8};
   for (const ImageGeometry* out : {&thick, &fine}) {
-    EXPECT_TRUE(TetWarp::build(s.mesh, s.mesh.vertices, out == &thick ? thick : g, *out, Eigen::Matrix3d::Identity(),
-                               Eigen::Vector3d::Zero(), nullptr, {}, {})
-                    .ok());
+    EXPECT_TRUE(
+        TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = out == &thick ? thick : g, .output = *out})
+            .ok());
   }
   const Eigen::Vector3d far(0.0, 0.0, 3e9);
   const Eigen::MatrixXd moved = s.mesh.vertices.rowwise() + far.transpose();
   for (const Eigen::Vector3d& root : {far, Eigen::Vector3d(Eigen::Vector3d::Zero())}) {  // tets still, or all moving
-    Result<TetWarp> away = TetWarp::build(s.mesh, moved, g, g, Eigen::Matrix3d::Identity(), root, &s.rest_owner, {}, {});
+    Result<TetWarp> away = TetWarp::build({.rest = s.mesh,
+                                           .posed = moved,
+                                           .source = g,
+                                           .output = g,
+                                           .background_translation = root,
+                                           .rest_owner = &s.rest_owner});
     ASSERT_TRUE(away.ok());
     EXPECT_EQ(away->rasterized_tets(), root.isZero() ? s.mesh.tet_count() : 0);
     EXPECT_EQ(away->stats().covered_voxels, 0);
@@ -271,8 +278,8 @@ TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
     return posed;
   };
   auto warp_labels = [&](double shear) {
-    Result<TetWarp> warp = TetWarp::build(s.mesh, posed_by(shear), g, g, Eigen::Matrix3d::Identity(),
-                                          Eigen::Vector3d::Zero(), &s.rest_owner, {}, {});
+    Result<TetWarp> warp = TetWarp::build(
+        {.rest = s.mesh, .posed = posed_by(shear), .source = g, .output = g, .rest_owner = &s.rest_owner});
     return std::move(warp->warp_labels(s.phantom.labels)).value().voxels();
   };
   constexpr int kWarps = 8;
@@ -281,7 +288,8 @@ TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
   parallel_for(0, kWarps, 1, [&](int64_t begin, int64_t end) {
     for (int64_t w = begin; w < end; ++w) got[static_cast<size_t>(w)] = warp_labels(0.05 * static_cast<double>(w));
   });
-  for (int w = 0; w < kWarps; ++w) EXPECT_EQ(got[static_cast<size_t>(w)], expected[static_cast<size_t>(w)]) << "warp " << w;
+  for (int w = 0; w < kWarps; ++w)
+    EXPECT_EQ(got[static_cast<size_t>(w)], expected[static_cast<size_t>(w)]) << "warp " << w;
 }
 
 TEST(OutputGrid, GrowsToHoldTheBodyAndRefusesAbsurdGrids) {

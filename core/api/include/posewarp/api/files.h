@@ -36,7 +36,10 @@ using io::WriteOptions;
 // Label maps and presets.
 using labels::joint_kind_name;
 using labels::label_map_from_json;
+using labels::LabelEntry;
 using labels::LabelMap;
+using labels::LabelRole;
+using labels::role_name;
 using labels::label_map_to_json;
 using labels::preset_by_name;
 using labels::preset_names;
@@ -49,6 +52,8 @@ using labels::check_labels_look_like_labels;
 using labels::kMaxDistinctLabels;
 
 // Poses, animations and BVH motion.
+using pose::Animation;
+using pose::BvhMap;
 using pose::read_animation;
 using pose::read_bvh;
 using pose::read_bvh_map;
@@ -57,8 +62,16 @@ using pose::pose_from_json;
 using pose::pose_to_json;
 using pose::read_pose;
 
+struct Rig;  // posewarp/api/rig.h
+
+// BVH motion retargeted onto a rig's skeleton (its joints named by the BVH map).
+Result<pose::Animation> read_bvh(const std::string& path, const pose::BvhMap& map, const Rig& rig, int first,
+                                 int last);
+
 // Rig specs.
+using rig::read_rig_spec;
 using rig::rig_spec_from_json;
+using rig::RigSpec;
 
 // Surface meshes (STL, OBJ, PLY, VTP).
 using surface::read_surface;

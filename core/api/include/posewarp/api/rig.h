@@ -22,6 +22,9 @@
 
 namespace posewarp::api {
 
+// What the weights do with tissue cut off from every bone (an island): attach it to the nearest bone, or fail.
+using weights::IslandPolicy;
+
 // Every knob of a rig build, validated together before any work starts.
 struct BuildParams {
   rig::SkeletonParams skeleton;

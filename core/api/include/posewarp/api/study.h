@@ -33,6 +33,10 @@ struct StudyInspection {
 Result<StudyInspection> inspect_study(const LabelVolume& labels, const IntensityVolume* ct, const labels::LabelMap& map,
                                       const labels::BodyParams& params);
 
+// The body mask's knobs (api::BodyParams is the body phantom's), and what a label volume holds.
+using BodyMaskParams = labels::BodyParams;
+using labels::LabelCensus;
+
 using phantom::BarParams;
 using phantom::body_grid;
 using phantom::body_spacing_for_voxels;

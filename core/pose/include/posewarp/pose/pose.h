@@ -9,11 +9,16 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/pose.h"
 #include "posewarp/common/result.h"
 #include "posewarp/pose/rigid_transform.h"
 #include "posewarp/rig/skeleton.h"
 
 namespace posewarp::pose {
+
+// A pose as data (posewarp/common/pose.h), under the names the stage has always used.
+using posewarp::JointRotation;
+using posewarp::Pose;
 
 // The ranges every way into a pose checks (pose JSON, animation JSON, BVH, validate_pose for poses built in C++),
 // with the same message. An angle beyond a full turn either way is a mistake, never a rotation (1e308 degrees is
@@ -22,32 +27,12 @@ namespace posewarp::pose {
 inline constexpr double kMaxAngleDeg = 360.0;
 inline constexpr double kMaxRootTranslationMm = 2000.0;
 
-// The rotation of a joint's child segment relative to its parent, expressed in the joint's rest frame F
-// (rig::Joint::frame, columns x, y, z in LPS: x the flexion axis, y the abduction axis, z along the child's long
-// axis). In LPS the child turns by F * R * F^T about the joint centre. Must be a unit quaternion (within 1e-3).
-struct JointRotation {
-  std::string joint;
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();
-  // Anatomical angles in degrees (flexion, abduction, internal rotation), when the pose gave them: they are turned
-  // into a rotation with the joint's own signs (rig::joint_rotation_from_angles) and `rotation` is not used.
-  std::optional<Eigen::Vector3d> angles_deg;
-};
-
 // A joint rotation given by anatomical angles in degrees.
 JointRotation anatomical_rotation(std::string joint, double flexion_deg, double abduction_deg = 0.0,
                                   double internal_rotation_deg = 0.0);
 
 // The rotation in LPS (about the joint centre) that `rotation` gives at `joint`.
 Eigen::Matrix3d joint_rotation_in_lps(const rig::Joint& joint, const JointRotation& rotation);
-
-struct Pose {
-  std::string name;
-  std::vector<JointRotation> joints;  // joints not listed stay at rest
-  // Not the root segment's transform itself: `root.rotation` R turns the body about the root segment's centroid c
-  // (rig::Segment::centroid_mm), then `root.translation` t (LPS mm) moves it: T_root(p) = R (p - c) + c + t.
-  // A pose is written without knowing the rig, so c is only applied by forward_kinematics.
-  RigidTransform root;
-};
 
 // Pose JSON, version 1 (every field but "joints" optional; unknown fields are errors, so are duplicate keys):
 //   {"format": "posewarp.pose", "version": 1, "name": "knee bent",

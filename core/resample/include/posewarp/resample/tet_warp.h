@@ -60,6 +60,41 @@ struct WarpStats {
   // Output voxels two bones claim (each would put its own voxel there): bones passing through each other. Keyed by
   // the segment pair (lower index first); the lower index keeps the voxel.
   std::map<std::pair<int, int>, int64_t> bone_overlap_voxels;
+
+  // Adds another part's counts (the warp's slabs, each counted on its own thread).
+  WarpStats& operator+=(const WarpStats& other) {
+    covered_voxels += other.covered_voxels;
+    conflicted_voxels += other.conflicted_voxels;
+    extrapolated_voxels += other.extrapolated_voxels;
+    background_voxels += other.background_voxels;
+    degenerate_tets += other.degenerate_tets;
+    bone_voxels += other.bone_voxels;
+    contact_guarded_voxels += other.contact_guarded_voxels;
+    for (const auto& [pair, count] : other.bone_overlap_voxels) bone_overlap_voxels[pair] += count;
+    return *this;
+  }
+};
+
+// What a warp is built from.
+struct WarpInputs {
+  const TetMesh& rest;         // the rig's tet mesh
+  const Eigen::MatrixXd& posed;  // its posed vertices, #V x 3 (LPS mm)
+  const ImageGeometry& source;
+  const ImageGeometry& output;
+  // The rigid transform (rest -> posed) of everything outside the mesh, normally the root segment's.
+  Eigen::Matrix3d background_rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d background_translation = Eigen::Vector3d::Zero();
+  // owner() of the identity warp on the source grid (built without one, which rasterizes every tet). With it, tets
+  // that follow the background are not rasterized, and source voxels owned by moving tets are never copied by the
+  // background transform (so a moved limb leaves no ghost). Null: every tet is rasterized.
+  const std::vector<int32_t>* rest_owner = nullptr;
+  ResampleParams params = {};
+  // Bones rigid at voxel level (may be null). An output voxel that bone segment k's rigid inverse maps onto a source
+  // voxel of segment k takes that map, whatever tet covers it; a voxel a moving tet or the skin shell maps onto a
+  // bone that does not move takes the bone's (the background) map; and a tet map that lands inside a bone samples the
+  // bone voxel's soft-tissue substitute (BoneVoxels::substitute), so no bone value appears where its bone did not put
+  // it. `bones->voxels` must outlive the warp.
+  const RigidBones* bones = nullptr;
 };
 
 // The map from an output grid back to the source grid for one posed mesh.
@@ -77,24 +112,10 @@ class TetWarp {
   static constexpr int32_t kMaxBoneSegments = 32767;
   static bool is_bone_owner(int32_t o) { return o >= kBoneOwner && o < kBoneOwner + kMaxBoneSegments; }
 
-  // rest/posed: the rig's tet mesh and its posed vertices (#V x 3). background_*: the rigid transform (rest ->
-  // posed) of everything outside the mesh, normally the root segment's. rest_owner: owner() of the identity warp
-  // on the source grid (built with rest_owner = null, which rasterizes every tet); with it, tets that follow the
-  // background are not rasterized, and source voxels owned by moving tets are never copied by the background
-  // transform (so a moved limb leaves no ghost). May be null: every tet is rasterized. INVALID_ARGUMENT for posed
-  // vertices that do not fit the mesh, a rest ownership of another grid, or a skin shell wider than 8 output voxels;
-  // RESOURCE_EXHAUSTED for an output grid over max_output_voxels or out of memory.
-  //
-  // bones (may be null): bones rigid at voxel level. An output voxel that bone segment k's rigid inverse maps onto a
-  // source voxel of segment k takes that map, whatever tet covers it; a voxel a moving tet or the skin shell maps
-  // onto a bone that does not move takes the bone's (the background) map; and a tet map that lands inside a bone
-  // samples the bone voxel's soft-tissue substitute (BoneVoxels::substitute), so no bone value appears where its
-  // bone did not put it. `bones->voxels` must outlive the warp.
-  static Result<TetWarp> build(const TetMesh& rest, const Eigen::MatrixXd& posed,
-                               const ImageGeometry& source, const ImageGeometry& output,
-                               const Eigen::Matrix3d& background_rotation, const Eigen::Vector3d& background_translation,
-                               const std::vector<int32_t>* rest_owner, const ResampleParams& params,
-                               const ProgressHooks& hooks, const RigidBones* bones = nullptr);
+  // Builds the warp of `inputs` (WarpInputs says what each is). INVALID_ARGUMENT for posed vertices that do not fit
+  // the mesh, a rest ownership of another grid, or a skin shell wider than 8 output voxels; RESOURCE_EXHAUSTED for an
+  // output grid over max_output_voxels or out of memory.
+  static Result<TetWarp> build(const WarpInputs& inputs, const ProgressHooks& hooks = {});
 
   const ImageGeometry& output() const { return output_; }
   const WarpStats& stats() const { return stats_; }
@@ -118,6 +139,7 @@ class TetWarp {
   std::vector<float> inverse_displacement() const;
 
  private:
+  class Builder;  // build()'s steps (tet_warp.cpp)
   TetWarp() = default;
   // Calls sample(v, n, s, ds, soft) for every run of n output voxels from v along a row that map to source index s,
   // s + ds, ..., output slices in parallel.

@@ -10,16 +10,13 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/surface_mesh.h"
 #include "posewarp/common/volume.h"
 
 namespace posewarp::surface {
 
-struct SurfaceMesh {
-  std::string name;           // the label's name, or a file's stem
-  Label label = 0;            // the label it bounds (0 for a user's mesh or the skin)
-  Eigen::MatrixXd vertices;   // #V x 3, LPS mm
-  Eigen::MatrixXi triangles;  // #F x 3 vertex indices, counter-clockwise seen from outside (outward normals)
-};
+// The mesh itself is vocabulary (posewarp/common/surface_mesh.h), under the name the stage has always used.
+using posewarp::SurfaceMesh;
 
 struct SurfaceParams {
   int smoothing_iterations = 20;  // windowed-sinc smoothing passes (vtkWindowedSincPolyDataFilter), 0 = none

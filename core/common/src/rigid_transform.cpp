@@ -1,7 +1,7 @@
 // RigidTransform arithmetic.
-#include "posewarp/pose/rigid_transform.h"
+#include "posewarp/common/rigid_transform.h"
 
-namespace posewarp::pose {
+namespace posewarp {
 
 Eigen::Vector3d RigidTransform::apply(const Eigen::Vector3d& p) const {
   return rotation * p + translation;
@@ -32,4 +32,4 @@ RigidTransform RigidTransform::about(const Eigen::Matrix3d& rotation, const Eige
   return t;
 }
 
-}  // namespace posewarp::pose
+}  // namespace posewarp
