@@ -149,7 +149,7 @@ class Batch {
       return ok_status();
     }
     POSEWARP_ASSIGN_OR_RETURN(const api::DicomWebOptions options, dicomweb_options(o_.pacs));
-    pacs_ = std::make_unique<api::DicomWebClient>(options);
+    pacs_ = std::make_unique<api::Pacs>(options);
     return ok_status();
   }
 
@@ -565,7 +565,7 @@ class Batch {
   std::vector<Row> rows_;
   std::vector<std::string> keys_;
   std::vector<RowResult> results_;
-  std::unique_ptr<api::DicomWebClient> pacs_;
+  std::unique_ptr<api::Pacs> pacs_;
   std::mutex studies_mutex_, state_mutex_;
   std::map<std::string, std::shared_future<Result<std::shared_ptr<Study>>>> studies_;
   std::set<std::string> charged_;
@@ -580,7 +580,7 @@ Result<std::vector<Row>> rows_from_query(const BatchOptions& o) {
   if (o.out_dir.empty() && !o.to_pacs) return invalid_argument_error("--query needs --out-dir DIR, --to-pacs or both");
   POSEWARP_ASSIGN_OR_RETURN(const api::DicomWebOptions options, dicomweb_options(o.pacs));
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<api::DicomWebRecord> studies,
-                            api::DicomWebClient(options).search_studies(o.query));
+                            api::Pacs(options).search_studies(o.query));
   std::vector<Row> rows;
   for (const api::DicomWebRecord& study : studies) {
     Row row;

@@ -83,7 +83,7 @@ struct StoreOptions {
 int run_store(const StoreOptions& o) {
   Result<api::DicomWebOptions> options = dicomweb_options(o.pacs);
   if (!options.ok()) return report(options.status());
-  const api::DicomWebClient client(*options);
+  const api::Pacs client(*options);
   for (const std::string& path : o.paths) {
     Result<std::vector<std::string>> files = api::list_dicom_files(path);
     if (!files.ok()) return report(files.status());

@@ -17,8 +17,8 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/support.h"
-#include "posewarp/client/connection.h"
-#include "posewarp/client/pose_answer.h"
+#include "posewarp_client/connection.h"
+#include "posewarp_client/pose_answer.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 #include <nlohmann/json.hpp>
@@ -29,9 +29,11 @@ namespace {
 namespace fs = std::filesystem;
 
 // A failed call as the local commands report it: the server's code is the core's, so the exit code table holds.
-Status status_of(const grpc::Status& status, const std::string& server) {
-  const client::CallError error = client::error_of(status, server);
+Status status_of(const client::CallError& error) {
   return Status(static_cast<StatusCode>(error.code), error.message);
+}
+Status status_of(const grpc::Status& status, const std::string& server) {
+  return status_of(client::error_of(status, server));
 }
 int report_rpc(const grpc::Status& status, const std::string& server) {
   return report(status_of(status, server));
@@ -53,7 +55,7 @@ Result<Remote> connect(const Connection& c) {
   client::CallError error;
   std::unique_ptr<client::Connection> opened =
       client::Connection::open({c.server, c.token_file, c.tls_ca}, &error, std::move(retries));
-  if (!opened) return Status(static_cast<StatusCode>(error.code), error.message);
+  if (!opened) return status_of(error);
   return Remote(std::move(opened));
 }
 
@@ -232,7 +234,7 @@ int run_list_remote(const Connection& connection) {
   if (!remote.ok()) return report(remote.status());
   std::vector<v1::Rig> rigs;
   if (const client::CallError e = (*remote)->list_rigs(&rigs); e.failed()) {
-    return report(Status(static_cast<StatusCode>(e.code), e.message));
+    return report(status_of(e));
   }
   for (const v1::Rig& rig : rigs) {
     std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
@@ -318,7 +320,7 @@ Result<RemotePoseResult> RemotePoser::pose(const api::PoseRequest& core) const {
   const v1::PoseRequest request = proto_request(core, state_->rig_id);
   client::PoseAnswer wire;
   if (const client::CallError e = client::pose(*state_->remote, request, &wire); e.failed()) {
-    return Status(static_cast<StatusCode>(e.code), e.message);
+    return status_of(e);
   }
   RemotePoseResult answer;
   for (const v1::Surface& s : wire.surfaces) {

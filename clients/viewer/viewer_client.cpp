@@ -144,8 +144,7 @@ CallError ViewerClient::list_rigs(std::vector<v1::Rig>* rigs) const { return con
 CallError ViewerClient::rig(const std::string& rig_id, v1::Rig* rig) const {
   v1::GetRigRequest request;
   request.set_rig_id(rig_id);
-  const auto call = context(rig_id);
-  return connection_->error_of(stub().GetRig(call.get(), request, rig));
+  return connection_->error_of(connection_->unary(&v1::Posewarp::Stub::GetRig, request, rig, rig_id));
 }
 
 CallError ViewerClient::assets(const std::string& rig_id, RigAssets* assets) const {

@@ -16,8 +16,8 @@
 #include <thread>
 #include <vector>
 
-#include "posewarp/client/connection.h"
-#include "posewarp/client/pose_answer.h"
+#include "posewarp_client/connection.h"
+#include "posewarp_client/pose_answer.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 namespace posewarp::view {

@@ -1,5 +1,5 @@
 // The channel, the calls' metadata, retries and ListRigs paging.
-#include "posewarp/client/connection.h"
+#include "posewarp_client/connection.h"
 
 #include <fstream>
 #include <sstream>

@@ -1,5 +1,5 @@
 // A Pose stream read whole and checked.
-#include "posewarp/client/pose_answer.h"
+#include "posewarp_client/pose_answer.h"
 
 namespace posewarp::client {
 namespace {

@@ -481,16 +481,12 @@ Result<PosePlan> PoseEngine::plan(const PoseRequest& request) const {
     const Prepared& p = *prepared_;
     if (request.method == Method::kFem) POSEWARP_RETURN_IF_ERROR(fem_params(request.fem).status());
     if (!(request.want_labels || request.want_ct || request.want_fields)) return PosePlan{};
+    POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms,
+                              kinematics(p, request.pose, request.pose_source));
     Eigen::MatrixXd posed;
     if (request.grid == GridPolicy::kGrow) {  // the grown grid holds the posed body
-      POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms,
-                                kinematics(p, request.pose, request.pose_source));
       // fem moves only soft tissue between bones that CoR has placed: its grid is CoR's (the pose checks its own).
       POSEWARP_ASSIGN_OR_RETURN(posed, skinned(p, request.method, segment_transforms(transforms)));
-    } else {
-      Status fits = pose::validate_pose(request.pose, p.rig.skeleton);
-      if (!fits.ok() && !request.pose_source.empty()) fits = fits.with_context(request.pose_source);
-      POSEWARP_RETURN_IF_ERROR(fits);
     }
     POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry grid, output_grid(p, request, posed));
     return check_output_budget(p, request, grid);

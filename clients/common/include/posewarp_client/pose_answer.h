@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/client/connection.h"
+#include "posewarp_client/connection.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
 
 namespace posewarp::client {
