@@ -10,7 +10,7 @@
 
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
-#include "posewarp/phantom/phantom.h"
+#include "posewarp/api/study.h"
 
 namespace posewarp::bench {
 
@@ -44,9 +44,9 @@ inline std::string mannequin_rig_bytes(double mvoxels, const std::filesystem::pa
     if (!bytes.ok()) throw std::runtime_error(bytes.status().to_string());
     return *bytes;
   }
-  phantom::MannequinParams params;
-  params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mvoxels * 1e6));
-  Result<phantom::Phantom> p = phantom::make_mannequin(params);
+  api::MannequinParams params;
+  params.spacing_mm = api::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mvoxels * 1e6));
+  Result<api::Phantom> p = api::make_mannequin(params);
   if (!p.ok()) throw std::runtime_error(p.status().to_string());
   api::BuildInputs inputs;
   inputs.labels = p->labels;

@@ -54,7 +54,7 @@ int main(int argc, char** argv) {
     const std::string sample = POSEWARP_SAMPLE_DIR;
     const IntensityVolume ct = *api::read_intensity_volume(sample + "/ct.nii.gz");
     const LabelVolume labels = *api::read_label_volume(sample + "/seg_total.nii.gz");
-    const labels::LabelMap map = *api::preset_by_name("totalsegmentator");
+    const api::LabelMap map = *api::preset_by_name("totalsegmentator");
     std::string csv = "id,pacs_study,pose,method,to_pacs\n";
     const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
     size_t stored_bytes = 0;

@@ -164,7 +164,7 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 
   // The preview (posed rest surfaces only): what a slider waits for. 200 calls each (fem 20), p50 and p99.
   int64_t surface_vertices = 0;
-  for (const surface::SurfaceMesh& m : engine->rig().surfaces) surface_vertices += m.vertices.rows();
+  for (const SurfaceMesh& m : engine->rig().surfaces) surface_vertices += m.vertices.rows();
   for (const api::Method method : {api::Method::kCor, api::Method::kDqs, api::Method::kLbs, api::Method::kFem}) {
     std::vector<double> ms;
     const int calls = method == api::Method::kFem ? 20 : 200;  // fem: tenths of a second each

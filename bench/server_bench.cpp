@@ -23,10 +23,6 @@ namespace {
 
 using namespace posewarp;
 using namespace posewarp::testing_server;
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
-
 using bench::percentile;
 
 // A client's connection to the server under test, as the CLI and the viewer make theirs.
@@ -52,10 +48,10 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   local.want_surfaces = false;  // as the server request below: labels + CT
   std::vector<double> local_ms;
   for (int r = 0; r < repeats; ++r) {
-    const auto start = Clock::now();
+    const api::Stopwatch start;
     Result<api::PoseResult> result = engine->pose(local);
     if (!result.ok()) throw std::runtime_error(result.status().to_string());
-    local_ms.push_back(1e3 * seconds_since(start));
+    local_ms.push_back(1e3 * start.seconds());
     if (r + 1 == repeats) {
       std::printf("%-12s local stages (ms):", name.c_str());
       for (const auto& [stage, seconds] : result->report.stage_seconds) std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds);
@@ -72,9 +68,9 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   const std::unique_ptr<client::Connection> connection = connect_to(server);  // poses: the clients' own library
   // Rig upload, then the rig's first load from the store (a cold cache: read, check, engine created).
   v1::Rig uploaded;
-  const auto upload_start = Clock::now();
+  const api::Stopwatch upload_start;
   if (grpc::Status s = upload_rig(*stub, rig_bytes, sha256_hex(rig_bytes), &uploaded); !s.ok()) throw std::runtime_error(s.error_message());
-  const double upload_s = seconds_since(upload_start);
+  const double upload_s = upload_start.seconds();
   row["rig_mb"] = static_cast<double>(rig_bytes.size()) / 1e6;
   row["upload_mb_per_s"] = static_cast<double>(rig_bytes.size()) / 1e6 / upload_s;
   {
@@ -84,17 +80,17 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     if (!upload_rig(*cold_stub, rig_bytes, sha256_hex(rig_bytes), &again).ok()) throw std::runtime_error("upload to the cold server failed");
     cold.stop();
   }
-  const auto load_start = Clock::now();
+  const api::Stopwatch load_start;
   Result<api::Rig> loaded = api::load_rig((store / "rigs" / (uploaded.id() + ".rig")).string());
-  row["rig_load_ms"] = 1e3 * seconds_since(load_start);
+  row["rig_load_ms"] = 1e3 * load_start.seconds();
   {
     grpc::ClientContext context;
     v1::GetRigRequest get;
     get.set_rig_id(uploaded.id());
     v1::Rig info;
-    const auto start = Clock::now();
+    const api::Stopwatch start;
     if (!stub->GetRig(&context, get, &info).ok()) throw std::runtime_error("GetRig failed");
-    row["first_get_rig_ms"] = 1e3 * seconds_since(start);  // load + engine create, through the server
+    row["first_get_rig_ms"] = 1e3 * start.seconds();  // load + engine create, through the server
   }
 
   v1::PoseRequest request;
@@ -104,10 +100,10 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   request.set_want_ct(true);
   std::vector<double> server_ms;
   for (int r = 0; r < repeats; ++r) {
-    const auto start = Clock::now();
+    const api::Stopwatch start;
     client::PoseAnswer answer;
     if (const client::CallError e = client::pose(*connection, request, &answer); e.failed()) throw std::runtime_error(e.message);
-    server_ms.push_back(1e3 * seconds_since(start));
+    server_ms.push_back(1e3 * start.seconds());
     row["volume_mb_per_pose"] = static_cast<double>(answer.labels.size() + answer.ct.size()) / 1e6;
     if (r + 1 == repeats) {
       const nlohmann::json report = nlohmann::json::parse(answer.report.json());
@@ -137,16 +133,16 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   for (const int clients : {1, 4, 16}) {
     const int per_client = std::max(1, repeats * 2 / clients);
     std::vector<std::future<std::vector<double>>> running;
-    const auto start = Clock::now();
+    const api::Stopwatch start;
     for (int c = 0; c < clients; ++c) {
       running.push_back(std::async(std::launch::async, [&] {
         const std::unique_ptr<client::Connection> own = connect_to(server);
         std::vector<double> ms;
         for (int i = 0; i < per_client; ++i) {
-          const auto t = Clock::now();
+          const api::Stopwatch t;
           client::PoseAnswer answer;
           if (const client::CallError e = client::pose(*own, request, &answer); e.failed()) throw std::runtime_error(e.message);
-          ms.push_back(1e3 * seconds_since(t));
+          ms.push_back(1e3 * t.seconds());
         }
         return ms;
       }));
@@ -156,7 +152,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
       const std::vector<double> ms = r.get();
       all.insert(all.end(), ms.begin(), ms.end());
     }
-    const double wall = seconds_since(start);
+    const double wall = start.seconds();
     row["throughput"].push_back({{"clients", clients}, {"poses_per_s", static_cast<double>(all.size()) / wall},
                                  {"p99_ms", percentile(all, 99)}, {"errors", 0}});
     std::printf("%-12s %2d clients: %6.2f poses/s, p99 %7.1f ms, 0 errors\n", name.c_str(), clients,
@@ -175,11 +171,11 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
       if (i == 0) update.set_rig_id(uploaded.id());
       update.set_sequence(static_cast<uint64_t>(i + 1));
       update.set_pose_json(pose_json);
-      const auto start = Clock::now();
+      const api::Stopwatch start;
       if (!stream->Write(update) || !stream->Read(&answer) || answer.error_code() != 0) {
         throw std::runtime_error("preview failed: " + answer.error_message());
       }
-      if (i > 0) ms.push_back(1e3 * seconds_since(start));  // the first carries the topology
+      if (i > 0) ms.push_back(1e3 * start.seconds());  // the first carries the topology
     }
     stream->WritesDone();
     while (stream->Read(&answer)) {
@@ -243,10 +239,10 @@ int main(int argc, char** argv) {
       auto stub = v1::Posewarp::NewStub(server.channel());
       const fs::path ct = fs::path(dir) / "ct.nii.gz";
       v1::Volume volume;
-      const auto start = Clock::now();
+      const api::Stopwatch start;
       if (!upload(*stub, ct, v1::VOLUME_KIND_INTENSITY, &volume).ok()) throw std::runtime_error("upload failed");
       const double mb = static_cast<double>(fs::file_size(ct)) / 1e6;
-      out["volume_upload_mb_per_s"] = mb / seconds_since(start);
+      out["volume_upload_mb_per_s"] = mb / start.seconds();
       std::printf("volume upload (sample CT, %.1f MB .nii.gz, checked and stored): %.1f MB/s\n", mb,
                   out["volume_upload_mb_per_s"].get<double>());
       server.stop();

@@ -15,23 +15,7 @@
 namespace posewarp::server {
 namespace {
 
-constexpr const char* kSchema = R"sql(
-CREATE TABLE IF NOT EXISTS volumes (
-  id TEXT PRIMARY KEY, kind TEXT NOT NULL, extension TEXT NOT NULL, size_bytes BIGINT NOT NULL,
-  created TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS rigs (
-  id TEXT PRIMARY KEY, name TEXT NOT NULL, labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL,
-  size_bytes BIGINT NOT NULL, build_seconds DOUBLE PRECISION NOT NULL, created TEXT NOT NULL,
-  last_used TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS operations (
-  id TEXT PRIMARY KEY, seq BIGSERIAL, state TEXT NOT NULL, name TEXT NOT NULL,
-  labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL, rig_id TEXT NOT NULL, error_code INTEGER NOT NULL,
-  error_message TEXT NOT NULL, elapsed_s DOUBLE PRECISION NOT NULL, created TEXT NOT NULL,
-  owner TEXT NOT NULL DEFAULT '', lease_until TIMESTAMPTZ);
-CREATE INDEX IF NOT EXISTS operations_by_seq ON operations(seq);
-CREATE TABLE IF NOT EXISTS build_claims (
-  rig_id TEXT PRIMARY KEY, owner TEXT NOT NULL, lease_until TIMESTAMPTZ NOT NULL);
-)sql";
+const SchemaDialect kDialect{"BIGINT", "DOUBLE PRECISION", "BIGSERIAL", true};
 
 constexpr const char* kChannel = "posewarp_rig_deleted";
 constexpr const char* kRigColumns =
@@ -93,7 +77,7 @@ class PostgresIndex final : public StoreIndex {
   Status open() {
     return run("creating its tables", [](pqxx::work& w) {
       w.exec("SELECT pg_advisory_xact_lock(7243901)");
-      w.exec(kSchema);
+      w.exec(index_schema(kDialect));
     });
   }
 

@@ -9,19 +9,7 @@
 namespace posewarp::server {
 namespace {
 
-constexpr const char* kSchema = R"sql(
-CREATE TABLE IF NOT EXISTS volumes (
-  id TEXT PRIMARY KEY, kind TEXT NOT NULL, extension TEXT NOT NULL, size_bytes INTEGER NOT NULL,
-  created TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS rigs (
-  id TEXT PRIMARY KEY, name TEXT NOT NULL, labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL,
-  size_bytes INTEGER NOT NULL, build_seconds REAL NOT NULL, created TEXT NOT NULL, last_used TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS operations (
-  id TEXT PRIMARY KEY, seq INTEGER NOT NULL, state TEXT NOT NULL, name TEXT NOT NULL,
-  labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL, rig_id TEXT NOT NULL, error_code INTEGER NOT NULL,
-  error_message TEXT NOT NULL, elapsed_s REAL NOT NULL, created TEXT NOT NULL);
-CREATE INDEX IF NOT EXISTS operations_by_seq ON operations(seq);
-)sql";
+const SchemaDialect kDialect{"INTEGER", "REAL", "INTEGER NOT NULL"};
 
 // One prepared statement, finalized on scope exit.
 class Statement {
@@ -235,7 +223,7 @@ Result<std::unique_ptr<StoreIndex>> open_sqlite_index(const std::string& path) {
   sqlite3_busy_timeout(db, 10000);
   auto index = std::make_unique<SqliteIndex>(db);
   POSEWARP_RETURN_IF_ERROR(index->exec("PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL;", "opening"));
-  POSEWARP_RETURN_IF_ERROR(index->exec(kSchema, "creating its tables"));
+  POSEWARP_RETURN_IF_ERROR(index->exec(index_schema(kDialect).c_str(), "creating its tables"));
   if (Status s = index->exec("SELECT count(*) FROM rigs", "checking its integrity"); !s.ok()) {
     return data_loss_error(s.message() + "; the index '" + path + "' is damaged (move it aside: the server rebuilds "
                            "it from the rig files at the next start)");

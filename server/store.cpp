@@ -22,6 +22,30 @@
 #include "posewarp/api/rig_file.h"
 
 namespace posewarp::server {
+
+std::string index_schema(const SchemaDialect& d) {
+  const std::string big = d.big_integer, real = d.real;
+  std::string sql =
+      "CREATE TABLE IF NOT EXISTS volumes (\n"
+      "  id TEXT PRIMARY KEY, kind TEXT NOT NULL, extension TEXT NOT NULL, size_bytes " + big + " NOT NULL,\n"
+      "  created TEXT NOT NULL);\n"
+      "CREATE TABLE IF NOT EXISTS rigs (\n"
+      "  id TEXT PRIMARY KEY, name TEXT NOT NULL, labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL,\n"
+      "  size_bytes " + big + " NOT NULL, build_seconds " + real + " NOT NULL, created TEXT NOT NULL,\n"
+      "  last_used TEXT NOT NULL);\n"
+      "CREATE TABLE IF NOT EXISTS operations (\n"
+      "  id TEXT PRIMARY KEY, seq " + d.sequence + ", state TEXT NOT NULL, name TEXT NOT NULL,\n"
+      "  labels_volume_id TEXT NOT NULL, ct_volume_id TEXT NOT NULL, rig_id TEXT NOT NULL,\n"
+      "  error_code INTEGER NOT NULL, error_message TEXT NOT NULL, elapsed_s " + real + " NOT NULL,\n"
+      "  created TEXT NOT NULL" +
+      (d.shared ? ",\n  owner TEXT NOT NULL DEFAULT '', lease_until TIMESTAMPTZ" : "") + ");\n"
+      "CREATE INDEX IF NOT EXISTS operations_by_seq ON operations(seq);\n";
+  if (d.shared) {
+    sql += "CREATE TABLE IF NOT EXISTS build_claims (\n"
+           "  rig_id TEXT PRIMARY KEY, owner TEXT NOT NULL, lease_until TIMESTAMPTZ NOT NULL);\n";
+  }
+  return sql;
+}
 namespace {
 
 namespace fs = std::filesystem;
@@ -244,19 +268,8 @@ Result<VolumeRecord> RigStore::put_volume_file(const std::string& id, const std:
   if (ec) return internal_error("an upload's staging file is gone: " + ec.message());
   POSEWARP_RETURN_IF_ERROR(check_quota(size));
   // Durable before it gets its name, and its name durable before the row names it.
-  const int fd = ::open(staged_path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0 || ::fsync(fd) != 0) {
-    if (fd >= 0) ::close(fd);
-    return internal_error("cannot flush an upload to disk: " + std::string(std::strerror(errno)));
-  }
-  ::close(fd);
-  const fs::path volumes = fs::path(directory_) / "volumes";
-  fs::rename(staged_path, volumes / (id + extension), ec);
-  if (ec) return internal_error("cannot move an upload into the store: " + ec.message());
-  if (const int dir = ::open(volumes.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC); dir >= 0) {
-    ::fsync(dir);
-    ::close(dir);
-  }
+  const fs::path target = fs::path(directory_) / "volumes" / (id + extension);
+  POSEWARP_RETURN_IF_ERROR(api::AtomicFile::adopt(staged_path, target.string(), "uploaded volume").commit());
   POSEWARP_RETURN_IF_ERROR(index_->put_volume({id, kind, extension, size, iso_now(), ""}));
   return volume(id);
 }

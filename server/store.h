@@ -103,6 +103,16 @@ class StoreIndex {
                                   std::function<void()> /*resync*/) {}
 };
 
+// The index's tables, one schema for every index: only the column types each database names its own way differ,
+// and a shared index also keeps who runs each build until when (its leases and claims).
+struct SchemaDialect {
+  const char* big_integer;  // a 64-bit integer column
+  const char* real;         // a double column
+  const char* sequence;     // operations.seq: increasing with each build queued
+  bool shared = false;      // several replicas: operations.owner and lease_until, the build_claims table
+};
+std::string index_schema(const SchemaDialect& dialect);
+
 // SQLite (WAL, synchronous=FULL) at `path`, created with its schema when missing.
 Result<std::unique_ptr<StoreIndex>> open_sqlite_index(const std::string& path);
 // PostgreSQL at `conninfo` (a libpq connection string or postgresql:// URL), its tables created when missing.

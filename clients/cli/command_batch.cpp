@@ -357,6 +357,34 @@ class Batch {
     return api::read_dicom_study(instances, seg, map);
   }
 
+  // A posed frame as DICOM of the row's study: a derived CT series and its SEG. The same result has the same UIDs
+  // (nothing stored twice): seeded by the source series' content (its series and instance UIDs), the pose and the
+  // method.
+  Result<api::DicomOutputs> encode_dicom(const Study& s, const Row& row, const api::PoseResult& posed,
+                                         const std::string& pose_name, const std::string& frame) const {
+    if (!posed.ct) return data_loss_error("the posed study has no CT to store");
+    api::DerivedSeriesOptions options;
+    options.uid_root = o_.uid_root;
+    std::string source = s.dicom->series_instance_uid;
+    for (const std::string& uid : s.dicom->sop_instance_uids) source += "\n" + uid;
+    options.uid_seed = api::sha256_hex(source) + "/" + pose_hash(row) + "/" + row.method + "/" + frame;
+    options.series_description =
+        "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
+    options.derivation_description =
+        "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " + s.dicom->series_instance_uid;
+    return api::encode_dicom_outputs(*posed.ct, *posed.labels, s.label_map, *s.dicom, options);
+  }
+
+  // The series and its SEG stored side by side (the PACS ingests them in two of its workers); a row that fails here
+  // is stored again whole by a rerun, under the same UIDs.
+  Status store(const Study& s, const api::DicomOutputs& dicom) {
+    std::future<Status> seg =
+        std::async(std::launch::async, [&] { return pacs_->store({dicom.seg_file}, s.dicom->study_instance_uid); });
+    Status stored = pacs_->store(dicom.ct_files, s.dicom->study_instance_uid);
+    const Status seg_stored = seg.get();
+    return stored.ok() ? seg_stored : stored;
+  }
+
   RowResult run_row(const Row& row, const std::string& key) {
     RowResult result;
     Result<std::shared_ptr<Study>> study = study_of(row);
@@ -397,20 +425,7 @@ class Batch {
       const Stopwatch encode_start;
       std::optional<api::DicomOutputs> dicom;
       if (s.dicom) {
-        if (!posed->result.ct) return result.error = "DATA_LOSS: the posed study has no CT to store", result;
-        api::DerivedSeriesOptions options;
-        options.uid_root = o_.uid_root;
-        // The same result has the same UIDs (nothing stored twice): seeded by the source series' content (its series
-        // and instance UIDs), the pose and the method.
-        std::string source = s.dicom->series_instance_uid;
-        for (const std::string& uid : s.dicom->sop_instance_uids) source += "\n" + uid;
-        options.uid_seed = api::sha256_hex(source) + "/" + pose_hash(row) + "/" + row.method + "/" + frame;
-        options.series_description =
-            "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
-        options.derivation_description =
-            "re-posed by posewarp (" + pose_name + ", " + row.method + ") from series " + s.dicom->series_instance_uid;
-        Result<api::DicomOutputs> encoded =
-            api::encode_dicom_outputs(*posed->result.ct, *posed->result.labels, s.label_map, *s.dicom, options);
+        Result<api::DicomOutputs> encoded = encode_dicom(s, row, posed->result, pose_name, frame);
         if (!encoded.ok()) return result.error = encoded.status().to_string(), result;
         dicom = std::move(encoded).value();
       }
@@ -422,14 +437,7 @@ class Batch {
       result.encode_s += encode_start.seconds();
       if (row.to_pacs && dicom) {
         const Stopwatch store_start;
-        // The series and its SEG side by side (the PACS ingests them in two of its workers); a row that fails here
-        // is stored again whole by a rerun, under the same UIDs.
-        std::future<Status> seg = std::async(
-            std::launch::async, [&] { return pacs_->store({dicom->seg_file}, s.dicom->study_instance_uid); });
-        Status stored = pacs_->store(dicom->ct_files, s.dicom->study_instance_uid);
-        const Status seg_stored = seg.get();
-        if (stored.ok()) stored = seg_stored;
-        if (!stored.ok()) return result.error = stored.to_string(), result;
+        if (Status stored = store(s, *dicom); !stored.ok()) return result.error = stored.to_string(), result;
         result.store_s += store_start.seconds();
         result.outputs.push_back("pacs:" + dicom->ct.series_instance_uid);
         result.outputs.push_back("pacs:" + dicom->seg.series_instance_uid);

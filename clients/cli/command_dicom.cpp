@@ -65,7 +65,7 @@ int run_dicom_info(const InfoOptions& o) {
   if (!map.ok()) return report(map.status());
   Result<api::DicomStudy> study = api::read_dicom_study(o.ct_dir, o.seg_path, *map);
   if (!study.ok()) return report(study.status());
-  for (const api::Segment& s : study->segments) {
+  for (const api::DicomSegment& s : study->segments) {
     const api::LabelEntry* entry = study->label_map.find(s.number);
     std::printf("segment %3d  %-28s %s\n", s.number, s.label.c_str(),
                 entry != nullptr ? std::string(api::role_name(entry->role)).c_str() : "?");

@@ -299,18 +299,17 @@ struct CompareOptions {
   Connection connection;  // compare on posewarp-server; rig_path is then a rig id
 };
 
-// One pose with each method, its local figures side by side: the tet mesh only (no volume is warped), so each
-// method costs its skinning (and for fem its solve) and the mesh report.
-int run_compare(const CompareOptions& o) {
+// One request per method of --methods (two to four, none twice), each for the mesh report alone.
+Result<std::vector<api::PoseRequest>> compare_requests(const CompareOptions& o) {
   if (o.methods.size() < 2 || o.methods.size() > 4) {
-    return report(invalid_argument_error("--methods takes two to four of cor, dqs, lbs and fem, comma separated"));
+    return invalid_argument_error("--methods takes two to four of cor, dqs, lbs and fem, comma separated");
   }
   std::vector<api::PoseRequest> requests;
   for (const std::string& name : o.methods) {
     Result<api::Method> method = api::method_from_name(name);
-    if (!method.ok()) return report(method.status().with_context("--methods"));
+    if (!method.ok()) return method.status().with_context("--methods");
     for (const api::PoseRequest& earlier : requests) {
-      if (earlier.method == *method) return report(invalid_argument_error("--methods names '" + name + "' twice"));
+      if (earlier.method == *method) return invalid_argument_error("--methods names '" + name + "' twice");
     }
     api::PoseRequest request;
     request.method = *method;
@@ -318,37 +317,37 @@ int run_compare(const CompareOptions& o) {
     request.want_labels = request.want_ct = request.want_surfaces = false;
     requests.push_back(std::move(request));
   }
-  if (Status s = refuse_overwriting_inputs({o.json_out}, {o.rig_path, o.pose_path}); !s.ok()) return report(s);
-  if (Status s = check_output_files({o.json_out}); !s.ok()) return report(s);
-  if (Status s = refuse_directories({o.json_out}); !s.ok()) return report(s);
-  Result<Pose> pose = api::read_pose(o.pose_path);
-  if (!pose.ok()) return report(pose.status());
-  for (api::PoseRequest& request : requests) {
-    request.pose = *pose;
-    request.pose_source = "pose file '" + o.pose_path + "'";
-  }
+  return requests;
+}
+
+// Each request's quality report as JSON, posed in process or on the server.
+Result<std::vector<nlohmann::json>> compare_reports(const CompareOptions& o,
+                                                    const std::vector<api::PoseRequest>& requests) {
   std::vector<nlohmann::json> reports;
   if (!o.connection.server.empty()) {
-    Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
-    if (!poser.ok()) return report(poser.status());
+    POSEWARP_ASSIGN_OR_RETURN(RemotePoser poser, RemotePoser::open(o.connection, o.rig_path));
     for (const api::PoseRequest& request : requests) {
-      Result<RemotePoseResult> answer = poser->pose(request);
-      if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
+      Result<RemotePoseResult> answer = poser.pose(request);
+      if (!answer.ok()) return answer.status().with_context("pose file '" + o.pose_path + "'");
       reports.push_back(nlohmann::json::parse(answer->report_json, nullptr, false));
     }
   } else {
-    Result<api::PoseEngine> engine = load_engine(o.rig_path);
-    if (!engine.ok()) return report(engine.status());
+    POSEWARP_ASSIGN_OR_RETURN(api::PoseEngine engine, load_engine(o.rig_path));
     for (const api::PoseRequest& request : requests) {
-      Result<api::PoseResult> result = engine->pose(request, progress_bar());
-      if (!result.ok()) return report(result.status());
-      reports.push_back(nlohmann::json::parse(api::report_to_json(result->report), nullptr, false));
+      POSEWARP_ASSIGN_OR_RETURN(api::PoseResult result, engine.pose(request, progress_bar()));
+      reports.push_back(nlohmann::json::parse(api::report_to_json(result.report), nullptr, false));
     }
   }
   for (const nlohmann::json& r : reports) {
-    if (!r.is_object()) return report(internal_error("a quality report could not be read back"));
+    if (!r.is_object()) return internal_error("a quality report could not be read back");
   }
-  // Rows: figure name, then one value per method.
+  return reports;
+}
+
+// The reports' figures side by side: a row per figure (the whole body, then each moved joint's region), a column
+// per method.
+std::string compare_table(const std::string& pose_name, const std::vector<std::string>& methods,
+                          const std::vector<nlohmann::json>& reports) {
   std::vector<std::pair<std::string, std::vector<std::string>>> rows;
   auto row = [&](const std::string& name, auto&& value) {
     std::vector<std::string> cells;
@@ -388,18 +387,37 @@ int run_compare(const CompareOptions& o) {
   size_t width = 6;
   for (const auto& [name, cells] : rows) width = std::max(width, name.size());
   std::ostringstream table;
-  table << std::left << std::setw(static_cast<int>(width)) << ("pose '" + pose->name + "'");
-  for (const std::string& method : o.methods) table << std::right << std::setw(10) << method;
+  table << std::left << std::setw(static_cast<int>(width)) << ("pose '" + pose_name + "'");
+  for (const std::string& method : methods) table << std::right << std::setw(10) << method;
   table << "\n";
   for (const auto& [name, cells] : rows) {
     table << std::left << std::setw(static_cast<int>(width)) << name;
     for (const std::string& cell : cells) table << std::right << std::setw(10) << cell;
     table << "\n";
   }
-  std::cout << table.str() << std::flush;
+  return table.str();
+}
+
+// One pose with each method, its local figures side by side: the tet mesh only (no volume is warped), so each
+// method costs its skinning (and for fem its solve) and the mesh report.
+int run_compare(const CompareOptions& o) {
+  Result<std::vector<api::PoseRequest>> requests = compare_requests(o);
+  if (!requests.ok()) return report(requests.status());
+  if (Status s = refuse_overwriting_inputs({o.json_out}, {o.rig_path, o.pose_path}); !s.ok()) return report(s);
+  if (Status s = check_output_files({o.json_out}); !s.ok()) return report(s);
+  if (Status s = refuse_directories({o.json_out}); !s.ok()) return report(s);
+  Result<Pose> pose = api::read_pose(o.pose_path);
+  if (!pose.ok()) return report(pose.status());
+  for (api::PoseRequest& request : *requests) {
+    request.pose = *pose;
+    request.pose_source = "pose file '" + o.pose_path + "'";
+  }
+  Result<std::vector<nlohmann::json>> reports = compare_reports(o, *requests);
+  if (!reports.ok()) return report(reports.status());
+  std::cout << compare_table(pose->name, o.methods, *reports) << std::flush;
   if (!o.json_out.empty()) {
     nlohmann::json out{{"format", "posewarp.compare"}, {"version", 1}, {"pose", pose->name}, {"methods", o.methods}};
-    for (size_t i = 0; i < reports.size(); ++i) out["reports"][o.methods[i]] = reports[i];
+    for (size_t i = 0; i < reports->size(); ++i) out["reports"][o.methods[i]] = (*reports)[i];
     if (Status s = api::write_file_atomically(o.json_out, out.dump(2) + "\n", "comparison"); !s.ok()) return report(s);
   }
   return 0;

@@ -278,142 +278,157 @@ int run_export(const std::string& path, const std::string& mesh_out, const std::
   return 0;
 }
 
+// posewarp rig build: locally into a file, or on a server.
+void add_rig_build(CLI::App* group) {
+  auto o = std::make_shared<BuildOptions>();
+  CLI::App* cmd = group->add_subcommand("build",
+                                        "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the "
+                                        "body, Laplace skinning weights and\n"
+                                        "centres of rotation, written as one checksummed file");
+  cmd->add_option("--labels", o->labels_path,
+                  "Label volume (segmentation), or a DICOM SEG made on --ct (a DICOM series)")
+      ->required();
+  cmd->add_option("--ct", o->ct_path, "CT on the same grid (joins the body mask; kept for posing)");
+  cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
+  cmd->add_option("--label-map", o->label_map_path, "Label map JSON");
+  cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
+      ->check(CLI::IsMember(api::preset_names()));
+  cmd->add_option("--rig-spec", o->spec_path,
+                  "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
+  cmd->add_option("-o,--out", o->out, "Rig file to write (local builds)");
+  add_connection_options(cmd, o->connection);
+  cmd->add_option(
+      "--server", o->connection.server,
+      "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
+      "prints the rig id (default parameters; the mesh options here apply to local builds)");
+  cmd->add_option("--name", o->name, "Name of the rig on the server (default: the labels' file name)");
+  auto& p = o->params;
+  cmd->add_option("--contact-distance", p.skeleton.contact_distance_mm, "Bone contact distance, mm (0 = 3.5 voxels)")
+      ->capture_default_str();
+  cmd->add_option("--facet-size", p.mesh.facet_size_mm, "Largest boundary triangle, mm")->capture_default_str();
+  cmd->add_option("--facet-distance", p.mesh.facet_distance_mm, "Largest boundary approximation error, mm")
+      ->capture_default_str();
+  cmd->add_option("--bone-size", p.mesh.bone_cell_size_mm, "Largest tet size in and near bone, mm")
+      ->capture_default_str();
+  cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")
+      ->capture_default_str();
+  cmd->add_option("--joint-size", p.mesh.joint_cell_size_mm,
+                  "Largest tet size within --joint-radius of each joint's centre (not the spine's plane joints), mm (0: no finer mesh "
+                  "there; finer tets let the fem method bend the tissue of a joint over several layers)")
+      ->check(CLI::Range(0.0, 1000.0));
+  cmd->add_option("--joint-radius", p.mesh.joint_radius_mm, "Reach of --joint-size around each joint centre, mm")
+      ->check(CLI::Range(0.0, 1000.0))
+      ->capture_default_str();
+  cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
+      ->capture_default_str();
+  cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");
+  cmd->add_option("--seed", p.mesh.seed, "Seed of the sequential mesher")->capture_default_str();
+  cmd->add_option("--influences", p.weights.max_influences, "Bones kept per vertex")->capture_default_str();
+  cmd->add_flag("--fail-on-islands", o->islands_fail, "Fail on soft tissue without bone instead of attaching it");
+  cmd->add_option("--sigma", p.cor.sigma, "CoR similarity width (paper: < 0.1)")->capture_default_str();
+  cmd->callback([o] {
+    int code = 0;
+    if (!o->connection.server.empty()) {
+      if (!o->out.empty() || !o->body_path.empty()) {
+        throw CLI::ValidationError("--server",
+                                   "a remote build keeps its rig on the server (no -o) and takes no "
+                                   "--body mask yet");
+      }
+      code = run_build_remote(
+          {o->connection, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path, o->name});
+    } else {
+      if (o->out.empty()) throw CLI::RequiredError("-o,--out (or --server)");
+      code = run_build(*o);
+    }
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+// posewarp rig list: a server's rigs.
+void add_rig_list(CLI::App* group) {
+  auto connection = std::make_shared<Connection>();
+  CLI::App* cmd = group->add_subcommand("list", "The rigs a posewarp-server holds: id, name, size, created");
+  cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
+  add_connection_options(cmd, *connection);
+  cmd->callback([connection] {
+    if (int code = run_list_remote(*connection); code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+// posewarp rig info: a rig file's or a server's rig's joints, segments, mesh and provenance.
+void add_rig_info(CLI::App* group) {
+  auto path = std::make_shared<std::string>();
+  auto as_json = std::make_shared<bool>(false);
+  auto connection = std::make_shared<Connection>();
+  CLI::App* cmd =
+      group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
+  cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
+  cmd->add_flag("--json", *as_json, "Machine-readable output");
+  cmd->add_option("--server", connection->server, "Describe a rig that posewarp-server at HOST:PORT holds");
+  add_connection_options(cmd, *connection);
+  cmd->callback([path, as_json, connection] {
+    const int code =
+        connection->server.empty() ? run_info(*path, *as_json) : run_info_remote(*connection, *path, *as_json);
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+// posewarp rig delete: a rig on a server.
+void add_rig_delete(CLI::App* group) {
+  auto id = std::make_shared<std::string>();
+  auto connection = std::make_shared<Connection>();
+  CLI::App* cmd = group->add_subcommand("delete", "Delete a rig from posewarp-server (its file and index row)");
+  cmd->add_option("rig", *id, "Rig id (64 hex digits)")->required();
+  cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
+  add_connection_options(cmd, *connection);
+  cmd->callback([id, connection] {
+    if (int code = run_delete_remote(*connection, *id); code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+// posewarp rig export: the tet mesh and skeleton for ParaView, or a server's rig file.
+void add_rig_export(CLI::App* group) {
+  auto path = std::make_shared<std::string>();
+  auto mesh_out = std::make_shared<std::string>();
+  auto skeleton_out = std::make_shared<std::string>();
+  auto rig_out = std::make_shared<std::string>();
+  auto connection = std::make_shared<Connection>();
+  CLI::App* cmd = group->add_subcommand("export",
+                                        "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for "
+                                        "ParaView; with --server, download the rig file (--rig-out)");
+  cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
+  cmd->add_option("--mesh", *mesh_out, "Tet mesh with labels and per-bone weights (.vtu)");
+  cmd->add_option("--skeleton", *skeleton_out, "Skeleton as lines (.vtp)");
+  cmd->add_option("--rig-out", *rig_out, "With --server: where to write the downloaded rig file");
+  cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT holding the rig");
+  add_connection_options(cmd, *connection);
+  cmd->callback([path, mesh_out, skeleton_out, rig_out, connection] {
+    int code = 0;
+    if (!connection->server.empty()) {
+      if (rig_out->empty() || !mesh_out->empty() || !skeleton_out->empty()) {
+        throw CLI::ValidationError("--server",
+                                   "a remote export downloads the rig file: give --rig-out F (then "
+                                   "`posewarp rig export F --mesh ...` locally)");
+      }
+      code = run_export_remote(*connection, *path, *rig_out);
+    } else {
+      code = run_export(*path, *mesh_out, *skeleton_out);
+    }
+    if (code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
 }  // namespace
 
 void add_rig_commands(CLI::App& app) {
   CLI::App* group = app.add_subcommand(
       "rig", "Build a rig once per study (skeleton, tet mesh, weights, centres), inspect and export it");
   group->require_subcommand(1);
-  {
-    auto o = std::make_shared<BuildOptions>();
-    CLI::App* cmd = group->add_subcommand("build",
-                                          "Build a rig from a segmentation: automatic joints, tetrahedral mesh of the "
-                                          "body, Laplace skinning weights and\n"
-                                          "centres of rotation, written as one checksummed file");
-    cmd->add_option("--labels", o->labels_path,
-                    "Label volume (segmentation), or a DICOM SEG made on --ct (a DICOM series)")
-        ->required();
-    cmd->add_option("--ct", o->ct_path, "CT on the same grid (joins the body mask; kept for posing)");
-    cmd->add_option("--body", o->body_path, "Body mask on the same grid (non-zero = body) instead of the computed one");
-    cmd->add_option("--label-map", o->label_map_path, "Label map JSON");
-    cmd->add_option("--preset", o->preset, "Built-in label map (default: totalsegmentator)")
-        ->check(CLI::IsMember(api::preset_names()));
-    cmd->add_option("--rig-spec", o->spec_path,
-                    "Rig spec JSON: group labels, choose the root, add/move/re-parent joints");
-    cmd->add_option("-o,--out", o->out, "Rig file to write (local builds)");
-    add_connection_options(cmd, o->connection);
-    cmd->add_option(
-        "--server", o->connection.server,
-        "Build on posewarp-server at HOST:PORT instead: uploads the volumes, shows the build's progress and "
-        "prints the rig id (default parameters; the mesh options here apply to local builds)");
-    cmd->add_option("--name", o->name, "Name of the rig on the server (default: the labels' file name)");
-    auto& p = o->params;
-    cmd->add_option("--contact-distance", p.skeleton.contact_distance_mm, "Bone contact distance, mm (0 = 3.5 voxels)")
-        ->capture_default_str();
-    cmd->add_option("--facet-size", p.mesh.facet_size_mm, "Largest boundary triangle, mm")->capture_default_str();
-    cmd->add_option("--facet-distance", p.mesh.facet_distance_mm, "Largest boundary approximation error, mm")
-        ->capture_default_str();
-    cmd->add_option("--bone-size", p.mesh.bone_cell_size_mm, "Largest tet size in and near bone, mm")
-        ->capture_default_str();
-    cmd->add_option("--soft-size", p.mesh.soft_cell_size_mm, "Largest tet size deep in soft tissue, mm")
-        ->capture_default_str();
-    cmd->add_option("--joint-size", p.mesh.joint_cell_size_mm,
-                    "Largest tet size within --joint-radius of each joint's centre (not the spine's plane joints), mm (0: no finer mesh "
-                    "there; finer tets let the fem method bend the tissue of a joint over several layers)")
-        ->check(CLI::Range(0.0, 1000.0));
-    cmd->add_option("--joint-radius", p.mesh.joint_radius_mm, "Reach of --joint-size around each joint centre, mm")
-        ->check(CLI::Range(0.0, 1000.0))
-        ->capture_default_str();
-    cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
-        ->capture_default_str();
-    cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");
-    cmd->add_option("--seed", p.mesh.seed, "Seed of the sequential mesher")->capture_default_str();
-    cmd->add_option("--influences", p.weights.max_influences, "Bones kept per vertex")->capture_default_str();
-    cmd->add_flag("--fail-on-islands", o->islands_fail, "Fail on soft tissue without bone instead of attaching it");
-    cmd->add_option("--sigma", p.cor.sigma, "CoR similarity width (paper: < 0.1)")->capture_default_str();
-    cmd->callback([o] {
-      int code = 0;
-      if (!o->connection.server.empty()) {
-        if (!o->out.empty() || !o->body_path.empty()) {
-          throw CLI::ValidationError("--server",
-                                     "a remote build keeps its rig on the server (no -o) and takes no "
-                                     "--body mask yet");
-        }
-        code = run_build_remote(
-            {o->connection, o->labels_path, o->ct_path, o->label_map_path, o->preset, o->spec_path, o->name});
-      } else {
-        if (o->out.empty()) throw CLI::RequiredError("-o,--out (or --server)");
-        code = run_build(*o);
-      }
-      if (code != 0) throw CLI::RuntimeError(code);
-    });
-  }
-  {
-    auto connection = std::make_shared<Connection>();
-    CLI::App* cmd = group->add_subcommand("list", "The rigs a posewarp-server holds: id, name, size, created");
-    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
-    add_connection_options(cmd, *connection);
-    cmd->callback([connection] {
-      if (int code = run_list_remote(*connection); code != 0) throw CLI::RuntimeError(code);
-    });
-  }
-  {
-    auto path = std::make_shared<std::string>();
-    auto as_json = std::make_shared<bool>(false);
-    auto connection = std::make_shared<Connection>();
-    CLI::App* cmd =
-        group->add_subcommand("info", "Joints, segments, mesh size, weight statistics, timings, provenance");
-    cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
-    cmd->add_flag("--json", *as_json, "Machine-readable output");
-    cmd->add_option("--server", connection->server, "Describe a rig that posewarp-server at HOST:PORT holds");
-    add_connection_options(cmd, *connection);
-    cmd->callback([path, as_json, connection] {
-      const int code =
-          connection->server.empty() ? run_info(*path, *as_json) : run_info_remote(*connection, *path, *as_json);
-      if (code != 0) throw CLI::RuntimeError(code);
-    });
-  }
-  {
-    auto id = std::make_shared<std::string>();
-    auto connection = std::make_shared<Connection>();
-    CLI::App* cmd = group->add_subcommand("delete", "Delete a rig from posewarp-server (its file and index row)");
-    cmd->add_option("rig", *id, "Rig id (64 hex digits)")->required();
-    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT")->required();
-    add_connection_options(cmd, *connection);
-    cmd->callback([id, connection] {
-      if (int code = run_delete_remote(*connection, *id); code != 0) throw CLI::RuntimeError(code);
-    });
-  }
-  {
-    auto path = std::make_shared<std::string>();
-    auto mesh_out = std::make_shared<std::string>();
-    auto skeleton_out = std::make_shared<std::string>();
-    auto rig_out = std::make_shared<std::string>();
-    auto connection = std::make_shared<Connection>();
-    CLI::App* cmd = group->add_subcommand("export",
-                                          "Write the tet mesh (.vtu, with weights) and skeleton (.vtp) for "
-                                          "ParaView; with --server, download the rig file (--rig-out)");
-    cmd->add_option("rig", *path, "Rig file (or, with --server, a rig id there)")->required();
-    cmd->add_option("--mesh", *mesh_out, "Tet mesh with labels and per-bone weights (.vtu)");
-    cmd->add_option("--skeleton", *skeleton_out, "Skeleton as lines (.vtp)");
-    cmd->add_option("--rig-out", *rig_out, "With --server: where to write the downloaded rig file");
-    cmd->add_option("--server", connection->server, "posewarp-server at HOST:PORT holding the rig");
-    add_connection_options(cmd, *connection);
-    cmd->callback([path, mesh_out, skeleton_out, rig_out, connection] {
-      int code = 0;
-      if (!connection->server.empty()) {
-        if (rig_out->empty() || !mesh_out->empty() || !skeleton_out->empty()) {
-          throw CLI::ValidationError("--server",
-                                     "a remote export downloads the rig file: give --rig-out F (then "
-                                     "`posewarp rig export F --mesh ...` locally)");
-        }
-        code = run_export_remote(*connection, *path, *rig_out);
-      } else {
-        code = run_export(*path, *mesh_out, *skeleton_out);
-      }
-      if (code != 0) throw CLI::RuntimeError(code);
-    });
-  }
+  add_rig_build(group);
+  add_rig_list(group);
+  add_rig_info(group);
+  add_rig_delete(group);
+  add_rig_export(group);
 }
 
 }  // namespace posewarp::cli

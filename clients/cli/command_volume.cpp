@@ -139,6 +139,85 @@ struct InspectOptions {
   api::BodyMaskParams body;
 };
 
+// What inspect found, as its JSON document: the grid, the body, each bone segment and each soft-tissue label.
+json inspection_json(const InspectOptions& options, const api::LabelMap& map, const ImageGeometry& g,
+                     const api::StudyInspection& study) {
+  json doc;
+  doc["labels"] = options.labels_path;
+  doc["ct"] = options.ct_path;
+  doc["label_map"] = map.name();
+  doc["geometry"] = geometry_json(g);
+  doc["body_voxels"] = study.body_voxels;
+  doc["body_volume_ml"] = study.body_volume_ml;
+  json bones = json::array();
+  for (const api::BoneSegmentSummary& bone : study.bones) {
+    bones.push_back({{"segment", bone.segment},
+                     {"class", bone.mesher_class},
+                     {"voxels", bone.voxels},
+                     {"volume_ml", bone.volume_ml},
+                     {"centroid_mm", {bone.centroid_mm.x(), bone.centroid_mm.y(), bone.centroid_mm.z()}}});
+  }
+  doc["bone_segments"] = bones;
+  doc["absent_bone_segments"] = study.census.absent_bone_segments;
+  json tissues = json::array();
+  for (const auto& [value, count] : study.census.voxel_counts) {
+    const api::LabelEntry* entry = map.find(value);
+    if (value == 0 || (entry && entry->role == api::LabelRole::kBone)) continue;
+    tissues.push_back({{"value", value}, {"name", entry ? entry->name : "unknown"}, {"voxels", count}});
+  }
+  doc["tissues"] = tissues;
+  doc["unknown_labels"] = study.census.unknown;
+  return doc;
+}
+
+// --out-dir: the body mask, the mesher's classes and the JSON document, named in doc["written"].
+Status write_inspection(const InspectOptions& options, const api::StudyInspection& study, json& doc) {
+  std::error_code ec;
+  fs::create_directories(options.out_dir, ec);
+  if (ec) return invalid_argument_error("cannot create " + options.out_dir + ": " + ec.message());
+  const std::string body_path = (fs::path(options.out_dir) / "body_mask.nii.gz").string();
+  const std::string classes_path = (fs::path(options.out_dir) / "segment_classes.nii.gz").string();
+  POSEWARP_RETURN_IF_ERROR(api::write_volume(study.body, body_path));
+  POSEWARP_RETURN_IF_ERROR(api::write_volume(study.classes, classes_path));
+  const std::string json_path = (fs::path(options.out_dir) / "inspect.json").string();
+  POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(json_path, doc.dump(2) + "\n", "inspection"));
+  doc["written"] = {body_path, classes_path, json_path};
+  return Status();
+}
+
+// The same for a reader: the study, the body, the bones found and what the map did not name.
+void print_inspection(const InspectOptions& options, bool with_ct, const api::LabelMap& map, const ImageGeometry& g,
+                      const api::StudyInspection& study, const json& doc) {
+  const json& bones = doc["bone_segments"];
+  const api::LabelCensus& census = study.census;
+  std::cout << "study        " << options.labels_path << (with_ct ? " + " + options.ct_path : std::string()) << "\n"
+            << "grid         " << g.describe() << ", axes point " << orientation_code(g) << "\n"
+            << "label map    " << map.name() << " (" << map.entries().size() << " labels)\n"
+            << "body         " << study.body_voxels << " voxels, " << fixed(study.body_volume_ml, 1) << " ml"
+            << (with_ct ? " (labels joined with CT > " + fixed(options.body.ct_threshold_hu, 0) + " HU)" : "") << "\n"
+            << "bone segments found: " << bones.size() << "\n";
+  for (const json& bone : bones) {
+    const auto& c = bone["centroid_mm"];
+    std::cout << "  " << std::left << std::setw(18) << bone["segment"].get<std::string>() << std::right << std::setw(8)
+              << bone["voxels"].get<int64_t>() << " voxels  centroid (" << fixed(c[0], 1) << ", " << fixed(c[1], 1)
+              << ", " << fixed(c[2], 1) << ") mm\n";
+  }
+  if (!census.absent_bone_segments.empty()) {
+    std::cout << "bone segments of the map not in this study (outside the field of view?): "
+              << census.absent_bone_segments.size() << "\n";
+  }
+  std::cout << "soft-tissue labels: " << doc["tissues"].size() << "\n";
+  if (!census.unknown.empty()) {
+    std::cout << "warning: labels not named by the map (treated as soft tissue):";
+    for (const Label value : census.unknown) std::cout << ' ' << value;
+    std::cout << "\n";
+  }
+  if (doc.contains("written")) {
+    for (const auto& path : doc["written"]) std::cout << "wrote " << path.get<std::string>() << "\n";
+  }
+  std::cout << "took " << fixed(doc["seconds"].get<double>(), 2) << " s\n";
+}
+
 int run_inspect(const InspectOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   Result<api::LabelMap> map = load_label_map(options.label_map_path, options.preset);
@@ -153,81 +232,16 @@ int run_inspect(const InspectOptions& options) {
   }
   Result<api::StudyInspection> study = api::inspect_study(*seg, ct ? &*ct : nullptr, *map, options.body);
   if (!study.ok()) return report(study.status());
-  const api::LabelCensus& census = study->census;
-  const ImageGeometry& g = seg->geometry();
-  const int64_t body_voxels = study->body_voxels;
-
-  json doc;
-  doc["labels"] = options.labels_path;
-  doc["ct"] = options.ct_path;
-  doc["label_map"] = map->name();
-  doc["geometry"] = geometry_json(g);
-  doc["body_voxels"] = body_voxels;
-  doc["body_volume_ml"] = study->body_volume_ml;
-  json bones = json::array();
-  for (const api::BoneSegmentSummary& bone : study->bones) {
-    bones.push_back({{"segment", bone.segment},
-                     {"class", bone.mesher_class},
-                     {"voxels", bone.voxels},
-                     {"volume_ml", bone.volume_ml},
-                     {"centroid_mm", {bone.centroid_mm.x(), bone.centroid_mm.y(), bone.centroid_mm.z()}}});
-  }
-  doc["bone_segments"] = bones;
-  doc["absent_bone_segments"] = census.absent_bone_segments;
-  json tissues = json::array();
-  for (const auto& [value, count] : census.voxel_counts) {
-    const api::LabelEntry* entry = map->find(value);
-    if (value == 0 || (entry && entry->role == api::LabelRole::kBone)) continue;
-    tissues.push_back({{"value", value}, {"name", entry ? entry->name : "unknown"}, {"voxels", count}});
-  }
-  doc["tissues"] = tissues;
-  doc["unknown_labels"] = census.unknown;
-
+  json doc = inspection_json(options, *map, seg->geometry(), *study);
   if (!options.out_dir.empty()) {
-    std::error_code ec;
-    fs::create_directories(options.out_dir, ec);
-    if (ec) return report(invalid_argument_error("cannot create " + options.out_dir + ": " + ec.message()));
-    const std::string body_path = (fs::path(options.out_dir) / "body_mask.nii.gz").string();
-    const std::string classes_path = (fs::path(options.out_dir) / "segment_classes.nii.gz").string();
-    if (Status s = api::write_volume(study->body, body_path); !s.ok()) return report(s);
-    if (Status s = api::write_volume(study->classes, classes_path); !s.ok()) return report(s);
-    const std::string json_path = (fs::path(options.out_dir) / "inspect.json").string();
-    if (Status s = api::write_file_atomically(json_path, doc.dump(2) + "\n", "inspection"); !s.ok()) return report(s);
-    doc["written"] = {body_path, classes_path, (fs::path(options.out_dir) / "inspect.json").string()};
+    if (Status s = write_inspection(options, *study, doc); !s.ok()) return report(s);
   }
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  doc["seconds"] = seconds;
-
+  doc["seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (options.as_json) {
     std::cout << doc.dump(2) << '\n';
     return 0;
   }
-  std::cout << "study        " << options.labels_path << (ct ? " + " + options.ct_path : std::string()) << "\n"
-            << "grid         " << g.describe() << ", axes point " << orientation_code(g) << "\n"
-            << "label map    " << map->name() << " (" << map->entries().size() << " labels)\n"
-            << "body         " << body_voxels << " voxels, " << fixed(study->body_volume_ml, 1) << " ml"
-            << (ct ? " (labels joined with CT > " + fixed(options.body.ct_threshold_hu, 0) + " HU)" : "") << "\n"
-            << "bone segments found: " << bones.size() << "\n";
-  for (const json& bone : bones) {
-    const auto& c = bone["centroid_mm"];
-    std::cout << "  " << std::left << std::setw(18) << bone["segment"].get<std::string>() << std::right << std::setw(8)
-              << bone["voxels"].get<int64_t>() << " voxels  centroid (" << fixed(c[0], 1) << ", " << fixed(c[1], 1)
-              << ", " << fixed(c[2], 1) << ") mm\n";
-  }
-  if (!census.absent_bone_segments.empty()) {
-    std::cout << "bone segments of the map not in this study (outside the field of view?): "
-              << census.absent_bone_segments.size() << "\n";
-  }
-  std::cout << "soft-tissue labels: " << tissues.size() << "\n";
-  if (!census.unknown.empty()) {
-    std::cout << "warning: labels not named by the map (treated as soft tissue):";
-    for (const Label value : census.unknown) std::cout << ' ' << value;
-    std::cout << "\n";
-  }
-  if (doc.contains("written")) {
-    for (const auto& path : doc["written"]) std::cout << "wrote " << path.get<std::string>() << "\n";
-  }
-  std::cout << "took " << fixed(seconds, 2) << " s\n";
+  print_inspection(options, ct.has_value(), *map, seg->geometry(), *study, doc);
   return 0;
 }
 

@@ -222,97 +222,117 @@ void App::save_pose() {
 }
 
 // Called every 15 ms on the render thread: draws new answers and finishes requests.
-bool App::tick() {
-  bool redraw = controller->poll();
+bool App::poll_stream() {
   const CallError ended = session->ended().failed() ? session->ended() : compare ? compare->ended() : CallError{};
-  if (!stream_lost && ended.failed()) {
-    stream_lost = true;
-    const CallError& e = ended;
-    status((e.code == grpc::StatusCode::UNAVAILABLE ? "lost the server: " : "the preview stopped: ") + e.message +
-           "  (x reconnects)");
-    redraw = true;
-  }
-  const auto now = std::chrono::steady_clock::now();
-  const bool progress_due = now - last_progress > std::chrono::milliseconds(250);
+  if (stream_lost || !ended.failed()) return false;
+  stream_lost = true;
+  status((ended.code == grpc::StatusCode::UNAVAILABLE ? "lost the server: " : "the preview stopped: ") + ended.message +
+         "  (x reconnects)");
+  return true;
+}
+
+bool App::poll_volume(std::chrono::steady_clock::time_point now, bool progress_due) {
   if (volume_request && !volume_request->done() && progress_due) {
     status(progress_text("full volume", *volume_request));
-    last_progress = now, redraw = true;
-  } else if (volume_request && volume_request->done() && !converting.valid()) {
-    PosedVolumes result;
-    const CallError e = volume_request->take(&result);
-    volume_request.reset();
-    if (e.failed()) {
-      status("full volume: " + e.message);
-    } else {
-      status("full volume: arrived, preparing the slices...");
-      arrived = std::move(result);
-      converting = std::async(std::launch::async, [this]() -> std::pair<bool, std::string> {
-        try {
-          std::string why;
-          const bool ok = slice_volume(arrived, &converted, &why);
-          return {ok, why};
-        } catch (const std::bad_alloc&) {
-          return {false, "not enough memory for the slices of this volume"};
-        }
-      });
-    }
-    redraw = true;
+    last_progress = now;
+    return true;
   }
-  if (converting.valid() && converting.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
-    const auto [ok, why] = converting.get();
-    if (!ok) {
-      status("full volume: " + why);
-    } else {
-      scene->slices().set_volume(std::move(converted));
-      shown_pose = requested_pose, shown_report = arrived.report, stale = false;
-      shown_method = controller->method();
-      shown_title =
-          "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
-      show_report();
-      if (compare) toggle_compare();
-      layout(Scene::Layout::kSlices);
-      status("full volume shown: click a slice to move the cursor, arrows step, b window, +/- label opacity");
-    }
-    arrived = PosedVolumes{};
-    redraw = true;
+  if (!volume_request || !volume_request->done() || converting.valid()) return false;
+  PosedVolumes result;
+  const CallError e = volume_request->take(&result);
+  volume_request.reset();
+  if (e.failed()) {
+    status("full volume: " + e.message);
+    return true;
   }
-  // The compare method's report of the same pose, beside the slices' own.
-  if (compare_request && compare_request->done()) {
-    PosedVolumes result;
-    const CallError e = compare_request->take(&result);
-    compare_request.reset();
-    if (e.failed()) {
-      status(std::string("the ") + method_name(compare_request_method) + " report: " + e.message);
-    } else {
-      compare_report = result.report;
-      compare_report_method = method_name(compare_request_method);
-      if (scene->slices().has_volume() && !stale) show_report();
+  status("full volume: arrived, preparing the slices...");
+  arrived = std::move(result);
+  converting = std::async(std::launch::async, [this]() -> std::pair<bool, std::string> {
+    try {
+      std::string why;
+      const bool ok = slice_volume(arrived, &converted, &why);
+      return {ok, why};
+    } catch (const std::bad_alloc&) {
+      return {false, "not enough memory for the slices of this volume"};
     }
-    redraw = true;
-  }
-  // The slices of an older pose say so.
-  if (scene->slices().has_volume() && !stale &&
-      pose_json(controller->pose()) + method_name(controller->method()) != shown_pose) {
-    stale = true;
-    shown_title += "\nof an earlier pose: f refreshes";
+  });
+  return true;
+}
+
+bool App::poll_slices() {
+  if (!converting.valid() || converting.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return false;
+  const auto [ok, why] = converting.get();
+  if (!ok) {
+    status("full volume: " + why);
+  } else {
+    scene->slices().set_volume(std::move(converted));
+    shown_pose = requested_pose, shown_report = arrived.report, stale = false;
+    shown_method = controller->method();
+    shown_title = "quality report (" + clock_time() + ", " + requested_pose.substr(requested_pose.rfind('}') + 1) + ")";
     show_report();
-    redraw = true;
+    if (compare) toggle_compare();
+    layout(Scene::Layout::kSlices);
+    status("full volume shown: click a slice to move the cursor, arrows step, b window, +/- label opacity");
   }
+  arrived = PosedVolumes{};
+  return true;
+}
+
+bool App::poll_compare_report() {
+  if (!compare_request || !compare_request->done()) return false;
+  PosedVolumes result;
+  const CallError e = compare_request->take(&result);
+  compare_request.reset();
+  if (e.failed()) {
+    status(std::string("the ") + method_name(compare_request_method) + " report: " + e.message);
+  } else {
+    compare_report = result.report;
+    compare_report_method = method_name(compare_request_method);
+    if (scene->slices().has_volume() && !stale) show_report();
+  }
+  return true;
+}
+
+bool App::mark_stale() {
+  if (!scene->slices().has_volume() || stale ||
+      pose_json(controller->pose()) + method_name(controller->method()) == shown_pose) {
+    return false;
+  }
+  stale = true;
+  shown_title += "\nof an earlier pose: f refreshes";
+  show_report();
+  return true;
+}
+
+bool App::poll_save(std::chrono::steady_clock::time_point now, bool progress_due) {
   if (save_request && !save_request->done() && progress_due) {
     status(progress_text("saving", *save_request));
-    last_progress = now, redraw = true;
-  } else if (save_request && save_request->done()) {
-    PosedVolumes result;
-    const CallError e = save_request->take(&result);
-    save_request.reset();
-    std::string why;
-    if (e.failed()) {
-      status("saving: " + e.message);
-    } else {
-      status(save_posed(result, save_dir, &why) ? "saved the posed volumes, surfaces and report to " + save_dir : why);
-    }
-    redraw = true;
+    last_progress = now;
+    return true;
   }
+  if (!save_request || !save_request->done()) return false;
+  PosedVolumes result;
+  const CallError e = save_request->take(&result);
+  save_request.reset();
+  std::string why;
+  if (e.failed()) {
+    status("saving: " + e.message);
+  } else {
+    status(save_posed(result, save_dir, &why) ? "saved the posed volumes, surfaces and report to " + save_dir : why);
+  }
+  return true;
+}
+
+bool App::tick() {
+  bool redraw = controller->poll();
+  redraw |= poll_stream();
+  const auto now = std::chrono::steady_clock::now();
+  const bool progress_due = now - last_progress > std::chrono::milliseconds(250);
+  redraw |= poll_volume(now, progress_due);
+  redraw |= poll_slices();
+  redraw |= poll_compare_report();
+  redraw |= mark_stale();
+  redraw |= poll_save(now, progress_due);
   return redraw;
 }
 

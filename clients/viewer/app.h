@@ -85,6 +85,15 @@ struct App {
   void save_pose();
   // Called every 15 ms on the render thread: draws new answers and finishes requests; true when it drew.
   bool tick();
+  // tick's parts, each true when it changed what the window shows: the preview stream lost, the full volume's
+  // progress and arrival, its slices ready, the compare method's report, the slices outdated by a newer pose, a
+  // save's progress and end.
+  bool poll_stream();
+  bool poll_volume(std::chrono::steady_clock::time_point now, bool progress_due);
+  bool poll_slices();
+  bool poll_compare_report();
+  bool mark_stale();
+  bool poll_save(std::chrono::steady_clock::time_point now, bool progress_due);
   // A key by its X keysym ("n", "Up", "Escape", ...).
   void key(const std::string& k);
   // A left click: a slice moves the cursor, a joint sphere chooses the joint; false lets the camera turn.

@@ -15,8 +15,11 @@
 #include <unistd.h>
 #include <cmath>
 
+#include <array>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
+#include <optional>
 
 #include "app.h"
 #include "files.h"
@@ -157,10 +160,8 @@ constexpr const char* kHelp =
     "With --snapshot it renders once offscreen and exits (use xvfb-run without a display); with --save it writes "
     "the posed files and exits.";
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Options o;
+// The command line, every option with its help: nullopt to go on, else the exit code (--help, a bad option).
+std::optional<int> parse_options(int argc, char** argv, Options& o) {
   CLI::App app{kHelp};
   app.add_option("--server", o.address.server, "posewarp-server at HOST:PORT")->required();
   app.add_option("--token-file", o.address.token_file, "File holding the server's bearer token");
@@ -200,75 +201,191 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
+  return std::nullopt;
+}
 
+// What the options say beyond CLI11's checks: the window's size and the slices' cursor.
+struct Checked {
   int width = 0, height = 0;
+  std::array<double, 3> cursor{};
+};
+
+std::optional<int> check_options(const Options& o, Checked* checked) {
+  int& width = checked->width;
+  int& height = checked->height;
   if (std::sscanf(o.size.c_str(), "%dx%d", &width, &height) != 2 || width < 64 || height < 64 || width > 8192 ||
       height > 8192) {
     return fail("--size takes WxH between 64x64 and 8192x8192, not '" + o.size + "'", 2);
   }
-  std::array<double, 3> cursor{};
+  std::array<double, 3>& cursor = checked->cursor;
   if (!o.cursor.empty() && (std::sscanf(o.cursor.c_str(), "%lf,%lf,%lf", &cursor[0], &cursor[1], &cursor[2]) != 3 ||
                             !std::isfinite(cursor[0] + cursor[1] + cursor[2]))) {
     return fail("--cursor takes X,Y,Z in millimetres, not '" + o.cursor + "'", 2);
   }
   if (o.compare == o.method) return fail("--compare names the method --method shows already; choose another", 2);
+  return std::nullopt;
+}
+
+// --list: the server's rigs, one a line.
+int print_rigs(const std::vector<v1::Rig>& rigs) {
+  for (const v1::Rig& rig : rigs) {
+    std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
+                static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
+  }
+  return 0;
+}
+
+// The rig to open: --rig, else the only one, else one the user chooses from a numbered list at a terminal.
+std::optional<int> choose_rig(const std::vector<v1::Rig>& rigs, Options& o) {
+  if (!o.rig_id.empty()) return std::nullopt;
+  const bool ask = rigs.size() > 1 && o.snapshot.empty() && o.save.empty() && ::isatty(0) && ::isatty(1);
+  if (ask) {
+    for (size_t i = 0; i < rigs.size(); ++i) {
+      std::printf("%3zu  %-24s %10.1f MB  %s  %s\n", i + 1, rigs[i].name().c_str(),
+                  static_cast<double>(rigs[i].size_bytes()) / 1e6, rigs[i].created().c_str(), rigs[i].id().c_str());
+    }
+    std::printf("open which rig (1-%zu)? ", rigs.size());
+    std::fflush(stdout);
+    size_t chosen = 0;
+    if (std::scanf("%zu", &chosen) != 1 || chosen < 1 || chosen > rigs.size()) return fail("no rig chosen", 2);
+    o.rig_id = rigs[chosen - 1].id();
+  } else if (rigs.size() != 1) {
+    return fail(
+        "the server holds " + std::to_string(rigs.size()) + " rigs; choose one with --rig ID (--list lists them)", 2);
+  } else {
+    o.rig_id = rigs.front().id();
+  }
+  return std::nullopt;
+}
+
+// --save: the posed volumes, surfaces, report and pose written into a directory, without a window.
+std::optional<int> save_without_window(ViewerClient& client, const Options& o, const Pose& start, v1::Method method) {
+  VolumeRequest request(client, o.rig_id, start, method, false, grid_named(o.grid));
+  PosedVolumes posed;
+  if (CallError e = finish(request, "saving", &posed); e.failed()) return fail(e.message, exit_code(e));
+  std::string why;
+  if (!save_posed(posed, o.save, &why)) return fail(why);
+  std::fprintf(stderr, "wrote the posed volumes, surfaces, report and pose to %s\n", o.save.c_str());
+  return std::nullopt;
+}
+
+// The first preview (and the compared method's), waited for: the server's refusal of the start pose ends here.
+std::optional<int> first_preview(PreviewSession& session, PreviewSession* compare, Controller& controller) {
+  const auto answered = [&](PreviewSession& s, uint64_t sequence) -> std::optional<int> {
+    if (s.wait_for(sequence, 30000)) return std::nullopt;
+    const CallError e = s.ended();
+    return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s",
+                e.failed() ? exit_code(e) : 1);
+  };
+  if (std::optional<int> failed = answered(session, controller.last_sent())) return failed;
+  if (compare != nullptr) {
+    if (std::optional<int> failed = answered(*compare, 1)) return failed;
+  }
+  controller.poll();
+  if (const CallError& e = controller.last_error(); e.failed()) {
+    return fail("the server refused the pose: " + e.message, exit_code(e));
+  }
+  return std::nullopt;
+}
+
+// The reports shown beside the slices: this method's, and with --compare the other method's.
+struct ShownReports {
+  v1::QualityReport report;
+  std::optional<v1::QualityReport> compare;
+};
+
+// --slices: the full posed volume as three slices with its quality report.
+std::optional<int> show_slices(ViewerClient& client, const Options& o, const Checked& checked, const Pose& start,
+                               v1::Method method, Scene& scene, ShownReports* shown) {
+  VolumeRequest request(client, o.rig_id, start, method, true, grid_named(o.grid));
+  std::unique_ptr<VolumeRequest> other =
+      o.compare.empty() ? nullptr : VolumeRequest::report_only(client, o.rig_id, start, method_named(o.compare));
+  PosedVolumes posed;
+  if (CallError e = finish(request, "full volume", &posed); e.failed()) return fail(e.message, exit_code(e));
+  if (other) {
+    PosedVolumes report;
+    if (CallError e = finish(*other, "the " + o.compare + " report", &report); e.failed()) {
+      return fail(e.message, exit_code(e));
+    }
+    shown->compare = report.report;
+  }
+  SliceVolume volume;
+  std::string why;
+  if (!slice_volume(posed, &volume, &why)) return fail(why);
+  scene.slices().set_volume(std::move(volume));
+  if (!o.cursor.empty()) scene.slices().set_cursor_mm(checked.cursor);
+  scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report,
+                   shown->compare ? &*shown->compare : nullptr, method_name(method),
+                   o.compare.empty() ? "" : method_name(method_named(o.compare)));
+  scene.set_layout(Scene::Layout::kSlices);
+  shown->report = posed.report;
+  return std::nullopt;
+}
+
+// The window: sliders, keys and a timer that polls the preview, until the user quits.
+int run_window(App& ui, Scene& scene, Controller& controller) {
+  auto interactor = vtkSmartPointer<vtkRenderWindowInteractor>::New();
+  interactor->SetRenderWindow(scene.window());
+  auto style = vtkSmartPointer<ViewerStyle>::New();
+  style->app = &ui;
+  interactor->SetInteractorStyle(style);
+  interactor->Initialize();
+  ui.interactor = interactor;
+  vtkSmartPointer<vtkSliderWidget> sliders[3] = {make_slider(interactor, scene.renderer(), "flexion", 0.20),
+                                                 make_slider(interactor, scene.renderer(), "abduction", 0.13),
+                                                 make_slider(interactor, scene.renderer(), "rotation", 0.06)};
+  for (int i = 0; i < 3; ++i) ui.sliders[i] = sliders[i];
+  ui.layout(scene.layout());
+  ui.controller = &controller;
+  using Callback = void (*)(vtkObject*, unsigned long, void*, void*);
+  const auto observe = [&](vtkObject* subject, unsigned long event, Callback callback) {
+    auto command = vtkSmartPointer<vtkCallbackCommand>::New();
+    command->SetCallback(callback);
+    command->SetClientData(&ui);
+    subject->AddObserver(event, command);
+  };
+  for (auto& s : sliders) observe(s, vtkCommand::InteractionEvent, on_slider);
+  observe(interactor, vtkCommand::TimerEvent, on_timer);
+  interactor->CreateRepeatingTimer(15);
+  observe(interactor, vtkCommand::KeyPressEvent, on_key);
+  ui.show_joint();
+  scene.set_status("joint " + controller.joint() + " (n/p or a click on a sphere to change; --help lists the keys)");
+  scene.render();
+  interactor->Start();
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  if (std::optional<int> exit = parse_options(argc, argv, o)) return *exit;
+  Checked checked;
+  if (std::optional<int> failed = check_options(o, &checked)) return *failed;
   CallError error;
   std::unique_ptr<ViewerClient> client = ViewerClient::connect(o.address, &error);
   if (!client) return fail(error.message, 2);
   std::vector<v1::Rig> rigs;
   if (CallError e = client->list_rigs(&rigs); e.failed()) return fail(e.message, exit_code(e));
-  if (o.list) {
-    for (const v1::Rig& rig : rigs) {
-      std::printf("%s  %-24s %10.1f MB  %s\n", rig.id().c_str(), rig.name().c_str(),
-                  static_cast<double>(rig.size_bytes()) / 1e6, rig.created().c_str());
-    }
-    return 0;
-  }
-  if (o.rig_id.empty()) {
-    const bool ask = rigs.size() > 1 && o.snapshot.empty() && o.save.empty() && ::isatty(0) && ::isatty(1);
-    if (ask) {
-      // At a terminal: the rigs by number, one chosen by the user.
-      for (size_t i = 0; i < rigs.size(); ++i) {
-        std::printf("%3zu  %-24s %10.1f MB  %s  %s\n", i + 1, rigs[i].name().c_str(),
-                    static_cast<double>(rigs[i].size_bytes()) / 1e6, rigs[i].created().c_str(), rigs[i].id().c_str());
-      }
-      std::printf("open which rig (1-%zu)? ", rigs.size());
-      std::fflush(stdout);
-      size_t chosen = 0;
-      if (std::scanf("%zu", &chosen) != 1 || chosen < 1 || chosen > rigs.size()) return fail("no rig chosen", 2);
-      o.rig_id = rigs[chosen - 1].id();
-    } else if (rigs.size() != 1) {
-      return fail(
-          "the server holds " + std::to_string(rigs.size()) + " rigs; choose one with --rig ID (--list lists them)", 2);
-    } else {
-      o.rig_id = rigs.front().id();
-    }
-  }
+  if (o.list) return print_rigs(rigs);
+  if (std::optional<int> failed = choose_rig(rigs, o)) return *failed;
   RigAssets assets;
   if (CallError e = client->assets(o.rig_id, &assets); e.failed()) return fail(e.message, exit_code(e));
   Pose start;
-  if (!o.pose_path.empty()) {
-    std::string why;
-    std::optional<Pose> pose = read_pose(o.pose_path, &why);
-    if (!pose) return fail(why, 2);
+  std::string why;
+  if (std::optional<Pose> pose = o.pose_path.empty() ? Pose{} : read_pose(o.pose_path, &why)) {
     start = *pose;
+  } else {
+    return fail(why, 2);
   }
   const v1::Method method = method_named(o.method);
-
-  // Without a window: save, snapshot, or both, then exit.
-  if (!o.save.empty() || !o.snapshot.empty()) {
-    if (!o.save.empty()) {
-      VolumeRequest request(*client, o.rig_id, start, method, false, grid_named(o.grid));
-      PosedVolumes posed;
-      if (CallError e = finish(request, "saving", &posed); e.failed()) return fail(e.message, exit_code(e));
-      std::string why;
-      if (!save_posed(posed, o.save, &why)) return fail(why);
-      std::fprintf(stderr, "wrote the posed volumes, surfaces, report and pose to %s\n", o.save.c_str());
-    }
+  if (!o.save.empty()) {
+    if (std::optional<int> failed = save_without_window(*client, o, start, method)) return *failed;
     if (o.snapshot.empty()) return 0;
   }
+
   const bool offscreen = !o.snapshot.empty();
-  Scene scene(width, height, offscreen);
+  Scene scene(checked.width, checked.height, offscreen);
   scene.set_rig(assets, o.triangles);
   scene.show_tissue(o.tissue);
   scene.slices().set_window(o.window == "bone" ? kBone : kSoftTissue);
@@ -283,51 +400,15 @@ int main(int argc, char** argv) {
     controller.set_compare(compare.get(), method_named(o.compare));
     scene.set_layout(Scene::Layout::kCompare);
   }
-  const auto answered = [&](PreviewSession& s, uint64_t sequence) -> std::optional<int> {
-    if (s.wait_for(sequence, 30000)) return std::nullopt;
-    const CallError e = s.ended();
-    return fail(e.failed() ? e.message : "the server did not answer the preview within 30 s",
-                e.failed() ? exit_code(e) : 1);
-  };
-  if (std::optional<int> failed = answered(*session, controller.last_sent())) return *failed;
-  if (compare) {
-    if (std::optional<int> failed = answered(*compare, 1)) return *failed;
-  }
-  controller.poll();
-  v1::QualityReport shown_report;
-  if (const CallError& e = controller.last_error(); e.failed())
-    return fail("the server refused the pose: " + e.message, exit_code(e));
-  std::optional<v1::QualityReport> compare_report;
+  if (std::optional<int> failed = first_preview(*session, compare.get(), controller)) return *failed;
+  ShownReports shown;
   if (o.slices) {
-    VolumeRequest request(*client, o.rig_id, start, method, true, grid_named(o.grid));
-    // --compare: the other method's report of the same pose, beside this one's.
-    std::unique_ptr<VolumeRequest> other =
-        compare ? VolumeRequest::report_only(*client, o.rig_id, start, method_named(o.compare)) : nullptr;
-    PosedVolumes posed;
-    if (CallError e = finish(request, "full volume", &posed); e.failed()) return fail(e.message, exit_code(e));
-    if (other) {
-      PosedVolumes report;
-      if (CallError e = finish(*other, "the " + o.compare + " report", &report); e.failed()) {
-        return fail(e.message, exit_code(e));
-      }
-      compare_report = report.report;
-    }
-    SliceVolume volume;
-    std::string why;
-    if (!slice_volume(posed, &volume, &why)) return fail(why);
-    scene.slices().set_volume(std::move(volume));
-    if (!o.cursor.empty()) scene.slices().set_cursor_mm(cursor);
-    scene.set_report(std::string("quality report (") + method_name(method) + ")", posed.report,
-                     compare_report ? &*compare_report : nullptr, method_name(method),
-                     o.compare.empty() ? "" : method_name(method_named(o.compare)));
-    scene.set_layout(Scene::Layout::kSlices);
-    shown_report = posed.report;
+    if (std::optional<int> failed = show_slices(*client, o, checked, start, method, scene, &shown)) return *failed;
   }
   scene.set_view(o.view);
   if (offscreen) {
     scene.set_status("");
     scene.slices().update();
-    std::string why;
     if (!scene.snapshot(o.snapshot, &why)) return fail(why);
     std::fprintf(stderr, "wrote %s\n", o.snapshot.c_str());
     return 0;
@@ -337,9 +418,9 @@ int main(int argc, char** argv) {
   if (scene.slices().has_volume()) {  // --slices: the window knows which pose its slices show
     ui.shown_pose = pose_json(start) + method_name(method);
     ui.shown_title = std::string("quality report (") + method_name(method) + ")";
-    ui.shown_report = shown_report;
+    ui.shown_report = shown.report;
     ui.shown_method = method;
-    ui.compare_report = compare_report;
+    ui.compare_report = shown.compare;
     ui.compare_report_method = o.compare.empty() ? "" : method_name(method_named(o.compare));
   }
   ui.options = o;
@@ -352,35 +433,5 @@ int main(int argc, char** argv) {
                                                        : std::string(".");
   ui.options.poses_dir = poses_dir.empty() ? "." : poses_dir;
   ui.pose_files = pose_files_in(ui.options.poses_dir);
-  auto interactor = vtkSmartPointer<vtkRenderWindowInteractor>::New();
-  interactor->SetRenderWindow(scene.window());
-  auto style = vtkSmartPointer<ViewerStyle>::New();
-  style->app = &ui;
-  interactor->SetInteractorStyle(style);
-  interactor->Initialize();
-  ui.interactor = interactor;
-  vtkSmartPointer<vtkSliderWidget> sliders[3] = {make_slider(interactor, scene.renderer(), "flexion", 0.20),
-                                                 make_slider(interactor, scene.renderer(), "abduction", 0.13),
-                                                 make_slider(interactor, scene.renderer(), "rotation", 0.06)};
-  for (int i = 0; i < 3; ++i) ui.sliders[i] = sliders[i];
-  ui.layout(scene.layout());
-  ui.controller = &controller;
-  auto slid = vtkSmartPointer<vtkCallbackCommand>::New();
-  slid->SetCallback(on_slider);
-  slid->SetClientData(&ui);
-  for (auto& s : sliders) s->AddObserver(vtkCommand::InteractionEvent, slid);
-  auto timer = vtkSmartPointer<vtkCallbackCommand>::New();
-  timer->SetCallback(on_timer);
-  timer->SetClientData(&ui);
-  interactor->AddObserver(vtkCommand::TimerEvent, timer);
-  interactor->CreateRepeatingTimer(15);
-  auto keys = vtkSmartPointer<vtkCallbackCommand>::New();
-  keys->SetCallback(on_key);
-  keys->SetClientData(&ui);
-  interactor->AddObserver(vtkCommand::KeyPressEvent, keys);
-  ui.show_joint();
-  scene.set_status("joint " + controller.joint() + " (n/p or a click on a sphere to change; --help lists the keys)");
-  scene.render();
-  interactor->Start();
-  return 0;
+  return run_window(ui, scene, controller);
 }

@@ -209,6 +209,59 @@ vtkSmartPointer<vtkPolyData> fewer_triangles(vtkPolyData* mesh, double keep, std
   return result;
 }
 
+// A surface the server sent as VTK poly data (indices outside its vertices dropped), its bounds joined to lo/hi.
+vtkSmartPointer<vtkPolyData> poly_data_of(const v1::Surface& s, double lo[3], double hi[3]) {
+  auto points = vtkSmartPointer<vtkPoints>::New();
+  for (int i = 0; i + 2 < s.vertices_size(); i += 3) {
+    points->InsertNextPoint(s.vertices(i), s.vertices(i + 1), s.vertices(i + 2));
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
+  }
+  auto triangles = vtkSmartPointer<vtkCellArray>::New();
+  const int vertices = s.vertices_size() / 3;
+  for (int i = 0; i + 2 < s.triangles_size(); i += 3) {
+    const vtkIdType ids[3] = {s.triangles(i), s.triangles(i + 1), s.triangles(i + 2)};
+    if (std::any_of(ids, ids + 3, [&](vtkIdType id) { return id < 0 || id >= vertices; })) continue;  // not a triangle
+    triangles->InsertNextCell(3, ids);
+  }
+  auto mesh = vtkSmartPointer<vtkPolyData>::New();
+  mesh->SetPoints(points);
+  mesh->SetPolys(triangles);
+  return mesh;
+}
+
+// An actor drawing `mesh` with smooth normals.
+vtkSmartPointer<vtkActor> actor_of(vtkPolyData* mesh) {
+  auto normals = vtkSmartPointer<vtkPolyDataNormals>::New();
+  normals->SetInputData(mesh);
+  normals->SplittingOff();
+  normals->ConsistencyOff();  // the server's surfaces are oriented already; checking them again costs most of a frame
+  auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
+  mapper->SetInputConnection(normals->GetOutputPort());
+  auto actor = vtkSmartPointer<vtkActor>::New();
+  actor->SetMapper(mapper);
+  return actor;
+}
+
+// How a surface of each role looks: bones opaque in turn of ten colours, the skin translucent, tissues hidden.
+void dress(vtkActor* actor, const std::string& role, int* bone) {
+  if (role == "skin") {
+    actor->GetProperty()->SetColor(kSkin[0], kSkin[1], kSkin[2]);
+    actor->GetProperty()->SetOpacity(0.25);
+    // One translucent layer over opaque bones: its near side blended over them in the opaque pass, drawn after
+    // everything else (set_rig), instead of VTK's order-independent transparency, which costs half a frame on a
+    // software renderer.
+    actor->GetProperty()->BackfaceCullingOn();
+    actor->ForceOpaqueOn();
+  } else if (role == "bone") {
+    const double* c = kBoneColours[(*bone)++ % 10];
+    actor->GetProperty()->SetColor(c[0], c[1], c[2]);
+  } else {
+    actor->GetProperty()->SetColor(kTissue[0], kTissue[1], kTissue[2]);
+    actor->GetProperty()->SetOpacity(0.6);
+    actor->VisibilityOff();  // tissue surfaces are toggled on (key t)
+  }
+}
+
 }  // namespace
 
 void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
@@ -221,74 +274,30 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
                           ? static_cast<double>(triangle_budget) / static_cast<double>(triangles_sent)
                           : 1.0;
   for (const v1::Surface& s : assets.surfaces) {
-    auto points = vtkSmartPointer<vtkPoints>::New();
-    for (int i = 0; i + 2 < s.vertices_size(); i += 3) {
-      points->InsertNextPoint(s.vertices(i), s.vertices(i + 1), s.vertices(i + 2));
-      for (int a = 0; a < 3; ++a)
-        lo[a] = std::min(lo[a], s.vertices(i + a)), hi[a] = std::max(hi[a], s.vertices(i + a));
-    }
-    auto triangles = vtkSmartPointer<vtkCellArray>::New();
-    const int vertices = s.vertices_size() / 3;
-    for (int i = 0; i + 2 < s.triangles_size(); i += 3) {
-      const vtkIdType ids[3] = {s.triangles(i), s.triangles(i + 1), s.triangles(i + 2)};
-      if (std::any_of(ids, ids + 3, [&](vtkIdType id) { return id < 0 || id >= vertices; }))
-        continue;  // not a triangle
-      triangles->InsertNextCell(3, ids);
-    }
-    auto mesh = vtkSmartPointer<vtkPolyData>::New();
-    mesh->SetPoints(points);
-    mesh->SetPolys(triangles);
-    p.sent_vertices.push_back(points->GetNumberOfPoints());
+    vtkSmartPointer<vtkPolyData> mesh = poly_data_of(s, lo, hi);
+    p.sent_vertices.push_back(mesh->GetNumberOfPoints());
     p.source_index.emplace_back();
     // Over the budget, each large surface is drawn with its share of the triangles (a preview: the posed files keep
     // every triangle).
-    if (keep < 1.0 && triangles->GetNumberOfCells() > 2000) {
+    if (keep < 1.0 && mesh->GetNumberOfCells() > 2000) {
       if (vtkSmartPointer<vtkPolyData> fewer = fewer_triangles(mesh, keep, &p.source_index.back())) {
         mesh = fewer;
       } else {
         p.source_index.back().clear();
       }
     }
-    auto normals = vtkSmartPointer<vtkPolyDataNormals>::New();
-    normals->SetInputData(mesh);
-    normals->SplittingOff();
-    normals->ConsistencyOff();  // the server's surfaces are oriented already; checking them again costs most of a frame
-    auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
-    mapper->SetInputConnection(normals->GetOutputPort());
-    auto actor = vtkSmartPointer<vtkActor>::New();
-    actor->SetMapper(mapper);
+    vtkSmartPointer<vtkActor> actor = actor_of(mesh);
     const std::string role = s.role().empty() ? (s.label() == 0 ? "skin" : "bone") : s.role();
-    if (role == "skin") {
-      actor->GetProperty()->SetColor(kSkin[0], kSkin[1], kSkin[2]);
-      actor->GetProperty()->SetOpacity(0.25);
-      // One translucent layer over opaque bones: its near side blended over them in the opaque pass, drawn after
-      // everything else (below), instead of VTK's order-independent transparency, which costs half a frame on a
-      // software renderer.
-      actor->GetProperty()->BackfaceCullingOn();
-      actor->ForceOpaqueOn();
-    } else if (role == "bone") {
-      const double* c = kBoneColours[bone++ % 10];
-      actor->GetProperty()->SetColor(c[0], c[1], c[2]);
-    } else {
-      actor->GetProperty()->SetColor(kTissue[0], kTissue[1], kTissue[2]);
-      actor->GetProperty()->SetOpacity(0.6);
-      actor->VisibilityOff();  // tissue surfaces are toggled on (key t)
-    }
+    dress(actor, role, &bone);
     if (role != "skin") p.renderer->AddActor(actor);
     p.surfaces.push_back(mesh);
     p.surface_actors.push_back(actor);
     p.roles.push_back(role);
     p.surface_names.push_back(s.name());
+    // The compare view's twin: its own copy of the surface, drawn the same way.
     auto twin = vtkSmartPointer<vtkPolyData>::New();
     twin->DeepCopy(mesh);
-    auto twin_normals = vtkSmartPointer<vtkPolyDataNormals>::New();
-    twin_normals->SetInputData(twin);
-    twin_normals->SplittingOff();
-    twin_normals->ConsistencyOff();
-    auto twin_mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
-    twin_mapper->SetInputConnection(twin_normals->GetOutputPort());
-    auto twin_actor = vtkSmartPointer<vtkActor>::New();
-    twin_actor->SetMapper(twin_mapper);
+    vtkSmartPointer<vtkActor> twin_actor = actor_of(twin);
     twin_actor->SetProperty(actor->GetProperty());
     twin_actor->SetVisibility(actor->GetVisibility());
     twin_actor->SetForceOpaque(actor->GetForceOpaque());
@@ -297,24 +306,7 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
     p.compare_actors.push_back(twin_actor);
   }
   for (int a = 0; a < 3; ++a) bounds_[2 * a] = lo[a], bounds_[2 * a + 1] = hi[a];
-  // The skeleton: a sphere per joint and a stick from each joint to the next one down its chain.
-  std::map<std::string, int> joint_with_child;
-  for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
-    const v1::Joint& joint = assets.skeleton.joints(j);
-    joint_names_.push_back(joint.name());
-    rest_centres_.push_back(joint.centre_mm_size() == 3
-                                ? std::array<double, 3>{joint.centre_mm(0), joint.centre_mm(1), joint.centre_mm(2)}
-                                : std::array<double, 3>{0.0, 0.0, 0.0});
-    joint_with_child[joint.child()] = j;
-  }
-  for (int j = 0; j < assets.skeleton.joints_size(); ++j) {
-    const auto up = joint_with_child.find(assets.skeleton.joints(j).parent());
-    if (up != joint_with_child.end()) sticks_.emplace_back(up->second, j);
-  }
-  auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
-  mapper->SetInputData(p.skeleton);
-  p.skeleton_actor->SetMapper(mapper);
-  p.renderer->AddActor(p.skeleton_actor);
+  set_skeleton(assets.skeleton);
   for (size_t i = 0; i < p.roles.size(); ++i) {
     if (p.roles[i] != "skin") continue;
     p.renderer->AddActor(p.surface_actors[i]);
@@ -322,6 +314,28 @@ void Scene::set_rig(const RigAssets& assets, int64_t triangle_budget) {
   }
   place_skeleton(rest_centres_);
   set_view("anterior");
+}
+
+// The skeleton: a sphere per joint and a stick from each joint to the next one down its chain.
+void Scene::set_skeleton(const v1::Skeleton& skeleton) {
+  Parts& p = *parts_;
+  std::map<std::string, int> joint_with_child;
+  for (int j = 0; j < skeleton.joints_size(); ++j) {
+    const v1::Joint& joint = skeleton.joints(j);
+    joint_names_.push_back(joint.name());
+    rest_centres_.push_back(joint.centre_mm_size() == 3
+                                ? std::array<double, 3>{joint.centre_mm(0), joint.centre_mm(1), joint.centre_mm(2)}
+                                : std::array<double, 3>{0.0, 0.0, 0.0});
+    joint_with_child[joint.child()] = j;
+  }
+  for (int j = 0; j < skeleton.joints_size(); ++j) {
+    const auto up = joint_with_child.find(skeleton.joints(j).parent());
+    if (up != joint_with_child.end()) sticks_.emplace_back(up->second, j);
+  }
+  auto mapper = vtkSmartPointer<vtkPolyDataMapper>::New();
+  mapper->SetInputData(p.skeleton);
+  p.skeleton_actor->SetMapper(mapper);
+  p.renderer->AddActor(p.skeleton_actor);
 }
 
 void Scene::place_skeleton(const std::vector<std::array<double, 3>>& centres) {

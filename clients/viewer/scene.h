@@ -70,6 +70,7 @@ class Scene {
   const std::vector<std::string>& joint_names() const { return joint_names_; }
 
  private:
+  void set_skeleton(const v1::Skeleton& skeleton);
   void place_skeleton(const std::vector<std::array<double, 3>>& centres);
   struct Parts;
   Parts* parts_;

@@ -40,6 +40,14 @@ constexpr ViewAxes kViews[3] = {
     {"coronal", 1, 0, 2, {0, 1, 0}, {0, 0, 1}, "R", "L", "S"},
     {"sagittal", 0, 1, 2, {-1, 0, 0}, {0, 0, 1}, "A", "P", "S"},
 };
+// A view's axes as indices into the volume's arrays: the slice's normal, then across and up the screen.
+struct AxisIndex {
+  size_t normal, across, up;
+};
+AxisIndex axis_index(const ViewAxes& axes) {
+  return {static_cast<size_t>(axes.normal), static_cast<size_t>(axes.across), static_cast<size_t>(axes.up)};
+}
+
 // The cursor line across each view is drawn in the colour of the view it marks (axial red, coronal green,
 // sagittal yellow, as in 3D Slicer).
 constexpr double kViewColours[3][3] = {{0.95, 0.33, 0.33}, {0.40, 0.85, 0.40}, {0.95, 0.85, 0.30}};
@@ -413,87 +421,108 @@ void SliceViews::set_label_opacity(double opacity) {
 
 void SliceViews::update() {
   if (!has_volume()) return;
-  const SliceVolume& vol = volume_;
-  const double low = window_.level - window_.width / 2.0;
-  std::vector<std::array<unsigned char, 3>> colours;
   for (int v = 0; v < 3; ++v) {
+    paint_slice(v);
+    place_cursor_lines(v);
     Parts::View& view = parts_->views[v];
     const ViewAxes& axes = kViews[v];
-    const auto normal = static_cast<size_t>(axes.normal), across = static_cast<size_t>(axes.across),
-               up = static_cast<size_t>(axes.up);
-    // The slice as an RGBA image lying in its plane, in LPS mm.
-    int dims[3] = {vol.size[0], vol.size[1], vol.size[2]};
-    dims[normal] = 1;
-    double origin[3] = {vol.origin[0], vol.origin[1], vol.origin[2]};
-    origin[normal] += vol.spacing[normal] * cursor_[normal];
-    view.image->SetDimensions(dims);
-    view.image->SetOrigin(origin);
-    view.image->SetSpacing(vol.spacing[0], vol.spacing[1], vol.spacing[2]);
-    view.image->AllocateScalars(VTK_UNSIGNED_CHAR, 4);
-    auto* rgba = static_cast<unsigned char*>(view.image->GetScalarPointer());
-    const size_t stride[3] = {1, static_cast<size_t>(vol.size[0]),
-                              static_cast<size_t>(vol.size[0]) * static_cast<size_t>(vol.size[1])};
-    const size_t base = static_cast<size_t>(cursor_[normal]) * stride[normal];
-    // VTK's order in the slice image: x fastest, then y, then z, with the normal axis flat.
-    const size_t inner = std::min(across, up), outer = std::max(across, up);
-    size_t out = 0;
-    for (int b = 0; b < vol.size[outer]; ++b) {
-      for (int a = 0; a < vol.size[inner]; ++a, out += 4) {
-        const size_t at = base + static_cast<size_t>(a) * stride[inner] + static_cast<size_t>(b) * stride[outer];
-        const double grey = std::clamp((vol.ct[at] - low) / window_.width, 0.0, 1.0) * 255.0;
-        double rgb[3] = {grey, grey, grey};
-        if (const int32_t label = vol.labels[at]; label != 0 && opacity_ > 0.0) {
-          const std::array<unsigned char, 3> c = label_colour(label);
-          for (int k = 0; k < 3; ++k) rgb[k] = (1.0 - opacity_) * rgb[k] + opacity_ * c[static_cast<size_t>(k)];
-        }
-        for (int k = 0; k < 3; ++k)
-          rgba[out + static_cast<size_t>(k)] = static_cast<unsigned char>(std::lround(rgb[k]));
-        rgba[out + 3] = 255;
-      }
-    }
-    view.image->Modified();
-    view.actor->SetInputData(view.image);
-    // Which slice of the input an image actor shows is its display extent (by default it takes z = 0).
-    view.actor->SetDisplayExtent(view.image->GetExtent());
-    // The cursor: a line along each in-plane axis through the cursor, a little towards the camera.
-    const std::array<double, 3> c = cursor_mm();
-    const double lift = -0.5 * vol.spacing[normal];
-    for (int l = 0; l < 2; ++l) {
-      const size_t along = l == 0 ? across : up, marks = l == 0 ? up : across;
-      double p1[3] = {c[0], c[1], c[2]}, p2[3] = {c[0], c[1], c[2]};
-      p1[normal] += lift * axes.direction[normal], p2[normal] += lift * axes.direction[normal];
-      p1[along] = vol.origin[along] - 0.5 * vol.spacing[along];
-      p2[along] = vol.origin[along] + (vol.size[along] - 0.5) * vol.spacing[along];
-      view.lines[l]->SetPoint1(p1);
-      view.lines[l]->SetPoint2(p2);
-      // A line along `along` at a fixed `marks` coordinate is where the view cutting across `marks` lies.
-      const int marked_view = marks == 2 ? 0 : marks == 1 ? 1 : 2;
-      view.line_actors[l]->GetProperty()->SetColor(kViewColours[marked_view][0], kViewColours[marked_view][1],
-                                                   kViewColours[marked_view][2]);
-    }
+    const auto normal = static_cast<size_t>(axes.normal);
     view.title->SetInput((std::string(axes.name) + "  " + std::to_string(cursor_[normal] + 1) + "/" +
-                          std::to_string(vol.size[normal]) + (vol.oblique ? "  (oblique grid, nearest axes)" : ""))
+                          std::to_string(volume_.size[normal]) +
+                          (volume_.oblique ? "  (oblique grid, nearest axes)" : ""))
                              .c_str());
-    if (!view.camera_placed) {
-      int* window_size = parts_->window->GetSize();
-      double viewport[4];
-      view.renderer->GetViewport(viewport);
-      const double pixels_w = std::max(1.0, (viewport[2] - viewport[0]) * window_size[0]);
-      const double pixels_h = std::max(1.0, (viewport[3] - viewport[1]) * window_size[1]);
-      const double extent_w = vol.size[across] * vol.spacing[across], extent_h = vol.size[up] * vol.spacing[up];
-      double centre[3];
-      for (size_t a = 0; a < 3; ++a) centre[a] = vol.origin[a] + vol.spacing[a] * (vol.size[a] - 1) / 2.0;
-      vtkCamera* camera = view.renderer->GetActiveCamera();
-      const double distance = 4.0 * std::max(extent_w, extent_h) + 100.0;
-      camera->SetFocalPoint(centre);
-      camera->SetPosition(centre[0] - distance * axes.direction[0], centre[1] - distance * axes.direction[1],
-                          centre[2] - distance * axes.direction[2]);
-      camera->SetViewUp(axes.view_up[0], axes.view_up[1], axes.view_up[2]);
-      camera->SetParallelScale(0.53 * std::max(extent_h, extent_w * pixels_h / pixels_w));
-      camera->SetClippingRange(1.0, 2.0 * distance + 2.0 * vol.spacing[normal] * vol.size[normal]);
-      view.camera_placed = true;
+    if (!view.camera_placed) place_camera(v);
+  }
+}
+
+// The slice of view v as an RGBA image lying in its plane, in LPS mm: the CT in the window, the labels over it.
+void SliceViews::paint_slice(int v) {
+  const SliceVolume& vol = volume_;
+  const double low = window_.level - window_.width / 2.0;
+  Parts::View& view = parts_->views[v];
+  const ViewAxes& axes = kViews[v];
+  const auto [normal, across, up] = axis_index(axes);
+  int dims[3] = {vol.size[0], vol.size[1], vol.size[2]};
+  dims[normal] = 1;
+  double origin[3] = {vol.origin[0], vol.origin[1], vol.origin[2]};
+  origin[normal] += vol.spacing[normal] * cursor_[normal];
+  view.image->SetDimensions(dims);
+  view.image->SetOrigin(origin);
+  view.image->SetSpacing(vol.spacing[0], vol.spacing[1], vol.spacing[2]);
+  view.image->AllocateScalars(VTK_UNSIGNED_CHAR, 4);
+  auto* rgba = static_cast<unsigned char*>(view.image->GetScalarPointer());
+  const size_t stride[3] = {1, static_cast<size_t>(vol.size[0]),
+                            static_cast<size_t>(vol.size[0]) * static_cast<size_t>(vol.size[1])};
+  const size_t base = static_cast<size_t>(cursor_[normal]) * stride[normal];
+  // VTK's order in the slice image: x fastest, then y, then z, with the normal axis flat.
+  const size_t inner = std::min(across, up), outer = std::max(across, up);
+  size_t out = 0;
+  for (int b = 0; b < vol.size[outer]; ++b) {
+    for (int a = 0; a < vol.size[inner]; ++a, out += 4) {
+      const size_t at = base + static_cast<size_t>(a) * stride[inner] + static_cast<size_t>(b) * stride[outer];
+      const double grey = std::clamp((vol.ct[at] - low) / window_.width, 0.0, 1.0) * 255.0;
+      double rgb[3] = {grey, grey, grey};
+      if (const int32_t label = vol.labels[at]; label != 0 && opacity_ > 0.0) {
+        const std::array<unsigned char, 3> c = label_colour(label);
+        for (int k = 0; k < 3; ++k) rgb[k] = (1.0 - opacity_) * rgb[k] + opacity_ * c[static_cast<size_t>(k)];
+      }
+      for (int k = 0; k < 3; ++k) rgba[out + static_cast<size_t>(k)] = static_cast<unsigned char>(std::lround(rgb[k]));
+      rgba[out + 3] = 255;
     }
   }
+  view.image->Modified();
+  view.actor->SetInputData(view.image);
+  // Which slice of the input an image actor shows is its display extent (by default it takes z = 0).
+  view.actor->SetDisplayExtent(view.image->GetExtent());
+}
+
+// The cursor in view v: a line along each in-plane axis through the cursor, a little towards the camera, in the
+// colour of the view that cuts across it.
+void SliceViews::place_cursor_lines(int v) {
+  const SliceVolume& vol = volume_;
+  Parts::View& view = parts_->views[v];
+  const ViewAxes& axes = kViews[v];
+  const auto [normal, across, up] = axis_index(axes);
+  const std::array<double, 3> c = cursor_mm();
+  const double lift = -0.5 * vol.spacing[normal];
+  for (int l = 0; l < 2; ++l) {
+    const size_t along = l == 0 ? across : up, marks = l == 0 ? up : across;
+    double p1[3] = {c[0], c[1], c[2]}, p2[3] = {c[0], c[1], c[2]};
+    p1[normal] += lift * axes.direction[normal], p2[normal] += lift * axes.direction[normal];
+    p1[along] = vol.origin[along] - 0.5 * vol.spacing[along];
+    p2[along] = vol.origin[along] + (vol.size[along] - 0.5) * vol.spacing[along];
+    view.lines[l]->SetPoint1(p1);
+    view.lines[l]->SetPoint2(p2);
+    // A line along `along` at a fixed `marks` coordinate is where the view cutting across `marks` lies.
+    const int marked_view = marks == 2 ? 0 : marks == 1 ? 1 : 2;
+    view.line_actors[l]->GetProperty()->SetColor(kViewColours[marked_view][0], kViewColours[marked_view][1],
+                                                 kViewColours[marked_view][2]);
+  }
+}
+
+// View v's camera, once per volume: parallel, facing the slice, the whole slice in its viewport.
+void SliceViews::place_camera(int v) {
+  const SliceVolume& vol = volume_;
+  Parts::View& view = parts_->views[v];
+  const ViewAxes& axes = kViews[v];
+  const auto [normal, across, up] = axis_index(axes);
+  int* window_size = parts_->window->GetSize();
+  double viewport[4];
+  view.renderer->GetViewport(viewport);
+  const double pixels_w = std::max(1.0, (viewport[2] - viewport[0]) * window_size[0]);
+  const double pixels_h = std::max(1.0, (viewport[3] - viewport[1]) * window_size[1]);
+  const double extent_w = vol.size[across] * vol.spacing[across], extent_h = vol.size[up] * vol.spacing[up];
+  double centre[3];
+  for (size_t a = 0; a < 3; ++a) centre[a] = vol.origin[a] + vol.spacing[a] * (vol.size[a] - 1) / 2.0;
+  vtkCamera* camera = view.renderer->GetActiveCamera();
+  const double distance = 4.0 * std::max(extent_w, extent_h) + 100.0;
+  camera->SetFocalPoint(centre);
+  camera->SetPosition(centre[0] - distance * axes.direction[0], centre[1] - distance * axes.direction[1],
+                      centre[2] - distance * axes.direction[2]);
+  camera->SetViewUp(axes.view_up[0], axes.view_up[1], axes.view_up[2]);
+  camera->SetParallelScale(0.53 * std::max(extent_h, extent_w * pixels_h / pixels_w));
+  camera->SetClippingRange(1.0, 2.0 * distance + 2.0 * vol.spacing[normal] * vol.size[normal]);
+  view.camera_placed = true;
 }
 
 }  // namespace posewarp::view

@@ -90,6 +90,10 @@ class SliceViews {
   void update();
 
  private:
+  // update's parts for view v (0 axial, 1 coronal, 2 sagittal).
+  void paint_slice(int v);
+  void place_cursor_lines(int v);
+  void place_camera(int v);
   struct Parts;
   Parts* parts_;
   SliceVolume volume_;

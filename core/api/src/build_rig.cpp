@@ -6,11 +6,20 @@
 
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig.h"
-#include "posewarp/common/stopwatch.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/sha256.h"
+#include "posewarp/common/stopwatch.h"
+#include "posewarp/cor/rotation_centres.h"
+#include "posewarp/labels/body.h"
+#include "posewarp/labels/label_map.h"
 #include "posewarp/labels/volume_kind.h"
+#include "posewarp/mapping/tet_locator.h"
+#include "posewarp/mesh/mesher.h"
+#include "posewarp/rig/skeleton.h"
+#include "posewarp/rig/skin_contacts.h"
+#include "posewarp/surface/surface_mesh.h"
+#include "posewarp/weights/laplace_weights.h"
 
 #ifndef POSEWARP_VERSION
 #define POSEWARP_VERSION "unknown"

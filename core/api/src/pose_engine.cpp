@@ -1,6 +1,20 @@
 // PoseEngine: forward kinematics, skinning, tet maps, the volume warp and the quality report, timed per stage.
 // A pose runs as numbered steps (pose_unguarded), each a function of its own over what create() prepared.
 #include "posewarp/api/pose_engine.h"
+#include "posewarp/common/exception_wall.h"
+#include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
+#include "posewarp/fem/soft_tissue.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/labels/body.h"
+#include "posewarp/mapping/tet_locator.h"
+#include "posewarp/rig/skin_contacts.h"
+#include "posewarp/pose/forward_kinematics.h"
+#include "posewarp/report/quality_report.h"
+#include "posewarp/resample/tet_warp.h"
+#include "posewarp/rig/skeleton.h"
+#include "posewarp/skinning/skinning.h"
+#include "posewarp/skinning/tet_maps.h"
 
 #include <Eigen/Dense>
 
@@ -13,15 +27,6 @@
 #include <unordered_map>
 #include <utility>
 
-#include "posewarp/common/exception_wall.h"
-#include "posewarp/common/parallel.h"
-#include "posewarp/common/stopwatch.h"
-#include "posewarp/fem/soft_tissue.h"
-#include "posewarp/pose/forward_kinematics.h"
-#include "posewarp/report/quality_report.h"
-#include "posewarp/resample/tet_warp.h"
-#include "posewarp/skinning/skinning.h"
-#include "posewarp/skinning/tet_maps.h"
 
 namespace posewarp::api {
 

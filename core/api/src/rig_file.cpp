@@ -1,9 +1,13 @@
 // Rig artifact writer and reader: sectioned, checksummed, little-endian binary.
-#include "posewarp/common/json.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
+#include "posewarp/common/json.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/mapping/tet_locator.h"
+#include "posewarp/rig/skeleton.h"
+#include "posewarp/surface/surface_mesh.h"
 
 #include <nlohmann/json.hpp>
 #include <zlib.h>
@@ -288,18 +292,96 @@ std::string hash_of_sections(const std::vector<std::pair<uint32_t, std::string>>
   return hash_bytes(digest.data(), digest.size());
 }
 
+// Reads the GEOM section: the source grid and the hashes of the label and CT volumes it came from.
+Status read_geometry_section(const std::string& payload, const std::string& name, Rig& rig) {
+  Reader r(payload, name);
+  ImageGeometry& g = rig.source_geometry;
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.spacing[static_cast<size_t>(a)]));
+  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.origin[static_cast<size_t>(a)]));
+  for (int e = 0; e < 9; ++e) POSEWARP_RETURN_IF_ERROR(r.get(g.direction[static_cast<size_t>(e)]));
+  POSEWARP_RETURN_IF_ERROR(r.get_string(rig.labels_hash));
+  return r.get_string(rig.ct_hash);
+}
+
+// Reads the CORS section: every vertex's centre of rotation and whether one segment moves it rigidly.
+Status read_centres_section(const std::string& payload, const std::string& name, Rig& rig) {
+  Reader r(payload, name);
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> centres;
+  POSEWARP_RETURN_IF_ERROR(r.get_matrix(centres));
+  rig.centres.centre = centres;
+  uint64_t count = 0;
+  POSEWARP_RETURN_IF_ERROR(r.get(count));
+  if (count != static_cast<uint64_t>(centres.rows())) return data_loss_error("rig centres section is inconsistent");
+  rig.centres.rigid.resize(count);
+  return r.get_bytes(rig.centres.rigid.data(), count);
+}
+
+// Reads the SURF section: each rest surface with its embedding in the rest tets, appended to the rig.
+Status read_surfaces_section(const std::string& payload, const std::string& name, Rig& rig) {
+  Reader r(payload, name);
+  uint64_t count = 0;
+  POSEWARP_RETURN_IF_ERROR(r.get(count));
+  if (count > 100000) return data_loss_error("rig surfaces section is damaged");
+  for (uint64_t i = 0; i < count; ++i) {
+    surface::SurfaceMesh m;
+    POSEWARP_RETURN_IF_ERROR(r.get_string(m.name));
+    POSEWARP_RETURN_IF_ERROR(r.get(m.label));
+    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices;
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> triangles;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(vertices));
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(triangles));
+    m.vertices = vertices;
+    m.triangles = triangles;
+    mapping::Embedding e;
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 1> tet;
+    Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor> bary;
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(tet));
+    POSEWARP_RETURN_IF_ERROR(r.get_matrix(bary));
+    if (tet.rows() != vertices.rows() || bary.rows() != vertices.rows()) {
+      return data_loss_error("rig surface '" + m.name + "' and its embedding disagree");
+    }
+    e.tet = tet;
+    e.barycentric = bary;
+    e.inside.assign(static_cast<size_t>(tet.rows()), 1);
+    rig.surfaces.push_back(std::move(m));
+    rig.embeddings.push_back(std::move(e));
+  }
+  return ok_status();
+}
+
+// Reads the PROV section: software version, sources, stage timings and statistics, as JSON.
+Status read_provenance_section(const std::string& payload, Rig& rig) {
+  const Result<nlohmann::json> parsed = parse_json<nlohmann::json>(payload, "rig provenance section");
+  if (!parsed.ok()) return data_loss_error(parsed.status().message());
+  try {
+    const nlohmann::json& prov = *parsed;
+    rig.provenance.software_version = prov.value("software_version", "");
+    rig.provenance.labels_source = prov.value("labels_source", "");
+    rig.provenance.ct_source = prov.value("ct_source", "");
+    for (const auto& stage : prov.value("stage_seconds", nlohmann::json::array())) {
+      rig.provenance.stage_seconds.emplace_back(stage.at(0).get<std::string>(), stage.at(1).get<double>());
+    }
+    rig.provenance.stats_json = prov.value("stats", nlohmann::json::object()).dump();
+  } catch (const nlohmann::json::exception& error) {
+    return data_loss_error(std::string("rig provenance section is malformed: ") + error.what());
+  }
+  return ok_status();
+}
+
+// A matrix read in the file's layout (Stored, row-major) and kept, once whole, in the rig's (target).
+template <typename Stored, typename Target>
+Status read_matrix(Reader& r, Target& target) {
+  Stored stored;
+  POSEWARP_RETURN_IF_ERROR(r.get_matrix(stored));
+  target = stored;
+  return ok_status();
+}
+
+// Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
 Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   const std::string name = tag_name(t);
-  if (t == kGeometry) {
-    Reader r(payload, name);
-    ImageGeometry& g = rig.source_geometry;
-    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
-    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.spacing[static_cast<size_t>(a)]));
-    for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.origin[static_cast<size_t>(a)]));
-    for (int e = 0; e < 9; ++e) POSEWARP_RETURN_IF_ERROR(r.get(g.direction[static_cast<size_t>(e)]));
-    POSEWARP_RETURN_IF_ERROR(r.get_string(rig.labels_hash));
-    return r.get_string(rig.ct_hash);
-  }
+  if (t == kGeometry) return read_geometry_section(payload, name, rig);
   if (t == kLabelMap) {
     Result<labels::LabelMap> map = labels::label_map_from_json(payload, "in the rig file");
     if (!map.ok()) return data_loss_error(map.status().message());
@@ -317,24 +399,15 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   if (t == kVertices) {
     Reader r(payload, name);
     POSEWARP_RETURN_IF_ERROR(r.get(rig.mesh.segment_count));
-    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices;
-    POSEWARP_RETURN_IF_ERROR(r.get_matrix(vertices));
-    rig.mesh.vertices = vertices;
-    return ok_status();
+    return read_matrix<Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(r, rig.mesh.vertices);
   }
   if (t == kTets) {
     Reader r(payload, name);
-    Eigen::Matrix<int32_t, Eigen::Dynamic, 4, Eigen::RowMajor> tets;
-    POSEWARP_RETURN_IF_ERROR(r.get_matrix(tets));
-    rig.mesh.tets = tets;
-    return ok_status();
+    return read_matrix<Eigen::Matrix<int32_t, Eigen::Dynamic, 4, Eigen::RowMajor>>(r, rig.mesh.tets);
   }
   if (t == kTetClass) {
     Reader r(payload, name);
-    Eigen::Matrix<int32_t, Eigen::Dynamic, 1> classes;
-    POSEWARP_RETURN_IF_ERROR(r.get_matrix(classes));
-    rig.mesh.tet_class = classes;
-    return ok_status();
+    return read_matrix<Eigen::Matrix<int32_t, Eigen::Dynamic, 1>>(r, rig.mesh.tet_class);
   }
   if (t == kWeights) {
     Reader r(payload, name);
@@ -343,70 +416,14 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
     POSEWARP_RETURN_IF_ERROR(r.get_matrix(rig.weights.segment));
     return r.get_matrix(rig.weights.weight);
   }
-  if (t == kCentres) {
-    Reader r(payload, name);
-    Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> centres;
-    POSEWARP_RETURN_IF_ERROR(r.get_matrix(centres));
-    rig.centres.centre = centres;
-    uint64_t count = 0;
-    POSEWARP_RETURN_IF_ERROR(r.get(count));
-    if (count != static_cast<uint64_t>(centres.rows())) return data_loss_error("rig centres section is inconsistent");
-    rig.centres.rigid.resize(count);
-    return r.get_bytes(rig.centres.rigid.data(), count);
-  }
-  if (t == kSurfaces) {
-    Reader r(payload, name);
-    uint64_t count = 0;
-    POSEWARP_RETURN_IF_ERROR(r.get(count));
-    if (count > 100000) return data_loss_error("rig surfaces section is damaged");
-    for (uint64_t i = 0; i < count; ++i) {
-      surface::SurfaceMesh m;
-      POSEWARP_RETURN_IF_ERROR(r.get_string(m.name));
-      POSEWARP_RETURN_IF_ERROR(r.get(m.label));
-      Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> vertices;
-      Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> triangles;
-      POSEWARP_RETURN_IF_ERROR(r.get_matrix(vertices));
-      POSEWARP_RETURN_IF_ERROR(r.get_matrix(triangles));
-      m.vertices = vertices;
-      m.triangles = triangles;
-      mapping::Embedding e;
-      Eigen::Matrix<int32_t, Eigen::Dynamic, 1> tet;
-      Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor> bary;
-      POSEWARP_RETURN_IF_ERROR(r.get_matrix(tet));
-      POSEWARP_RETURN_IF_ERROR(r.get_matrix(bary));
-      if (tet.rows() != vertices.rows() || bary.rows() != vertices.rows()) {
-        return data_loss_error("rig surface '" + m.name + "' and its embedding disagree");
-      }
-      e.tet = tet;
-      e.barycentric = bary;
-      e.inside.assign(static_cast<size_t>(tet.rows()), 1);
-      rig.surfaces.push_back(std::move(m));
-      rig.embeddings.push_back(std::move(e));
-    }
-    return ok_status();
-  }
+  if (t == kCentres) return read_centres_section(payload, name, rig);
+  if (t == kSurfaces) return read_surfaces_section(payload, name, rig);
   if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
   if (t == kCtVolume) {
     rig.ct.emplace();
     return read_volume_section(payload, name, *rig.ct);
   }
-  if (t == kProvenance) {
-    const Result<nlohmann::json> parsed = parse_json<nlohmann::json>(payload, "rig provenance section");
-    if (!parsed.ok()) return data_loss_error(parsed.status().message());
-    try {
-      const nlohmann::json& prov = *parsed;
-      rig.provenance.software_version = prov.value("software_version", "");
-      rig.provenance.labels_source = prov.value("labels_source", "");
-      rig.provenance.ct_source = prov.value("ct_source", "");
-      for (const auto& stage : prov.value("stage_seconds", nlohmann::json::array())) {
-        rig.provenance.stage_seconds.emplace_back(stage.at(0).get<std::string>(), stage.at(1).get<double>());
-      }
-      rig.provenance.stats_json = prov.value("stats", nlohmann::json::object()).dump();
-    } catch (const nlohmann::json::exception& error) {
-      return data_loss_error(std::string("rig provenance section is malformed: ") + error.what());
-    }
-    return ok_status();
-  }
+  if (t == kProvenance) return read_provenance_section(payload, rig);
   rig.unknown_sections.emplace_back(t, payload);
   return ok_status();
 }

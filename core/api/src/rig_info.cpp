@@ -1,5 +1,7 @@
 // The skeleton in the api's own types.
 #include "posewarp/api/rig_info.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/rig/skeleton.h"
 
 #include <set>
 

@@ -4,6 +4,9 @@
 #include <string>
 
 #include "posewarp/api/rig.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/rig/skeleton.h"
+#include "posewarp/weights/laplace_weights.h"
 
 namespace posewarp::api::detail {
 

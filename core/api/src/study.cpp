@@ -1,24 +1,31 @@
-// Study inspection, label-map loading and phantom files: the client-facing helpers of the facade.
+// Study inspection and phantoms: the client-facing helpers of the facade.
 #include "posewarp/api/study.h"
+#include "posewarp/api/files.h"
+#include "posewarp/api/rig.h"
+#include "posewarp/common/atomic_file.h"
+#include "posewarp/io/volume_io.h"
+#include "posewarp/labels/body.h"
+#include "posewarp/labels/label_map.h"
+#include "posewarp/phantom/phantom.h"
 
 #include <filesystem>
 #include <fstream>
 
-#include "posewarp/api/files.h"
-#include "posewarp/api/rig.h"
-#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::api {
 
-Result<pose::Animation> read_bvh(const std::string& path, const pose::BvhMap& map, const Rig& rig, int first,
-                                 int last) {
-  return pose::read_bvh(path, map, rig.skeleton, first, last);
+Result<Phantom> make_bar(const BarParams& params) { return phantom::make_bar(params); }
+
+Result<Phantom> make_mannequin(const MannequinParams& params) { return phantom::make_mannequin(params); }
+
+Result<Phantom> make_body(const BodyParams& params) { return phantom::make_body(params); }
+
+double mannequin_spacing_for_voxels(const MannequinParams& params, int64_t target_voxels) {
+  return phantom::mannequin_spacing_for_voxels(params, target_voxels);
 }
 
-Result<labels::LabelMap> load_label_map(const std::string& path, const std::string& preset) {
-  if (!path.empty() && !preset.empty()) return invalid_argument_error("give either --label-map or --preset, not both");
-  if (!path.empty()) return labels::read_label_map(path);
-  return labels::preset_by_name(preset.empty() ? "totalsegmentator" : preset);
+Vec3 body_spacing_for_voxels(const BodyParams& params, int64_t target_voxels) {
+  return phantom::body_spacing_for_voxels(params, target_voxels);
 }
 
 Result<StudyInspection> inspect_study(const LabelVolume& labels, const IntensityVolume* ct, const labels::LabelMap& map,

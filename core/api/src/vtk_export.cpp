@@ -1,10 +1,11 @@
 // VTK XML (inline base64 binary) writers for the rig's mesh and skeleton; no VTK library needed.
 #include "posewarp/api/vtk_export.h"
+#include "posewarp/common/atomic_file.h"
+#include "posewarp/rig/skeleton.h"
 
 #include <cstring>
 #include <vector>
 
-#include "posewarp/common/atomic_file.h"
 
 namespace posewarp::api {
 namespace {

@@ -88,6 +88,10 @@ Result<AtomicFile> AtomicFile::create(const std::string& path, std::string_view 
   return AtomicFile(path, partial, std::string(kind), fd);
 }
 
+AtomicFile AtomicFile::adopt(const std::string& written, const std::string& path, std::string_view kind) {
+  return AtomicFile(path, written, std::string(kind), -1);
+}
+
 Status AtomicFile::write(std::string_view bytes) {
   size_t written = 0;
   while (written < bytes.size()) {

@@ -104,4 +104,16 @@ std::string ImageGeometry::describe() const {
   return out.str();
 }
 
+std::array<double, 9> rotation_direction(Vec3 axis, double degrees) {
+  const double length = std::sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+  const Vec3 n{axis[0] / length, axis[1] / length, axis[2] / length};
+  const double a = degrees * M_PI / 180.0;
+  const double c = std::cos(a);
+  const double s = std::sin(a);
+  const double t = 1.0 - c;
+  return {t * n[0] * n[0] + c,        t * n[0] * n[1] - s * n[2], t * n[0] * n[2] + s * n[1],
+          t * n[0] * n[1] + s * n[2], t * n[1] * n[1] + c,        t * n[1] * n[2] - s * n[0],
+          t * n[0] * n[2] - s * n[1], t * n[1] * n[2] + s * n[0], t * n[2] * n[2] + c};
+}
+
 }  // namespace posewarp

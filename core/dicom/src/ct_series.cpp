@@ -19,12 +19,10 @@
 #include <fstream>
 #include <map>
 #include <mutex>
-#include <random>
 
 #include "part10.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
-#include "posewarp/common/sha256.h"
 
 namespace posewarp::dicom {
 namespace fs = std::filesystem;
@@ -161,56 +159,6 @@ std::string describe_series(const std::map<std::string, int>& counts) {
   return list;
 }
 
-// 128 bits as a UUID of `version` (4: random, 8: derived from a name), written as one decimal integer (the "2.25"
-// UID form).
-std::string uuid_decimal(std::array<uint32_t, 4> limbs, uint32_t version) {
-  limbs[1] = (limbs[1] & 0xFFFF0FFFu) | (version << 12);  // the version (bits 48-51 of the UUID)
-  limbs[2] = (limbs[2] & 0x3FFFFFFFu) | 0x80000000u;      // variant 10
-  std::string digits;
-  while (std::any_of(limbs.begin(), limbs.end(), [](uint32_t l) { return l != 0; })) {
-    uint64_t remainder = 0;
-    for (uint32_t& limb : limbs) {  // most significant first
-      const uint64_t value = (remainder << 32) | limb;
-      limb = static_cast<uint32_t>(value / 10);
-      remainder = value % 10;
-    }
-    digits.push_back(static_cast<char>('0' + remainder));
-  }
-  std::reverse(digits.begin(), digits.end());
-  return digits.empty() ? "0" : digits;
-}
-
-std::array<uint32_t, 4> random_bits() {
-  static std::mutex mutex;
-  static std::random_device device;
-  std::array<uint32_t, 4> limbs;
-  std::lock_guard<std::mutex> lock(mutex);
-  for (uint32_t& limb : limbs) limb = device();
-  return limbs;
-}
-
-std::array<uint32_t, 4> bits_of(const std::string& text) {
-  const std::string hex = sha256_hex(text);
-  std::array<uint32_t, 4> limbs;
-  for (size_t i = 0; i < 4; ++i) limbs[i] = static_cast<uint32_t>(std::stoul(hex.substr(8 * i, 8), nullptr, 16));
-  return limbs;
-}
-
-bool valid_uid_root(const std::string& root) {
-  if (root.empty() || root.size() > 40 || root.front() == '.' || root.back() == '.') return false;
-  for (size_t i = 0; i < root.size(); ++i) {
-    const char c = root[i];
-    if (c == '.') {
-      if (root[i - 1] == '.') return false;
-    } else if (c < '0' || c > '9') {
-      return false;
-    } else if (c == '0' && (i == 0 || root[i - 1] == '.') && i + 1 < root.size() && root[i + 1] != '.') {
-      return false;  // a component with a leading zero
-    }
-  }
-  return true;
-}
-
 std::string date_now(const char* format) {
   const std::time_t now = std::time(nullptr);
   std::tm utc{};
@@ -220,41 +168,20 @@ std::string date_now(const char* format) {
   return out;
 }
 
-}  // namespace
-
-Result<std::string> new_uid(const std::string& root) {
-  if (!valid_uid_root(root)) {
-    return invalid_argument_error("'" + root +
-                                  "' is not a UID root: digits in dot-separated components without "
-                                  "leading zeros, at most 40 characters (e.g. 2.25 or your organisation's root)");
-  }
-  std::string uid = root + "." + uuid_decimal(random_bits(), 4);
-  if (uid.size() > 64) uid.resize(64);
-  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.'))
-    uid.pop_back();
-  return uid;
-}
-
-Result<std::string> uid_for(const DerivedSeriesOptions& options, const std::string& purpose) {
-  if (options.uid_seed.empty()) return new_uid(options.uid_root);
-  if (!valid_uid_root(options.uid_root)) return new_uid(options.uid_root);  // its message
-  std::string uid = options.uid_root + "." + uuid_decimal(bits_of(options.uid_seed + "\n" + purpose), 8);
-  if (uid.size() > 64) uid.resize(64);
-  while (uid.back() == '.' || (uid.size() > 1 && uid[uid.size() - 1] == '0' && uid[uid.size() - 2] == '.'))
-    uid.pop_back();
-  return uid;
-}
-
-Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid) {
-  quiet_dcmtk();
-  if (instances.empty()) return invalid_argument_error("no DICOM instances to read");
+// Every instance parsed, in input order; `counts` receives the number of instances of each series.
+Result<std::vector<Slice>> parse_instances(const std::vector<std::string>& instances,
+                                           std::map<std::string, int>* counts) {
   std::vector<Slice> all;
-  std::map<std::string, int> counts;
   for (size_t i = 0; i < instances.size(); ++i) {
     POSEWARP_ASSIGN_OR_RETURN(Slice slice, parse(instances[i], static_cast<int>(i)));
-    ++counts[slice.series_uid];
+    ++(*counts)[slice.series_uid];
     all.push_back(std::move(slice));
   }
+  return all;
+}
+
+// The series to read: `series_uid`, or the only one there is; an error listing them otherwise.
+Result<std::string> choose_series(const std::map<std::string, int>& counts, const std::string& series_uid) {
   std::string uid = series_uid;
   if (uid.empty()) {
     if (counts.size() > 1) {
@@ -265,13 +192,12 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
   } else if (!counts.count(uid)) {
     return not_found_error("series " + uid + " is not among the instances:" + describe_series(counts));
   }
-  std::vector<Slice> slices;
-  for (Slice& s : all) {
-    if (s.series_uid == uid) slices.push_back(std::move(s));
-  }
-  for (Slice& s : slices) POSEWARP_RETURN_IF_ERROR(check_slice(s));
+  return uid;
+}
+
+// The slices, all of one orientation, size and pixel spacing (the first slice's).
+Status check_one_stack(const std::vector<Slice>& slices, const std::string& uid) {
   const Slice& first = slices.front();
-  const Vec normal = cross(first.row, first.column);
   for (const Slice& s : slices) {
     if (norm(cross(s.row, first.row)) > 1e-4 || norm(cross(s.column, first.column)) > 1e-4 ||
         dot(s.row, first.row) < 0 || dot(s.column, first.column) < 0) {
@@ -285,55 +211,58 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
                                     std::to_string(s.index + 1) + ")");
     }
   }
-  for (Slice& s : slices) s.along = dot(s.position, normal);
-  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
-  // The slices' spacing along the normal: even, without gaps or repeats, and the slices stacked straight along the
-  // normal (a tilted gantry shears them sideways).
-  double spacing = 1.0;
-  if (slices.size() > 1) {
-    std::vector<double> steps;
-    for (size_t i = 1; i < slices.size(); ++i) steps.push_back(slices[i].along - slices[i - 1].along);
-    std::vector<double> sorted = steps;
-    std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
-    spacing = sorted[sorted.size() / 2];
-    if (spacing <= 1e-6) {
-      return invalid_argument_error("series " + uid +
-                                    " has several images at the same position (a repeated "
-                                    "acquisition or a localizer mixed in); keep one stack");
+  return ok_status();
+}
+
+// The sorted slices' spacing along the normal (1 for a single slice): even, without gaps or repeats, and the slices
+// stacked straight along the normal (a tilted gantry shears them sideways).
+Result<double> slice_spacing(const std::vector<Slice>& slices, const Vec& normal, const std::string& uid) {
+  if (slices.size() < 2) return 1.0;
+  std::vector<double> steps;
+  for (size_t i = 1; i < slices.size(); ++i) steps.push_back(slices[i].along - slices[i - 1].along);
+  std::vector<double> sorted = steps;
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+  const double spacing = sorted[sorted.size() / 2];
+  if (spacing <= 1e-6) {
+    return invalid_argument_error("series " + uid +
+                                  " has several images at the same position (a repeated "
+                                  "acquisition or a localizer mixed in); keep one stack");
+  }
+  for (size_t i = 0; i < steps.size(); ++i) {
+    const double at = slices[i].along;
+    if (steps[i] < 1e-3 * spacing) {
+      return invalid_argument_error("series " + uid + " has two images at the same position (" + std::to_string(at) +
+                                    " mm along the slice normal)");
     }
-    for (size_t i = 0; i < steps.size(); ++i) {
-      const double at = slices[i].along;
-      if (steps[i] < 1e-3 * spacing) {
-        return invalid_argument_error("series " + uid + " has two images at the same position (" + std::to_string(at) +
-                                      " mm along the slice normal)");
+    if (std::abs(steps[i] - spacing) > std::max(0.01, 0.01 * spacing)) {
+      const double missing = std::round(steps[i] / spacing) - 1;
+      if (missing >= 1 && std::abs(steps[i] - (missing + 1) * spacing) <= std::max(0.01, 0.01 * spacing)) {
+        return invalid_argument_error("series " + uid + " misses " + std::to_string(static_cast<int>(missing)) +
+                                      " slice(s) between " + std::to_string(at) + " and " +
+                                      std::to_string(at + steps[i]) +
+                                      " mm along the slice normal; fetch the whole series");
       }
-      if (std::abs(steps[i] - spacing) > std::max(0.01, 0.01 * spacing)) {
-        const double missing = std::round(steps[i] / spacing) - 1;
-        if (missing >= 1 && std::abs(steps[i] - (missing + 1) * spacing) <= std::max(0.01, 0.01 * spacing)) {
-          return invalid_argument_error("series " + uid + " misses " + std::to_string(static_cast<int>(missing)) +
-                                        " slice(s) between " + std::to_string(at) + " and " +
-                                        std::to_string(at + steps[i]) +
-                                        " mm along the slice normal; fetch the "
-                                        "whole series");
-        }
-        return invalid_argument_error("series " + uid + " has uneven slice spacing (" + std::to_string(steps[i]) +
-                                      " mm where the others are " + std::to_string(spacing) +
-                                      " mm); resample it to even slices first");
-      }
-      const Vec step{slices[i + 1].position[0] - slices[i].position[0],
-                     slices[i + 1].position[1] - slices[i].position[1],
-                     slices[i + 1].position[2] - slices[i].position[2]};
-      const Vec sideways = cross(step, normal);
-      if (norm(sideways) > 1e-3 * norm(step) + 1e-3) {
-        const double degrees = std::atan2(norm(sideways), dot(step, normal)) * 180.0 / M_PI;
-        return invalid_argument_error("series " + uid + " is tilted: its slices are stacked " +
-                                      std::to_string(degrees) +
-                                      " degrees off their normal (gantry tilt); posewarp needs an untilted stack "
-                                      "(resample the series onto an orthogonal grid first)");
-      }
+      return invalid_argument_error("series " + uid + " has uneven slice spacing (" + std::to_string(steps[i]) +
+                                    " mm where the others are " + std::to_string(spacing) +
+                                    " mm); resample it to even slices first");
+    }
+    const Vec step{slices[i + 1].position[0] - slices[i].position[0], slices[i + 1].position[1] - slices[i].position[1],
+                   slices[i + 1].position[2] - slices[i].position[2]};
+    const Vec sideways = cross(step, normal);
+    if (norm(sideways) > 1e-3 * norm(step) + 1e-3) {
+      const double degrees = std::atan2(norm(sideways), dot(step, normal)) * 180.0 / M_PI;
+      return invalid_argument_error("series " + uid + " is tilted: its slices are stacked " + std::to_string(degrees) +
+                                    " degrees off their normal (gantry tilt); posewarp needs an untilted stack "
+                                    "(resample the series onto an orthogonal grid first)");
     }
   }
-  // The volume: x along the rows (columns index), y along the columns (rows index), z along the normal.
+  return spacing;
+}
+
+// The volume's grid from the sorted slices: x along the rows (columns index), y along the columns (rows index), z
+// along the normal.
+Result<ImageGeometry> volume_geometry(const std::vector<Slice>& slices, const Vec& normal, double spacing) {
+  const Slice& first = slices.front();
   ImageGeometry g;
   g.size = {first.columns, first.rows, static_cast<int64_t>(slices.size())};
   g.spacing = {first.pixel_spacing[1], first.pixel_spacing[0], spacing};
@@ -344,10 +273,12 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
     g.direction[static_cast<size_t>(3 * r + 2)] = normal[static_cast<size_t>(r)] / norm(normal);
   }
   POSEWARP_RETURN_IF_ERROR(g.validate());
-  CtSeries out;
-  out.ct = IntensityVolume(g);
-  out.ct.set_source_type(PixelType::kInt16);
-  const size_t per_slice = static_cast<size_t>(first.rows) * static_cast<size_t>(first.columns);
+  return g;
+}
+
+// The sorted slices' rescaled values into `out->ct` (on their grid already), their instance UIDs into `out->info`.
+Status read_pixels(const std::vector<Slice>& slices, const std::string& uid, CtSeries* out) {
+  const size_t per_slice = static_cast<size_t>(slices.front().rows) * static_cast<size_t>(slices.front().columns);
   for (size_t k = 0; k < slices.size(); ++k) {
     DcmDataset& d = *slices[k].file->getDataset();
     Uint16 representation = 0;
@@ -358,36 +289,243 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
       return data_loss_error("instance " + std::to_string(slices[k].index + 1) + " of series " + uid +
                              " has less pixel data than its rows x columns");
     }
-    float* out_slice = out.ct.data() + k * per_slice;
+    float* out_slice = out->ct.data() + k * per_slice;
     for (size_t i = 0; i < per_slice; ++i) {
       const double stored =
           representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
       out_slice[i] = static_cast<float>(stored * slices[k].slope + slices[k].intercept);
     }
-    out.info.sop_instance_uids.push_back(text(d, DCM_SOPInstanceUID));
+    out->info.sop_instance_uids.push_back(text(d, DCM_SOPInstanceUID));
   }
-  DcmDataset& d = *slices.front().file->getDataset();
-  SeriesInfo& info = out.info;
-  info.specific_character_set = text(d, DCM_SpecificCharacterSet);
-  info.patient_name = text(d, DCM_PatientName);
-  info.patient_id = text(d, DCM_PatientID);
-  info.patient_birth_date = text(d, DCM_PatientBirthDate);
-  info.patient_sex = text(d, DCM_PatientSex);
-  info.study_instance_uid = text(d, DCM_StudyInstanceUID);
-  info.study_date = text(d, DCM_StudyDate);
-  info.study_time = text(d, DCM_StudyTime);
-  info.study_id = text(d, DCM_StudyID);
-  info.accession_number = text(d, DCM_AccessionNumber);
-  info.referring_physician_name = text(d, DCM_ReferringPhysicianName);
-  info.study_description = text(d, DCM_StudyDescription);
-  info.series_instance_uid = uid;
-  info.series_number = text(d, DCM_SeriesNumber);
-  info.series_description = text(d, DCM_SeriesDescription);
-  info.modality = text(d, DCM_Modality);
-  info.patient_position = text(d, DCM_PatientPosition);
-  info.frame_of_reference_uid = text(d, DCM_FrameOfReferenceUID);
-  info.sop_class_uid = text(d, DCM_SOPClassUID);
-  if (info.study_instance_uid.empty()) return invalid_argument_error("series " + uid + " has no StudyInstanceUID");
+  return ok_status();
+}
+
+// Patient, study and series attributes of series `uid` from its instance `d` (not the instances' UIDs).
+void read_series_info(DcmDataset& d, const std::string& uid, SeriesInfo* info) {
+  info->specific_character_set = text(d, DCM_SpecificCharacterSet);
+  info->patient_name = text(d, DCM_PatientName);
+  info->patient_id = text(d, DCM_PatientID);
+  info->patient_birth_date = text(d, DCM_PatientBirthDate);
+  info->patient_sex = text(d, DCM_PatientSex);
+  info->study_instance_uid = text(d, DCM_StudyInstanceUID);
+  info->study_date = text(d, DCM_StudyDate);
+  info->study_time = text(d, DCM_StudyTime);
+  info->study_id = text(d, DCM_StudyID);
+  info->accession_number = text(d, DCM_AccessionNumber);
+  info->referring_physician_name = text(d, DCM_ReferringPhysicianName);
+  info->study_description = text(d, DCM_StudyDescription);
+  info->series_instance_uid = uid;
+  info->series_number = text(d, DCM_SeriesNumber);
+  info->series_description = text(d, DCM_SeriesDescription);
+  info->modality = text(d, DCM_Modality);
+  info->patient_position = text(d, DCM_PatientPosition);
+  info->frame_of_reference_uid = text(d, DCM_FrameOfReferenceUID);
+  info->sop_class_uid = text(d, DCM_SOPClassUID);
+}
+
+// A grid's axes as DICOM writes them.
+struct SliceAxes {
+  Vec row, column, slice_axis;
+  bool reverse = false;  // DICOM's slice normal is row x column; a left-handed grid's slices go out in reverse order
+};
+
+// One instance of a derived series: its UID, its place in the series and when the series was made.
+struct DerivedInstance {
+  std::string sop_uid;
+  int64_t index = 0;  // its place in the series, from 0
+  int64_t slice = 0;  // the volume's slice it holds
+  std::string date, time;
+};
+
+// A string attribute, inserted or replaced.
+void put(DcmItem& d, const DcmTagKey& tag, const std::string& value) {
+  d.putAndInsertString(tag, value.c_str());
+}
+
+// An error unless the grid can be written as a derived CT series of `source`.
+Status check_derived_input(const ImageGeometry& g, const SeriesInfo& source) {
+  POSEWARP_RETURN_IF_ERROR(g.validate());
+  if (g.size[0] > 65535 || g.size[1] > 65535) {
+    return invalid_argument_error("a DICOM image has at most 65535 rows and columns; this grid is " +
+                                  std::to_string(g.size[0]) + " x " + std::to_string(g.size[1]));
+  }
+  if (source.study_instance_uid.empty()) return invalid_argument_error("the source series has no StudyInstanceUID");
+  return ok_status();
+}
+
+// The row, column and slice directions of `g`, and whether its slices go out in reverse order.
+SliceAxes slice_axes(const ImageGeometry& g) {
+  SliceAxes axes;
+  axes.row = {g.direction[0], g.direction[3], g.direction[6]};
+  axes.column = {g.direction[1], g.direction[4], g.direction[7]};
+  axes.slice_axis = {g.direction[2], g.direction[5], g.direction[8]};
+  axes.reverse = dot(cross(axes.row, axes.column), axes.slice_axis) < 0;
+  return axes;
+}
+
+// The derived series: the source's patient and study, a new series (UID, number, description), no instances yet.
+Result<SeriesInfo> derived_series_info(const SeriesInfo& source, const DerivedSeriesOptions& options) {
+  SeriesInfo info = source;
+  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, uid_for(options, "ct-series"));
+  const int source_number = std::atoi(source.series_number.c_str());
+  info.series_number = std::to_string(options.series_number > 0 ? options.series_number : source_number + 1000);
+  info.series_description = options.series_description.empty() ? "posewarp derived" : options.series_description;
+  info.modality = "CT";
+  info.sop_class_uid = UID_CTImageStorage;
+  if (info.frame_of_reference_uid.empty()) {
+    POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, uid_for(options, "frame-of-reference"));
+  }
+  info.sop_instance_uids.clear();
+  return info;
+}
+
+// The instance's identity, the source's patient and study, and the new series.
+void put_series_attributes(DcmDataset& d, const SeriesInfo& info, const DerivedSeriesOptions& options,
+                           const DerivedInstance& instance) {
+  // Optional attributes, written only when the source has them (a dataset keeps its elements in tag order, so the
+  // order of the puts does not matter).
+  if (!info.specific_character_set.empty()) put(d, DCM_SpecificCharacterSet, info.specific_character_set);
+  if (!info.study_description.empty()) put(d, DCM_StudyDescription, info.study_description);
+  if (!options.derivation_description.empty()) put(d, DCM_DerivationDescription, options.derivation_description);
+  const std::pair<DcmTagKey, std::string> attributes[] = {
+      {DCM_SOPClassUID, UID_CTImageStorage},
+      {DCM_SOPInstanceUID, instance.sop_uid},
+      {DCM_ImageType, "DERIVED\\SECONDARY\\AXIAL"},
+      {DCM_InstanceCreationDate, instance.date},
+      {DCM_InstanceCreationTime, instance.time},
+      {DCM_ContentDate, instance.date},
+      {DCM_ContentTime, instance.time},
+      // Patient and study: the source's.
+      {DCM_PatientName, info.patient_name},
+      {DCM_PatientID, info.patient_id},
+      {DCM_PatientBirthDate, info.patient_birth_date},
+      {DCM_PatientSex, info.patient_sex},
+      {DCM_StudyInstanceUID, info.study_instance_uid},
+      {DCM_StudyDate, info.study_date},
+      {DCM_StudyTime, info.study_time},
+      {DCM_StudyID, info.study_id},
+      {DCM_AccessionNumber, info.accession_number},
+      {DCM_ReferringPhysicianName, info.referring_physician_name},
+      // The new series.
+      {DCM_Modality, "CT"},
+      {DCM_Laterality, ""},
+      {DCM_PatientPosition, info.patient_position},
+      {DCM_SeriesInstanceUID, info.series_instance_uid},
+      {DCM_SeriesNumber, info.series_number},
+      {DCM_SeriesDescription, info.series_description},
+      {DCM_SeriesDate, instance.date},
+      {DCM_SeriesTime, instance.time},
+      {DCM_FrameOfReferenceUID, info.frame_of_reference_uid},
+      {DCM_PositionReferenceIndicator, ""},
+      {DCM_Manufacturer, "posewarp"},
+      {DCM_InstanceNumber, std::to_string(instance.index + 1)},
+      {DCM_KVP, ""},
+      {DCM_AcquisitionNumber, ""},
+  };
+  for (const auto& [tag, value] : attributes) put(d, tag, value);
+}
+
+// Where it came from: every source image, in each slice (each posed slice draws on all of them), and the source
+// series with its instances (Common Instance Reference).
+void put_source_references(DcmDataset& d, const SeriesInfo& source) {
+  const char* source_class = source.sop_class_uid.empty() ? UID_CTImageStorage : source.sop_class_uid.c_str();
+  DcmItem* series_item = nullptr;
+  if (!source.sop_instance_uids.empty() &&
+      d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
+    series_item->putAndInsertString(DCM_SeriesInstanceUID, source.series_instance_uid.c_str());
+  }
+  for (const std::string& source_uid : source.sop_instance_uids) {
+    for (auto [parent, sequence] : {std::pair<DcmItem*, DcmTagKey>{&d, DCM_SourceImageSequence},
+                                    std::pair<DcmItem*, DcmTagKey>{series_item, DCM_ReferencedInstanceSequence}}) {
+      DcmItem* item = nullptr;
+      if (parent != nullptr && parent->findOrCreateSequenceItem(sequence, item, -2).good()) {
+        item->putAndInsertString(DCM_ReferencedSOPClassUID, source_class);
+        item->putAndInsertString(DCM_ReferencedSOPInstanceUID, source_uid.c_str());
+      }
+    }
+  }
+}
+
+// The place of slice `k` of `g` in the patient: orientation, position, spacing, thickness and location.
+void put_slice_geometry(DcmDataset& d, const ImageGeometry& g, const SliceAxes& axes, int64_t k) {
+  const Vec &row = axes.row, &column = axes.column, &slice_axis = axes.slice_axis;
+  const double offset = static_cast<double>(k) * g.spacing[2];
+  const Vec position{g.origin[0] + offset * slice_axis[0], g.origin[1] + offset * slice_axis[1],
+                     g.origin[2] + offset * slice_axis[2]};
+  char value[256];
+  std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f\\%.6f\\%.6f\\%.6f", row[0], row[1], row[2], column[0], column[1],
+                column[2]);
+  put(d, DCM_ImageOrientationPatient, value);
+  std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f", position[0], position[1], position[2]);
+  put(d, DCM_ImagePositionPatient, value);
+  std::snprintf(value, sizeof value, "%.6f\\%.6f", g.spacing[1], g.spacing[0]);
+  put(d, DCM_PixelSpacing, value);
+  std::snprintf(value, sizeof value, "%.6f", g.spacing[2]);
+  put(d, DCM_SliceThickness, value);
+  std::snprintf(value, sizeof value, "%.6f", dot(position, cross(row, column)));
+  put(d, DCM_SliceLocation, value);
+}
+
+// Slice `k` of `ct` as int16 HU pixels, rescale 1 and 0; the number of values clipped to fit int16.
+int64_t put_ct_pixels(DcmDataset& d, const IntensityVolume& ct, int64_t k) {
+  const ImageGeometry& g = ct.geometry();
+  d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
+  put(d, DCM_PhotometricInterpretation, "MONOCHROME2");
+  d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
+  d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
+  d.putAndInsertUint16(DCM_BitsAllocated, 16);
+  d.putAndInsertUint16(DCM_BitsStored, 16);
+  d.putAndInsertUint16(DCM_HighBit, 15);
+  d.putAndInsertUint16(DCM_PixelRepresentation, 1);
+  put(d, DCM_RescaleIntercept, "0");
+  put(d, DCM_RescaleSlope, "1");
+  put(d, DCM_RescaleType, "HU");
+  put(d, DCM_WindowCenter, "40");
+  put(d, DCM_WindowWidth, "400");
+  const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
+  std::vector<Sint16> samples(per_slice);
+  int64_t clipped = 0;
+  const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
+  for (size_t i = 0; i < per_slice; ++i) {
+    // Half away from zero, as the volume writers round (io: lround): a posed value of exactly -118.5 is -119 in the
+    // series and in the NIfTI of the same pose alike.
+    const float v = std::isfinite(slice[i]) ? std::round(slice[i]) : 0.0f;
+    const float bounded = std::clamp(v, -32768.0f, 32767.0f);
+    clipped += bounded != v;
+    samples[i] = static_cast<Sint16>(bounded);
+  }
+  // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
+  std::vector<Uint16> words(per_slice);
+  std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
+  d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(per_slice));
+  return clipped;
+}
+
+}  // namespace
+
+Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid) {
+  quiet_dcmtk();
+  if (instances.empty()) return invalid_argument_error("no DICOM instances to read");
+  std::map<std::string, int> counts;
+  POSEWARP_ASSIGN_OR_RETURN(std::vector<Slice> all, parse_instances(instances, &counts));
+  POSEWARP_ASSIGN_OR_RETURN(const std::string uid, choose_series(counts, series_uid));
+  std::vector<Slice> slices;
+  for (Slice& s : all) {
+    if (s.series_uid == uid) slices.push_back(std::move(s));
+  }
+  for (Slice& s : slices) POSEWARP_RETURN_IF_ERROR(check_slice(s));
+  const Vec normal = cross(slices.front().row, slices.front().column);
+  POSEWARP_RETURN_IF_ERROR(check_one_stack(slices, uid));
+  for (Slice& s : slices) s.along = dot(s.position, normal);
+  std::sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
+  POSEWARP_ASSIGN_OR_RETURN(const double spacing, slice_spacing(slices, normal, uid));
+  POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry g, volume_geometry(slices, normal, spacing));
+  CtSeries out;
+  out.ct = IntensityVolume(g);
+  out.ct.set_source_type(PixelType::kInt16);
+  POSEWARP_RETURN_IF_ERROR(read_pixels(slices, uid, &out));
+  read_series_info(*slices.front().file->getDataset(), uid, &out.info);
+  if (out.info.study_instance_uid.empty()) return invalid_argument_error("series " + uid + " has no StudyInstanceUID");
   return out;
 }
 
@@ -439,140 +577,27 @@ Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, co
                                                    const DerivedSeriesOptions& options, SeriesInfo* info_out) {
   quiet_dcmtk();
   const ImageGeometry& g = ct.geometry();
-  POSEWARP_RETURN_IF_ERROR(g.validate());
-  if (g.size[0] > 65535 || g.size[1] > 65535) {
-    return invalid_argument_error("a DICOM image has at most 65535 rows and columns; this grid is " +
-                                  std::to_string(g.size[0]) + " x " + std::to_string(g.size[1]));
-  }
-  if (source.study_instance_uid.empty()) return invalid_argument_error("the source series has no StudyInstanceUID");
-  const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
-  Vec slice_axis{g.direction[2], g.direction[5], g.direction[8]};
-  // DICOM's slice normal is row x column; a left-handed grid's slices go out in reverse order.
-  const bool reverse = dot(cross(row, column), slice_axis) < 0;
-  SeriesInfo info = source;
-  POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, uid_for(options, "ct-series"));
-  const int source_number = std::atoi(source.series_number.c_str());
-  info.series_number = std::to_string(options.series_number > 0 ? options.series_number : source_number + 1000);
-  info.series_description = options.series_description.empty() ? "posewarp derived" : options.series_description;
-  info.modality = "CT";
-  info.sop_class_uid = UID_CTImageStorage;
-  if (info.frame_of_reference_uid.empty()) {
-    POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, uid_for(options, "frame-of-reference"));
-  }
-  info.sop_instance_uids.clear();
-  const std::string date = date_now("%Y%m%d"), time = date_now("%H%M%S");
-  const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
-  std::vector<Sint16> samples(per_slice);
+  POSEWARP_RETURN_IF_ERROR(check_derived_input(g, source));
+  const SliceAxes axes = slice_axes(g);
+  POSEWARP_ASSIGN_OR_RETURN(SeriesInfo info, derived_series_info(source, options));
+  DerivedInstance instance;
+  instance.date = date_now("%Y%m%d");
+  instance.time = date_now("%H%M%S");
   std::vector<std::string> files;
   int64_t clipped = 0;
   for (int64_t n = 0; n < g.size[2]; ++n) {
-    const int64_t k = reverse ? g.size[2] - 1 - n : n;
-    std::string sop_uid;
-    POSEWARP_ASSIGN_OR_RETURN(sop_uid, uid_for(options, "ct/" + std::to_string(n)));
+    instance.index = n;
+    instance.slice = axes.reverse ? g.size[2] - 1 - n : n;
+    POSEWARP_ASSIGN_OR_RETURN(instance.sop_uid, uid_for(options, "ct/" + std::to_string(n)));
     DcmFileFormat file;
     DcmDataset& d = *file.getDataset();
-    const auto put = [&d](const DcmTagKey& tag, const std::string& value) { d.putAndInsertString(tag, value.c_str()); };
-    if (!info.specific_character_set.empty()) put(DCM_SpecificCharacterSet, info.specific_character_set);
-    put(DCM_SOPClassUID, UID_CTImageStorage);
-    put(DCM_SOPInstanceUID, sop_uid);
-    put(DCM_ImageType, "DERIVED\\SECONDARY\\AXIAL");
-    put(DCM_InstanceCreationDate, date);
-    put(DCM_InstanceCreationTime, time);
-    put(DCM_ContentDate, date);
-    put(DCM_ContentTime, time);
-    // Patient and study: the source's.
-    put(DCM_PatientName, info.patient_name);
-    put(DCM_PatientID, info.patient_id);
-    put(DCM_PatientBirthDate, info.patient_birth_date);
-    put(DCM_PatientSex, info.patient_sex);
-    put(DCM_StudyInstanceUID, info.study_instance_uid);
-    put(DCM_StudyDate, info.study_date);
-    put(DCM_StudyTime, info.study_time);
-    put(DCM_StudyID, info.study_id);
-    put(DCM_AccessionNumber, info.accession_number);
-    put(DCM_ReferringPhysicianName, info.referring_physician_name);
-    if (!info.study_description.empty()) put(DCM_StudyDescription, info.study_description);
-    // The new series.
-    put(DCM_Modality, "CT");
-    put(DCM_Laterality, "");
-    put(DCM_PatientPosition, info.patient_position);
-    put(DCM_SeriesInstanceUID, info.series_instance_uid);
-    put(DCM_SeriesNumber, info.series_number);
-    put(DCM_SeriesDescription, info.series_description);
-    put(DCM_SeriesDate, date);
-    put(DCM_SeriesTime, time);
-    put(DCM_FrameOfReferenceUID, info.frame_of_reference_uid);
-    put(DCM_PositionReferenceIndicator, "");
-    put(DCM_Manufacturer, "posewarp");
-    put(DCM_InstanceNumber, std::to_string(n + 1));
-    put(DCM_KVP, "");
-    put(DCM_AcquisitionNumber, "");
-    if (!options.derivation_description.empty()) put(DCM_DerivationDescription, options.derivation_description);
-    // Where it came from: every source image, in each slice (each posed slice draws on all of them), and the source
-    // series with its instances (Common Instance Reference).
-    const char* source_class = source.sop_class_uid.empty() ? UID_CTImageStorage : source.sop_class_uid.c_str();
-    DcmItem* series_item = nullptr;
-    if (!source.sop_instance_uids.empty() &&
-        d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
-      series_item->putAndInsertString(DCM_SeriesInstanceUID, source.series_instance_uid.c_str());
-    }
-    for (const std::string& source_uid : source.sop_instance_uids) {
-      for (auto [parent, sequence] : {std::pair<DcmItem*, DcmTagKey>{&d, DCM_SourceImageSequence},
-                                      std::pair<DcmItem*, DcmTagKey>{series_item, DCM_ReferencedInstanceSequence}}) {
-        DcmItem* item = nullptr;
-        if (parent != nullptr && parent->findOrCreateSequenceItem(sequence, item, -2).good()) {
-          item->putAndInsertString(DCM_ReferencedSOPClassUID, source_class);
-          item->putAndInsertString(DCM_ReferencedSOPInstanceUID, source_uid.c_str());
-        }
-      }
-    }
-    // Geometry of this slice.
-    const double offset = static_cast<double>(k) * g.spacing[2];
-    const Vec position{g.origin[0] + offset * slice_axis[0], g.origin[1] + offset * slice_axis[1],
-                       g.origin[2] + offset * slice_axis[2]};
-    char value[256];
-    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f\\%.6f\\%.6f\\%.6f", row[0], row[1], row[2], column[0],
-                  column[1], column[2]);
-    put(DCM_ImageOrientationPatient, value);
-    std::snprintf(value, sizeof value, "%.6f\\%.6f\\%.6f", position[0], position[1], position[2]);
-    put(DCM_ImagePositionPatient, value);
-    std::snprintf(value, sizeof value, "%.6f\\%.6f", g.spacing[1], g.spacing[0]);
-    put(DCM_PixelSpacing, value);
-    std::snprintf(value, sizeof value, "%.6f", g.spacing[2]);
-    put(DCM_SliceThickness, value);
-    std::snprintf(value, sizeof value, "%.6f", dot(position, cross(row, column)));
-    put(DCM_SliceLocation, value);
-    // Pixels: int16 HU, rescale 1 and 0.
-    d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
-    put(DCM_PhotometricInterpretation, "MONOCHROME2");
-    d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
-    d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
-    d.putAndInsertUint16(DCM_BitsAllocated, 16);
-    d.putAndInsertUint16(DCM_BitsStored, 16);
-    d.putAndInsertUint16(DCM_HighBit, 15);
-    d.putAndInsertUint16(DCM_PixelRepresentation, 1);
-    put(DCM_RescaleIntercept, "0");
-    put(DCM_RescaleSlope, "1");
-    put(DCM_RescaleType, "HU");
-    put(DCM_WindowCenter, "40");
-    put(DCM_WindowWidth, "400");
-    const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
-    for (size_t i = 0; i < per_slice; ++i) {
-      // Half away from zero, as the volume writers round (io: lround): a posed value of exactly -118.5 is -119 in the
-      // series and in the NIfTI of the same pose alike.
-      const float v = std::isfinite(slice[i]) ? std::round(slice[i]) : 0.0f;
-      const float bounded = std::clamp(v, -32768.0f, 32767.0f);
-      clipped += bounded != v;
-      samples[i] = static_cast<Sint16>(bounded);
-    }
-    // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
-    std::vector<Uint16> words(per_slice);
-    std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
-    d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(per_slice));
-    std::string bytes;
-    POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "DICOM slice " + std::to_string(n + 1)));
+    put_series_attributes(d, info, options, instance);
+    put_source_references(d, source);
+    put_slice_geometry(d, g, axes, instance.slice);
+    clipped += put_ct_pixels(d, ct, instance.slice);
+    POSEWARP_ASSIGN_OR_RETURN(std::string bytes, encode_part10(file, "DICOM slice " + std::to_string(n + 1)));
     files.push_back(std::move(bytes));
-    info.sop_instance_uids.push_back(sop_uid);
+    info.sop_instance_uids.push_back(instance.sop_uid);
   }
   if (clipped > 0) {
     return out_of_range_error(std::to_string(clipped) +

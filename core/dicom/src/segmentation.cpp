@@ -46,13 +46,32 @@ std::string format(const char* f, double a) {
   return out;
 }
 
-}  // namespace
+// Per label value: its voxel count (LabelCounts), its DICOM segment number (SegmentNumbers).
+using LabelCounts = std::map<Label, int64_t>;
+using SegmentNumbers = std::map<Label, Uint16>;
 
-Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeometry& grid) {
-  quiet_dcmtk();
-  POSEWARP_RETURN_IF_ERROR(grid.validate());
-  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmFileFormat> file, parse_part10(bytes, "the segmentation"));
-  DcmDataset& d = *file->getDataset();
+// How a SEG's frames hold their pixels.
+struct FrameLayout {
+  bool binary = true;
+  Uint16 max_fraction = 255;
+  Uint16 rows = 0, columns = 0;
+};
+
+// One frame of a SEG and where it goes on the grid.
+struct SegFrame {
+  size_t index = 0;
+  std::string name;   // for messages
+  size_t slice = 0;   // the grid's slice it lies on
+  Uint16 number = 0;  // its segment
+};
+
+// Voxels that needed a decision while frames were painted, for the warnings.
+struct PaintCounts {
+  int64_t overlaps = 0, thresholded = 0;
+};
+
+// The SEG that `d` holds, loaded by dcmseg; an error when `d` is not one.
+Result<std::unique_ptr<DcmSegmentation>> load_segmentation(DcmDataset& d) {
   OFString sop_class;
   d.findAndGetOFString(DCM_SOPClassUID, sop_class);
   if (sop_class != UID_SegmentationStorage) {
@@ -63,32 +82,44 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
   std::unique_ptr<DcmSegmentation> seg(loaded);
   if (loading.bad() || !seg)
     return invalid_argument_error(std::string("cannot read the segmentation: ") + loading.text());
-  const bool binary = seg->getSegmentationType() == DcmSegTypes::ST_BINARY;
-  if (!binary && seg->getSegmentationType() != DcmSegTypes::ST_FRACTIONAL) {
+  return seg;
+}
+
+// The frames' type and size; an error when they are not the size of the grid's slices.
+Result<FrameLayout> frame_layout(DcmDataset& d, DcmSegmentation& seg, const ImageGeometry& grid) {
+  FrameLayout layout;
+  layout.binary = seg.getSegmentationType() == DcmSegTypes::ST_BINARY;
+  if (!layout.binary && seg.getSegmentationType() != DcmSegTypes::ST_FRACTIONAL) {
     return invalid_argument_error("the segmentation is neither BINARY nor FRACTIONAL");
   }
-  Uint16 max_fraction = 255;
-  d.findAndGetUint16(DCM_MaximumFractionalValue, max_fraction);
-  Uint16 rows = 0, columns = 0;
-  d.findAndGetUint16(DCM_Rows, rows);
-  d.findAndGetUint16(DCM_Columns, columns);
-  if (rows != grid.size[1] || columns != grid.size[0]) {
-    return invalid_argument_error("the segmentation's frames are " + std::to_string(columns) + " x " +
-                                  std::to_string(rows) + " pixels, the CT's slices " + std::to_string(grid.size[0]) +
-                                  " x " + std::to_string(grid.size[1]) + ": it was not made on this CT");
+  d.findAndGetUint16(DCM_MaximumFractionalValue, layout.max_fraction);
+  d.findAndGetUint16(DCM_Rows, layout.rows);
+  d.findAndGetUint16(DCM_Columns, layout.columns);
+  if (layout.rows != grid.size[1] || layout.columns != grid.size[0]) {
+    return invalid_argument_error("the segmentation's frames are " + std::to_string(layout.columns) + " x " +
+                                  std::to_string(layout.rows) + " pixels, the CT's slices " +
+                                  std::to_string(grid.size[0]) + " x " + std::to_string(grid.size[1]) +
+                                  ": it was not made on this CT");
   }
-  Segmentation out;
-  out.labels = LabelVolume(grid, 0);
-  out.labels.set_source_type(PixelType::kUInt16);
+  return layout;
+}
+
+// The SEG's own series UID and the CT series it references, where it names them.
+void read_series_uids(DcmDataset& d, Segmentation* out) {
   OFString uid;
-  if (d.findAndGetOFString(DCM_SeriesInstanceUID, uid).good()) out.series_instance_uid = text(uid);
+  if (d.findAndGetOFString(DCM_SeriesInstanceUID, uid).good()) out->series_instance_uid = text(uid);
   DcmItem* referenced = nullptr;
   if (d.findAndGetSequenceItem(DCM_ReferencedSeriesSequence, referenced, 0).good() &&
       referenced->findAndGetOFString(DCM_SeriesInstanceUID, uid).good()) {
-    out.referenced_series_uid = text(uid);
+    out->referenced_series_uid = text(uid);
   }
-  for (size_t n = 1; n <= seg->getNumberOfSegments(); ++n) {
-    DcmSegment* s = seg->getSegment(n);
+}
+
+// The segments' numbers, labels, descriptions and codes, in segment-number order.
+std::vector<Segment> read_segments(DcmSegmentation& seg) {
+  std::vector<Segment> segments;
+  for (size_t n = 1; n <= seg.getNumberOfSegments(); ++n) {
+    DcmSegment* s = seg.getSegment(n);
     if (s == nullptr) continue;
     Segment segment;
     segment.number = static_cast<int>(n);
@@ -97,11 +128,13 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
     if (s->getSegmentDescription(value).good()) segment.description = text(value);
     segment.category = code_of(s->getSegmentedPropertyCategoryCode());
     segment.type = code_of(s->getSegmentedPropertyTypeCode());
-    out.segments.push_back(segment);
+    segments.push_back(segment);
   }
-  // Each frame onto its slice: its orientation must be the grid's, its position one of the grid's slice origins, its
-  // pixels the grid's size.
-  FGInterface& groups = seg->getFunctionalGroups();
+  return segments;
+}
+
+// The frames' pixel spacing, where the SEG gives one, must be the grid's.
+Status check_pixel_spacing(FGInterface& groups, const ImageGeometry& grid) {
   if (auto* measures = static_cast<FGPixelMeasures*>(groups.get(0, DcmFGTypes::EFG_PIXELMEASURES))) {
     Float64 between_rows = 0, between_columns = 0;
     if (measures->getPixelSpacing(between_rows, 0).good() && measures->getPixelSpacing(between_columns, 1).good() &&
@@ -110,87 +143,102 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
                                     format("%.3f", between_rows) + " mm) is not the CT's: it was not made on this CT");
     }
   }
-  const Vec row{grid.direction[0], grid.direction[3], grid.direction[6]};
-  const Vec column{grid.direction[1], grid.direction[4], grid.direction[7]};
-  const size_t per_frame = static_cast<size_t>(rows) * columns;
-  int64_t overlaps = 0, thresholded = 0;
-  for (size_t f = 0; f < seg->getNumberOfFrames(); ++f) {
-    const std::string name = "segmentation frame " + std::to_string(f + 1);
-    auto* position =
-        static_cast<FGPlanePosPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEPOSPATIENT));
-    auto* orientation =
-        static_cast<FGPlaneOrientationPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEORIENTPATIENT));
-    auto* identification =
-        static_cast<FGSegmentation*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_SEGMENTATION));
-    Float64 x = 0, y = 0, z = 0;
-    Uint16 number = 0;
-    if (position == nullptr || identification == nullptr || position->getImagePositionPatient(x, y, z).bad() ||
-        identification->getReferencedSegmentNumber(number).bad() || number == 0) {
-      return invalid_argument_error(name + " has no position or segment number");
-    }
-    if (orientation == nullptr) return invalid_argument_error(name + " has no orientation");
-    {
-      Float64 o[6];
-      for (int i = 0; i < 6; ++i) {
-        OFString component;
-        orientation->getImageOrientationPatient(component, i);
-        o[i] = std::atof(component.c_str());
-      }
-      for (int i = 0; i < 3; ++i) {
-        if (std::abs(o[i] - row[static_cast<size_t>(i)]) > 1e-3 ||
-            std::abs(o[i + 3] - column[static_cast<size_t>(i)]) > 1e-3) {
-          return invalid_argument_error(name + " is not oriented as the CT's slices: it was not made on this CT");
-        }
-      }
-    }
-    const Vec3 index = grid.physical_to_index({x, y, z});
-    const double k = std::round(index[2]);
-    if (std::abs(index[0]) > 0.01 || std::abs(index[1]) > 0.01 || std::abs(index[2] - k) > 0.01 || k < 0 ||
-        k >= static_cast<double>(grid.size[2])) {
-      return invalid_argument_error(name + " lies off the CT's slices (at " + format("%.2f", x) + ", " +
-                                    format("%.2f", y) + ", " + format("%.2f", z) +
-                                    " mm): it was not made on this CT's grid");
-    }
-    const DcmIODTypes::Frame* frame = seg->getFrame(f);
-    if (frame == nullptr) return data_loss_error(name + " has no pixel data");
-    std::unique_ptr<DcmIODTypes::Frame> unpacked;
-    if (binary) {
-      unpacked.reset(DcmSegUtils::unpackBinaryFrame(frame, rows, columns));
-      if (!unpacked) return data_loss_error(name + " has less pixel data than its rows x columns");
-      frame = unpacked.get();
-    }
-    if (frame->length < per_frame) return data_loss_error(name + " has less pixel data than its rows x columns");
-    Label* slice = out.labels.data() + static_cast<size_t>(k) * per_frame;
-    for (size_t i = 0; i < per_frame; ++i) {
-      const Uint8 v = frame->pixData[i];
-      bool set = v != 0;
-      if (!binary) {
-        set = 2.0 * v >= max_fraction;
-        thresholded += v != 0 && static_cast<int>(v) != max_fraction;
-      }
-      if (!set) continue;
-      if (slice[i] != 0 && slice[i] != number) ++overlaps;
-      slice[i] = std::max<Label>(slice[i], number);
-    }
-  }
-  if (thresholded > 0) {
-    out.warnings.push_back("fractional segmentation: " + std::to_string(thresholded) +
-                           " voxels with partial values were thresholded at one half");
-  }
-  if (overlaps > 0) {
-    out.warnings.push_back(std::to_string(overlaps) +
-                           " voxels belong to more than one segment; each took the "
-                           "highest-numbered one");
-  }
-  return out;
+  return ok_status();
 }
 
-Result<std::string> encode_segmentation(const LabelVolume& labels, const std::vector<Segment>& segments,
-                                        const SeriesInfo& ct, const DerivedSeriesOptions& options, SeriesInfo* info_out,
-                                        std::map<Label, int>* numbers) {
-  quiet_dcmtk();
+// A frame's orientation must be the grid's slices'.
+Status check_frame_orientation(FGPlaneOrientationPatient& orientation, const ImageGeometry& grid,
+                               const std::string& name) {
+  const Vec row{grid.direction[0], grid.direction[3], grid.direction[6]};
+  const Vec column{grid.direction[1], grid.direction[4], grid.direction[7]};
+  Float64 o[6];
+  for (int i = 0; i < 6; ++i) {
+    OFString component;
+    orientation.getImageOrientationPatient(component, i);
+    o[i] = std::atof(component.c_str());
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (std::abs(o[i] - row[static_cast<size_t>(i)]) > 1e-3 ||
+        std::abs(o[i + 3] - column[static_cast<size_t>(i)]) > 1e-3) {
+      return invalid_argument_error(name + " is not oriented as the CT's slices: it was not made on this CT");
+    }
+  }
+  return ok_status();
+}
+
+// Frame `f`'s segment and slice: its orientation must be the grid's, its position one of the grid's slice origins.
+Result<SegFrame> place_frame(FGInterface& groups, size_t f, const ImageGeometry& grid) {
+  SegFrame frame;
+  frame.index = f;
+  frame.name = "segmentation frame " + std::to_string(f + 1);
+  const std::string& name = frame.name;
+  auto* position = static_cast<FGPlanePosPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEPOSPATIENT));
+  auto* orientation =
+      static_cast<FGPlaneOrientationPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEORIENTPATIENT));
+  auto* identification = static_cast<FGSegmentation*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_SEGMENTATION));
+  Float64 x = 0, y = 0, z = 0;
+  if (position == nullptr || identification == nullptr || position->getImagePositionPatient(x, y, z).bad() ||
+      identification->getReferencedSegmentNumber(frame.number).bad() || frame.number == 0) {
+    return invalid_argument_error(name + " has no position or segment number");
+  }
+  if (orientation == nullptr) return invalid_argument_error(name + " has no orientation");
+  POSEWARP_RETURN_IF_ERROR(check_frame_orientation(*orientation, grid, name));
+  const Vec3 index = grid.physical_to_index({x, y, z});
+  const double k = std::round(index[2]);
+  if (std::abs(index[0]) > 0.01 || std::abs(index[1]) > 0.01 || std::abs(index[2] - k) > 0.01 || k < 0 ||
+      k >= static_cast<double>(grid.size[2])) {
+    return invalid_argument_error(name + " lies off the CT's slices (at " + format("%.2f", x) + ", " +
+                                  format("%.2f", y) + ", " + format("%.2f", z) +
+                                  " mm): it was not made on this CT's grid");
+  }
+  frame.slice = static_cast<size_t>(k);
+  return frame;
+}
+
+// A frame's set pixels written onto its slice of `labels`; where segments overlap the highest number wins.
+Status paint_frame(DcmSegmentation& seg, const SegFrame& frame, const FrameLayout& layout, LabelVolume* labels,
+                   PaintCounts* counts) {
+  const size_t per_frame = static_cast<size_t>(layout.rows) * layout.columns;
+  const DcmIODTypes::Frame* pixels = seg.getFrame(frame.index);
+  if (pixels == nullptr) return data_loss_error(frame.name + " has no pixel data");
+  std::unique_ptr<DcmIODTypes::Frame> unpacked;
+  if (layout.binary) {
+    unpacked.reset(DcmSegUtils::unpackBinaryFrame(pixels, layout.rows, layout.columns));
+    if (!unpacked) return data_loss_error(frame.name + " has less pixel data than its rows x columns");
+    pixels = unpacked.get();
+  }
+  if (pixels->length < per_frame) return data_loss_error(frame.name + " has less pixel data than its rows x columns");
+  Label* slice = labels->data() + frame.slice * per_frame;
+  for (size_t i = 0; i < per_frame; ++i) {
+    const Uint8 v = pixels->pixData[i];
+    bool set = v != 0;
+    if (!layout.binary) {
+      set = 2.0 * v >= layout.max_fraction;
+      counts->thresholded += v != 0 && static_cast<int>(v) != layout.max_fraction;
+    }
+    if (!set) continue;
+    if (slice[i] != 0 && slice[i] != frame.number) ++counts->overlaps;
+    slice[i] = std::max<Label>(slice[i], frame.number);
+  }
+  return ok_status();
+}
+
+// Warnings for the voxels that were thresholded or claimed by several segments.
+void add_paint_warnings(const PaintCounts& counts, std::vector<std::string>* warnings) {
+  if (counts.thresholded > 0) {
+    warnings->push_back("fractional segmentation: " + std::to_string(counts.thresholded) +
+                        " voxels with partial values were thresholded at one half");
+  }
+  if (counts.overlaps > 0) {
+    warnings->push_back(std::to_string(counts.overlaps) +
+                        " voxels belong to more than one segment; each took the "
+                        "highest-numbered one");
+  }
+}
+
+// The voxel count of each label value present; an error unless the labels can be a SEG on the CT's grid.
+Result<LabelCounts> labels_present(const LabelVolume& labels, const SeriesInfo& ct) {
   const ImageGeometry& g = labels.geometry();
-  POSEWARP_RETURN_IF_ERROR(g.validate());
   if (ct.sop_instance_uids.size() != static_cast<size_t>(g.size[2])) {
     return invalid_argument_error("the labels have " + std::to_string(g.size[2]) + " slices and the CT series " +
                                   std::to_string(ct.sop_instance_uids.size()) +
@@ -198,7 +246,7 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   }
   if (g.size[0] > 65535 || g.size[1] > 65535)
     return invalid_argument_error("a SEG frame has at most 65535 rows and columns");
-  std::map<Label, int64_t> present;
+  LabelCounts present;
   for (Label v : labels.voxels()) {
     if (v != 0) ++present[v];
   }
@@ -206,14 +254,25 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   if (present.begin()->first < 0 || present.rbegin()->first > 65535) {
     return invalid_argument_error("label values must be 1..65535 to be segment numbers");
   }
+  return present;
+}
+
+// An empty binary SEG with frames of the grid's slice size, made by posewarp.
+Result<std::unique_ptr<DcmSegmentation>> create_segmentation(const ImageGeometry& g,
+                                                             const DerivedSeriesOptions& options) {
   IODGeneralEquipmentModule::EquipmentInfo equipment("posewarp", "posewarp", "0", "1");
   ContentIdentificationMacro content(
       "1", "POSEWARP", options.series_description.empty() ? "posed labels" : options.series_description, "posewarp");
   DcmSegmentation* created = nullptr;
-  OFCondition ok = DcmSegmentation::createBinarySegmentation(created, static_cast<Uint16>(g.size[1]),
-                                                             static_cast<Uint16>(g.size[0]), equipment, content);
+  const OFCondition ok = DcmSegmentation::createBinarySegmentation(created, static_cast<Uint16>(g.size[1]),
+                                                                   static_cast<Uint16>(g.size[0]), equipment, content);
   std::unique_ptr<DcmSegmentation> seg(created);
   if (ok.bad() || !seg) return internal_error(std::string("cannot create a segmentation: ") + ok.text());
+  return seg;
+}
+
+// The new SEG series: the CT's patient and study, new series and instance UIDs, one instance.
+Result<SeriesInfo> seg_series_info(const SeriesInfo& ct, const DerivedSeriesOptions& options) {
   SeriesInfo info = ct;
   POSEWARP_ASSIGN_OR_RETURN(info.series_instance_uid, uid_for(options, "seg-series"));
   std::string sop_uid;
@@ -224,24 +283,32 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   info.series_number =
       std::to_string(options.series_number > 0 ? options.series_number : std::atoi(ct.series_number.c_str()) + 1);
   info.series_description = options.series_description.empty() ? "posewarp labels" : options.series_description;
-  seg->getPatient().setPatientName(ct.patient_name.c_str(), OFFalse);
-  seg->getPatient().setPatientID(ct.patient_id.c_str(), OFFalse);
-  seg->getPatient().setPatientBirthDate(ct.patient_birth_date.c_str(), OFFalse);
-  seg->getPatient().setPatientSex(ct.patient_sex.c_str(), OFFalse);
-  seg->getStudy().setStudyInstanceUID(ct.study_instance_uid.c_str(), OFFalse);
-  seg->getStudy().setStudyDate(ct.study_date.c_str(), OFFalse);
-  seg->getStudy().setStudyTime(ct.study_time.c_str(), OFFalse);
-  seg->getStudy().setStudyID(ct.study_id.c_str(), OFFalse);
-  seg->getStudy().setAccessionNumber(ct.accession_number.c_str(), OFFalse);
-  seg->getStudy().setReferringPhysicianName(ct.referring_physician_name.c_str(), OFFalse);
-  seg->getFrameOfReference().setFrameOfReferenceUID(ct.frame_of_reference_uid.c_str(), OFFalse);
-  seg->getSeries().setSeriesInstanceUID(info.series_instance_uid.c_str(), OFFalse);
-  seg->getSeries().setSeriesNumber(info.series_number.c_str(), OFFalse);
-  seg->getSeries().setSeriesDescription(info.series_description.c_str(), OFFalse);
-  seg->getSOPCommon().setSOPInstanceUID(sop_uid.c_str(), OFFalse);
+  return info;
+}
+
+// Patient, study and frame of reference the CT's; series and instance the new SEG's (`info`).
+void set_seg_modules(DcmSegmentation& seg, const SeriesInfo& ct, const SeriesInfo& info) {
+  seg.getPatient().setPatientName(ct.patient_name.c_str(), OFFalse);
+  seg.getPatient().setPatientID(ct.patient_id.c_str(), OFFalse);
+  seg.getPatient().setPatientBirthDate(ct.patient_birth_date.c_str(), OFFalse);
+  seg.getPatient().setPatientSex(ct.patient_sex.c_str(), OFFalse);
+  seg.getStudy().setStudyInstanceUID(ct.study_instance_uid.c_str(), OFFalse);
+  seg.getStudy().setStudyDate(ct.study_date.c_str(), OFFalse);
+  seg.getStudy().setStudyTime(ct.study_time.c_str(), OFFalse);
+  seg.getStudy().setStudyID(ct.study_id.c_str(), OFFalse);
+  seg.getStudy().setAccessionNumber(ct.accession_number.c_str(), OFFalse);
+  seg.getStudy().setReferringPhysicianName(ct.referring_physician_name.c_str(), OFFalse);
+  seg.getFrameOfReference().setFrameOfReferenceUID(ct.frame_of_reference_uid.c_str(), OFFalse);
+  seg.getSeries().setSeriesInstanceUID(info.series_instance_uid.c_str(), OFFalse);
+  seg.getSeries().setSeriesNumber(info.series_number.c_str(), OFFalse);
+  seg.getSeries().setSeriesDescription(info.series_description.c_str(), OFFalse);
+  seg.getSOPCommon().setSOPInstanceUID(info.sop_instance_uids.front().c_str(), OFFalse);
   if (!ct.specific_character_set.empty())
-    seg->getSOPCommon().setSpecificCharacterSet(ct.specific_character_set.c_str(), OFFalse);
-  // Shared: the CT's pixel spacing and orientation.
+    seg.getSOPCommon().setSpecificCharacterSet(ct.specific_character_set.c_str(), OFFalse);
+}
+
+// Shared by all frames: the CT's pixel spacing and orientation.
+Status add_shared_geometry(DcmSegmentation& seg, const ImageGeometry& g) {
   FGPixelMeasures measures;
   measures.setPixelSpacing((format("%.6f", g.spacing[1]) + "\\" + format("%.6f", g.spacing[0])).c_str());
   measures.setSliceThickness(format("%.6f", g.spacing[2]).c_str());
@@ -250,14 +317,20 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
                                          format("%.6f", g.direction[6]).c_str(), format("%.6f", g.direction[1]).c_str(),
                                          format("%.6f", g.direction[4]).c_str(),
                                          format("%.6f", g.direction[7]).c_str());
-  if (seg->addForAllFrames(measures).bad() || seg->addForAllFrames(orientation).bad()) {
+  if (seg.addForAllFrames(measures).bad() || seg.addForAllFrames(orientation).bad()) {
     return internal_error("cannot set the segmentation's shared geometry");
   }
-  // Segments: one per label value present, in value order; DICOM numbers segments 1, 2, 3, ..., so values that
-  // skip are renumbered (`numbers` says how; the segment's label keeps the name).
+  return ok_status();
+}
+
+// One segment per label value present, in value order, described by `segments` where one has that value as its
+// number; DICOM numbers segments 1, 2, 3, ..., so values that skip are renumbered (the result says how; the
+// segment's label keeps the name).
+Result<SegmentNumbers> add_segments(DcmSegmentation& seg, const LabelCounts& present,
+                                    const std::vector<Segment>& segments) {
   std::map<int, const Segment*> described;
   for (const Segment& s : segments) described[s.number] = &s;
-  std::map<Label, Uint16> number_of;
+  SegmentNumbers number_of;
   for (const auto& [value, count] : present) {
     const auto d = described.find(value);
     const Segment* given = d == described.end() ? nullptr : d->second;
@@ -265,7 +338,7 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     const Code category = given && !given->category.value.empty() ? given->category : Code{"85756007", "SCT", "Tissue"};
     const Code type = given && !given->type.value.empty() ? given->type : Code{"85756007", "SCT", "Tissue"};
     DcmSegment* segment = nullptr;
-    ok =
+    const OFCondition ok =
         DcmSegment::create(segment, label.c_str(),
                            CodeSequenceMacro(category.value.c_str(), category.scheme.c_str(), category.meaning.c_str()),
                            CodeSequenceMacro(type.value.c_str(), type.scheme.c_str(), type.meaning.c_str()),
@@ -273,13 +346,42 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
     if (ok.bad() || segment == nullptr) return internal_error("cannot describe segment '" + label + "': " + ok.text());
     if (given && !given->description.empty()) segment->setSegmentDescription(given->description.c_str(), OFFalse);
     Uint16 number = 0;
-    if (seg->addSegment(segment, number).bad()) {
+    if (seg.addSegment(segment, number).bad()) {
       delete segment;
       return internal_error("cannot add segment '" + label + "'");
     }
     number_of[value] = number;
   }
-  // Frames: per segment, each slice it appears on, referencing that CT slice.
+  return number_of;
+}
+
+// The slices each label appears on, in one pass over the volume.
+std::map<Label, std::vector<int64_t>> slices_of_labels(const LabelVolume& labels) {
+  const ImageGeometry& g = labels.geometry();
+  const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
+  std::map<Label, std::vector<int64_t>> slices_of;
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    std::set<Label> here(labels.data() + static_cast<size_t>(k) * per_frame,
+                         labels.data() + static_cast<size_t>(k + 1) * per_frame);
+    for (Label v : here) {
+      if (v != 0) slices_of[v].push_back(k);
+    }
+  }
+  return slices_of;
+}
+
+// The Derivation Image functional group naming CT slice `ct_index` as a frame's source (null if DCMTK made none).
+std::unique_ptr<FGDerivationImage> derivation_from(const SeriesInfo& ct, size_t ct_index) {
+  OFVector<ImageSOPInstanceReferenceMacro> sources(1);
+  sources[0].setReferencedSOPClassUID(ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
+  sources[0].setReferencedSOPInstanceUID(ct.sop_instance_uids[ct_index].c_str());
+  return std::unique_ptr<FGDerivationImage>(DcmSegmentation::createDerivationImageFG(sources, "posewarp posed labels"));
+}
+
+// Frames: per segment, each slice it appears on, referencing that CT slice.
+Status add_frames(DcmSegmentation& seg, const LabelVolume& labels, const SeriesInfo& ct,
+                  const SegmentNumbers& number_of) {
+  const ImageGeometry& g = labels.geometry();
   const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
   const Vec axis{g.direction[2], g.direction[5], g.direction[8]};
   const Vec normal{row[1] * column[2] - row[2] * column[1], row[2] * column[0] - row[0] * column[2],
@@ -291,15 +393,7 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   std::vector<std::unique_ptr<FGDerivationImage>> derivations(static_cast<size_t>(g.size[2]));
   FGFrameContent content_fg;
   FGPlanePosPatient position;
-  // The slices each label appears on, in one pass over the volume.
-  std::map<Label, std::vector<int64_t>> slices_of;
-  for (int64_t k = 0; k < g.size[2]; ++k) {
-    std::set<Label> here(labels.data() + static_cast<size_t>(k) * per_frame,
-                         labels.data() + static_cast<size_t>(k + 1) * per_frame);
-    for (Label v : here) {
-      if (v != 0) slices_of[v].push_back(k);
-    }
-  }
+  std::map<Label, std::vector<int64_t>> slices_of = slices_of_labels(labels);
   for (const auto& [value, number] : number_of) {
     for (const int64_t k : slices_of[value]) {
       const Label* slice = labels.data() + static_cast<size_t>(k) * per_frame;
@@ -314,21 +408,21 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
       // The CT slice this frame derives from: one functional group per slice, made once and shared by its frames.
       const size_t ct_index = static_cast<size_t>(reverse ? g.size[2] - 1 - k : k);
       std::unique_ptr<FGDerivationImage>& derivation = derivations[ct_index];
-      if (!derivation) {
-        OFVector<ImageSOPInstanceReferenceMacro> sources(1);
-        sources[0].setReferencedSOPClassUID(ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
-        sources[0].setReferencedSOPInstanceUID(ct.sop_instance_uids[ct_index].c_str());
-        derivation.reset(DcmSegmentation::createDerivationImageFG(sources, "posewarp posed labels"));
-      }
+      if (!derivation) derivation = derivation_from(ct, ct_index);
       OFVector<FGBase*> per_frame_groups{&identification, &content_fg, &position};
       if (derivation) per_frame_groups.push_back(derivation.get());
-      ok = seg->addFrame(pixels.data(), number, per_frame_groups);
+      const OFCondition ok = seg.addFrame(pixels.data(), number, per_frame_groups);
       if (ok.bad()) return internal_error("cannot add a segmentation frame: " + std::string(ok.text()));
     }
   }
+  return ok_status();
+}
+
+// The frames' dimensions: segment number, then position.
+Status add_dimensions(DcmSegmentation& seg, const DerivedSeriesOptions& options) {
   std::string dimension_uid;
   POSEWARP_ASSIGN_OR_RETURN(dimension_uid, uid_for(options, "seg-dimensions"));
-  IODMultiframeDimensionModule& dimensions = seg->getDimensions();
+  IODMultiframeDimensionModule& dimensions = seg.getDimensions();
   dimensions.addDimensionIndex(DCM_ReferencedSegmentNumber, dimension_uid.c_str(), DCM_SegmentIdentificationSequence,
                                "ReferencedSegmentNumber");
   dimensions.addDimensionIndex(DCM_ImagePositionPatient, dimension_uid.c_str(), DCM_PlanePositionSequence,
@@ -336,13 +430,16 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   // DCMTK's check of the functional groups compares every frame's groups with every other's (0.4 s of the sample's
   // 2068 frames, most of a SEG's encoding). The groups are made above, shared where they are the same, and the
   // tests read back what is written and run dciodvfy on it.
-  seg->setCheckFGOnWrite(OFFalse);
+  seg.setCheckFGOnWrite(OFFalse);
   dimensions.setCheckOnWrite(OFFalse);
-  // The CT series it belongs to (Common Instance Reference).
-  DcmFileFormat file;
-  ok = seg->writeDataset(*file.getDataset());
+  return ok_status();
+}
+
+// The SEG written into `file`, with the CT series it belongs to (Common Instance Reference).
+Status write_seg_dataset(DcmSegmentation& seg, const SeriesInfo& ct, DcmFileFormat* file) {
+  const OFCondition ok = seg.writeDataset(*file->getDataset());
   if (ok.bad()) return internal_error(std::string("cannot write the segmentation: ") + ok.text());
-  DcmDataset& d = *file.getDataset();
+  DcmDataset& d = *file->getDataset();
   d.findAndDeleteElement(DCM_ReferencedSeriesSequence);
   DcmItem* series_item = nullptr;
   if (d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
@@ -356,6 +453,52 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
       }
     }
   }
+  return ok_status();
+}
+
+}  // namespace
+
+Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeometry& grid) {
+  quiet_dcmtk();
+  POSEWARP_RETURN_IF_ERROR(grid.validate());
+  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmFileFormat> file, parse_part10(bytes, "the segmentation"));
+  DcmDataset& d = *file->getDataset();
+  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmSegmentation> seg, load_segmentation(d));
+  POSEWARP_ASSIGN_OR_RETURN(const FrameLayout layout, frame_layout(d, *seg, grid));
+  Segmentation out;
+  out.labels = LabelVolume(grid, 0);
+  out.labels.set_source_type(PixelType::kUInt16);
+  read_series_uids(d, &out);
+  out.segments = read_segments(*seg);
+  // Each frame onto its slice: its orientation must be the grid's, its position one of the grid's slice origins, its
+  // pixels the grid's size.
+  FGInterface& groups = seg->getFunctionalGroups();
+  POSEWARP_RETURN_IF_ERROR(check_pixel_spacing(groups, grid));
+  PaintCounts counts;
+  for (size_t f = 0; f < seg->getNumberOfFrames(); ++f) {
+    POSEWARP_ASSIGN_OR_RETURN(const SegFrame frame, place_frame(groups, f, grid));
+    POSEWARP_RETURN_IF_ERROR(paint_frame(*seg, frame, layout, &out.labels, &counts));
+  }
+  add_paint_warnings(counts, &out.warnings);
+  return out;
+}
+
+Result<std::string> encode_segmentation(const LabelVolume& labels, const std::vector<Segment>& segments,
+                                        const SeriesInfo& ct, const DerivedSeriesOptions& options, SeriesInfo* info_out,
+                                        std::map<Label, int>* numbers) {
+  quiet_dcmtk();
+  const ImageGeometry& g = labels.geometry();
+  POSEWARP_RETURN_IF_ERROR(g.validate());
+  POSEWARP_ASSIGN_OR_RETURN(const LabelCounts present, labels_present(labels, ct));
+  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmSegmentation> seg, create_segmentation(g, options));
+  POSEWARP_ASSIGN_OR_RETURN(const SeriesInfo info, seg_series_info(ct, options));
+  set_seg_modules(*seg, ct, info);
+  POSEWARP_RETURN_IF_ERROR(add_shared_geometry(*seg, g));
+  POSEWARP_ASSIGN_OR_RETURN(const SegmentNumbers number_of, add_segments(*seg, present, segments));
+  POSEWARP_RETURN_IF_ERROR(add_frames(*seg, labels, ct, number_of));
+  POSEWARP_RETURN_IF_ERROR(add_dimensions(*seg, options));
+  DcmFileFormat file;
+  POSEWARP_RETURN_IF_ERROR(write_seg_dataset(*seg, ct, &file));
   std::string bytes;
   POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "the segmentation"));
   if (info_out != nullptr) *info_out = info;

@@ -111,57 +111,6 @@ Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
           ((f - rotation).squaredNorm() + volume_weight * (f - volume).squaredNorm()) / (1.0 + volume_weight)};
 }
 
-// Points on a uniform grid of 10 mm cells: which points a box may hold.
-class PointGrid {
- public:
-  PointGrid(const Eigen::MatrixXd& posed, const std::vector<int32_t>& points) {
-    for (size_t i = 0; i < points.size(); ++i) cells_[key(cell(posed.row(points[i]).transpose()))].push_back(static_cast<int32_t>(i));
-  }
-  // Calls visit(i) for each point i (an index into `points`) in the cells a box touches.
-  template <typename Visit>
-  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
-    constexpr int kMostCells = 32;  // a tet stretched over more cells per axis than this is left out
-    const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
-    for (int x = a.x(); x <= b.x(); ++x)
-      for (int y = a.y(); y <= b.y(); ++y)
-        for (int z = a.z(); z <= b.z(); ++z) {
-          const auto it = cells_.find(key(Eigen::Array3i(x, y, z)));
-          if (it == cells_.end()) continue;
-          for (const int32_t i : it->second) visit(i);
-        }
-  }
-
- private:
-  static constexpr double kCellMm = 10.0;
-  static Eigen::Array3i cell(const Eigen::Vector3d& p) { return (p.array() / kCellMm).floor().cast<int>(); }
-  static int64_t key(const Eigen::Array3i& c) {
-    constexpr int64_t kMask = (int64_t{1} << 21) - 1;
-    return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
-  }
-  std::unordered_map<int64_t, std::vector<int32_t>> cells_;
-};
-
-// The barycentric coordinates of p in the posed tet t, or nothing for a flat tet.
-std::optional<Eigen::Vector4d> barycentric(const TetMesh& mesh, const Eigen::MatrixXd& posed, int64_t t,
-                                           const Eigen::Vector3d& p) {
-  const Eigen::Vector3d x0 = posed.row(mesh.tets(t, 0)).transpose();
-  Eigen::Matrix3d edges;
-  for (int c = 1; c < 4; ++c) edges.col(c - 1) = posed.row(mesh.tets(t, c)).transpose() - x0;
-  if (std::abs(edges.determinant()) < 1e-12) return std::nullopt;
-  const Eigen::Vector3d b = edges.inverse() * (p - x0);
-  return Eigen::Vector4d(1.0 - b.sum(), b.x(), b.y(), b.z());
-}
-
-// The solid angle at corner a of a tet whose other corners are b, c, d (Van Oosterom and Strackee 1983).
-double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, const Eigen::Vector3d& d) {
-  const Eigen::Vector3d u = b - a, v = c - a, w = d - a;
-  const double lu = u.norm(), lv = v.norm(), lw = w.norm();
-  const double numerator = std::abs(u.dot(v.cross(w)));
-  const double denominator = lu * lv * lw + u.dot(v) * lw + u.dot(w) * lv + v.dot(w) * lu;
-  return 2.0 * std::atan2(numerator, denominator);
-}
-
 }  // namespace
 
 namespace internal {
@@ -345,6 +294,151 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
   return system;
 }
 
+// The solve's system for these free vertices: the cached one when the last solve had the same ones, else prepared.
+Result<std::unique_ptr<SolveSystem>> take_or_prepare(const SolveInputs& in, std::vector<int32_t> free_vertices,
+                                                     FemStats& st) {
+  std::unique_ptr<SolveSystem> system = in.cache ? in.cache->take(free_vertices) : nullptr;
+  if (!system) {
+    POSEWARP_ASSIGN_OR_RETURN(system, prepare(in, std::move(free_vertices)));
+  } else {
+    st.reused_system = true;
+  }
+  return system;
+}
+
+// The right-hand side's constant part, -L_fc x_c + the warm-start pull, from this pose's fixed positions.
+Eigen::MatrixXd constant_rhs(const SolveSystem& sys, const Eigen::MatrixXd& warm) {
+  const auto nf = static_cast<Eigen::Index>(sys.free_vertices.size());
+  Eigen::MatrixXd constant(nf, 3);
+  for (Eigen::Index i = 0; i < nf; ++i) {
+    constant.row(i) = sys.pull * warm.row(sys.free_vertices[static_cast<size_t>(i)]);
+  }
+  for (const auto& [i, j, l] : sys.coupling) {
+    constant.row(i) -= l * warm.row(sys.solve_vertices[static_cast<size_t>(j)]);
+  }
+  return constant;
+}
+
+using Positions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;  // one row per solve vertex, mm
+
+// Where the iteration starts: the warm start; a preview goes on from where the last solve on these free vertices
+// ended, its correction of the warm start carried to this pose's warm start.
+Positions start_positions(const SolveSystem& sys, const SolveInputs& in, const FemParams& params, FemStats& st) {
+  const auto nf = static_cast<Eigen::Index>(sys.free_vertices.size());
+  Positions x_solve(static_cast<Eigen::Index>(sys.solve_vertices.size()), 3);
+  for (size_t i = 0; i < sys.solve_vertices.size(); ++i) {
+    x_solve.row(static_cast<Eigen::Index>(i)) = in.warm.row(sys.solve_vertices[i]);
+  }
+  if (params.continue_from_last && sys.last_solution.rows() == nf) {
+    x_solve.topRows(nf) += sys.last_solution - sys.last_warm;
+    st.continued = true;
+  }
+  return x_solve;
+}
+
+// The local step's result per solved tet: its target V (R + w S) / (1 + w) and its energy.
+struct LocalTargets {
+  explicit LocalTargets(size_t slots) : target(slots), energy(slots) {}
+  std::vector<Eigen::Matrix3d> target;
+  std::vector<double> energy;
+};
+
+// The local step at the current positions: each tet's target; returns the total energy.
+double local_step(const SolveSystem& sys, const Positions& x_solve, double volume_weight, LocalTargets& local) {
+  parallel_for(0, static_cast<int64_t>(sys.solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      const std::array<int32_t, 4>& corner = sys.slot_corners[static_cast<size_t>(s)];
+      Eigen::Matrix<double, 3, 4> x;
+      for (int c = 0; c < 4; ++c) x.col(c) = x_solve.row(corner[static_cast<size_t>(c)]).transpose();
+      const Eigen::Matrix3d f = x * sys.gradients[static_cast<size_t>(s)].transpose();
+      const Projection p = projection(f, volume_weight);
+      local.target[static_cast<size_t>(s)] = sys.slot_volume[static_cast<size_t>(s)] * p.target;
+      local.energy[static_cast<size_t>(s)] = sys.slot_volume[static_cast<size_t>(s)] * p.energy;
+    }
+  });
+  double total = 0.0;
+  for (const double e : local.energy) total += e;
+  return total;
+}
+
+// The global step's right-hand side: the constant part plus, per free vertex, its tets' targets times its gradient
+// rows.
+void global_rhs(const SolveSystem& sys, const Eigen::MatrixXd& constant, const LocalTargets& local,
+                Eigen::MatrixXd& rhs) {
+  const auto nf = static_cast<Eigen::Index>(sys.free_vertices.size());
+  parallel_for(0, nf, 2048, [&](int64_t i0, int64_t i1) {
+    for (int64_t i = i0; i < i1; ++i) {
+      Eigen::Vector3d b = constant.row(i).transpose();
+      const int64_t corners_end = sys.corner_start[static_cast<size_t>(i) + 1];
+      for (int64_t c0 = sys.corner_start[static_cast<size_t>(i)]; c0 < corners_end; ++c0) {
+        const auto [slot, c] = sys.corners[static_cast<size_t>(c0)];
+        b += local.target[static_cast<size_t>(slot)] * sys.gradients[static_cast<size_t>(slot)].col(c);
+      }
+      rhs.row(i) = b.transpose();
+    }
+  });
+}
+
+// Anderson acceleration of the local/global fixed point (Peng et al. 2018): the next positions combine the last
+// few global steps so that their residuals cancel; a combination that raises the energy is dropped for the plain
+// step, and the history starts again. On the bar it converges in a fifth of the iterations.
+struct AndersonHistory {
+  static constexpr int kHistory = 5;
+  std::vector<Eigen::MatrixXd> residual_changes, step_changes;
+  Eigen::MatrixXd last_residual, last_step_result, plain;
+  bool accelerated = false;
+  double last_energy = std::numeric_limits<double>::infinity();
+
+  // Forgets the history, after a combination that raised the energy.
+  void restart() {
+    residual_changes.clear();
+    step_changes.clear();
+    last_residual.resize(0, 0);
+  }
+
+  // Adds the changes since the last global step (keeping the newest kHistory) and remembers this one.
+  void record(const Eigen::MatrixXd& global, const Eigen::MatrixXd& residual) {
+    if (last_residual.size() > 0) {
+      residual_changes.push_back(residual - last_residual);
+      step_changes.push_back(global - last_step_result);
+      if (static_cast<int>(residual_changes.size()) > kHistory) {
+        residual_changes.erase(residual_changes.begin());
+        step_changes.erase(step_changes.begin());
+      }
+    }
+    last_residual = residual;
+    last_step_result = global;
+    plain = global;
+  }
+
+  // The combination of the recorded steps whose residuals cancel best (least squares, faintly regularized).
+  void combine(const Eigen::MatrixXd& global, const Eigen::MatrixXd& residual, Eigen::MatrixXd& current) const {
+    const auto m = static_cast<Eigen::Index>(residual_changes.size());
+    Eigen::MatrixXd normal(m, m);
+    Eigen::VectorXd right(m);
+    for (Eigen::Index a = 0; a < m; ++a) {
+      right(a) = (residual_changes[static_cast<size_t>(a)].array() * residual.array()).sum();
+      for (Eigen::Index b = 0; b <= a; ++b) {
+        normal(a, b) = normal(b, a) =
+            (residual_changes[static_cast<size_t>(a)].array() * residual_changes[static_cast<size_t>(b)].array()).sum();
+      }
+    }
+    normal.diagonal().array() += 1e-10 * (1.0 + normal.diagonal().maxCoeff());
+    const Eigen::VectorXd theta = normal.ldlt().solve(right);
+    current = global;
+    for (Eigen::Index a = 0; a < m; ++a) current -= theta(a) * step_changes[static_cast<size_t>(a)];
+  }
+};
+
+// Writes the free vertices' solution into the posed mesh and remembers it, with its warm start, for a preview.
+void keep_solution(const SolveInputs& in, const Positions& x_solve, SolveSystem& sys, Eigen::MatrixXd& posed) {
+  const auto nf = static_cast<Eigen::Index>(sys.free_vertices.size());
+  for (Eigen::Index i = 0; i < nf; ++i) posed.row(sys.free_vertices[static_cast<size_t>(i)]) = x_solve.row(i);
+  sys.last_solution = x_solve.topRows(nf);
+  sys.last_warm.resize(nf, 3);
+  for (Eigen::Index i = 0; i < nf; ++i) sys.last_warm.row(i) = in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
+}
+
 }  // namespace
 
 namespace internal {
@@ -411,262 +505,75 @@ std::vector<int32_t> free_vertices(const SolveInputs& in, double margin_mm) {
 
 }  // namespace internal
 
-Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
-                              FemStats* stats) {
-  POSEWARP_RETURN_IF_ERROR(validate(params));
-  POSEWARP_RETURN_IF_ERROR(internal::check_inputs(in));
-  StageProgress progress(hooks, "fem");
-  FemStats local_stats;
-  FemStats& st = stats ? *stats : local_stats;
-  st = FemStats{};
-  const Stopwatch start;
-  std::vector<int32_t> free_vertices = internal::free_vertices(in, params.margin_mm);
+namespace {
+
+// The projective steady state of the free vertices (run_solve has checked the inputs and found them).
+Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const FemParams& params,
+                                                std::vector<int32_t> free_vertices, StageProgress& progress,
+                                                FemStats& st, const Stopwatch& start) {
   Eigen::MatrixXd posed = in.warm;
   const auto nf = static_cast<Eigen::Index>(free_vertices.size());
-  st.free_vertices = nf;
-  if (nf == 0) return posed;  // nothing bends (the rest pose, or only rigid motions)
 
   // 2. The solve's system for these free vertices: from the cache when the last solve had the same ones.
-  std::unique_ptr<SolveSystem> system = in.cache ? in.cache->take(free_vertices) : nullptr;
-  if (!system) {
-    POSEWARP_ASSIGN_OR_RETURN(system, prepare(in, std::move(free_vertices)));
-  } else {
-    st.reused_system = true;
-  }
+  POSEWARP_ASSIGN_OR_RETURN(std::unique_ptr<SolveSystem> system, take_or_prepare(in, std::move(free_vertices), st));
   SolveSystem& sys = *system;
   st.tets = static_cast<int64_t>(sys.solve_tets.size());
   st.fixed_vertices = static_cast<int64_t>(sys.solve_vertices.size()) - nf;
-
-  // The right-hand side's constant part, -L_fc x_c + the warm-start pull, from this pose's fixed positions.
-  Eigen::MatrixXd constant(nf, 3);
-  for (Eigen::Index i = 0; i < nf; ++i) constant.row(i) = sys.pull * in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
-  for (const auto& [i, j, l] : sys.coupling) constant.row(i) -= l * in.warm.row(sys.solve_vertices[static_cast<size_t>(j)]);
+  const Eigen::MatrixXd constant = constant_rhs(sys, in.warm);
   st.factor_seconds = start.seconds();
   POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
 
   // 3. Local and global steps until no vertex moves more than the tolerance, on the solve's packed vertices.
   const Stopwatch iterate_start;
-  const std::vector<int32_t>& solve_tets = sys.solve_tets;
-  const std::vector<Eigen::Matrix<double, 3, 4>>& gradients = sys.gradients;
-  const std::vector<std::array<int32_t, 4>>& slot_corners = sys.slot_corners;
-  const std::vector<double>& slot_volume = sys.slot_volume;
-  const std::vector<int64_t>& corner_start = sys.corner_start;
-  const std::vector<std::pair<int32_t, int32_t>>& corners = sys.corners;
-  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> x_solve(static_cast<Eigen::Index>(sys.solve_vertices.size()), 3);
-  for (size_t i = 0; i < sys.solve_vertices.size(); ++i) x_solve.row(static_cast<Eigen::Index>(i)) = in.warm.row(sys.solve_vertices[i]);
-  // A preview goes on from where the last solve on these free vertices ended: its correction of the warm start,
-  // carried to this pose's warm start.
-  if (params.continue_from_last && sys.last_solution.rows() == nf) {
-    x_solve.topRows(nf) += sys.last_solution - sys.last_warm;
-    st.continued = true;
-  }
-  std::vector<Eigen::Matrix3d> target(solve_tets.size());  // V (R + w S) / (1 + w) per solved tet
-  std::vector<double> energy(solve_tets.size());
+  Positions x_solve = start_positions(sys, in, params, st);
+  LocalTargets local(sys.solve_tets.size());
   Eigen::MatrixXd rhs(nf, 3);
-  // The local step at the current positions: each tet's target, and the total energy.
-  auto local_step = [&] {
-    parallel_for(0, static_cast<int64_t>(solve_tets.size()), 2048, [&](int64_t s0, int64_t s1) {
-      for (int64_t s = s0; s < s1; ++s) {
-        const std::array<int32_t, 4>& corner = slot_corners[static_cast<size_t>(s)];
-        Eigen::Matrix<double, 3, 4> x;
-        for (int c = 0; c < 4; ++c) x.col(c) = x_solve.row(corner[static_cast<size_t>(c)]).transpose();
-        const Eigen::Matrix3d f = x * gradients[static_cast<size_t>(s)].transpose();
-        const Projection p = projection(f, params.volume_weight);
-        target[static_cast<size_t>(s)] = slot_volume[static_cast<size_t>(s)] * p.target;
-        energy[static_cast<size_t>(s)] = slot_volume[static_cast<size_t>(s)] * p.energy;
-      }
-    });
-    double total = 0.0;
-    for (const double e : energy) total += e;
-    return total;
-  };
-  auto set_free = [&](const Eigen::MatrixXd& x) { x_solve.topRows(nf) = x; };
-  // Anderson acceleration of the local/global fixed point (Peng et al. 2018): the next positions combine the last
-  // few global steps so that their residuals cancel; a combination that raises the energy is dropped for the plain
-  // step, and the history starts again. On the bar it converges in a fifth of the iterations.
-  constexpr int kHistory = 5;
-  std::vector<Eigen::MatrixXd> residual_changes, step_changes;
-  Eigen::MatrixXd last_residual, last_step_result, plain;
-  bool accelerated = false;
-  double last_energy = std::numeric_limits<double>::infinity();
+  AndersonHistory anderson;
   Eigen::MatrixXd current(nf, 3);
   current = x_solve.topRows(nf);
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
-    double e = local_step();
-    if (accelerated && e > last_energy) {
-      current = plain;
-      set_free(current);
-      e = local_step();
-      residual_changes.clear();
-      step_changes.clear();
-      last_residual.resize(0, 0);
+    double e = local_step(sys, x_solve, params.volume_weight, local);
+    if (anderson.accelerated && e > anderson.last_energy) {  // the combination raised the energy: the plain step
+      current = anderson.plain;
+      x_solve.topRows(nf) = current;
+      e = local_step(sys, x_solve, params.volume_weight, local);
+      anderson.restart();
       ++st.restarts;
     }
-    last_energy = e;
-    parallel_for(0, nf, 2048, [&](int64_t i0, int64_t i1) {
-      for (int64_t i = i0; i < i1; ++i) {
-        Eigen::Vector3d b = constant.row(i).transpose();
-        for (int64_t c0 = corner_start[static_cast<size_t>(i)]; c0 < corner_start[static_cast<size_t>(i) + 1]; ++c0) {
-          const auto [slot, c] = corners[static_cast<size_t>(c0)];
-          b += target[static_cast<size_t>(slot)] * gradients[static_cast<size_t>(slot)].col(c);
-        }
-        rhs.row(i) = b.transpose();
-      }
-    });
+    anderson.last_energy = e;
+    global_rhs(sys, constant, local, rhs);
     const Eigen::MatrixXd global = sys.llt.solve(rhs);
     const Eigen::MatrixXd residual = global - current;
     st.iterations = iteration + 1;
     st.last_step_mm = residual.rowwise().norm().maxCoeff();
-    if (last_residual.size() > 0) {
-      residual_changes.push_back(residual - last_residual);
-      step_changes.push_back(global - last_step_result);
-      if (static_cast<int>(residual_changes.size()) > kHistory) {
-        residual_changes.erase(residual_changes.begin());
-        step_changes.erase(step_changes.begin());
-      }
-    }
-    last_residual = residual;
-    last_step_result = global;
-    plain = global;
+    anderson.record(global, residual);
     // Where the energy keeps rejecting the combinations (tissue pressed through tissue has no steady state to
     // reach), plain steps are cheaper: acceleration stops after a few rejections.
     constexpr int kMaxRestarts = 4;
-    if (st.last_step_mm <= params.tolerance_mm || residual_changes.empty() || st.restarts >= kMaxRestarts) {
+    if (st.last_step_mm <= params.tolerance_mm || anderson.residual_changes.empty() || st.restarts >= kMaxRestarts) {
       current = global;
-      accelerated = false;
+      anderson.accelerated = false;
     } else {
-      const auto m = static_cast<Eigen::Index>(residual_changes.size());
-      Eigen::MatrixXd normal(m, m);
-      Eigen::VectorXd right(m);
-      for (Eigen::Index a = 0; a < m; ++a) {
-        right(a) = (residual_changes[static_cast<size_t>(a)].array() * residual.array()).sum();
-        for (Eigen::Index b = 0; b <= a; ++b) {
-          normal(a, b) = normal(b, a) =
-              (residual_changes[static_cast<size_t>(a)].array() * residual_changes[static_cast<size_t>(b)].array()).sum();
-        }
-      }
-      normal.diagonal().array() += 1e-10 * (1.0 + normal.diagonal().maxCoeff());
-      const Eigen::VectorXd theta = normal.ldlt().solve(right);
-      current = global;
-      for (Eigen::Index a = 0; a < m; ++a) current -= theta(a) * step_changes[static_cast<size_t>(a)];
-      accelerated = true;
+      anderson.combine(global, residual, current);
+      anderson.accelerated = true;
     }
-    set_free(current);
+    x_solve.topRows(nf) = current;
     progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
     if (st.last_step_mm <= params.tolerance_mm) break;
   }
   st.iterate_seconds = iterate_start.seconds();
-  for (Eigen::Index i = 0; i < nf; ++i) posed.row(sys.free_vertices[static_cast<size_t>(i)]) = x_solve.row(i);
-  sys.last_solution = x_solve.topRows(nf);
-  sys.last_warm.resize(nf, 3);
-  for (Eigen::Index i = 0; i < nf; ++i) sys.last_warm.row(i) = in.warm.row(sys.free_vertices[static_cast<size_t>(i)]);
+  keep_solution(in, x_solve, sys, posed);
   if (in.cache) in.cache->put(std::move(system));
   progress.finish();
   return posed;
 }
 
-std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
-  const int64_t n = rest.vertex_count();
-  // A vertex inside the mesh is surrounded by its tets (their solid angles add up to 4 pi); one on the boundary is
-  // not. Summed per thread over its share of the tets, then added up.
-  const int threads = std::max(1, static_cast<int>(std::min<int64_t>(4, rest.tet_count() / 65536 + 1)));
-  std::vector<std::vector<double>> angle(static_cast<size_t>(threads), std::vector<double>(static_cast<size_t>(n), 0.0));
-  parallel_for(0, threads, 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      std::vector<double>& sum = angle[static_cast<size_t>(k)];
-      for (int64_t t = k; t < rest.tet_count(); t += threads) {
-        Eigen::Vector3d x[4];
-        for (int c = 0; c < 4; ++c) x[c] = rest.vertices.row(rest.tets(t, c)).transpose();
-        for (int c = 0; c < 4; ++c) {
-          sum[static_cast<size_t>(rest.tets(t, c))] += solid_angle(x[c], x[(c + 1) % 4], x[(c + 2) % 4], x[(c + 3) % 4]);
-        }
-      }
-    }
-  });
-  std::vector<uint8_t> bone(static_cast<size_t>(n), 0);
-  if (rest.tet_class.size() == rest.tet_count()) {
-    for (int64_t t = 0; t < rest.tet_count(); ++t) {
-      if (rest.tet_class(t) >= kFirstBoneClass) {
-        for (int c = 0; c < 4; ++c) bone[static_cast<size_t>(rest.tets(t, c))] = 1;
-      }
-    }
-  }
-  std::vector<uint8_t> skin(static_cast<size_t>(n), 0);
-  constexpr double kFullSphere = 4.0 * M_PI;
-  for (int64_t v = 0; v < n; ++v) {
-    double total = 0.0;
-    for (const std::vector<double>& sum : angle) total += sum[static_cast<size_t>(v)];
-    skin[static_cast<size_t>(v)] = total > 0.0 && total < kFullSphere - 1e-6 && !bone[static_cast<size_t>(v)];
-  }
-  return skin;
-}
+}  // namespace
 
-std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const std::vector<uint8_t>& skin,
-                                     const Eigen::Vector3d& centre, const std::vector<double>& radii_mm,
-                                     double rest_distance_mm) {
-  std::vector<Penetration> result(radii_mm.size());
-  if (radii_mm.empty() || posed.rows() != rest.vertex_count() || posed.cols() != 3 ||
-      static_cast<int64_t>(skin.size()) != rest.vertex_count() || rest.tet_class.size() != rest.tet_count()) {
-    return result;
-  }
-  const double radius = *std::max_element(radii_mm.begin(), radii_mm.end());
-  std::vector<int32_t> points;  // skin vertices within the radius at rest
-  for (int64_t v = 0; v < rest.vertex_count(); ++v) {
-    if (skin[static_cast<size_t>(v)] && (rest.vertices.row(v).transpose() - centre).squaredNorm() <= radius * radius) {
-      points.push_back(static_cast<int32_t>(v));
-    }
-  }
-  if (points.empty()) return result;
-  // Every tet that could be "elsewhere" for them and near them posed: within the radius, the contact distance and
-  // a tet's length (kTetReach) of the centre at rest; each posed tet's box looks up the points it may hold.
-  constexpr double kTetReach = 100.0;
-  const double reach = radius + rest_distance_mm + kTetReach;
-  const PointGrid grid(posed, points);
-  Eigen::Vector3d points_lo = posed.row(points[0]).transpose(), points_hi = points_lo;
-  for (const int32_t v : points) {
-    points_lo = points_lo.cwiseMin(posed.row(v).transpose());
-    points_hi = points_hi.cwiseMax(posed.row(v).transpose());
-  }
-  std::vector<std::atomic<uint8_t>> what(points.size());
-  for (std::atomic<uint8_t>& w : what) w.store(0, std::memory_order_relaxed);
-  parallel_for(0, rest.tet_count(), 4096, [&](int64_t t0, int64_t t1) {
-    for (int64_t t = t0; t < t1; ++t) {
-      if ((rest.vertices.row(rest.tets(t, 0)).transpose() - centre).squaredNorm() > reach * reach) continue;
-      Eigen::Vector3d lo = posed.row(rest.tets(t, 0)).transpose(), hi = lo;
-      for (int c = 1; c < 4; ++c) {
-        lo = lo.cwiseMin(posed.row(rest.tets(t, c)).transpose());
-        hi = hi.cwiseMax(posed.row(rest.tets(t, c)).transpose());
-      }
-      if ((hi.array() < points_lo.array()).any() || (lo.array() > points_hi.array()).any()) continue;
-      const uint8_t kind = rest.tet_class(t) >= kFirstBoneClass ? 2 : 1;
-      grid.in_box(lo, hi, [&](int32_t i) {
-        const int32_t v = points[static_cast<size_t>(i)];
-        if (what[static_cast<size_t>(i)].load(std::memory_order_relaxed) >= kind) return;
-        const Eigen::Vector3d x = rest.vertices.row(v).transpose();
-        for (int c = 0; c < 4; ++c) {
-          if ((rest.vertices.row(rest.tets(t, c)).transpose() - x).squaredNorm() < rest_distance_mm * rest_distance_mm) return;
-        }
-        const std::optional<Eigen::Vector4d> b = barycentric(rest, posed, t, posed.row(v).transpose());
-        constexpr double kInside = 1e-9;
-        if (!b || b->minCoeff() <= kInside) return;
-        uint8_t seen = what[static_cast<size_t>(i)].load(std::memory_order_relaxed);
-        while (seen < kind && !what[static_cast<size_t>(i)].compare_exchange_weak(seen, kind)) {
-        }
-      });
-    }
-  });
-  for (size_t i = 0; i < points.size(); ++i) {
-    const double d = (rest.vertices.row(points[i]).transpose() - centre).norm();
-    const uint8_t w = what[i].load(std::memory_order_relaxed);
-    for (size_t r = 0; r < radii_mm.size(); ++r) {
-      if (d > radii_mm[r]) continue;
-      ++result[r].skin_vertices;
-      result[r].inside_tissue += w == 1;
-      result[r].inside_bone += w == 2;
-    }
-  }
-  return result;
+Result<Eigen::MatrixXd> solve(const SolveInputs& in, const FemParams& params, const ProgressHooks& hooks,
+                              FemStats* stats) {
+  return internal::run_solve(in, params, hooks, stats, projective_steady_state);
 }
 
 }  // namespace posewarp::fem

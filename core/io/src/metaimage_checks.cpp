@@ -23,36 +23,43 @@ namespace posewarp::io::detail {
 
 namespace fs = std::filesystem;
 
-Status check_metaimage_header(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found_error("cannot open " + in_quotes(path));
-  auto corrupt = [&path](const std::string& what) {
-    return invalid_argument_error(in_quotes(path) + " has a MetaImage header that " + what +
-                                  "; the file is damaged or not MetaImage");
-  };
-  std::map<std::string, std::string> fields;
+namespace {
+
+using HeaderFields = std::map<std::string, std::string>;
+
+// INVALID_ARGUMENT for the MetaImage header of `path`; `what` says what is wrong with it.
+Status corrupt_header(const std::string& path, const std::string& what) {
+  return invalid_argument_error(in_quotes(path) + " has a MetaImage header that " + what +
+                                "; the file is damaged or not MetaImage");
+}
+
+// The header's key = value lines up to and including ElementDataFile, each key and value checked for size.
+Result<HeaderFields> read_header_fields(std::ifstream& in, const std::string& path) {
+  HeaderFields fields;
   std::string line;
   int64_t header_bytes = 0;
   bool ended = false;
   while (std::getline(in, line)) {
     header_bytes += static_cast<int64_t>(line.size()) + 1;
-    if (header_bytes > (int64_t{1} << 20)) return corrupt("runs past 1 MB without its ElementDataFile line");
+    if (header_bytes > (int64_t{1} << 20)) {
+      return corrupt_header(path, "runs past 1 MB without its ElementDataFile line");
+    }
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (line.find_first_not_of(" \t") == std::string::npos) continue;
     const size_t eq = line.find('=');
-    if (eq == std::string::npos) return corrupt("has a line without '=' before its data");
+    if (eq == std::string::npos) return corrupt_header(path, "has a line without '=' before its data");
     std::string key = line.substr(0, eq);
     key.erase(key.find_last_not_of(" \t") + 1);
     key.erase(0, key.find_first_not_of(" \t"));
     if (key.empty() || !std::all_of(key.begin(), key.end(), [](char c) {
           return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
         })) {
-      return corrupt("has a malformed key");
+      return corrupt_header(path, "has a malformed key");
     }
     // MetaIO copies each key into a 255-byte field name and each text value (ObjectType, ElementType, Name, ...)
     // into a 255-byte buffer: a longer one overflowed them (found by fuzzing). Keys are short names; only number
     // lists (a transform's nine numbers at full precision) may run past 254 characters.
-    if (key.size() > 64) return corrupt("has a key of " + std::to_string(key.size()) + " characters");
+    if (key.size() > 64) return corrupt_header(path, "has a key of " + std::to_string(key.size()) + " characters");
     std::string value = line.substr(eq + 1);
     value.erase(0, value.find_first_not_of(" \t"));
     value.erase(value.find_last_not_of(" \t") + 1);
@@ -60,39 +67,49 @@ Status check_metaimage_header(const std::string& path) {
                                                      "Position", "Origin", "CenterOfRotation", "ElementSpacing",
                                                      "ElementSize", "DimSize"};
     if (value.size() > (number_lists.count(key) ? size_t{1024} : size_t{254})) {
-      return corrupt("has a " + key.substr(0, 32) + " value of " + std::to_string(value.size()) + " characters");
+      return corrupt_header(path,
+                            "has a " + key.substr(0, 32) + " value of " + std::to_string(value.size()) + " characters");
     }
     // MetaIO acts on the first of two equal keys, a map on the last: one of each only (found by fuzzing).
-    if (!fields.emplace(key, value).second) return corrupt("has the key " + key + " twice");
+    if (!fields.emplace(key, value).second) return corrupt_header(path, "has the key " + key + " twice");
     if (key == "ElementDataFile") {
       ended = true;
       break;
     }
   }
-  if (!ended) return corrupt("does not end with an ElementDataFile line");
+  if (!ended) return corrupt_header(path, "does not end with an ElementDataFile line");
+  return fields;
+}
+
+// Whether text holds exactly `expected` finite numbers of magnitude at most 1e9 (whole numbers if `whole`).
+bool holds_numbers(const std::string& text, int expected, bool whole) {
+  std::istringstream stream(text);
+  std::string token;
+  int count = 0;
+  while (stream >> token) {
+    char* end = nullptr;
+    const double v = std::strtod(token.c_str(), &end);
+    if (end == token.c_str() || *end != '\0' || !std::isfinite(v) || std::abs(v) > 1e9 ||
+        (whole && v != std::floor(v))) {
+      return false;
+    }
+    ++count;
+  }
+  return count == expected;
+}
+
+// Checks NDims, and that DimSize and every per-axis or per-matrix field holds as many numbers as NDims asks.
+Status check_dimension_fields(HeaderFields& fields, const std::string& path) {
   // NDims and the counted fields are what MetaIO loops over; a negative or absurd count made it spin forever
   // (found by fuzzing).
   const std::string& ndims_text = fields["NDims"];
   if (ndims_text.size() != 1 || ndims_text[0] < '1' || ndims_text[0] > '4') {
-    return corrupt("declares NDims '" + ndims_text + "' (posewarp reads 3-dimensional images)");
+    return corrupt_header(path, "declares NDims '" + ndims_text + "' (posewarp reads 3-dimensional images)");
   }
   const int ndims = ndims_text[0] - '0';
-  auto numbers = [](const std::string& text, int expected, bool whole) {
-    std::istringstream stream(text);
-    std::string token;
-    int count = 0;
-    while (stream >> token) {
-      char* end = nullptr;
-      const double v = std::strtod(token.c_str(), &end);
-      if (end == token.c_str() || *end != '\0' || !std::isfinite(v) || std::abs(v) > 1e9 ||
-          (whole && v != std::floor(v))) {
-        return false;
-      }
-      ++count;
-    }
-    return count == expected;
-  };
-  if (!numbers(fields["DimSize"], ndims, true)) return corrupt("needs DimSize as " + ndims_text + " whole numbers");
+  if (!holds_numbers(fields["DimSize"], ndims, true)) {
+    return corrupt_header(path, "needs DimSize as " + ndims_text + " whole numbers");
+  }
   const std::pair<const char*, int> counted[] = {{"ElementSpacing", ndims},
                                                  {"ElementSize", ndims},
                                                  {"Offset", ndims},
@@ -103,19 +120,27 @@ Status check_metaimage_header(const std::string& path) {
                                                  {"Rotation", ndims * ndims},
                                                  {"Orientation", ndims * ndims}};
   for (const auto& [key, count] : counted) {
-    if (fields.count(key) && !numbers(fields[key], count, false)) {
-      return corrupt("needs " + std::string(key) + " as " + std::to_string(count) + " finite numbers");
+    if (fields.count(key) && !holds_numbers(fields[key], count, false)) {
+      return corrupt_header(path, "needs " + std::string(key) + " as " + std::to_string(count) + " finite numbers");
     }
   }
+  return ok_status();
+}
+
+// The index and value of the first number in text that is not `good`, or (-1, 0).
+template <typename Predicate>
+std::pair<int, double> first_not(const std::string& text, Predicate good) {
+  std::istringstream stream(text);
+  double value = 0.0;
+  for (int i = 0; stream >> value; ++i) {
+    if (!good(value)) return std::make_pair(i, value);
+  }
+  return std::make_pair(-1, 0.0);
+}
+
+// Checks that every DimSize is at least 1 and every ElementSpacing and ElementSize positive, naming the axis.
+Status check_sizes_and_spacings(HeaderFields& fields, const std::string& path) {
   // Sizes and spacings, named by field: ITK turns a zero or negative spacing into "orthonormal direction cosines".
-  auto first_not = [](const std::string& text, auto good) {
-    std::istringstream stream(text);
-    double value = 0.0;
-    for (int i = 0; stream >> value; ++i) {
-      if (!good(value)) return std::make_pair(i, value);
-    }
-    return std::make_pair(-1, 0.0);
-  };
   if (const auto [axis, size] = first_not(fields["DimSize"], [](double v) { return v >= 1.0; }); axis >= 0) {
     std::ostringstream out;
     out << in_quotes(path) << " has DimSize " << fields["DimSize"] << " in its MetaImage header: DimSize[" << axis
@@ -131,21 +156,39 @@ Status check_metaimage_header(const std::string& path) {
       return invalid_argument_error(out.str());
     }
   }
+  return ok_status();
+}
+
+// Checks HeaderSize, CompressedDataSize and ElementNumberOfChannels: one whole number each, in a usable range.
+Status check_data_size_fields(HeaderFields& fields, const std::string& path) {
   for (const char* key : {"HeaderSize", "CompressedDataSize", "ElementNumberOfChannels"}) {
-    if (fields.count(key) && !numbers(fields[key], 1, true))
-      return corrupt("needs " + std::string(key) + " as a number");
+    if (fields.count(key) && !holds_numbers(fields[key], 1, true)) {
+      return corrupt_header(path, "needs " + std::string(key) + " as a number");
+    }
   }
   // MetaIO allocates CompressedDataSize bytes as given: a negative size became a 2^64-byte allocation (found by
   // fuzzing). HeaderSize -1 means "the data ends the file"; other negative sizes mean nothing.
   if (fields.count("CompressedDataSize") && std::atof(fields["CompressedDataSize"].c_str()) < 0) {
-    return corrupt("declares a negative CompressedDataSize");
+    return corrupt_header(path, "declares a negative CompressedDataSize");
   }
   if (fields.count("HeaderSize") && std::atof(fields["HeaderSize"].c_str()) < -1) {
-    return corrupt("declares a negative HeaderSize other than -1");
+    return corrupt_header(path, "declares a negative HeaderSize other than -1");
   }
   if (fields.count("ElementNumberOfChannels") && std::abs(std::atof(fields["ElementNumberOfChannels"].c_str())) > 16) {
-    return corrupt("declares more than 16 channels per voxel");
+    return corrupt_header(path, "declares more than 16 channels per voxel");
   }
+  return ok_status();
+}
+
+}  // namespace
+
+Status check_metaimage_header(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found_error("cannot open " + in_quotes(path));
+  POSEWARP_ASSIGN_OR_RETURN(HeaderFields fields, read_header_fields(in, path));
+  POSEWARP_RETURN_IF_ERROR(check_dimension_fields(fields, path));
+  POSEWARP_RETURN_IF_ERROR(check_sizes_and_spacings(fields, path));
+  POSEWARP_RETURN_IF_ERROR(check_data_size_fields(fields, path));
   // The data is inline (.mha) or one plain file beside the header (.mhd): never a path elsewhere, which MetaIO
   // would read as voxels (a directory made it allocate without bound; an uploaded header could name any file on the
   // server).

@@ -89,6 +89,112 @@ Status check_mesh(const TetMesh& mesh) {
   return ok_status();
 }
 
+// Bounding box and edge lengths of one tet.
+struct TetExtent {
+  Eigen::Vector3d lo, hi;
+  double longest_edge = 0.0;
+  double edge_sum = 0.0;  // of its six edges
+};
+
+// The extent of the tet with corners v.
+TetExtent tet_extent(const Eigen::Vector3d (&v)[4]) {
+  TetExtent extent;
+  extent.lo = v[0], extent.hi = v[0];
+  for (int c = 1; c < 4; ++c) extent.lo = extent.lo.cwiseMin(v[c]), extent.hi = extent.hi.cwiseMax(v[c]);
+  for (int i = 0; i < 4; ++i) {
+    for (int j = i + 1; j < 4; ++j) {
+      const double length = (v[j] - v[i]).norm();
+      extent.longest_edge = std::max(extent.longest_edge, length);
+      extent.edge_sum += length;
+    }
+  }
+  return extent;
+}
+
+// Writes the barycentric frame of the tet with corners v; false, with a zero inverse, when it is too flat for one.
+bool write_tet_frame(const Eigen::Vector3d (&v)[4], double longest_edge, double (&origin)[3], double (&inverse)[9]) {
+  Eigen::Matrix3d edges;
+  for (int c = 0; c < 3; ++c) edges.col(c) = v[c + 1] - v[0];
+  const double det = edges.determinant();
+  for (int a = 0; a < 3; ++a) origin[a] = v[0](a);
+  if (!(std::abs(det) > kDegenerateVolume * longest_edge * longest_edge * longest_edge)) {
+    std::fill(std::begin(inverse), std::end(inverse), 0.0);
+    return false;
+  }
+  const Eigen::Matrix3d edges_inverse = edges.inverse();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) inverse[3 * r + c] = edges_inverse(r, c);
+  }
+  return true;
+}
+
+// The uniform grid that tets are hashed into.
+struct HashGrid {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();  // lower corner of cell (0, 0, 0), mm
+  double cell_mm = 0.0;
+  int64_t dims[3] = {1, 1, 1};  // cells per axis
+};
+
+// The grid of cell_mm cells from lo over hi; RESOURCE_EXHAUSTED when its cell keys would not fit in 64 bits.
+Result<HashGrid> grid_over(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double cell_mm) {
+  double along[3], cells = 1.0;
+  for (int a = 0; a < 3; ++a) {
+    along[a] = std::floor((hi(a) - lo(a)) / cell_mm) + 1.0;
+    cells *= along[a];
+  }
+  if (cells > 1e18) {  // cell keys must fit in 64 bits
+    return resource_exhausted_error("a tet locator cell of " + std::to_string(cell_mm) +
+                                    " mm is too small for a mesh this large; use a larger cell");
+  }
+  HashGrid grid;
+  grid.origin = lo;
+  grid.cell_mm = cell_mm;
+  for (int a = 0; a < 3; ++a) grid.dims[a] = static_cast<int64_t>(along[a]);
+  return grid;
+}
+
+// First and last cell per axis that the bounding box of tet t (in boxes, #T x 6) overlaps, clamped to the grid.
+void cell_range(const HashGrid& grid, const std::vector<float>& boxes, int64_t t, int64_t first[3], int64_t last[3]) {
+  for (int a = 0; a < 3; ++a) {
+    const double box_lo = boxes[static_cast<size_t>(6 * t + a)];
+    const double box_hi = boxes[static_cast<size_t>(6 * t + 3 + a)];
+    first[a] = std::clamp<int64_t>(static_cast<int64_t>(std::floor((box_lo - grid.origin(a)) / grid.cell_mm)), 0,
+                                   grid.dims[a] - 1);
+    last[a] = std::clamp<int64_t>(static_cast<int64_t>(std::floor((box_hi - grid.origin(a)) / grid.cell_mm)), 0,
+                                  grid.dims[a] - 1);
+  }
+}
+
+// Calls visit(i, j, k) for every cell that the bounding box of tet t overlaps, x fastest.
+template <typename Visit>
+void for_each_cell(const HashGrid& grid, const std::vector<float>& boxes, int64_t t, Visit&& visit) {
+  int64_t first[3], last[3];
+  cell_range(grid, boxes, t, first, last);
+  for (int64_t k = first[2]; k <= last[2]; ++k) {
+    for (int64_t j = first[1]; j <= last[1]; ++j) {
+      for (int64_t i = first[0]; i <= last[0]; ++i) visit(i, j, k);
+    }
+  }
+}
+
+// The number of (cell, tet) entries the tets marked in `hashed` make; RESOURCE_EXHAUSTED past kMaxEntries.
+Result<int64_t> count_entries(const HashGrid& grid, const std::vector<float>& boxes,
+                              const std::vector<uint8_t>& hashed) {
+  const int64_t nt = static_cast<int64_t>(hashed.size());
+  int64_t entries = 0;
+  for (int64_t t = 0; t < nt; ++t) {
+    if (!hashed[static_cast<size_t>(t)]) continue;
+    int64_t first[3], last[3];
+    cell_range(grid, boxes, t, first, last);
+    entries += (last[0] - first[0] + 1) * (last[1] - first[1] + 1) * (last[2] - first[2] + 1);
+    if (entries > kMaxEntries) {
+      return resource_exhausted_error("a tet locator cell of " + std::to_string(grid.cell_mm) +
+                                      " mm is too small for these tets; use a larger cell (or 0 for automatic)");
+    }
+  }
+  return entries;
+}
+
 }  // namespace
 
 Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
@@ -109,6 +215,7 @@ Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
     locator.tets_.resize(static_cast<size_t>(nt) * 4);
     locator.frames_.resize(static_cast<size_t>(nt));
     locator.boxes_.resize(static_cast<size_t>(nt) * 6);
+    // Only tets with volume are hashed; they alone set the grid's extent and the automatic cell size.
     std::vector<uint8_t> hashed(static_cast<size_t>(nt), 0);
     Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d hi = -lo;
@@ -120,96 +227,42 @@ Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
         locator.tets_[static_cast<size_t>(4 * t + c)] = mesh.tets(t, c);
         v[c] = mesh.vertices.row(mesh.tets(t, c)).transpose();
       }
-      Eigen::Vector3d box_lo = v[0], box_hi = v[0];
-      for (int c = 1; c < 4; ++c) box_lo = box_lo.cwiseMin(v[c]), box_hi = box_hi.cwiseMax(v[c]);
+      const TetExtent extent = tet_extent(v);
       for (int a = 0; a < 3; ++a) {
-        locator.boxes_[static_cast<size_t>(6 * t + a)] = round_down(box_lo(a));
-        locator.boxes_[static_cast<size_t>(6 * t + 3 + a)] = round_up(box_hi(a));
+        locator.boxes_[static_cast<size_t>(6 * t + a)] = round_down(extent.lo(a));
+        locator.boxes_[static_cast<size_t>(6 * t + 3 + a)] = round_up(extent.hi(a));
       }
-      Eigen::Matrix3d edges;
-      for (int c = 0; c < 3; ++c) edges.col(c) = v[c + 1] - v[0];
-      double longest = 0.0, edge_lengths = 0.0;
-      for (int i = 0; i < 4; ++i) {
-        for (int j = i + 1; j < 4; ++j) {
-          const double length = (v[j] - v[i]).norm();
-          longest = std::max(longest, length);
-          edge_lengths += length;
-        }
-      }
-      const double det = edges.determinant();
       TetFrame& frame = locator.frames_[static_cast<size_t>(t)];
-      for (int a = 0; a < 3; ++a) frame.origin[a] = v[0](a);
-      if (!(std::abs(det) > kDegenerateVolume * longest * longest * longest)) {
-        std::fill(std::begin(frame.inverse), std::end(frame.inverse), 0.0);
+      if (!write_tet_frame(v, extent.longest_edge, frame.origin, frame.inverse)) {
         ++locator.degenerate_count_;
         continue;
       }
-      const Eigen::Matrix3d inverse = edges.inverse();
-      for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) frame.inverse[3 * r + c] = inverse(r, c);
-      }
       hashed[static_cast<size_t>(t)] = 1;
       ++hashed_count;
-      edge_sum += edge_lengths / 6.0;
-      lo = lo.cwiseMin(box_lo);
-      hi = hi.cwiseMax(box_hi);
+      edge_sum += extent.edge_sum / 6.0;
+      lo = lo.cwiseMin(extent.lo);
+      hi = hi.cwiseMax(extent.hi);
     }
     if (hashed_count == 0) {
       return invalid_argument_error("every tet of the mesh (" + std::to_string(nt) +
                                     ") is flat; no point can be located in it");
     }
     if (cell_mm == 0.0) cell_mm = edge_sum / static_cast<double>(hashed_count);
-    locator.cell_mm_ = cell_mm;
-    locator.grid_origin_ = lo;
-    double along[3], cells = 1.0;
-    for (int a = 0; a < 3; ++a) {
-      along[a] = std::floor((hi(a) - lo(a)) / cell_mm) + 1.0;
-      cells *= along[a];
-    }
-    if (cells > 1e18) {  // cell keys must fit in 64 bits
-      return resource_exhausted_error("a tet locator cell of " + std::to_string(cell_mm) +
-                                      " mm is too small for a mesh this large; use a larger cell");
-    }
-    for (int a = 0; a < 3; ++a) locator.dims_[a] = static_cast<int64_t>(along[a]);
+    POSEWARP_ASSIGN_OR_RETURN(const HashGrid grid, grid_over(lo, hi, cell_mm));
+    locator.cell_mm_ = grid.cell_mm;
+    locator.grid_origin_ = grid.origin;
+    for (int a = 0; a < 3; ++a) locator.dims_[a] = grid.dims[a];
+    POSEWARP_ASSIGN_OR_RETURN(const int64_t entries, count_entries(grid, locator.boxes_, hashed));
 
-    auto cell_range = [&](int64_t t, int64_t first[3], int64_t last[3]) {
-      for (int a = 0; a < 3; ++a) {
-        const double box_lo = locator.boxes_[static_cast<size_t>(6 * t + a)];
-        const double box_hi = locator.boxes_[static_cast<size_t>(6 * t + 3 + a)];
-        first[a] =
-            std::clamp<int64_t>(static_cast<int64_t>(std::floor((box_lo - lo(a)) / cell_mm)), 0, locator.dims_[a] - 1);
-        last[a] =
-            std::clamp<int64_t>(static_cast<int64_t>(std::floor((box_hi - lo(a)) / cell_mm)), 0, locator.dims_[a] - 1);
-      }
-    };
-    int64_t entries = 0;
-    for (int64_t t = 0; t < nt; ++t) {
-      if (!hashed[static_cast<size_t>(t)]) continue;
-      int64_t first[3], last[3];
-      cell_range(t, first, last);
-      entries += (last[0] - first[0] + 1) * (last[1] - first[1] + 1) * (last[2] - first[2] + 1);
-      if (entries > kMaxEntries) {
-        return resource_exhausted_error("a tet locator cell of " + std::to_string(cell_mm) +
-                                        " mm is too small for these tets; use a larger cell (or 0 for automatic)");
-      }
-    }
     // Teschner et al. found a prime table size a little above the number of hashed items to work best.
     const uint64_t buckets = next_prime(static_cast<uint64_t>(std::max<int64_t>(entries, 1)));
     std::vector<int32_t>& start = locator.bucket_start_;
     start.assign(buckets + 1, 0);
-    auto for_each_cell = [&](int64_t t, auto&& visit) {
-      int64_t first[3], last[3];
-      cell_range(t, first, last);
-      for (int64_t k = first[2]; k <= last[2]; ++k) {
-        for (int64_t j = first[1]; j <= last[1]; ++j) {
-          for (int64_t i = first[0]; i <= last[0]; ++i) visit(i, j, k);
-        }
-      }
-    };
     for (int64_t t = 0; t < nt; ++t) {
       if (!hashed[static_cast<size_t>(t)]) continue;
-      for_each_cell(
-          t, [&](int64_t i, int64_t j, int64_t k) { ++start[static_cast<size_t>(locator.bucket_of(i, j, k)) + 1]; });
+      for_each_cell(grid, locator.boxes_, t, [&](int64_t i, int64_t j, int64_t k) {
+        ++start[static_cast<size_t>(locator.bucket_of(i, j, k)) + 1];
+      });
     }
     for (uint64_t b = 0; b < buckets; ++b) start[b + 1] += start[b];
     locator.entry_cell_.resize(static_cast<size_t>(entries));
@@ -217,7 +270,7 @@ Result<TetLocator> TetLocator::build(const TetMesh& mesh, double cell_mm) {
     std::vector<int32_t> fill(start.begin(), start.end() - 1);
     for (int64_t t = 0; t < nt; ++t) {
       if (!hashed[static_cast<size_t>(t)]) continue;
-      for_each_cell(t, [&](int64_t i, int64_t j, int64_t k) {
+      for_each_cell(grid, locator.boxes_, t, [&](int64_t i, int64_t j, int64_t k) {
         const size_t slot = static_cast<size_t>(fill[static_cast<size_t>(locator.bucket_of(i, j, k))]++);
         locator.entry_cell_[slot] = locator.cell_key(i, j, k);
         locator.entry_tet_[slot] = static_cast<int32_t>(t);

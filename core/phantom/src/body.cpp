@@ -3,6 +3,7 @@
 #include "posewarp/phantom/phantom.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -37,7 +38,8 @@ Vec3 lerp(const Vec3& a, const Vec3& b, double t) {
 }
 
 namespace body_labels {
-constexpr Label kSoft = 1, kFat = 2, kLiver = 3, kBrain = 4;
+constexpr Label kSoft = detail::kSoftLabel, kFat = detail::kFatLabel, kLiver = detail::kLiverLabel,
+                kBrain = detail::kBrainLabel;
 constexpr Label kSacrum = 10, kHipLeft = 11, kHipRight = 12;
 constexpr Label kL5 = 13, kL4 = 14, kL3 = 15, kL2 = 16, kL1 = 17;
 constexpr Label kThoracicSpine = 18, kRibs = 19, kSternum = 20, kCervicalSpine = 21, kSkull = 22;
@@ -46,6 +48,13 @@ constexpr Label kClavicula = 30, kScapula = 32, kHumerus = 34, kForearm = 36, kH
 constexpr Label kFemur = 40, kPatella = 42, kTibia = 44, kFoot = 46;
 Label sided(Label left_value, int side) {
   return side > 0 ? left_value : left_value + 1;
+}
+// Several paired bones on one side at once.
+template <size_t N>
+std::array<Label, N> sided(const Label (&left_values)[N], int side) {
+  std::array<Label, N> values{};
+  for (size_t i = 0; i < N; ++i) values[i] = sided(left_values[i], side);
+  return values;
 }
 }  // namespace body_labels
 
@@ -303,9 +312,7 @@ void paint_pelvis(LabelVolume& labels, const BodyLayout& m) {
 void paint_leg(LabelVolume& labels, const BodyLayout& m, int s) {
   namespace L = body_labels;
   const double f = m.f;
-  const Label femur = L::sided(L::kFemur, s);
-  const Label tibia = L::sided(L::kTibia, s);
-  const Label foot = L::sided(L::kFoot, s);
+  const auto [femur, tibia, foot] = L::sided({L::kFemur, L::kTibia, L::kFoot}, s);
   const Vec3 hip = m.hip(s);
   const Vec3 neck = m.femoral_neck_base(s);
   const Vec3 knee = m.knee(s);
@@ -364,10 +371,7 @@ void paint_leg(LabelVolume& labels, const BodyLayout& m, int s) {
 void paint_arm(LabelVolume& labels, const BodyLayout& m, int s) {
   namespace L = body_labels;
   const double f = m.f;
-  const Label clavicula = L::sided(L::kClavicula, s);
-  const Label humerus = L::sided(L::kHumerus, s);
-  const Label forearm = L::sided(L::kForearm, s);
-  const Label hand = L::sided(L::kHand, s);
+  const auto [clavicula, humerus, forearm, hand] = L::sided({L::kClavicula, L::kHumerus, L::kForearm, L::kHand}, s);
   detail::paint(labels, detail::capsule(m.clavicle_medial(s), m.clavicle_lateral(s), m.clavicle_radius()), clavicula);
   const Vec3 sh = m.shoulder(s);
   const Vec3 elbow = m.elbow(s);
@@ -411,26 +415,20 @@ void paint_arm(LabelVolume& labels, const BodyLayout& m, int s) {
 
 std::vector<LabelEntry> body_entries() {
   namespace L = body_labels;
-  std::vector<LabelEntry> entries{
-      {0, "background", LabelRole::kBackground, ""},
-      {L::kSoft, "soft_tissue", LabelRole::kTissue, ""},
-      {L::kFat, "fat", LabelRole::kTissue, ""},
-      {L::kLiver, "liver", LabelRole::kTissue, ""},
-      {L::kBrain, "brain", LabelRole::kTissue, ""},
+  std::vector<LabelEntry> entries = detail::tissue_entries();
+  entries.insert(entries.end(), {
       {L::kSacrum, "sacrum", LabelRole::kBone, "pelvis"},
       {L::kHipLeft, "hip_left", LabelRole::kBone, "pelvis"},
       {L::kHipRight, "hip_right", LabelRole::kBone, "pelvis"},
-      {L::kL5, "vertebrae_L5", LabelRole::kBone, "vertebrae_L5"},
-      {L::kL4, "vertebrae_L4", LabelRole::kBone, "vertebrae_L4"},
-      {L::kL3, "vertebrae_L3", LabelRole::kBone, "vertebrae_L3"},
-      {L::kL2, "vertebrae_L2", LabelRole::kBone, "vertebrae_L2"},
-      {L::kL1, "vertebrae_L1", LabelRole::kBone, "vertebrae_L1"},
+  });
+  for (LabelEntry& entry : detail::lumbar_entries(L::kL5)) entries.push_back(std::move(entry));
+  entries.insert(entries.end(), {
       {L::kThoracicSpine, "thoracic_spine", LabelRole::kBone, "thorax"},
       {L::kRibs, "ribs", LabelRole::kBone, "thorax"},
       {L::kSternum, "sternum", LabelRole::kBone, "thorax"},
       {L::kCervicalSpine, "cervical_spine", LabelRole::kBone, "cervical_spine"},
       {L::kSkull, "skull", LabelRole::kBone, "skull"},
-  };
+  });
   const std::pair<Label, const char*> paired[] = {
       {L::kClavicula, "clavicula"}, {L::kScapula, "scapula"}, {L::kHumerus, "humerus"},
       {L::kForearm, "forearm"},     {L::kHand, "hand"},       {L::kFemur, "femur"},
@@ -486,17 +484,6 @@ ImageGeometry grid_of(const BodyParams& p) {
 }
 
 }  // namespace
-
-std::array<double, 9> rotation_direction(Vec3 axis, double degrees) {
-  const Vec3 n = unit(axis);
-  const double a = degrees * kPi / 180.0;
-  const double c = std::cos(a);
-  const double s = std::sin(a);
-  const double t = 1.0 - c;
-  return {t * n[0] * n[0] + c,        t * n[0] * n[1] - s * n[2], t * n[0] * n[2] + s * n[1],
-          t * n[0] * n[1] + s * n[2], t * n[1] * n[1] + c,        t * n[1] * n[2] - s * n[0],
-          t * n[0] * n[2] - s * n[1], t * n[1] * n[2] + s * n[0], t * n[2] * n[2] + c};
-}
 
 Status validate(const BodyParams& p) {
   for (int a = 0; a < 3; ++a) {

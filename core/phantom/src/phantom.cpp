@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
 
@@ -35,7 +36,8 @@ ImageGeometry grid_for(const std::vector<Shape>& shapes, double spacing, const s
 // ---- mannequin layout -------------------------------------------------------------------------------------------
 
 namespace mannequin_labels {
-constexpr Label kSoft = 1, kFat = 2, kLiver = 3, kBrain = 4;
+constexpr Label kSoft = detail::kSoftLabel, kFat = detail::kFatLabel, kLiver = detail::kLiverLabel,
+                kBrain = detail::kBrainLabel;
 constexpr Label kPelvis = 10, kL5 = 11, kL4 = 12, kL3 = 13, kL2 = 14, kL1 = 15;
 constexpr Label kThoracicSpine = 16, kRibs = 17, kShoulderGirdle = 18;
 constexpr Label kFemurLeft = 20, kFemurRight = 21, kTibiaLeft = 22, kTibiaRight = 23;
@@ -78,6 +80,152 @@ std::vector<Shape> mannequin_body(const MannequinLayout& m) {
     body.push_back(detail::capsule(m.elbow(side), {side * 215 * f, 0, 840 * f}, 38 * f));          // forearm
   }
   return body;
+}
+
+// Paints the pelvis, the lumbar and thoracic spine, the rib shell and the shoulder girdle.
+void paint_mannequin_trunk(LabelVolume& labels, const MannequinLayout& m) {
+  namespace L = mannequin_labels;
+  const double f = m.f;
+  // Pelvis: a block whose lower face passes through both hip centres, with hemispherical sockets.
+  detail::paint(labels, detail::box({-125 * f, -30 * f, m.hip(1)[2]}, {125 * f, 55 * f, m.pelvis_top()}), L::kPelvis);
+  // Sacral block under the spine, so the lumbosacral contact is the whole lower face of L5.
+  detail::paint(labels, detail::box({-40 * f, 20 * f, m.hip(1)[2]}, {40 * f, 75 * f, m.pelvis_top()}), L::kPelvis);
+  // Lumbar vertebrae L5 (n = 0) up to L1 (n = 4), then the thoracic spine.
+  const Label lumbar[5] = {L::kL5, L::kL4, L::kL3, L::kL2, L::kL1};
+  for (int n = 0; n < 5; ++n) {
+    const double z0 = m.lumbar_bottom(n);
+    detail::paint(labels, detail::cylinder({0, m.spine_y(), z0}, {0, m.spine_y(), z0 + m.vertebra_height()}, 22 * f),
+                  lumbar[n]);
+  }
+  detail::paint(labels,
+                detail::cylinder({0, m.spine_y(), m.thoracic_bottom()}, {0, m.spine_y(), m.thoracic_top()}, 22 * f),
+                L::kThoracicSpine);
+  // Rib shell joined to the thoracic spine by a posterior bar.
+  {
+    const double z0 = m.thoracic_bottom() + 10 * f;
+    const double z1 = 1400 * f;
+    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 140 * f, 95 * f, z0, z1), L::kRibs);
+    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 132 * f, 87 * f, z0 - 1, z1 + 1), L::kSoft);
+    detail::paint(labels, detail::box({-10 * f, m.spine_y(), z0}, {10 * f, 90 * f, z1}), L::kRibs);
+  }
+  // Shoulder girdle: a bar across the upper chest ending in glenoid domes over the shoulder centres.
+  detail::paint(labels, detail::capsule({-175 * f, 20 * f, 1395 * f}, {175 * f, 20 * f, 1395 * f}, 14 * f),
+                L::kShoulderGirdle);
+  for (int side : {+1, -1}) {
+    Shape dome = detail::sphere(m.shoulder(side), 22 * f + m.gap + 12 * f);
+    dome.clip_min[2] = m.shoulder(side)[2];
+    detail::paint(labels, dome, L::kShoulderGirdle);
+  }
+}
+
+// Paints the skull with the brain inside and the cervical spine below it.
+void paint_mannequin_head(LabelVolume& labels, const MannequinLayout& m) {
+  namespace L = mannequin_labels;
+  const double f = m.f;
+  // Cervical spine fused to the skull; brain inside.
+  detail::paint(labels, detail::sphere(m.head_centre(), 92 * f), L::kSkull);
+  detail::paint(labels, detail::sphere(m.head_centre(), 84 * f), L::kBrain);
+  detail::paint(labels,
+                detail::cylinder({0, m.spine_y(), m.thoracic_top() + m.gap},
+                                 {0, m.spine_y(), m.head_centre()[2] - 80 * f}, 18 * f),
+                L::kCervicalSpine);
+}
+
+// A limb of the mannequin: a ball joint at `proximal` (the head's radius), the upper bone's shaft to the gap at
+// `middle`, the lower bone from there to `end`.
+struct MannequinLimb {
+  Vec3 proximal;
+  double head_radius;
+  double upper_radius;
+  Label upper;
+  Vec3 middle;
+  Vec3 end;
+  double lower_radius;
+  Label lower;
+};
+
+// Paints a limb: the socket carved into soft tissue around the head, the head, the upper shaft to the middle gap and
+// the lower bone below it.
+void paint_mannequin_limb(LabelVolume& labels, const MannequinLimb& limb, double gap) {
+  detail::paint(labels, detail::sphere(limb.proximal, limb.head_radius + gap), mannequin_labels::kSoft);
+  detail::paint(labels, detail::sphere(limb.proximal, limb.head_radius), limb.upper);
+  detail::paint(labels, detail::cylinder(limb.proximal, {limb.middle[0], 0, limb.middle[2] + gap / 2}, limb.upper_radius),
+                limb.upper);
+  detail::paint(labels, detail::cylinder({limb.middle[0], 0, limb.middle[2] - gap / 2}, limb.end, limb.lower_radius),
+                limb.lower);
+}
+
+// The leg and the arm of one side (+1 left, -1 right): the hip socket carved into the pelvis, the femur and the
+// tibia; the shoulder socket carved into the dome, the humerus and the forearm.
+std::array<MannequinLimb, 2> mannequin_limbs(const MannequinLayout& m, int side) {
+  namespace L = mannequin_labels;
+  const double f = m.f;
+  const bool left = side > 0;
+  return {{{m.hip(side), 24 * f, 16 * f, left ? L::kFemurLeft : L::kFemurRight, m.knee(side),
+            {side * 90 * f, 0, 80 * f}, 15 * f, left ? L::kTibiaLeft : L::kTibiaRight},
+           {m.shoulder(side), 22 * f, 14 * f, left ? L::kHumerusLeft : L::kHumerusRight, m.elbow(side),
+            {side * 215 * f, 0, 860 * f}, 12 * f, left ? L::kForearmLeft : L::kForearmRight}}};
+}
+
+// The mannequin's label map entries: background, tissues, then every bone with the segment it belongs to.
+std::vector<LabelEntry> mannequin_label_entries() {
+  namespace L = mannequin_labels;
+  std::vector<LabelEntry> entries = detail::tissue_entries();
+  entries.push_back({L::kPelvis, "pelvis", LabelRole::kBone, "pelvis"});
+  for (LabelEntry& entry : detail::lumbar_entries(L::kL5)) entries.push_back(std::move(entry));
+  entries.insert(entries.end(), {
+      {L::kThoracicSpine, "thoracic_spine", LabelRole::kBone, "thorax"},
+      {L::kRibs, "ribs", LabelRole::kBone, "thorax"},
+      {L::kShoulderGirdle, "shoulder_girdle", LabelRole::kBone, "thorax"},
+      {L::kFemurLeft, "femur_left", LabelRole::kBone, "femur_left"},
+      {L::kFemurRight, "femur_right", LabelRole::kBone, "femur_right"},
+      {L::kTibiaLeft, "tibia_left", LabelRole::kBone, "tibia_left"},
+      {L::kTibiaRight, "tibia_right", LabelRole::kBone, "tibia_right"},
+      {L::kHumerusLeft, "humerus_left", LabelRole::kBone, "humerus_left"},
+      {L::kHumerusRight, "humerus_right", LabelRole::kBone, "humerus_right"},
+      {L::kForearmLeft, "forearm_left", LabelRole::kBone, "forearm_left"},
+      {L::kForearmRight, "forearm_right", LabelRole::kBone, "forearm_right"},
+      {L::kSkull, "skull", LabelRole::kBone, "skull"},
+      {L::kCervicalSpine, "cervical_spine", LabelRole::kBone, "skull"},
+  });
+  return entries;
+}
+
+// Appends the true joints: the spine from lumbosacral to neck, then hips, knees, shoulders and elbows, left first.
+void add_mannequin_joints(const MannequinLayout& m, std::vector<JointTruth>& joints) {
+  const double gap = m.gap;
+  const double y = m.spine_y();
+  auto spine_joint = [&](const std::string& name, const std::string& parent, const std::string& child, double z) {
+    joints.push_back({name, parent, child, {0.0, y, z}, "plane"});
+  };
+  spine_joint("lumbosacral", "pelvis", "vertebrae_L5", m.pelvis_top() + gap / 2);
+  const char* lumbar_names[5] = {"vertebrae_L5", "vertebrae_L4", "vertebrae_L3", "vertebrae_L2", "vertebrae_L1"};
+  const char* lumbar_joints[4] = {"L4_L5", "L3_L4", "L2_L3", "L1_L2"};
+  for (int n = 1; n < 5; ++n) {
+    spine_joint(lumbar_joints[n - 1], lumbar_names[n - 1], lumbar_names[n], m.lumbar_bottom(n) - gap / 2);
+  }
+  spine_joint("thoracolumbar", "vertebrae_L1", "thorax", m.thoracic_bottom() - gap / 2);
+  spine_joint("neck", "thorax", "skull", m.thoracic_top() + gap / 2);
+  for (int side : {+1, -1}) {
+    const std::string s = side > 0 ? "left" : "right";
+    joints.push_back({"hip_" + s, "pelvis", "femur_" + s, m.hip(side), "ball"});
+    joints.push_back({"knee_" + s, "femur_" + s, "tibia_" + s, m.knee(side), "plane"});
+    joints.push_back({"shoulder_" + s, "thorax", "humerus_" + s, m.shoulder(side), "ball"});
+    joints.push_back({"elbow_" + s, "humerus_" + s, "forearm_" + s, m.elbow(side), "plane"});
+  }
+}
+
+// The label map's joint names for the true joints: balls and planes, knees flexing backwards, the rest forwards.
+std::vector<JointName> joint_names_of(const std::vector<JointTruth>& joints) {
+  std::vector<JointName> joint_names;
+  for (const JointTruth& joint : joints) {
+    const bool ball = joint.kind == "ball";
+    const bool knee = joint.name.rfind("knee", 0) == 0;
+    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment,
+                           ball ? labels::JointKind::kBall : labels::JointKind::kPlane,
+                           knee ? labels::FlexionDirection::kPosterior : labels::FlexionDirection::kAnterior});
+  }
+  return joint_names;
 }
 
 }  // namespace
@@ -195,121 +343,17 @@ Result<Phantom> make_mannequin(const MannequinParams& p) {
   // Later paints win: body with its fat shell, organs, bones, then soft joint spaces carved, then the balls.
   detail::paint_body(labels, body, L::kSoft, L::kFat, p.fat_mm * f);
   detail::paint(labels, detail::ellipsoid({-70 * f, -10 * f, 1120 * f}, {60 * f, 55 * f, 50 * f}), L::kLiver);
-
-  // Pelvis: a block whose lower face passes through both hip centres, with hemispherical sockets.
-  detail::paint(labels, detail::box({-125 * f, -30 * f, m.hip(1)[2]}, {125 * f, 55 * f, m.pelvis_top()}), L::kPelvis);
-  // Sacral block under the spine, so the lumbosacral contact is the whole lower face of L5.
-  detail::paint(labels, detail::box({-40 * f, 20 * f, m.hip(1)[2]}, {40 * f, 75 * f, m.pelvis_top()}), L::kPelvis);
-  // Lumbar vertebrae L5 (n = 0) up to L1 (n = 4), then the thoracic spine.
-  const Label lumbar[5] = {L::kL5, L::kL4, L::kL3, L::kL2, L::kL1};
-  for (int n = 0; n < 5; ++n) {
-    const double z0 = m.lumbar_bottom(n);
-    detail::paint(labels, detail::cylinder({0, m.spine_y(), z0}, {0, m.spine_y(), z0 + m.vertebra_height()}, 22 * f),
-                  lumbar[n]);
-  }
-  detail::paint(labels, detail::cylinder({0, m.spine_y(), m.thoracic_bottom()}, {0, m.spine_y(), m.thoracic_top()}, 22 * f),
-                L::kThoracicSpine);
-  // Rib shell joined to the thoracic spine by a posterior bar.
-  {
-    const double z0 = m.thoracic_bottom() + 10 * f;
-    const double z1 = 1400 * f;
-    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 140 * f, 95 * f, z0, z1), L::kRibs);
-    detail::paint(labels, detail::elliptic_cylinder_z(0, 0, 132 * f, 87 * f, z0 - 1, z1 + 1), L::kSoft);
-    detail::paint(labels, detail::box({-10 * f, m.spine_y(), z0}, {10 * f, 90 * f, z1}), L::kRibs);
-  }
-  // Shoulder girdle: a bar across the upper chest ending in glenoid domes over the shoulder centres.
-  detail::paint(labels, detail::capsule({-175 * f, 20 * f, 1395 * f}, {175 * f, 20 * f, 1395 * f}, 14 * f),
-                L::kShoulderGirdle);
+  paint_mannequin_trunk(labels, m);
+  paint_mannequin_head(labels, m);
   for (int side : {+1, -1}) {
-    Shape dome = detail::sphere(m.shoulder(side), 22 * f + gap + 12 * f);
-    dome.clip_min[2] = m.shoulder(side)[2];
-    detail::paint(labels, dome, L::kShoulderGirdle);
-  }
-  // Cervical spine fused to the skull; brain inside.
-  detail::paint(labels, detail::sphere(m.head_centre(), 92 * f), L::kSkull);
-  detail::paint(labels, detail::sphere(m.head_centre(), 84 * f), L::kBrain);
-  detail::paint(labels,
-                detail::cylinder({0, m.spine_y(), m.thoracic_top() + gap}, {0, m.spine_y(), m.head_centre()[2] - 80 * f},
-                                 18 * f),
-                L::kCervicalSpine);
-
-  for (int side : {+1, -1}) {
-    const bool left = side > 0;
-    // Hip: socket carved into the pelvis, femoral head in it, shaft down to the knee gap; tibia below.
-    detail::paint(labels, detail::sphere(m.hip(side), 24 * f + gap), L::kSoft);
-    detail::paint(labels, detail::sphere(m.hip(side), 24 * f), left ? L::kFemurLeft : L::kFemurRight);
-    detail::paint(labels, detail::cylinder(m.hip(side), {m.knee(side)[0], 0, m.knee(side)[2] + gap / 2}, 16 * f),
-                  left ? L::kFemurLeft : L::kFemurRight);
-    detail::paint(labels, detail::cylinder({m.knee(side)[0], 0, m.knee(side)[2] - gap / 2}, {side * 90 * f, 0, 80 * f}, 15 * f),
-                  left ? L::kTibiaLeft : L::kTibiaRight);
-    // Shoulder: socket carved into the dome, humeral head, shaft to the elbow gap; forearm below.
-    detail::paint(labels, detail::sphere(m.shoulder(side), 22 * f + gap), L::kSoft);
-    detail::paint(labels, detail::sphere(m.shoulder(side), 22 * f), left ? L::kHumerusLeft : L::kHumerusRight);
-    detail::paint(labels,
-                  detail::cylinder(m.shoulder(side), {m.elbow(side)[0], 0, m.elbow(side)[2] + gap / 2}, 14 * f),
-                  left ? L::kHumerusLeft : L::kHumerusRight);
-    detail::paint(labels,
-                  detail::cylinder({m.elbow(side)[0], 0, m.elbow(side)[2] - gap / 2}, {side * 215 * f, 0, 860 * f}, 12 * f),
-                  left ? L::kForearmLeft : L::kForearmRight);
+    for (const MannequinLimb& limb : mannequin_limbs(m, side)) paint_mannequin_limb(labels, limb, m.gap);
   }
 
-  std::vector<LabelEntry> entries{
-      {0, "background", LabelRole::kBackground, ""},
-      {L::kSoft, "soft_tissue", LabelRole::kTissue, ""},
-      {L::kFat, "fat", LabelRole::kTissue, ""},
-      {L::kLiver, "liver", LabelRole::kTissue, ""},
-      {L::kBrain, "brain", LabelRole::kTissue, ""},
-      {L::kPelvis, "pelvis", LabelRole::kBone, "pelvis"},
-      {L::kL5, "vertebrae_L5", LabelRole::kBone, "vertebrae_L5"},
-      {L::kL4, "vertebrae_L4", LabelRole::kBone, "vertebrae_L4"},
-      {L::kL3, "vertebrae_L3", LabelRole::kBone, "vertebrae_L3"},
-      {L::kL2, "vertebrae_L2", LabelRole::kBone, "vertebrae_L2"},
-      {L::kL1, "vertebrae_L1", LabelRole::kBone, "vertebrae_L1"},
-      {L::kThoracicSpine, "thoracic_spine", LabelRole::kBone, "thorax"},
-      {L::kRibs, "ribs", LabelRole::kBone, "thorax"},
-      {L::kShoulderGirdle, "shoulder_girdle", LabelRole::kBone, "thorax"},
-      {L::kFemurLeft, "femur_left", LabelRole::kBone, "femur_left"},
-      {L::kFemurRight, "femur_right", LabelRole::kBone, "femur_right"},
-      {L::kTibiaLeft, "tibia_left", LabelRole::kBone, "tibia_left"},
-      {L::kTibiaRight, "tibia_right", LabelRole::kBone, "tibia_right"},
-      {L::kHumerusLeft, "humerus_left", LabelRole::kBone, "humerus_left"},
-      {L::kHumerusRight, "humerus_right", LabelRole::kBone, "humerus_right"},
-      {L::kForearmLeft, "forearm_left", LabelRole::kBone, "forearm_left"},
-      {L::kForearmRight, "forearm_right", LabelRole::kBone, "forearm_right"},
-      {L::kSkull, "skull", LabelRole::kBone, "skull"},
-      {L::kCervicalSpine, "cervical_spine", LabelRole::kBone, "skull"},
-  };
-
-  const double y = m.spine_y();
-  auto spine_joint = [&](const std::string& name, const std::string& parent, const std::string& child, double z) {
-    phantom.joints.push_back({name, parent, child, {0.0, y, z}, "plane"});
-  };
-  spine_joint("lumbosacral", "pelvis", "vertebrae_L5", m.pelvis_top() + gap / 2);
-  const char* lumbar_names[5] = {"vertebrae_L5", "vertebrae_L4", "vertebrae_L3", "vertebrae_L2", "vertebrae_L1"};
-  const char* lumbar_joints[4] = {"L4_L5", "L3_L4", "L2_L3", "L1_L2"};
-  for (int n = 1; n < 5; ++n) {
-    spine_joint(lumbar_joints[n - 1], lumbar_names[n - 1], lumbar_names[n], m.lumbar_bottom(n) - gap / 2);
-  }
-  spine_joint("thoracolumbar", "vertebrae_L1", "thorax", m.thoracic_bottom() - gap / 2);
-  spine_joint("neck", "thorax", "skull", m.thoracic_top() + gap / 2);
-  for (int side : {+1, -1}) {
-    const std::string s = side > 0 ? "left" : "right";
-    phantom.joints.push_back({"hip_" + s, "pelvis", "femur_" + s, m.hip(side), "ball"});
-    phantom.joints.push_back({"knee_" + s, "femur_" + s, "tibia_" + s, m.knee(side), "plane"});
-    phantom.joints.push_back({"shoulder_" + s, "thorax", "humerus_" + s, m.shoulder(side), "ball"});
-    phantom.joints.push_back({"elbow_" + s, "humerus_" + s, "forearm_" + s, m.elbow(side), "plane"});
-  }
-  std::vector<JointName> joint_names;
-  for (const JointTruth& joint : phantom.joints) {
-    const bool ball = joint.kind == "ball";
-    const bool knee = joint.name.rfind("knee", 0) == 0;
-    joint_names.push_back({joint.name, joint.parent_segment, joint.child_segment,
-                           ball ? labels::JointKind::kBall : labels::JointKind::kPlane,
-                           knee ? labels::FlexionDirection::kPosterior : labels::FlexionDirection::kAnterior});
-  }
+  add_mannequin_joints(m, phantom.joints);
   phantom.root_segment = "pelvis";
-  POSEWARP_ASSIGN_OR_RETURN(phantom.label_map, labels::LabelMap::create("mannequin_phantom", std::move(entries),
-                                                                        std::move(joint_names), phantom.root_segment));
+  POSEWARP_ASSIGN_OR_RETURN(phantom.label_map,
+                            labels::LabelMap::create("mannequin_phantom", mannequin_label_entries(),
+                                                     joint_names_of(phantom.joints), phantom.root_segment));
 
   std::vector<std::pair<Label, float>> hu{{L::kSoft, kSoftHu}, {L::kFat, kFatHu}, {L::kLiver, kLiverHu},
                                           {L::kBrain, kBrainHu}};

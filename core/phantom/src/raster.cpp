@@ -10,6 +10,12 @@
 namespace posewarp::phantom::detail {
 namespace {
 
+// The signed distance to a finite cylinder from the signed distances to its side and to its end caps: outside both,
+// the distance to the rim.
+double capped(double radial, double axial) {
+  return radial > 0.0 && axial > 0.0 ? std::hypot(radial, axial) : std::max(radial, axial);
+}
+
 double dot(const Vec3& u, const Vec3& v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; }
 Vec3 sub(const Vec3& u, const Vec3& v) { return {u[0] - v[0], u[1] - v[1], u[2] - v[2]}; }
 double norm(const Vec3& u) { return std::sqrt(dot(u, u)); }
@@ -88,8 +94,7 @@ double Shape::sdf(const Vec3& p) const {
                       a[2] + axis[2] * along / length};
       const double radial = norm(sub(p, foot)) - radius;
       const double axial = std::max(-along, along - length);
-      d = std::max(radial, axial);
-      if (radial > 0.0 && axial > 0.0) d = std::hypot(radial, axial);
+      d = capped(radial, axial);
       break;
     }
     case Kind::kEllipticCylinderZ: {
@@ -97,8 +102,7 @@ double Shape::sdf(const Vec3& p) const {
       const double v = (p[1] - a[1]) / radii[1];
       const double radial = (std::sqrt(u * u + v * v) - 1.0) * std::min(radii[0], radii[1]);
       const double axial = std::max(b[0] - p[2], p[2] - b[1]);
-      d = std::max(radial, axial);
-      if (radial > 0.0 && axial > 0.0) d = std::hypot(radial, axial);
+      d = capped(radial, axial);
       break;
     }
     case Kind::kEllipsoid: {
@@ -222,82 +226,50 @@ void Shape::bounds(Vec3& lo, Vec3& hi) const {
   }
 }
 
-Shape sphere(const Vec3& centre, double radius) {
-  Shape s;
-  s.kind = Shape::Kind::kSphere;
-  s.a = centre;
-  s.radius = radius;
-  return s;
-}
+namespace {
 
-Shape capsule(const Vec3& a, const Vec3& b, double radius) {
+// A shape of `kind` from its fields (what each means for each kind: Shape's comments).
+Shape shape(Shape::Kind kind, const Vec3& a, const Vec3& b = {}, double radius = 0.0, const Vec3& radii = {}) {
   Shape s;
-  s.kind = Shape::Kind::kCapsule;
+  s.kind = kind;
   s.a = a;
   s.b = b;
   s.radius = radius;
-  return s;
-}
-
-Shape cylinder(const Vec3& a, const Vec3& b, double radius) {
-  Shape s = capsule(a, b, radius);
-  s.kind = Shape::Kind::kCylinder;
-  return s;
-}
-
-Shape elliptic_cylinder_z(double cx, double cy, double rx, double ry, double z_min, double z_max) {
-  Shape s;
-  s.kind = Shape::Kind::kEllipticCylinderZ;
-  s.a = {cx, cy, 0.0};
-  s.b = {z_min, z_max, 0.0};
-  s.radii = {rx, ry, 0.0};
-  return s;
-}
-
-Shape ellipsoid(const Vec3& centre, const Vec3& radii) {
-  Shape s;
-  s.kind = Shape::Kind::kEllipsoid;
-  s.a = centre;
   s.radii = radii;
   return s;
 }
 
-Shape box(const Vec3& lo, const Vec3& hi) {
-  Shape s;
-  s.kind = Shape::Kind::kBox;
-  s.a = lo;
-  s.b = hi;
-  return s;
+}  // namespace
+
+Shape sphere(const Vec3& centre, double radius) { return shape(Shape::Kind::kSphere, centre, {}, radius); }
+
+Shape capsule(const Vec3& a, const Vec3& b, double radius) { return shape(Shape::Kind::kCapsule, a, b, radius); }
+
+Shape cylinder(const Vec3& a, const Vec3& b, double radius) { return shape(Shape::Kind::kCylinder, a, b, radius); }
+
+Shape elliptic_cylinder_z(double cx, double cy, double rx, double ry, double z_min, double z_max) {
+  return shape(Shape::Kind::kEllipticCylinderZ, {cx, cy, 0.0}, {z_min, z_max, 0.0}, 0.0, {rx, ry, 0.0});
 }
 
+Shape ellipsoid(const Vec3& centre, const Vec3& radii) {
+  return shape(Shape::Kind::kEllipsoid, centre, {}, 0.0, radii);
+}
+
+Shape box(const Vec3& lo, const Vec3& hi) { return shape(Shape::Kind::kBox, lo, hi); }
+
 Shape round_cone(const Vec3& a, const Vec3& b, double radius_a, double radius_b) {
-  Shape s;
-  s.kind = Shape::Kind::kRoundCone;
-  s.a = a;
-  s.b = b;
-  s.radius = radius_a;
-  s.radii = {radius_b, 0.0, 0.0};
-  return s;
+  return shape(Shape::Kind::kRoundCone, a, b, radius_a, {radius_b, 0.0, 0.0});
 }
 
 Shape spherical_cup(const Vec3& centre, const Vec3& pole, double inner_radius, double outer_radius,
                     double half_angle) {
-  Shape s;
-  s.kind = Shape::Kind::kSphericalCup;
-  s.a = centre;
   const double length = norm(pole);
-  s.b = {pole[0] / length, pole[1] / length, pole[2] / length};
-  s.radius = inner_radius;
-  s.radii = {outer_radius, half_angle, 0.0};
-  return s;
+  return shape(Shape::Kind::kSphericalCup, centre, {pole[0] / length, pole[1] / length, pole[2] / length},
+               inner_radius, {outer_radius, half_angle, 0.0});
 }
 
 Shape oriented_box(const Vec3& centre, const Vec3& u, const Vec3& v, const Vec3& half_extents, double rounding) {
-  Shape s;
-  s.kind = Shape::Kind::kOrientedBox;
-  s.a = centre;
-  s.b = half_extents;
-  s.radius = rounding;
+  Shape s = shape(Shape::Kind::kOrientedBox, centre, half_extents, rounding);
   s.axis_u = u;
   s.axis_v = v;
   return s;
@@ -334,7 +306,11 @@ ImageGeometry fit_grid(const Vec3& lo, const Vec3& hi, const Vec3& spacing, cons
   return g;
 }
 
-void paint(LabelVolume& labels, const Shape& shape, Label label) {
+namespace {
+
+// Sets every voxel inside `shape` whose value `wanted` accepts (checked first: it is cheaper) to `label`.
+template <typename Wanted>
+void set_inside(LabelVolume& labels, const Shape& shape, Label label, const Wanted& wanted) {
   Vec3 lo{};
   Vec3 hi{};
   shape.bounds(lo, hi);
@@ -343,21 +319,18 @@ void paint(LabelVolume& labels, const Shape& shape, Label label) {
   if (!index_box(labels.geometry(), lo, hi, first, last)) return;
   Label* out = labels.data();
   for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
-    if (shape.contains(p)) out[offset] = label;
+    if (wanted(out[offset]) && shape.contains(p)) out[offset] = label;
   });
 }
 
+}  // namespace
+
+void paint(LabelVolume& labels, const Shape& shape, Label label) {
+  set_inside(labels, shape, label, [](Label) { return true; });
+}
+
 void repaint(LabelVolume& labels, const Shape& shape, Label from, Label to) {
-  Vec3 lo{};
-  Vec3 hi{};
-  shape.bounds(lo, hi);
-  Index3 first{};
-  Index3 last{};
-  if (!index_box(labels.geometry(), lo, hi, first, last)) return;
-  Label* out = labels.data();
-  for_each_voxel(labels.geometry(), first, last, [&](int64_t offset, const Vec3& p) {
-    if (out[offset] == from && shape.contains(p)) out[offset] = to;
-  });
+  set_inside(labels, shape, to, [from](Label value) { return value == from; });
 }
 
 void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner_label, Label shell_label,

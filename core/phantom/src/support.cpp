@@ -44,4 +44,21 @@ ImageGeometry grid_for(const std::vector<Shape>& shapes, const Vec3& spacing, co
   return fit_grid(lo, hi, spacing, direction, margin);
 }
 
+std::vector<LabelEntry> tissue_entries() {
+  return {{0, "background", LabelRole::kBackground, ""},
+          {kSoftLabel, "soft_tissue", LabelRole::kTissue, ""},
+          {kFatLabel, "fat", LabelRole::kTissue, ""},
+          {kLiverLabel, "liver", LabelRole::kTissue, ""},
+          {kBrainLabel, "brain", LabelRole::kTissue, ""}};
+}
+
+std::vector<LabelEntry> lumbar_entries(Label l5_value) {
+  std::vector<LabelEntry> entries;
+  for (int n = 5; n >= 1; --n) {
+    const std::string name = "vertebrae_L" + std::to_string(n);
+    entries.push_back({l5_value + (5 - n), name, LabelRole::kBone, name});
+  }
+  return entries;
+}
+
 }  // namespace posewarp::phantom::detail

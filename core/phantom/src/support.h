@@ -4,6 +4,7 @@
 #include <array>
 #include <vector>
 
+#include "posewarp/common/label_map.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/volume.h"
 #include "raster.h"
@@ -17,6 +18,13 @@ constexpr float kSoftHu = 40.0f;
 constexpr float kLiverHu = 60.0f;
 constexpr float kBrainHu = 35.0f;
 constexpr float kBoneHu = 700.0f;
+
+// The tissue labels every phantom uses (its bones number from 10).
+constexpr Label kSoftLabel = 1, kFatLabel = 2, kLiverLabel = 3, kBrainLabel = 4;
+// The first entries of every phantom's label map: the background and the four tissues.
+std::vector<LabelEntry> tissue_entries();
+// The lumbar vertebrae L5 to L1, each its own segment, valued l5_value, l5_value + 1, ...
+std::vector<LabelEntry> lumbar_entries(Label l5_value);
 
 // INVALID_ARGUMENT unless `d` (row-major, columns = index axes in LPS) is a rotation.
 Status validate_direction(const std::array<double, 9>& d);

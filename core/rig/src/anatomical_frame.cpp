@@ -46,15 +46,6 @@ bool has_word(const std::string& name, const std::string& word) {
 
 }  // namespace
 
-std::string_view body_side_name(BodySide side) {
-  switch (side) {
-    case BodySide::kMidline: return "midline";
-    case BodySide::kLeft: return "left";
-    case BodySide::kRight: return "right";
-  }
-  return "midline";
-}
-
 BodySide side_of_joint(const std::string& joint_name, const std::string& child_name, const Vector3d& child_centroid,
                        const Vector3d& root_centroid, double midline_mm) {
   for (const std::string* name : {&joint_name, &child_name}) {

@@ -38,20 +38,6 @@ struct DisjointSets {
 
 }  // namespace
 
-int Skeleton::segment_index(const std::string& name) const {
-  for (size_t k = 0; k < segments.size(); ++k) {
-    if (segments[k].name == name) return static_cast<int>(k);
-  }
-  return -1;
-}
-
-int Skeleton::joint_index(const std::string& name) const {
-  for (size_t j = 0; j < joints.size(); ++j) {
-    if (joints[j].name == name) return static_cast<int>(j);
-  }
-  return -1;
-}
-
 Status validate(const SkeletonParams& params) {
   if (params.contact_distance_mm < 0.0 || !std::isfinite(params.contact_distance_mm) ||
       params.contact_distance_mm > kMaxContactDistanceMm) {

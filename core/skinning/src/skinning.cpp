@@ -138,15 +138,18 @@ Result<Method> method_from_name(std::string_view name) {
   return invalid_argument_error("unknown method '" + std::string(name) + "'; use lbs, dqs, cor or fem");
 }
 
-Eigen::MatrixXd lbs(const Eigen::MatrixXd& rest, const SkinWeights& weights, const SegmentTransforms& transforms) {
-  const auto m = affine_rows(transforms);
+namespace {
+
+// Every rest vertex through `vertex(v, p, out)` (p its rest position, out its posed one), in parallel: #V x 3.
+template <typename Vertex>
+Eigen::MatrixXd pose_each_vertex(const Eigen::MatrixXd& rest, const Vertex& vertex) {
   const int64_t n = rest.rows();
   Eigen::MatrixXd posed(n, 3);
   parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
     for (int64_t v = begin; v < end; ++v) {
       const double p[3] = {rest(v, 0), rest(v, 1), rest(v, 2)};
       double out[3];
-      lbs_vertex(weights, m, v, p, out);
+      vertex(v, p, out);
       posed(v, 0) = out[0];
       posed(v, 1) = out[1];
       posed(v, 2) = out[2];
@@ -155,31 +158,31 @@ Eigen::MatrixXd lbs(const Eigen::MatrixXd& rest, const SkinWeights& weights, con
   return posed;
 }
 
+}  // namespace
+
+Eigen::MatrixXd lbs(const Eigen::MatrixXd& rest, const SkinWeights& weights, const SegmentTransforms& transforms) {
+  const auto m = affine_rows(transforms);
+  return pose_each_vertex(rest, [&](int64_t v, const double p[3], double out[3]) {
+    lbs_vertex(weights, m, v, p, out);
+  });
+}
+
 Eigen::MatrixXd dqs(const Eigen::MatrixXd& rest, const SkinWeights& weights, const SegmentTransforms& transforms) {
   const auto dq = dual_quaternions(transforms);
   const auto sign = hemisphere_signs(dq);
-  const int64_t n = rest.rows();
-  Eigen::MatrixXd posed(n, 3);
-  parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t v = begin; v < end; ++v) {
-      double b0[4], be[4];
-      const double scale = 2.0 / blend(weights, dq, sign, v, b0, be);
-      // v' = v + scale (r x (r x v + w v + d) + w d - d_w r) with b0 = (w, r), be = (d_w, d): the rotation and
-      // translation of the normalized blend in one (Kavan et al. 2008, section 3.3).
-      const double w = b0[0], x = b0[1], y = b0[2], z = b0[3];
-      const double p[3] = {rest(v, 0), rest(v, 1), rest(v, 2)};
-      const double a0 = y * p[2] - z * p[1] + w * p[0] + be[1];
-      const double a1 = z * p[0] - x * p[2] + w * p[1] + be[2];
-      const double a2 = x * p[1] - y * p[0] + w * p[2] + be[3];
-      const double out[3] = {p[0] + scale * (y * a2 - z * a1 + w * be[1] - be[0] * x),
-                             p[1] + scale * (z * a0 - x * a2 + w * be[2] - be[0] * y),
-                             p[2] + scale * (x * a1 - y * a0 + w * be[3] - be[0] * z)};
-      posed(v, 0) = out[0];
-      posed(v, 1) = out[1];
-      posed(v, 2) = out[2];
-    }
+  return pose_each_vertex(rest, [&](int64_t v, const double p[3], double out[3]) {
+    double b0[4], be[4];
+    const double scale = 2.0 / blend(weights, dq, sign, v, b0, be);
+    // v' = v + scale (r x (r x v + w v + d) + w d - d_w r) with b0 = (w, r), be = (d_w, d): the rotation and
+    // translation of the normalized blend in one (Kavan et al. 2008, section 3.3).
+    const double w = b0[0], x = b0[1], y = b0[2], z = b0[3];
+    const double a0 = y * p[2] - z * p[1] + w * p[0] + be[1];
+    const double a1 = z * p[0] - x * p[2] + w * p[1] + be[2];
+    const double a2 = x * p[1] - y * p[0] + w * p[2] + be[3];
+    out[0] = p[0] + scale * (y * a2 - z * a1 + w * be[1] - be[0] * x);
+    out[1] = p[1] + scale * (z * a0 - x * a2 + w * be[2] - be[0] * y);
+    out[2] = p[2] + scale * (x * a1 - y * a0 + w * be[3] - be[0] * z);
   });
-  return posed;
 }
 
 Eigen::MatrixXd cor(const Eigen::MatrixXd& rest, const SkinWeights& weights, const RotationCentres& centres,
@@ -187,47 +190,37 @@ Eigen::MatrixXd cor(const Eigen::MatrixXd& rest, const SkinWeights& weights, con
   const auto dq = dual_quaternions(transforms);
   const auto sign = hemisphere_signs(dq);
   const auto m = affine_rows(transforms);
-  const int64_t n = rest.rows();
-  Eigen::MatrixXd posed(n, 3);
-  parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t v = begin; v < end; ++v) {
-      const double p[3] = {rest(v, 0), rest(v, 1), rest(v, 2)};
-      double out[3];
-      if (centres.rigid[static_cast<size_t>(v)]) {
-        lbs_vertex(weights, m, v, p, out);
-      } else {
-        // v' = R (v - c) + sum_j w_j T_j(c): the blended rotation about the vertex's centre, which moves as LBS.
-        // One pass over the influences blends both.
-        const double c[3] = {centres.centre(v, 0), centres.centre(v, 1), centres.centre(v, 2)};
-        const int32_t* segment = weights.segment.data() + v * weights.influences;
-        const float* weight = weights.weight.data() + v * weights.influences;
-        const double* pivot_sign = sign.data() + static_cast<size_t>(segment[0] < 0 ? 0 : segment[0]) * dq.size();
-        double real[4] = {0.0, 0.0, 0.0, 0.0}, moved[3] = {0.0, 0.0, 0.0}, total = 0.0;
-        for (int i = 0; i < weights.influences; ++i) {
-          const int32_t sg = segment[i];
-          if (sg < 0) break;
-          const double w = weight[i];
-          const double* q = dq[static_cast<size_t>(sg)].real.data();
-          const double ws = pivot_sign[sg] * w;
-          for (int k = 0; k < 4; ++k) real[k] += ws * q[k];
-          const double* a = m[static_cast<size_t>(sg)].data();
-          total += w;
-          moved[0] += w * (a[0] * c[0] + a[1] * c[1] + a[2] * c[2] + a[3]);
-          moved[1] += w * (a[4] * c[0] + a[5] * c[1] + a[6] * c[2] + a[7]);
-          moved[2] += w * (a[8] * c[0] + a[9] * c[1] + a[10] * c[2] + a[11]);
-        }
-        const double inv = total > 0.0 ? 1.0 / total : 1.0;
-        for (int k = 0; k < 3; ++k) out[k] = moved[k] * inv;
-        const double scale = 2.0 / (real[0] * real[0] + real[1] * real[1] + real[2] * real[2] + real[3] * real[3]);
-        const double u[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
-        add_rotated(real, scale, u, out);
-      }
-      posed(v, 0) = out[0];
-      posed(v, 1) = out[1];
-      posed(v, 2) = out[2];
+  return pose_each_vertex(rest, [&](int64_t v, const double p[3], double out[3]) {
+    if (centres.rigid[static_cast<size_t>(v)]) {
+      lbs_vertex(weights, m, v, p, out);
+      return;
     }
+    // v' = R (v - c) + sum_j w_j T_j(c): the blended rotation about the vertex's centre, which moves as LBS.
+    // One pass over the influences blends both.
+    const double c[3] = {centres.centre(v, 0), centres.centre(v, 1), centres.centre(v, 2)};
+    const int32_t* segment = weights.segment.data() + v * weights.influences;
+    const float* weight = weights.weight.data() + v * weights.influences;
+    const double* pivot_sign = sign.data() + static_cast<size_t>(segment[0] < 0 ? 0 : segment[0]) * dq.size();
+    double real[4] = {0.0, 0.0, 0.0, 0.0}, moved[3] = {0.0, 0.0, 0.0}, total = 0.0;
+    for (int i = 0; i < weights.influences; ++i) {
+      const int32_t sg = segment[i];
+      if (sg < 0) break;
+      const double w = weight[i];
+      const double* q = dq[static_cast<size_t>(sg)].real.data();
+      const double ws = pivot_sign[sg] * w;
+      for (int k = 0; k < 4; ++k) real[k] += ws * q[k];
+      const double* a = m[static_cast<size_t>(sg)].data();
+      total += w;
+      moved[0] += w * (a[0] * c[0] + a[1] * c[1] + a[2] * c[2] + a[3]);
+      moved[1] += w * (a[4] * c[0] + a[5] * c[1] + a[6] * c[2] + a[7]);
+      moved[2] += w * (a[8] * c[0] + a[9] * c[1] + a[10] * c[2] + a[11]);
+    }
+    const double inv = total > 0.0 ? 1.0 / total : 1.0;
+    for (int k = 0; k < 3; ++k) out[k] = moved[k] * inv;
+    const double scale = 2.0 / (real[0] * real[0] + real[1] * real[1] + real[2] * real[2] + real[3] * real[3]);
+    const double u[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+    add_rotated(real, scale, u, out);
   });
-  return posed;
 }
 
 Result<Eigen::MatrixXd> skin(Method method, const Eigen::MatrixXd& rest, const SkinWeights& weights,

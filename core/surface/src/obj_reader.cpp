@@ -7,6 +7,8 @@
 #include <string_view>
 #include <vector>
 
+#include "rows.h"
+
 namespace posewarp::surface::detail {
 namespace {
 
@@ -90,10 +92,7 @@ Result<SurfaceMesh> parse_obj(const std::string& text, const std::string& path) 
   }
   if (vertex_count > INT32_MAX) return invalid_argument_error(where + "too many vertices");
   SurfaceMesh mesh;
-  mesh.vertices.resize(vertex_count, 3);
-  for (int64_t v = 0; v < vertex_count; ++v) {
-    for (int a = 0; a < 3; ++a) mesh.vertices(v, a) = vertices[static_cast<size_t>(3 * v + a)];
-  }
+  mesh.vertices = vertex_rows(vertices);
   const int64_t triangle_count = static_cast<int64_t>(triangles.size() / 3);
   mesh.triangles.resize(triangle_count, 3);
   for (int64_t f = 0; f < triangle_count; ++f) {

@@ -1,10 +1,10 @@
-// laplace_weights: bone ownership, mesh pieces, one CHOLMOD factorization for all segments, clamp and top-k.
+// laplace_weights: bone ownership, mesh pieces, one factorization for all segments (sparse_solve.cpp), clamp and
+// top-k.
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/weights/laplace_weights.h"
 
-#include <Eigen/CholmodSupport>
 #include <Eigen/Geometry>
-#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
 
 #include <algorithm>
 #include <cmath>
@@ -20,6 +20,7 @@
 #include <string_view>
 
 #include "point_kd_tree.h"
+#include "sparse_solve.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/weights/fem_laplacian.h"
 #include "posewarp/common/stopwatch.h"
@@ -31,8 +32,6 @@ using SparseMatrix = Eigen::SparseMatrix<double>;
 
 constexpr int kMaxInfluences = 8;
 constexpr double kMaxPruneBelow = 0.01;
-// Free vertices from which CHOLMOD orders with METIS only (nested dissection), skipping its AMD trial.
-constexpr int64_t kMetisOnlyRows = 5000;
 
 // Fractions of the stage's progress at the end of each step.
 constexpr double kAssembledFraction = 0.25;
@@ -289,154 +288,50 @@ Status handle_islands(const TetMesh& mesh, IslandPolicy policy, HarmonicSolution
   return ok_status();
 }
 
-const char* cholmod_ordering_name(int ordering) {
-  switch (ordering) {
-    case CHOLMOD_NATURAL: return "natural";
-    case CHOLMOD_GIVEN: return "given";
-    case CHOLMOD_AMD: return "amd";
-    case CHOLMOD_METIS: return "metis";
-    case CHOLMOD_NESDIS: return "nesdis";
-    case CHOLMOD_COLAMD: return "colamd";
-    case CHOLMOD_POSTORDERED: return "postordered";
-    default: return "unknown";
-  }
-}
-
-// CHOLMOD supernodal LL^T. OK with *solution filled; CANCELLED; or OK with *solution empty and *failure set.
-Status solve_cholmod(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, StageProgress& progress, WeightStats* stats,
-                     Eigen::MatrixXd* solution, std::string* failure) {
-  Stopwatch start;
-  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
-  cholmod_common& common = llt.cholmod();
-  common.print = 0;  // failures are reported through the Status and stats, not on stdout
-  if (k_ff.rows() >= kMetisOnlyRows) {
-    // Tet meshes fill in badly under AMD (a body mesh of 300k vertices: 2.4 Tflop against METIS's 0.3), and
-    // CHOLMOD's default tries AMD first and METIS only past a fill threshold that small meshes miss.
-    common.nmethods = 1;
-    common.method[0].ordering = CHOLMOD_METIS;
-  }
-  llt.analyzePattern(k_ff);
-  if (common.status == CHOLMOD_NOT_INSTALLED && common.nmethods == 1) {
-    // A CHOLMOD built without its Partition module (no METIS): let it choose among what it has.
-    common.status = CHOLMOD_OK;
-    common.nmethods = 0;
-    llt.analyzePattern(k_ff);
-  }
-  if (common.status < CHOLMOD_OK) {
-    *failure = "CHOLMOD analysis failed with status " + std::to_string(common.status);
-    return ok_status();
-  }
-  stats->ordering_seconds = start.seconds();
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-  llt.factorize(k_ff);
-  if (common.status < CHOLMOD_OK || llt.info() != Eigen::Success) {
-    *failure = "CHOLMOD factorization failed with status " + std::to_string(common.status) +
-               (llt.info() != Eigen::Success ? " (K_ff not numerically positive definite)" : "");
-    return ok_status();
-  }
-  stats->factor_seconds = start.seconds();
-  stats->ordering = cholmod_ordering_name(common.method[common.selected].ordering);
-  stats->factor_nonzeros = static_cast<int64_t>(common.lnz);
-  stats->factor_flops = common.fl;
-  progress.update(kFactoredFraction);
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-
-  start.restart();
-  Eigen::MatrixXd x = llt.solve(rhs);
-  if (llt.info() != Eigen::Success || !x.allFinite()) {
-    *failure = "CHOLMOD solve failed with status " + std::to_string(common.status);
-    return ok_status();
-  }
-  stats->solve_seconds = start.seconds();
-  *solution = std::move(x);
-  return ok_status();
-}
-
-// Eigen's SimplicialLDLT with AMD ordering: slower on 3D meshes, but needs nothing outside Eigen.
-Status solve_simplicial(const SparseMatrix& k_ff, const Eigen::MatrixXd& rhs, StageProgress& progress,
-                        WeightStats* stats, Eigen::MatrixXd* solution) {
-  Stopwatch start;
-  Eigen::SimplicialLDLT<SparseMatrix, Eigen::Lower> ldlt;
-  ldlt.analyzePattern(k_ff);
-  stats->ordering_seconds = start.seconds();
-  ldlt.factorize(k_ff);
-  if (ldlt.info() != Eigen::Success) {
-    return failed_precondition_error(
-        "the stiffness matrix of the free vertices could not be factored (not numerically positive definite); "
-        "the mesh probably holds near-degenerate tets: re-mesh with sliver exudation on");
-  }
-  stats->factor_seconds = start.seconds();
-  stats->ordering = "amd";
-  stats->factor_nonzeros = static_cast<int64_t>(ldlt.matrixL().nestedExpression().nonZeros());
-  stats->factor_flops = 0.0;
-  progress.update(kFactoredFraction);
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-
-  start.restart();
-  Eigen::MatrixXd x = ldlt.solve(rhs);
-  if (ldlt.info() != Eigen::Success || !x.allFinite()) {
-    return failed_precondition_error(
-        "solving for the weights gave non-finite values; the mesh probably holds near-degenerate tets: re-mesh "
-        "with sliver exudation on");
-  }
-  stats->solve_seconds = start.seconds();
-  *solution = std::move(x);
-  return ok_status();
-}
-
-// Everything up to the raw weights, with the residual and raw statistics.
-Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams& params, StageProgress& progress,
-                                        WeightStats* stats) {
-  POSEWARP_RETURN_IF_ERROR(validate(params));
-  POSEWARP_RETURN_IF_ERROR(check_mesh(mesh));
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-  const Stopwatch assemble_start;
-  const int64_t vertex_count = mesh.vertex_count();
-  const int segment_count = mesh.segment_count;
-  stats->segments = segment_count;
-
-  HarmonicSolution solution;
-  solution.segment_count = segment_count;
-  assign_bone_owners(mesh, &solution, stats);
+// Bone owners, then the islands attached or refused: the vertices whose weights are fixed.
+Status fix_boundary(const TetMesh& mesh, IslandPolicy islands, HarmonicSolution* solution, WeightStats* stats) {
+  assign_bone_owners(mesh, solution, stats);
   int64_t fixed = 0;
-  for (const int32_t o : solution.owner) fixed += o >= 0 ? 1 : 0;
+  for (const int32_t o : solution->owner) fixed += o >= 0 ? 1 : 0;
   stats->fixed_vertices = fixed;
   if (fixed == 0) {
     return failed_precondition_error(
         "no tet of the mesh is bone (class 2 + k), so the weights have no boundary condition; check that the label "
         "map's bones are assigned to segments and that the mesher kept them (MeshHealth::lost_segments)");
   }
-  POSEWARP_RETURN_IF_ERROR(handle_islands(mesh, params.islands, &solution, stats));
+  return handle_islands(mesh, islands, solution, stats);
+}
 
-  // Free vertices are numbered in vertex order, so K_ff keeps K's sorted columns and lower triangle.
-  solution.free_index.assign(static_cast<size_t>(vertex_count), -1);
+// Numbers the free vertices (those without an owner) and returns them in vertex order, so K_ff keeps K's sorted
+// columns and lower triangle.
+std::vector<int32_t> number_free_vertices(int64_t vertex_count, HarmonicSolution* solution) {
+  solution->free_index.assign(static_cast<size_t>(vertex_count), -1);
   std::vector<int32_t> free_vertices;
   for (int32_t v = 0; v < vertex_count; ++v) {
-    if (solution.owner[v] < 0) {
-      solution.free_index[v] = static_cast<int32_t>(free_vertices.size());
+    if (solution->owner[v] < 0) {
+      solution->free_index[v] = static_cast<int32_t>(free_vertices.size());
       free_vertices.push_back(v);
     }
   }
-  const int64_t free_count = static_cast<int64_t>(free_vertices.size());
-  stats->free_vertices = free_count;
-  if (free_count == 0) {
-    stats->solver = "none";
-    stats->max_raw_weight = 1.0;
-    stats->assemble_seconds = assemble_start.seconds();
-    progress.update(kSolvedFraction);
-    return solution;
-  }
+  return free_vertices;
+}
 
-  const SparseMatrix stiffness = fem_laplacian(mesh);
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+// The linear system of the free vertices: the lower triangle of K_ff and one right-hand side per segment.
+struct FreeSystem {
+  SparseMatrix k_ff;
+  Eigen::MatrixXd rhs;  // #free x segment_count
+};
+
+// Lower triangle of K_ff, and rhs = -K_fb W_b: W_b is one-hot, so each bone neighbour subtracts its entry from its
+// owner's column. K is symmetric, so column v of K is row v.
+FreeSystem assemble_free_system(const SparseMatrix& stiffness, const HarmonicSolution& solution,
+                                const std::vector<int32_t>& free_vertices) {
+  const int64_t free_count = static_cast<int64_t>(free_vertices.size());
   const int* outer = stiffness.outerIndexPtr();
   const int* inner = stiffness.innerIndexPtr();
   const double* values = stiffness.valuePtr();
   const std::vector<int32_t>& owner = solution.owner;
   const std::vector<int32_t>& free_index = solution.free_index;
-
-  // Lower triangle of K_ff, and rhs = -K_fb W_b: W_b is one-hot, so each bone neighbour subtracts its entry from
-  // its owner's column. K is symmetric, so column v of K is row v.
   std::vector<int> column_size(static_cast<size_t>(free_count), 0);
   parallel_for(0, free_count, 2048, [&](int64_t begin, int64_t end) {
     for (int64_t f = begin; f < end; ++f) {
@@ -446,7 +341,9 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
       column_size[f] = size;
     }
   });
-  SparseMatrix k_ff(free_count, free_count);
+  FreeSystem system;
+  SparseMatrix& k_ff = system.k_ff;
+  k_ff.resize(free_count, free_count);
   int64_t k_ff_nonzeros = 0;
   for (const int size : column_size) k_ff_nonzeros += size;
   k_ff.resizeNonZeros(static_cast<Eigen::Index>(k_ff_nonzeros));
@@ -456,7 +353,8 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   std::vector<int>().swap(column_size);
   int* ff_inner = k_ff.innerIndexPtr();
   double* ff_values = k_ff.valuePtr();
-  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(free_count, segment_count);
+  Eigen::MatrixXd& rhs = system.rhs;
+  rhs = Eigen::MatrixXd::Zero(free_count, solution.segment_count);
   parallel_for(0, free_count, 2048, [&](int64_t begin, int64_t end) {
     for (int64_t f = begin; f < end; ++f) {
       const int v = free_vertices[f];
@@ -475,35 +373,41 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
       }
     }
   });
-  stats->assemble_seconds = assemble_start.seconds();
-  progress.update(kAssembledFraction);
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  return system;
+}
 
-  Eigen::MatrixXd x;
-  if (params.prefer_cholmod) {
+// Solves the free system with CHOLMOD when preferred and it succeeds, else with the simplicial LDL^T; the solver
+// used, or CHOLMOD's failure, goes to the stats.
+Status solve_free_system(const FreeSystem& system, bool prefer_cholmod, StageProgress& progress, WeightStats* stats,
+                         Eigen::MatrixXd* x) {
+  if (prefer_cholmod) {
     std::string failure;
-    POSEWARP_RETURN_IF_ERROR(solve_cholmod(k_ff, rhs, progress, stats, &x, &failure));
-    if (x.size() > 0) {
+    POSEWARP_RETURN_IF_ERROR(
+        detail::solve_cholmod(system.k_ff, system.rhs, progress, kFactoredFraction, stats, x, &failure));
+    if (x->size() > 0) {
       stats->solver = "cholmod-supernodal-llt";
     } else {
       stats->cholmod_failure = failure;
     }
   }
-  if (x.size() == 0) {
-    POSEWARP_RETURN_IF_ERROR(solve_simplicial(k_ff, rhs, progress, stats, &x));
+  if (x->size() == 0) {
+    POSEWARP_RETURN_IF_ERROR(detail::solve_simplicial(system.k_ff, system.rhs, progress, kFactoredFraction, stats, x));
     stats->solver = "simplicial-ldlt";
   }
-  SparseMatrix().swap(k_ff);
-  Eigen::MatrixXd().swap(rhs);
-  progress.update(kSolvedFraction);
-  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  return ok_status();
+}
 
-  const Stopwatch finish_start;
-  solution.free_weights = x.transpose();
-  Eigen::MatrixXd().swap(x);
+// Residual of every free row against the full K (free and bone neighbours), and the raw weights' range.
+void raw_weight_statistics(const SparseMatrix& stiffness, const HarmonicSolution& solution,
+                           const std::vector<int32_t>& free_vertices, WeightStats* stats) {
+  const int64_t free_count = static_cast<int64_t>(free_vertices.size());
+  const int segment_count = solution.segment_count;
+  const int* outer = stiffness.outerIndexPtr();
+  const int* inner = stiffness.innerIndexPtr();
+  const double* values = stiffness.valuePtr();
+  const std::vector<int32_t>& owner = solution.owner;
+  const std::vector<int32_t>& free_index = solution.free_index;
   const Eigen::MatrixXd& w = solution.free_weights;
-
-  // Residual of every free row against the full K (free and bone neighbours), and the raw weights' range.
   double row_scale = 0.0;
   for (const int v : free_vertices) {
     double sum = 0.0;
@@ -541,6 +445,51 @@ Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams
   // Bone and island vertices hold exact 0 and 1.
   stats->min_raw_weight = std::min(0.0, -below_zero.value());
   stats->max_raw_weight = std::max(1.0, above_one.value());
+}
+
+// Everything up to the raw weights, with the residual and raw statistics.
+Result<HarmonicSolution> solve_harmonic(const TetMesh& mesh, const WeightsParams& params, StageProgress& progress,
+                                        WeightStats* stats) {
+  POSEWARP_RETURN_IF_ERROR(validate(params));
+  POSEWARP_RETURN_IF_ERROR(check_mesh(mesh));
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  const Stopwatch assemble_start;
+  const int64_t vertex_count = mesh.vertex_count();
+  const int segment_count = mesh.segment_count;
+  stats->segments = segment_count;
+
+  HarmonicSolution solution;
+  solution.segment_count = segment_count;
+  POSEWARP_RETURN_IF_ERROR(fix_boundary(mesh, params.islands, &solution, stats));
+  const std::vector<int32_t> free_vertices = number_free_vertices(vertex_count, &solution);
+  const int64_t free_count = static_cast<int64_t>(free_vertices.size());
+  stats->free_vertices = free_count;
+  if (free_count == 0) {
+    stats->solver = "none";
+    stats->max_raw_weight = 1.0;
+    stats->assemble_seconds = assemble_start.seconds();
+    progress.update(kSolvedFraction);
+    return solution;
+  }
+
+  const SparseMatrix stiffness = fem_laplacian(mesh);
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+  FreeSystem system = assemble_free_system(stiffness, solution, free_vertices);
+  stats->assemble_seconds = assemble_start.seconds();
+  progress.update(kAssembledFraction);
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+
+  Eigen::MatrixXd x;
+  POSEWARP_RETURN_IF_ERROR(solve_free_system(system, params.prefer_cholmod, progress, stats, &x));
+  SparseMatrix().swap(system.k_ff);
+  Eigen::MatrixXd().swap(system.rhs);
+  progress.update(kSolvedFraction);
+  POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+
+  const Stopwatch finish_start;
+  solution.free_weights = x.transpose();
+  Eigen::MatrixXd().swap(x);
+  raw_weight_statistics(stiffness, solution, free_vertices, stats);
   stats->finish_seconds = finish_start.seconds();
   return solution;
 }

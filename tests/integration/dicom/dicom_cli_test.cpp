@@ -12,6 +12,8 @@
 #include "../support/logged_run.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
+#include "posewarp/dicom/ct_series.h"
+#include "posewarp/dicom/segmentation.h"
 
 namespace posewarp {
 namespace {
@@ -75,17 +77,17 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   EXPECT_NE(posed->info.series_description.find("sample_hip_flexion"), std::string::npos);
   // The SEG on it: each voxel the segment named as the posed label's name in the rig's map.
   std::string seg_bytes = text(dir / "posed/seg.dcm");
-  Result<api::Segmentation> seg = api::read_segmentation(seg_bytes, b);
+  Result<dicom::Segmentation> seg = dicom::read_segmentation(seg_bytes, b);
   ASSERT_TRUE(seg.ok()) << seg.status().to_string();
   EXPECT_EQ(seg->referenced_series_uid, posed->info.series_instance_uid);
   std::map<int, std::string> name_of_segment;
-  for (const api::Segment& s : seg->segments) name_of_segment[s.number] = s.label;
+  for (const dicom::Segment& s : seg->segments) name_of_segment[s.number] = s.label;
   // The rig built from the SEG numbered its labels by segment: the posed NIfTI labels are segment numbers of the
   // input SEG, named the same way.
-  Result<api::Segmentation> input_seg = api::read_segmentation(text(dir / "study/seg.dcm"), source->ct.geometry());
+  Result<dicom::Segmentation> input_seg = dicom::read_segmentation(text(dir / "study/seg.dcm"), source->ct.geometry());
   ASSERT_TRUE(input_seg.ok());
   std::map<int, std::string> input_name;
-  for (const api::Segment& s : input_seg->segments) input_name[s.number] = s.label;
+  for (const dicom::Segment& s : input_seg->segments) input_name[s.number] = s.label;
   int64_t labelled = 0;
   for (int64_t k = 0; k < b.size[2]; ++k) {
     for (int64_t j = 0; j < b.size[1]; j += 2) {

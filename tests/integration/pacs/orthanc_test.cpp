@@ -18,6 +18,8 @@
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/dicom/ct_series.h"
+#include "posewarp/dicom/segmentation.h"
 #include "posewarp/pacs/dicomweb.h"
 
 namespace posewarp {
@@ -68,7 +70,7 @@ class Orthanc : public ::testing::Test {
   std::unique_ptr<OrthancProcess> orthanc_;
   IntensityVolume ct_;
   LabelVolume labels_;
-  labels::LabelMap map_;
+  api::LabelMap map_;
   api::DicomOutputs study_;
 };
 
@@ -93,7 +95,7 @@ TEST_F(Orthanc, StoresFindsAndRetrievesASeriesVoxelForVoxel) {
   ASSERT_TRUE(paths.ok()) << paths.status().to_string();
   EXPECT_EQ(paths->size(), study_.ct_files.size());
   Result<api::CtSeries> retrieved = api::read_ct_directory((dir_ / "retrieved").string());
-  Result<api::CtSeries> stored = api::read_ct_series(study_.ct_files);
+  Result<api::CtSeries> stored = dicom::read_ct_series(study_.ct_files);
   ASSERT_TRUE(retrieved.ok() && stored.ok()) << retrieved.status().to_string();
   EXPECT_TRUE(retrieved->ct.geometry().same_grid(stored->ct.geometry(), 1e-9));
   EXPECT_EQ(retrieved->ct.voxels(), stored->ct.voxels());
@@ -168,11 +170,11 @@ TEST_F(Orthanc, APoseOfAStudyInThePacsIsStoredBackIntoThatStudy) {
   EXPECT_EQ(derived->info.study_instance_uid, study_uid);
   EXPECT_EQ(derived->info.patient_id, "PW-ORTHANC");
   EXPECT_EQ(derived->info.series_description, "posewarp: sample_hip_flexion (cor)");
-  EXPECT_EQ(derived->ct.voxels(), api::read_ct_series(outputs->ct_files)->ct.voxels());
+  EXPECT_EQ(derived->ct.voxels(), dicom::read_ct_series(outputs->ct_files)->ct.voxels());
   Result<std::vector<std::string>> seg_back =
       client.retrieve_series(study_uid, outputs->seg.series_instance_uid, (dir_ / "derived-seg").string());
   ASSERT_TRUE(seg_back.ok());
-  Result<api::Segmentation> seg = api::read_segmentation(files_of(*seg_back).front(), derived->ct.geometry());
+  Result<dicom::Segmentation> seg = dicom::read_segmentation(files_of(*seg_back).front(), derived->ct.geometry());
   ASSERT_TRUE(seg.ok()) << seg.status().to_string();
   EXPECT_EQ(seg->referenced_series_uid, outputs->ct.series_instance_uid);
 }

@@ -164,7 +164,7 @@ TEST_F(Server, UploadBuildAndPoseGiveWhatTheEnginePosesLocally) {
   EXPECT_EQ(info.joints_size(), static_cast<int>(engine->rig().skeleton.joints.size()));
   // Each joint's range of motion, measured at build, as the local rig says it.
   ASSERT_GT(info.joints_size(), 0);
-  const rig::Joint& first = engine->rig().skeleton.joints[0];
+  const auto& first = engine->rig().skeleton.joints[0];
   ASSERT_EQ(info.joints(0).ranges_size(), static_cast<int>(first.ranges.size()));
   ASSERT_GT(info.joints(0).ranges_size(), 0);
   EXPECT_EQ(info.joints(0).ranges(0).motion(), first.ranges[0].motion);

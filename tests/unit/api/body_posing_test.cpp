@@ -11,6 +11,7 @@
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/labels/body.h"
 #include "posewarp/phantom/phantom.h"
 #include "posewarp/pose/pose.h"
 #include "posewarp/rig/skin_contacts.h"

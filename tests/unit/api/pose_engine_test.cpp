@@ -243,7 +243,7 @@ TEST(Posing, SurfacesFollowTheirTetsAndBonesMoveRigidly) {
     // (the surface sits half a voxel outside the bone's voxel centres) and stay within a voxel and a half.
     double worst = 0.0;
     int64_t in_bone = 0;
-    const mapping::Embedding& e = engine.rig().embeddings[i];
+    const posewarp::Embedding& e = engine.rig().embeddings[i];
     for (Eigen::Index v = 0; v < before.vertices.rows(); ++v) {
       const Eigen::Vector3d expected = posed->segment_rotation[static_cast<size_t>(k)] * before.vertices.row(v).transpose() +
                                        posed->segment_translation[static_cast<size_t>(k)];

@@ -11,6 +11,7 @@
 
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/sha256.h"
+#include "posewarp/rig/skeleton.h"
 #include "rig_test_support.h"
 
 namespace posewarp::api {

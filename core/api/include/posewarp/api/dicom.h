@@ -6,43 +6,41 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/dicom/ct_series.h"
-#include "posewarp/dicom/segmentation.h"
-#include "posewarp/labels/label_map.h"
+#include "posewarp/common/dicom_series.h"
+#include "posewarp/common/label_map.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/volume.h"
 
 namespace posewarp::api {
 
-using dicom::CtSeries;
-using dicom::DerivedSeriesOptions;
-using dicom::encode_derived_ct;
-using dicom::encode_segmentation;
-using dicom::is_dicom_file;
-using dicom::new_uid;
-using dicom::read_ct_directory;
-using dicom::read_ct_series;
-using dicom::list_dicom_files;
-using dicom::read_dicom_files;
-using dicom::read_segmentation;
-using dicom::Segment;
-using dicom::Segmentation;
-using dicom::SeriesInfo;
-using dicom::write_derived_ct;
+using posewarp::CtSeries;
+using posewarp::DerivedSeriesOptions;
+using posewarp::DicomSegment;
+using posewarp::SeriesInfo;
+
+// True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
+bool is_dicom_file(const std::string& path);
+// A DICOM file, or a directory's DICOM files in name order (other files and subdirectories are skipped); NOT_FOUND
+// when there are none.
+Result<std::vector<std::string>> list_dicom_files(const std::string& path);
+// A CT series (HU, on a right-handed LPS grid) from a directory's DICOM files; `series_uid` picks one of several.
+Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid = "");
 
 struct DicomStudy {
   CtSeries ct;                 // the CT (HU) and its series: patient, study, instances
   LabelVolume labels;          // on the CT's grid; each voxel its segment's number
-  labels::LabelMap label_map;  // the map given, following the segments' names to their numbers
-  std::vector<Segment> segments;
+  LabelMap label_map;  // the map given, following the segments' names to their numbers
+  std::vector<DicomSegment> segments;
   std::vector<std::string> warnings;  // fractional segments thresholded, overlaps, names the map does not know
 };
 
 // A CT series (a directory of its files) and a SEG (a file) made on it; `map` (a preset or one's own) is
 // relabelled by the segments' names (labels::relabel_by_name).
 Result<DicomStudy> read_dicom_study(const std::string& ct_directory, const std::string& seg_path,
-                                    const labels::LabelMap& map);
+                                    const LabelMap& map);
 // The same from instances in memory (as a PACS sends them).
 Result<DicomStudy> read_dicom_study(const std::vector<std::string>& ct_instances, const std::string& seg_bytes,
-                                    const labels::LabelMap& map);
+                                    const LabelMap& map);
 
 // A pose's CT and labels as DICOM of `source`'s study: a derived CT series and a SEG on it, whose segments are
 // named by `map` (each label value present a segment).
@@ -52,7 +50,7 @@ struct DicomOutputs {
   std::string seg_file;
 };
 Result<DicomOutputs> encode_dicom_outputs(const IntensityVolume& ct, const LabelVolume& labels,
-                                          const labels::LabelMap& map, const SeriesInfo& source,
+                                          const LabelMap& map, const SeriesInfo& source,
                                           const DerivedSeriesOptions& options);
 // Writes DIR/ct/CT000001.dcm ... and DIR/seg.dcm (DIR made; it must be empty or missing).
 Status write_dicom_outputs(const DicomOutputs& outputs, const std::string& dir);
@@ -60,7 +58,7 @@ Status write_dicom_outputs(const DicomOutputs& outputs, const std::string& dir);
 // A study that never was DICOM (NIfTI, NRRD, ...) as a new DICOM study: a CT series and its SEG, segments named by
 // `map`, patient as given; for a PACS to hold the sample, or for tests.
 Result<DicomOutputs> encode_new_dicom_study(const IntensityVolume& ct, const LabelVolume& labels,
-                                            const labels::LabelMap& map, const std::string& patient_name,
+                                            const LabelMap& map, const std::string& patient_name,
                                             const std::string& patient_id, const DerivedSeriesOptions& options);
 
 }  // namespace posewarp::api

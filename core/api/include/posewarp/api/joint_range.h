@@ -10,7 +10,7 @@
 
 namespace posewarp::api {
 
-using rig::MotionRange;
+using posewarp::MotionRange;
 
 struct JointRange {
   std::string joint;

@@ -6,34 +6,29 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/label_map.h"
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
+#include "posewarp/common/skeleton.h"
+#include "posewarp/common/surface_mesh.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
-#include "posewarp/cor/rotation_centres.h"
-#include "posewarp/labels/body.h"
-#include "posewarp/labels/label_map.h"
-#include "posewarp/mapping/tet_locator.h"
-#include "posewarp/mesh/mesher.h"
-#include "posewarp/rig/skeleton.h"
-#include "posewarp/rig/skin_contacts.h"
-#include "posewarp/surface/surface_mesh.h"
-#include "posewarp/weights/laplace_weights.h"
 
 namespace posewarp::api {
 
 // What the weights do with tissue cut off from every bone (an island): attach it to the nearest bone, or fail.
-using weights::IslandPolicy;
+using posewarp::IslandPolicy;
 
 // Every knob of a rig build, validated together before any work starts.
 struct BuildParams {
-  rig::SkeletonParams skeleton;
-  labels::BodyParams body;
-  rig::SkinContactParams skin_contacts;  // body parts touching at rest are cut apart before meshing
-  mesh::MeshParams mesh;
-  weights::WeightsParams weights;
-  cor::CorParams cor;
-  surface::SurfaceParams surfaces;
+  SkeletonParams skeleton;
+  BodyMaskParams body;
+  SkinContactParams skin_contacts;  // body parts touching at rest are cut apart before meshing
+  MeshParams mesh;
+  WeightsParams weights;
+  CorParams cor;
+  SurfaceParams surfaces;
   bool tissue_surfaces = false;  // also extract a surface per soft-tissue label (bones and skin always)
 };
 
@@ -45,11 +40,11 @@ struct BuildInputs {
   LabelVolume labels;
   std::optional<IntensityVolume> ct;
   // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
-  std::vector<surface::SurfaceMesh> surfaces;
-  std::vector<mapping::Embedding> embeddings;       // on the labels' grid; joins the body mask and is kept for posing
+  std::vector<SurfaceMesh> surfaces;
+  std::vector<Embedding> embeddings;       // on the labels' grid; joins the body mask and is kept for posing
   std::optional<LabelVolume> body;         // a user's body mask (non-zero = body), replacing the computed one
-  labels::LabelMap label_map;
-  rig::RigSpec spec;
+  LabelMap label_map;
+  RigSpec spec;
   std::string labels_source;               // file names, for provenance only
   std::string ct_source;
 };
@@ -67,8 +62,8 @@ struct Rig {
   ImageGeometry source_geometry;           // the grid the rig was built from (labels and CT)
   std::string labels_hash;                 // hashes of the input voxels (hex)
   std::string ct_hash;                     // empty without a CT
-  labels::LabelMap label_map;
-  rig::Skeleton skeleton;
+  LabelMap label_map;
+  Skeleton skeleton;
   TetMesh mesh;
   SkinWeights weights;
   RotationCentres centres;
@@ -78,8 +73,8 @@ struct Rig {
   LabelVolume labels;
   std::optional<IntensityVolume> ct;
   // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
-  std::vector<surface::SurfaceMesh> surfaces;
-  std::vector<mapping::Embedding> embeddings;
+  std::vector<SurfaceMesh> surfaces;
+  std::vector<Embedding> embeddings;
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 
@@ -96,7 +91,7 @@ struct Rig {
 std::string rig_id_of(const BuildInputs& inputs, const BuildParams& params);
 
 // Builds a rig: body mask, skeleton, classes, mesh (with health checks), weights and centres of rotation.
-// Before any of it, what each volume is for (labels::check_labels_look_like_labels, labels::check_ct_is_not_labels):
+// Before any of it, what each volume is for (check_labels_look_like_labels, and a CT that is not labels):
 // a CT given as the labels, or labels given as the CT, is INVALID_ARGUMENT naming both inputs (labels_source,
 // ct_source).
 Result<Rig> build_rig(const BuildInputs& inputs, const BuildParams& params, const ProgressHooks& hooks);

@@ -6,9 +6,11 @@
 #include <string>
 #include <vector>
 
-#include "posewarp/labels/body.h"
-#include "posewarp/labels/label_map.h"
-#include "posewarp/phantom/phantom.h"
+#include "posewarp/common/label_map.h"
+#include "posewarp/common/phantom.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
+#include "posewarp/common/volume.h"
 
 namespace posewarp::api {
 
@@ -23,31 +25,30 @@ struct BoneSegmentSummary {
 struct StudyInspection {
   LabelVolume body;                // 1 inside the body
   LabelVolume classes;             // the mesher's input: 0 outside, 1 soft tissue, 2 + k bone segment k
-  labels::LabelCensus census;
+  LabelCensus census;
   std::vector<BoneSegmentSummary> bones;  // the map's bone segments present in the study
   int64_t body_voxels = 0;
   double body_volume_ml = 0.0;
 };
 
 // Body mask, mesher classes, census and per-segment summary of a segmentation (and its CT, may be null).
-Result<StudyInspection> inspect_study(const LabelVolume& labels, const IntensityVolume* ct, const labels::LabelMap& map,
-                                      const labels::BodyParams& params);
+Result<StudyInspection> inspect_study(const LabelVolume& labels, const IntensityVolume* ct, const LabelMap& map,
+                                      const BodyMaskParams& params);
 
-// The body mask's knobs (api::BodyParams is the body phantom's), and what a label volume holds.
-using BodyMaskParams = labels::BodyParams;
-using labels::LabelCensus;
+// The body mask's knobs (api::BodyParams is the body phantom's).
+using posewarp::BodyMaskParams;
 
-using phantom::BarParams;
-using phantom::body_grid;
-using phantom::body_spacing_for_voxels;
-using phantom::BodyParams;
-using phantom::make_bar;
-using phantom::make_body;
-using phantom::make_mannequin;
-using phantom::mannequin_spacing_for_voxels;
-using phantom::MannequinParams;
-using phantom::Phantom;
-using phantom::rotation_direction;
+// Phantoms (phantom/): a bar of bones, a mannequin and a realistic body, with their joints known by construction.
+using posewarp::BarParams;
+using BodyParams = posewarp::BodyPhantomParams;
+using posewarp::MannequinParams;
+using posewarp::Phantom;
+Result<Phantom> make_bar(const BarParams& params);
+Result<Phantom> make_mannequin(const MannequinParams& params);
+Result<Phantom> make_body(const BodyParams& params);
+// The spacing that gives a phantom about `target_voxels` voxels.
+double mannequin_spacing_for_voxels(const MannequinParams& params, int64_t target_voxels);
+Vec3 body_spacing_for_voxels(const BodyParams& params, int64_t target_voxels);
 
 // Writes labels<extension>, ct<extension>, label_map.json and joints.json into `dir` (created if needed) and
 // returns the paths written.

@@ -17,6 +17,10 @@ class AtomicFile {
   // directory, PERMISSION_DENIED for one that cannot be written, INVALID_ARGUMENT otherwise (a path that is a
   // directory among them, named as such). `kind` names what is written in messages ("rig file", "report").
   static Result<AtomicFile> create(const std::string& path, std::string_view kind);
+  // A file already written in full elsewhere on the target's file system (an upload staged before its name, the hash
+  // of its content, was known), committed under `path` as if written through an AtomicFile: flushed, renamed, its
+  // directory flushed. Removed unless commit() succeeds.
+  static AtomicFile adopt(const std::string& written, const std::string& path, std::string_view kind);
 
   AtomicFile(AtomicFile&& other) noexcept;
   AtomicFile& operator=(AtomicFile&& other) = delete;

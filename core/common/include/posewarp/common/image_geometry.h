@@ -42,4 +42,8 @@ struct ImageGeometry {
   std::string describe() const;
 };
 
+// The direction matrix (row-major, columns = index axes in LPS) of a rotation by `degrees` about `axis` (any
+// non-zero length), by Rodrigues' formula.
+std::array<double, 9> rotation_direction(Vec3 axis, double degrees);
+
 }  // namespace posewarp

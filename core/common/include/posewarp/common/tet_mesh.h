@@ -42,4 +42,13 @@ struct RotationCentres {
   std::vector<uint8_t> rigid;  // #V, 1 where one segment dominates and no centre is needed
 };
 
+// Barycentric embedding of points in the rest mesh.
+struct Embedding {
+  Eigen::VectorXi tet;                   // #P, the containing (or nearest) rest tet
+  Eigen::MatrixXd barycentric;           // #P x 4, weights of that tet's vertices (extrapolated outside the mesh)
+  std::vector<uint8_t> inside;           // #P, 1 where the point lies in its tet
+  int64_t outside_count = 0;             // points outside the mesh, placed by their nearest tet
+  double max_outside_distance_mm = 0.0;  // the farthest of them from its tet
+};
+
 }  // namespace posewarp

@@ -5,23 +5,13 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/status.h"
 #include "posewarp/common/tet_mesh.h"
 
 namespace posewarp::cor {
 
-// Knobs of the centre computation. Weights are unitless, in [0, 1].
-struct CorParams {
-  // Width of the similarity kernel of eq. 6, exp(-(w_pi w_tj - w_ti w_pj)^2 / sigma^2). Sujar et al. use a value
-  // below 0.1; smaller values make the centre depend only on tets with nearly the same weight ratios.
-  double sigma = 0.1;
-  // A vertex whose largest weight is at least this follows one segment rigidly and gets no centre.
-  double rigid_threshold = 0.999;
-  // Tets are clustered, per pair of bones, on a grid of 1 / quantization in that pair's two weights. Larger is
-  // slower and closer to the brute-force sum: on the unit-test bars 64 stays within 0.06% of the bounding-box
-  // diagonal of it (32 within 0.12%, about 2.5x faster).
-  int quantization = 64;
-};
+using posewarp::CorParams;  // posewarp/common/rig_params.h
 
 // OK, or INVALID_ARGUMENT naming the field, its valid range and the default to use.
 Status validate(const CorParams& params);

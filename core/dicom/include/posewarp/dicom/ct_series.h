@@ -6,28 +6,17 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/dicom_series.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/status.h"
 #include "posewarp/common/volume.h"
 
 namespace posewarp::dicom {
 
-// What a derived series takes from its source: patient, study, series and the instances it came from.
-struct SeriesInfo {
-  std::string specific_character_set;
-  std::string patient_name, patient_id, patient_birth_date, patient_sex;
-  std::string study_instance_uid, study_date, study_time, study_id, accession_number, referring_physician_name,
-      study_description;
-  std::string series_instance_uid, series_number, series_description, modality, frame_of_reference_uid;
-  std::string patient_position;  // HFS, FFS, ... (as the patient lay in the scanner)
-  std::string sop_class_uid;
-  std::vector<std::string> sop_instance_uids;  // in slice order (along the slice normal)
-};
-
-struct CtSeries {
-  IntensityVolume ct;  // Hounsfield units (each slice's rescale applied), on a right-handed LPS grid
-  SeriesInfo info;
-};
+// A series, its CT and the options of a derived series are vocabulary (posewarp/common/dicom_series.h).
+using posewarp::CtSeries;
+using posewarp::DerivedSeriesOptions;
+using posewarp::SeriesInfo;
 
 // A CT series from Part 10 files' bytes (one single-frame image each). Several series: `series_uid` names the one
 // to read (an error lists them otherwise). Refused with a message: missing geometry, multi-frame images, other
@@ -43,19 +32,6 @@ Result<std::vector<std::string>> list_dicom_files(const std::string& path);
 Result<std::vector<std::string>> read_dicom_files(const std::string& path);
 // read_ct_series from a directory's DICOM files.
 Result<CtSeries> read_ct_directory(const std::string& directory, const std::string& series_uid = "");
-
-// How a derived series is named and numbered.
-struct DerivedSeriesOptions {
-  // New UIDs are this root, a dot and a number: "2.25" (the default) makes UUID-derived UIDs that need no
-  // registered root; an organisation's own root works the same way. At most 40 characters.
-  std::string uid_root = "2.25";
-  std::string series_description;      // e.g. "posewarp: knee bent (CoR)"
-  std::string derivation_description;  // e.g. the pose and method in words
-  int series_number = 0;               // 0: the source's number + 1000
-  // Non-empty: every new UID is derived from this text (and what it names) instead of drawn at random, so writing
-  // the same result again gives the same UIDs (a PACS then replaces, never duplicates; a batch uses its row's key).
-  std::string uid_seed;
-};
 
 // A new UID under `root` (see DerivedSeriesOptions::uid_root); at most 64 characters.
 Result<std::string> new_uid(const std::string& root);

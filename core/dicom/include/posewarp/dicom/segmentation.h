@@ -7,24 +7,16 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/dicom_series.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/dicom/ct_series.h"
 
 namespace posewarp::dicom {
 
-// A coded concept (SNOMED CT and the like): value, scheme ("SCT", "DCM", ...), meaning.
-struct Code {
-  std::string value, scheme, meaning;
-};
-
-// One segment: its number (the label value it is read as; written: the label value it describes), its label and
-// description, its category and type codes.
-struct Segment {
-  int number = 0;
-  std::string label, description;
-  Code category, type;
-};
+// Segments are vocabulary (posewarp/common/dicom_series.h).
+using Code = posewarp::DicomCode;
+using Segment = posewarp::DicomSegment;
 
 struct Segmentation {
   LabelVolume labels;             // on the grid asked for; each voxel the number of its segment (0: none)

@@ -2,20 +2,14 @@
 #pragma once
 
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/labels/label_map.h"
 
 namespace posewarp::labels {
 
-struct BodyParams {
-  // Join a CT threshold mask to the labelled voxels when a CT is given (segmentations rarely label skin and fat).
-  bool use_ct = true;
-  float ct_threshold_hu = -500.0f;  // voxels above this are body candidates
-  // Keep only the largest 6-connected component of the CT mask (drops the table, blankets, cables).
-  bool keep_largest_component = true;
-  // Fill enclosed holes slice by slice along the grid axis closest to superior-inferior (bowel gas, airways).
-  bool fill_holes = true;
-};
+// The mask's knobs are vocabulary (posewarp/common/rig_params.h).
+using BodyParams = posewarp::BodyMaskParams;
 
 Status validate(const BodyParams& params);
 

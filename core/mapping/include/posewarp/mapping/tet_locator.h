@@ -75,14 +75,7 @@ class TetLocator {
   std::vector<int32_t> entry_tet_;
 };
 
-// Barycentric embedding of points in the rest mesh.
-struct Embedding {
-  Eigen::VectorXi tet;                   // #P, the containing (or nearest) rest tet
-  Eigen::MatrixXd barycentric;           // #P x 4, weights of that tet's vertices (extrapolated outside the mesh)
-  std::vector<uint8_t> inside;           // #P, 1 where the point lies in its tet
-  int64_t outside_count = 0;             // points outside the mesh, placed by their nearest tet
-  double max_outside_distance_mm = 0.0;  // the farthest of them from its tet
-};
+using posewarp::Embedding;  // posewarp/common/tet_mesh.h
 
 // Embeds points (#P x 3, LPS mm, in rest space) in the rest mesh, in parallel (posewarp::parallel_for).
 // INVALID_ARGUMENT for points that are not #P x 3 or not finite, or a mesh TetLocator::build refuses; CANCELLED when

@@ -9,42 +9,13 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
 
 namespace posewarp::mesh {
 
-// Knobs of the tetrahedralization (Sujar et al. 2018 section 3.2; CGAL Mesh_3 criteria). Lengths in mm.
-struct MeshParams {
-  double facet_size_mm = 6.0;          // largest boundary triangle (skin and bone surfaces), circumradius bound
-  double facet_distance_mm = 1.5;      // largest distance between a boundary triangle and the label boundary
-  double facet_angle_deg = 25.0;       // smallest angle of boundary triangles (<= 30 guarantees termination)
-  double bone_cell_size_mm = 6.0;      // largest tet circumradius inside and next to bone
-  double soft_cell_size_mm = 14.0;     // largest tet circumradius deep in soft tissue
-  double size_growth = 0.5;            // mm of extra cell size per mm of distance from the nearest bone
-  double cell_radius_edge_ratio = 3.0; // shape bound of tets
-  // Mesher grid voxels at most; a larger class volume is downsampled by an integer factor per axis with a
-  // bone-precedence majority vote (a block is bone when at least a quarter of it is bone) so thin bones survive.
-  int64_t voxel_budget = 24'000'000;
-  bool parallel = true;   // TBB-parallel refinement; false = sequential and reproducible for a given seed
-  uint32_t seed = 1;      // random seed of the sequential mode
-  bool exude = true;      // sliver exudation after refinement, always sequential (CGAL 5.5's parallel one can hang)
-  double exude_time_limit_s = 10.0;
-  // The parallel refinement is stopped after this long and the body meshed again sequentially (with a warning in
-  // MeshHealth): a build that sometimes never ends is worse than a slow one. 0 = no watchdog.
-  double parallel_watchdog_s = 120.0;
-  // Refinement stops with RESOURCE_EXHAUSTED at this many vertices (a body at the default sizes has about 100k; each
-  // vertex costs CGAL about 1 KB while it refines).
-  int64_t max_vertices = 2'000'000;
-  // Finer tets around the limbs' joints, where a bent joint folds its tissue in a band one tet thick at the default
-  // sizes: within joint_radius_mm of a joint centre at most joint_cell_size_mm, growing by size_growth beyond.
-  // 0 = off (the default).
-  double joint_cell_size_mm = 0.0;
-  double joint_radius_mm = 60.0;
-  // The joint centres (LPS mm) the rig build fills from its skeleton (every joint not declared a plane joint, such
-  // as the spine's) when joint_cell_size_mm is set: derived from the labels, so not part of the parameters' JSON.
-  std::vector<std::array<double, 3>> joint_centres_lps;
-};
+using posewarp::MeshParams;  // posewarp/common/rig_params.h
 
 // INVALID_ARGUMENT naming the field and its valid range.
 Status validate(const MeshParams& params);

@@ -4,16 +4,14 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/animation.h"
 #include "posewarp/common/result.h"
 #include "posewarp/pose/pose.h"
 #include "posewarp/rig/skeleton.h"
 
 namespace posewarp::pose {
 
-struct Animation {
-  std::vector<Pose> frames;
-  double frame_time_s = 1.0 / 30.0;  // seconds between frames, > 0
-};
+using posewarp::Animation;  // posewarp/common/animation.h
 
 // Animation JSON, version 1:
 //   {"format": "posewarp.animation", "version": 1, "frame_time_s": 0.04,

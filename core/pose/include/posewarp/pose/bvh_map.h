@@ -5,24 +5,13 @@
 #include <utility>
 #include <vector>
 
+#include "posewarp/common/animation.h"
 #include "posewarp/common/result.h"
 
 namespace posewarp::pose {
 
-// The rig-side name that makes the BVH root joint drive the pose's root transform (rotation and translation).
-inline constexpr const char* kBvhRootTarget = "root";
-
-struct BvhMap {
-  std::vector<std::pair<std::string, std::string>> joints;  // (BVH joint, rig joint or "root"), in file order
-  std::vector<std::string> ignore;                          // BVH joints whose motion is dropped
-  // BVH axes -> LPS, both right-handed, the character standing in the anatomical position at BVH rest:
-  //   'y' (y up, the character faces +z, its left is +x; CMU, Mixamo, most exporters):
-  //        x_lps = x_bvh, y_lps = -z_bvh, z_lps = y_bvh
-  //   'z' (z up, the character faces -y, its left is +x; Blender's front view): x_lps = x_bvh, y_lps = y_bvh,
-  //        z_lps = z_bvh
-  char up = 'y';
-  double scale_to_mm = 10.0;  // BVH length unit -> mm (10 for the usual centimetres); > 0
-};
+using posewarp::BvhMap;  // posewarp/common/animation.h
+using posewarp::kBvhRootTarget;
 
 // BVH map JSON, version 1 (only "joints" required; unknown fields and duplicate keys are errors):
 //   {"format": "posewarp.bvh_map", "version": 1, "up": "y", "scale_to_mm": 10,

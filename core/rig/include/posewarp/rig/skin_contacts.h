@@ -9,16 +9,14 @@
 #include <vector>
 
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/rig/skeleton.h"
 
 namespace posewarp::rig {
 
-struct SkinContactParams {
-  // Cut where two separated regions meet within this depth below the skin, mm; 0 = no cut.
-  double depth_mm = 30.0;
-};
+using posewarp::SkinContactParams;  // posewarp/common/rig_params.h
 
 Status validate(const SkinContactParams& params);
 

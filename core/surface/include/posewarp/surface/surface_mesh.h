@@ -10,6 +10,7 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/surface_mesh.h"
 #include "posewarp/common/volume.h"
 
@@ -18,11 +19,7 @@ namespace posewarp::surface {
 // The mesh itself is vocabulary (posewarp/common/surface_mesh.h), under the name the stage has always used.
 using posewarp::SurfaceMesh;
 
-struct SurfaceParams {
-  int smoothing_iterations = 20;  // windowed-sinc smoothing passes (vtkWindowedSincPolyDataFilter), 0 = none
-  double pass_band = 0.1;         // windowed-sinc pass band in (0, 2]; smaller smooths more
-  double decimation = 0.5;        // fraction of triangles removed by quadric decimation, in [0, 1); 0 = none
-};
+using posewarp::SurfaceParams;  // posewarp/common/rig_params.h
 
 // INVALID_ARGUMENT naming the field and its valid range.
 Status validate(const SurfaceParams& params);

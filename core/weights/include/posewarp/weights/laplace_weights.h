@@ -8,34 +8,14 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/rig_params.h"
 #include "posewarp/common/status.h"
 #include "posewarp/common/tet_mesh.h"
 
 namespace posewarp::weights {
 
-// What to do with a connected piece of the mesh that holds no bone vertex: the Laplace problem has no boundary
-// condition there (K_ff is singular on it).
-enum class IslandPolicy {
-  kAttachNearest,  // every vertex of the piece follows, with weight 1, the segment of the nearest bone vertex
-  kFail,           // FAILED_PRECONDITION naming the piece
-};
-
-// Knobs of the weight computation. Weights are unitless.
-struct WeightsParams {
-  // Segments kept per vertex (the largest weights), 1..8. Default 4; SkinWeights::influences is
-  // min(max_influences, segment_count).
-  int max_influences = 4;
-  // Weights below this, after clamping to [0, 1] and renormalizing, are dropped before the top-k selection, so a
-  // bone that only reaches a vertex through a long narrow passage (weight 1e-8, and rounding noise) does not take
-  // a slot. In [0, 0.01]; default 1e-6; 0 keeps every positive weight.
-  double prune_below = 1e-6;
-  // Default kAttachNearest.
-  IslandPolicy islands = IslandPolicy::kAttachNearest;
-  // Default true: CHOLMOD's supernodal LL^T (BLAS-3; METIS ordering from 5000 free vertices on, CHOLMOD's own
-  // choice below). Its speed is the BLAS's: link an optimized one (OpenBLAS) in production. Falls back to Eigen's
-  // SimplicialLDLT (AMD ordering; minutes on a 200k-vertex mesh) when false or when CHOLMOD fails.
-  bool prefer_cholmod = true;
-};
+using posewarp::IslandPolicy;  // posewarp/common/rig_params.h
+using posewarp::WeightsParams;
 
 // OK, or INVALID_ARGUMENT naming the field, its valid range and its default.
 Status validate(const WeightsParams& params);

@@ -1,0 +1,55 @@
+// DICOM series as posewarp reads and writes them: the identifying attributes of a series and its study, a CT read
+// from one, the options of a derived series, and the segments of a SEG. Reading and writing them: dicom/.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "posewarp/common/volume.h"
+
+namespace posewarp {
+
+// What a derived series takes from its source: patient, study, series and the instances it came from.
+struct SeriesInfo {
+  std::string specific_character_set;
+  std::string patient_name, patient_id, patient_birth_date, patient_sex;
+  std::string study_instance_uid, study_date, study_time, study_id, accession_number, referring_physician_name,
+      study_description;
+  std::string series_instance_uid, series_number, series_description, modality, frame_of_reference_uid;
+  std::string patient_position;  // HFS, FFS, ... (as the patient lay in the scanner)
+  std::string sop_class_uid;
+  std::vector<std::string> sop_instance_uids;  // in slice order (along the slice normal)
+};
+
+struct CtSeries {
+  IntensityVolume ct;  // Hounsfield units (each slice's rescale applied), on a right-handed LPS grid
+  SeriesInfo info;
+};
+
+// How a derived series is named and numbered.
+struct DerivedSeriesOptions {
+  // New UIDs are this root, a dot and a number: "2.25" (the default) makes UUID-derived UIDs that need no
+  // registered root; an organisation's own root works the same way. At most 40 characters.
+  std::string uid_root = "2.25";
+  std::string series_description;      // e.g. "posewarp: knee bent (CoR)"
+  std::string derivation_description;  // e.g. the pose and method in words
+  int series_number = 0;               // 0: the source's number + 1000
+  // Non-empty: every new UID is derived from this text (and what it names) instead of drawn at random, so writing
+  // the same result again gives the same UIDs (a PACS then replaces, never duplicates; a batch uses its row's key).
+  std::string uid_seed;
+};
+
+// A coded concept (SNOMED CT and the like): value, scheme ("SCT", "DCM", ...), meaning.
+struct DicomCode {
+  std::string value, scheme, meaning;
+};
+
+// One segment: its number (the label value it is read as; written: the label value it describes), its label and
+// description, its category and type codes.
+struct DicomSegment {
+  int number = 0;
+  std::string label, description;
+  DicomCode category, type;
+};
+
+}  // namespace posewarp
