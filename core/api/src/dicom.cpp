@@ -93,8 +93,8 @@ Result<DicomOutputs> encode_dicom_outputs(const IntensityVolume& ct, const Label
   seg_options.series_number = std::atoi(out.ct.series_number.c_str()) + 1;
   seg_options.series_description =
       (options.series_description.empty() ? std::string("posewarp") : options.series_description) + " labels";
-  POSEWARP_ASSIGN_OR_RETURN(out.seg_file,
-                            dicom::encode_segmentation(labels, segments_named_by(labels, map), out.ct, seg_options, &out.seg));
+  POSEWARP_ASSIGN_OR_RETURN(
+      out.seg_file, dicom::encode_segmentation(labels, segments_named_by(labels, map), out.ct, seg_options, &out.seg));
   return out;
 }
 

@@ -149,8 +149,8 @@ struct MannequinLimb {
 void paint_mannequin_limb(LabelVolume& labels, const MannequinLimb& limb, double gap) {
   detail::paint(labels, detail::sphere(limb.proximal, limb.head_radius + gap), mannequin_labels::kSoft);
   detail::paint(labels, detail::sphere(limb.proximal, limb.head_radius), limb.upper);
-  detail::paint(labels, detail::cylinder(limb.proximal, {limb.middle[0], 0, limb.middle[2] + gap / 2}, limb.upper_radius),
-                limb.upper);
+  const Vec3 upper_end{limb.middle[0], 0, limb.middle[2] + gap / 2};
+  detail::paint(labels, detail::cylinder(limb.proximal, upper_end, limb.upper_radius), limb.upper);
   detail::paint(labels, detail::cylinder({limb.middle[0], 0, limb.middle[2] - gap / 2}, limb.end, limb.lower_radius),
                 limb.lower);
 }

@@ -54,7 +54,8 @@ Result<std::string> encode_volume(const IntensityVolume& volume, VolumeFormat fo
                                   std::optional<PixelType> type = std::nullopt);
 // A displacement field (3 floats per voxel, mm) as an ITK vector image (.nii.gz, .nrrd, .mha), what ITK's
 // DisplacementFieldTransform, ANTs and elastix read.
-Status write_displacement_field(const std::vector<float>& field, const ImageGeometry& geometry, const std::string& path);
+Status write_displacement_field(const std::vector<float>& field, const ImageGeometry& geometry,
+                                const std::string& path);
 
 // Label maps: the JSON form (`source` names the text's origin in messages), files, and the built-in presets.
 Result<LabelMap> label_map_from_json(std::string_view json_text, std::string_view source);
