@@ -14,9 +14,7 @@
 #include <set>
 #include <thread>
 
-#include <fcntl.h>
 #include <sys/stat.h>
-#include <unistd.h>
 
 #include "posewarp/api/files.h"
 #include "posewarp/api/rig_file.h"
