@@ -269,18 +269,28 @@ int run_pose(const PoseOptions& o) {
     Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
     return surfaces.ok() ? 0 : report(surfaces);
   }
-  Result<api::PoseEngine> engine = load_engine(o.rig_path);
+  Stopwatch wall;
+  std::string breakdown = "wall:";
+  const auto lap = [&](const char* step) { breakdown += std::string(" ") + step + " " + fixed(wall.lap(), 2) + " s,"; };
+  Result<api::Rig> rig = api::load_rig(o.rig_path);
+  if (!rig.ok()) return report(rig.status());
+  lap("open");
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(*rig), progress_bar());
   if (!engine.ok()) return report(engine.status());
+  lap("engine");
   // The derived series is filed in --dicom-source's study: that series must be the one the rig was built from.
   if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
     return report(foreign_dicom_source(o.dicom_source));
   }
   Result<api::PoseResult> result = engine->pose(*request, progress_bar());
   if (!result.ok()) return report(result.status());
+  lap("pose");
   summarize(*result);
   Status written = write_outputs(*result, api::report_to_json(result->report), o.labels_out, o.ct_out, o.field_out,
                                  o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
+  lap("write");
+  say(breakdown + " total " + fixed(wall.seconds(), 2) + " s");
   if (dicom_source) {
     if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok())
       return report(s);

@@ -159,4 +159,45 @@ Status write_displacement_field(const std::vector<float>& field, const ImageGeom
   return file.commit();
 }
 
+namespace {
+
+template <typename Out>
+Status itk_write_as(const IntensityVolume& volume, PixelType type, const std::string& path) {
+  auto image = Image3<Out>::New();
+  detail::set_itk_geometry(image.GetPointer(), volume.geometry());
+  image->Allocate();
+  if (!convert_samples(volume.data(), volume.voxel_count(), type, reinterpret_cast<char*>(image->GetBufferPointer()))) {
+    return out_of_range_error("values do not fit " + std::string(pixel_type_name(type)));
+  }
+  try {
+    auto writer = itk::ImageFileWriter<Image3<Out>>::New();
+    writer->SetImageIO(itk::NiftiImageIO::New());
+    writer->SetInput(image);
+    writer->SetFileName(path);
+    writer->SetUseCompression(true);
+    writer->Update();
+  } catch (const itk::ExceptionObject& error) {
+    return invalid_argument_error("ITK could not write '" + path + "': " + error.GetDescription());
+  }
+  return ok_status();
+}
+
+}  // namespace
+
+Status itk_write_volume(const IntensityVolume& volume, PixelType type, const std::string& path) {
+  switch (type) {
+    case PixelType::kUInt8: return itk_write_as<uint8_t>(volume, type, path);
+    case PixelType::kInt8: return itk_write_as<int8_t>(volume, type, path);
+    case PixelType::kUInt16: return itk_write_as<uint16_t>(volume, type, path);
+    case PixelType::kInt16: return itk_write_as<int16_t>(volume, type, path);
+    case PixelType::kUInt32: return itk_write_as<uint32_t>(volume, type, path);
+    case PixelType::kInt32: return itk_write_as<int32_t>(volume, type, path);
+    case PixelType::kUInt64: return itk_write_as<uint64_t>(volume, type, path);
+    case PixelType::kInt64: return itk_write_as<int64_t>(volume, type, path);
+    case PixelType::kFloat32: return itk_write_as<float>(volume, type, path);
+    case PixelType::kFloat64: return itk_write_as<double>(volume, type, path);
+  }
+  return internal_error("unhandled voxel type");
+}
+
 }  // namespace posewarp::io

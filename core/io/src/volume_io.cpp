@@ -36,6 +36,7 @@
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 #include "itk_geometry.h"
+#include "nifti_writer.h"
 
 namespace posewarp::io {
 namespace fs = std::filesystem;
@@ -489,6 +490,12 @@ Status write_any(const Volume<In>& volume, const std::string& path, const WriteO
     return invalid_argument_error("DICOM series store integer voxels of up to 32 bits; " +
                                   std::string(pixel_type_name(type)) + " cannot be written to " + in_quotes(path) +
                                   ". Write NIfTI/NRRD/MetaImage, or choose an integer --pixel-type");
+  }
+  if (format == VolumeFormat::kNifti && (ends_with(path, ".nii") || ends_with(path, ".nii.gz"))) {
+    const detail::ConvertVoxels convert = [&](int64_t first, int64_t count, char* out) {
+      convert_samples(volume.data() + first, count, type, out);  // the range was checked above
+    };
+    return detail::write_nifti(volume.geometry(), type, convert, path, ends_with(path, ".gz"));
   }
   const std::string modality = options.dicom_modality.empty() ? default_modality : options.dicom_modality;
   switch (type) {

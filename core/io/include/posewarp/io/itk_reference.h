@@ -27,4 +27,8 @@ Result<LabelVolume> itk_resample_labels_with_field(const LabelVolume& source, co
 // DisplacementFieldTransform, ANTs and elastix read.
 Status write_displacement_field(const std::vector<float>& field, const ImageGeometry& geometry, const std::string& path);
 
+// ITK's own ImageFileWriter (NiftiImageIO for .nii and .nii.gz, zlib's default level), the voxels rounded to `type`
+// as write_volume stores them: the reference posewarp's NIfTI writer is tested and benchmarked against.
+Status itk_write_volume(const IntensityVolume& volume, PixelType type, const std::string& path);
+
 }  // namespace posewarp::io
