@@ -2,8 +2,12 @@
 // solve apart), the volume warp against ITK's ResampleImageFilter
 // through a DisplacementFieldTransform (same output grid, volume and threads, same run), and whole poses of the
 // real sample and of a mannequin.
-// Usage: posewarp_bench_pose [--threads N] [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)]
-//                            [--repeats R]
+// Usage: posewarp_bench_pose [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M (0 = skip)]
+//                            [--body-mvoxels M (0 = skip)] [--repeats R] [--data-dir DIR]
+// With several thread counts it prints the scaling table instead: per case, the whole pose, each stage and ITK on
+// the same warp at each count, and the parallel efficiency from the smallest count of at least 2 to the largest.
+// --data-dir names the real sample's folder (seg_total.nii.gz, ct.nii.gz) where the build tree's path does not
+// exist (a bundle run on another machine).
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Geometry>
@@ -15,7 +19,10 @@
 #include <functional>
 #include <iostream>
 #include <limits>
+#include <map>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/common/parallel.h"
@@ -235,6 +242,68 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   return row;
 }
 
+// One case's scaling: the engine made once, then per thread count the best whole pose, each stage's best and ITK's
+// resampler on the same warp (labels + CT), printed as a table with each row's efficiency.
+nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::Pose& pose,
+                             const std::vector<int>& counts, int repeats) {
+  const api::PoseEngine engine = std::move(api::PoseEngine::create(std::move(rig))).value();
+  api::PoseRequest request;
+  request.pose = pose;
+  request.want_fields = true;
+  const api::PoseResult with_fields = std::move(engine.pose(request)).value();
+  request.want_fields = false;
+  std::vector<std::string> rows{"whole pose", "warp labels + CT"};
+  for (const auto& [stage, seconds] : with_fields.report.stage_seconds) rows.push_back(stage);
+  rows.push_back("ITK warp labels + CT");
+  std::map<std::string, std::vector<double>> ms;  // row -> per count
+  for (const int threads : counts) {
+    ProgressHooks hooks;
+    hooks.threads = threads;
+    std::map<std::string, double> best;
+    const double whole_s = best_of(repeats, [&] {
+      const api::PoseResult result = std::move(engine.pose(request, hooks)).value();
+      double warp = 0.0;
+      for (const auto& [stage, seconds] : result.report.stage_seconds) {
+        best[stage] = best.count(stage) ? std::min(best[stage], seconds) : seconds;
+        if (stage.rfind("warp", 0) == 0) warp += seconds;
+      }
+      best["warp labels + CT"] = best.count("warp labels + CT") ? std::min(best["warp labels + CT"], warp) : warp;
+    });
+    best["whole pose"] = whole_s;
+    run_in_arena(threads, [&] {
+      best["ITK warp labels + CT"] = best_of(repeats, [&] {
+        (void)io::itk_resample_with_field(*engine.rig().ct, with_fields.inverse_field, with_fields.output_grid,
+                                          -1024.0f);
+        (void)io::itk_resample_labels_with_field(engine.rig().labels, with_fields.inverse_field,
+                                                 with_fields.output_grid);
+      });
+    });
+    for (const std::string& row : rows) ms[row].push_back(1000.0 * best[row]);
+  }
+  // Efficiency from the first count of at least 2 threads (a 2-core machine's figure) to the last.
+  size_t from = 0;
+  while (from + 1 < counts.size() && counts[from] < 2) ++from;
+  const size_t to = counts.size() - 1;
+  std::printf("\n%s, %lld voxels, ms by threads (efficiency %d -> %d threads):\n\n| stage |", name.c_str(),
+              static_cast<long long>(with_fields.output_grid.voxel_count()), counts[from], counts[to]);
+  for (const int threads : counts) std::printf(" %d |", threads);
+  std::printf(" efficiency |\n|---|");
+  for (size_t c = 0; c <= counts.size(); ++c) std::printf("---|");
+  std::printf("\n");
+  nlohmann::json table{{"case", name}, {"threads", counts}};
+  for (const std::string& row : rows) {
+    std::printf("| %s |", row.c_str());
+    for (const double value : ms[row]) std::printf(" %.1f |", value);
+    const double efficiency =
+        ms[row][from] / ms[row][to] / (static_cast<double>(counts[to]) / static_cast<double>(counts[from]));
+    std::printf(" %.0f%% |\n", 100.0 * efficiency);
+    table["ms"][row] = ms[row];
+    table["efficiency"][row] = efficiency;
+  }
+  std::fflush(stdout);
+  return table;
+}
+
 pose::Pose flexion(const std::string& joint, double degrees) {
   pose::Pose p;
   p.name = joint + " flexion";
@@ -257,58 +326,91 @@ Result<api::Rig> rig_of(Result<phantom::Phantom> p) {
   return rig;
 }
 
+// "1,2,4" -> {1, 2, 4}; empty on anything else.
+std::vector<int> thread_counts(const char* text) {
+  std::vector<int> counts;
+  for (const char* at = text; *at;) {
+    char* end = nullptr;
+    const long value = std::strtol(at, &end, 10);
+    if (end == at || value < 0 || value > 1024) return {};
+    counts.push_back(static_cast<int>(value));
+    at = *end == ',' ? end + 1 : end;
+    if (*end != ',' && *end != '\0') return {};
+  }
+  return counts;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  int threads = 0, repeats = 3;
+  std::vector<int> counts{0};
+  int repeats = 3;
   double mannequin_mvoxels = 20.0, body_mvoxels = 20.0;
+  std::string dir = POSEWARP_SAMPLE_DIR;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
-      threads = std::atoi(argv[++i]);
+      counts = thread_counts(argv[++i]);
     } else if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
       mannequin_mvoxels = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--body-mvoxels") && i + 1 < argc) {
       body_mvoxels = std::atof(argv[++i]);
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(1, std::atoi(argv[++i]));
+    } else if (!std::strcmp(argv[i], "--data-dir") && i + 1 < argc) {
+      dir = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: %s [--threads N] [--mannequin-mvoxels M] [--body-mvoxels M] [--repeats R]\n",
+      counts.clear();
+    }
+    if (counts.empty()) {
+      std::fprintf(stderr,
+                   "usage: %s [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M] [--body-mvoxels M] "
+                   "[--repeats R] [--data-dir DIR]\n",
                    argv[0]);
       return 2;
     }
   }
-  set_thread_count(threads);
+  const bool sweep = counts.size() > 1;
+  set_thread_count(sweep ? *std::max_element(counts.begin(), counts.end()) : counts[0]);
   std::printf("threads: %d\n", thread_count());
+  // A case: its rig, then either the full bench at the process's thread count or the sweep.
   nlohmann::json out;
-  out["skinning_1M"] = bench_skinning(repeats);
+  auto bench = [&](const std::string& name, Result<api::Rig> rig, const pose::Pose& pose) {
+    if (!rig.ok()) return false;
+    if (sweep) {
+      out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats));
+    } else {
+      out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats));
+    }
+    return true;
+  };
+  if (!sweep) out["skinning_1M"] = bench_skinning(repeats);
 
-  const std::string dir = POSEWARP_SAMPLE_DIR;
   api::BuildInputs sample;
-  sample.labels = *io::read_label_volume(dir + "/seg_total.nii.gz");
-  sample.ct = *io::read_intensity_volume(dir + "/ct.nii.gz");
-  sample.label_map = labels::totalsegmentator_v2_preset();
-  Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
-  if (!sample_rig.ok()) {
-    std::fprintf(stderr, "%s\n", sample_rig.status().to_string().c_str());
+  Result<LabelVolume> sample_labels = io::read_label_volume(dir + "/seg_total.nii.gz");
+  Result<IntensityVolume> sample_ct = io::read_intensity_volume(dir + "/ct.nii.gz");
+  if (!sample_labels.ok() || !sample_ct.ok()) {
+    std::fprintf(stderr, "the real sample is not in %s (--data-dir DIR): %s\n", dir.c_str(),
+                 (sample_labels.ok() ? sample_ct.status() : sample_labels.status()).to_string().c_str());
     return 1;
   }
-  out["poses"].push_back(bench_pose("real-sample", std::move(sample_rig).value(), flexion("hip_left", 30.0), repeats));
+  sample.labels = std::move(sample_labels).value();
+  sample.ct = std::move(sample_ct).value();
+  sample.label_map = labels::totalsegmentator_v2_preset();
+  Result<api::Rig> sample_rig = api::build_rig(sample, {}, {});
+  if (!sample_rig.ok()) std::fprintf(stderr, "%s\n", sample_rig.status().to_string().c_str());
+  if (!bench("real-sample", std::move(sample_rig), flexion("hip_left", 30.0))) return 1;
 
   pose::Pose knee_and_arm = flexion("knee_left", 90.0);
   knee_and_arm.joints.push_back(pose::anatomical_rotation("shoulder_right", 0.0, 90.0));
   if (mannequin_mvoxels > 0.0) {
     phantom::MannequinParams params;
     params.spacing_mm = phantom::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mannequin_mvoxels * 1e6));
-    Result<api::Rig> rig = rig_of(phantom::make_mannequin(params));
-    if (!rig.ok()) return 1;
-    out["poses"].push_back(bench_pose("mannequin", std::move(rig).value(), knee_and_arm, repeats));
+    if (!bench("mannequin", rig_of(phantom::make_mannequin(params)), knee_and_arm)) return 1;
   }
   if (body_mvoxels > 0.0) {
     phantom::BodyParams params;
     params.spacing_mm = phantom::body_spacing_for_voxels(params, static_cast<int64_t>(body_mvoxels * 1e6));
-    Result<api::Rig> rig = rig_of(phantom::make_body(params));
-    if (!rig.ok()) return 1;
-    out["poses"].push_back(bench_pose("body", std::move(rig).value(), knee_and_arm, repeats));
+    if (!bench("body", rig_of(phantom::make_body(params)), knee_and_arm)) return 1;
   }
   std::cout << out.dump(2) << "\n";
   return 0;

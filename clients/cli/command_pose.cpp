@@ -3,6 +3,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iomanip>
 #include <iostream>
 #include <optional>
@@ -282,14 +283,32 @@ int run_pose(const PoseOptions& o) {
   if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
     return report(foreign_dicom_source(o.dicom_source));
   }
+  // Each volume is written as soon as it is posed, while the engine goes on (the CT's warp, the label report); a
+  // DICOM output needs both volumes at the end instead.
+  std::future<Status> labels_written, ct_written;
+  if (o.dicom_out.empty() && !o.labels_out.empty()) {
+    request->labels_ready = [&](std::shared_ptr<const LabelVolume> labels) {
+      labels_written = std::async(std::launch::async, [&, labels] { return api::write_volume(*labels, o.labels_out); });
+    };
+  }
+  if (o.dicom_out.empty() && !o.ct_out.empty()) {
+    request->ct_ready = [&](std::shared_ptr<const IntensityVolume> ct) {
+      ct_written = std::async(std::launch::async, [&, ct] { return api::write_volume(*ct, o.ct_out); });
+    };
+  }
   Result<api::PoseResult> result = engine->pose(*request, progress_bar());
   if (!result.ok()) return report(result.status());
   lap("pose");
   summarize(*result);
+  for (auto [written, path] : {std::pair{&labels_written, &o.labels_out}, std::pair{&ct_written, &o.ct_out}}) {
+    if (!written->valid()) continue;
+    if (Status s = written->get(); !s.ok()) return report(s);
+    say("wrote " + *path);
+  }
   Status written = write_outputs(*result, api::report_to_json(result->report), o.labels_out, o.ct_out, o.field_out,
                                  o.report_out, engine->rig().labels.geometry());
   if (!written.ok()) return report(written);
-  lap("write");
+  lap("write (what the pose did not overlap)");
   say(breakdown + " total " + fixed(wall.seconds(), 2) + " s");
   if (dicom_source) {
     if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok())

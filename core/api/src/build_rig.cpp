@@ -6,6 +6,8 @@
 
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig.h"
+
+#include "engine_tables.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/sha256.h"
@@ -43,6 +45,8 @@ int64_t Rig::footprint_bytes() const {
            static_cast<int64_t>(centres.rigid.size());
   for (const surface::SurfaceMesh& m : surfaces) total += bytes(m.vertices) + bytes(m.triangles);
   for (const mapping::Embedding& e : embeddings) total += bytes(e.tet) + bytes(e.barycentric);
+  total += static_cast<int64_t>((rest_owner.size() + bone_substitute.size()) * sizeof(int32_t) +
+                                body_region.size() * sizeof(int16_t));
   return total;
 }
 
@@ -295,6 +299,9 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     rig.skeleton.joints[j].ranges = ranges[j].motions;
   }
   clock.lap("ranges");
+  POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "engine tables").check_cancel());
+  POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
+  clock.lap("engine tables");
   rig.provenance.stats_json = stats.dump();
   return rig;
 }

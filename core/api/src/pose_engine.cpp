@@ -1,6 +1,8 @@
 // PoseEngine: forward kinematics, skinning, tet maps, the volume warp and the quality report, timed per stage.
 // A pose runs as numbered steps (pose_unguarded), each a function of its own over what create() prepared.
 #include "posewarp/api/pose_engine.h"
+
+#include "engine_tables.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/stopwatch.h"
@@ -22,6 +24,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <unordered_map>
@@ -147,26 +150,38 @@ std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const p
   return {std::atan2(-m(1, 2), m(2, 2)) * kDegrees, std::asin(std::clamp(m(0, 2), -1.0, 1.0)) * kDegrees};
 }
 
+// The lowest voxel of a volume, over every thread.
+float lowest_value(const IntensityVolume& volume) {
+  std::mutex merge;
+  float lowest = std::numeric_limits<float>::max();
+  parallel_for(0, volume.voxel_count(), int64_t{1} << 20, [&](int64_t begin, int64_t end) {
+    const float low = *std::min_element(volume.data() + begin, volume.data() + end);
+    const std::lock_guard<std::mutex> lock(merge);
+    lowest = std::min(lowest, low);
+  });
+  return lowest;
+}
+
 // Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
 void prepare_preview(const Rig& rig, PreviewRig& preview) {
-  std::unordered_map<int32_t, int32_t> tet_index, vertex_index;
+  // New numbers in the order of first use (-1: not used yet).
+  std::vector<int32_t> tet_index(static_cast<size_t>(rig.mesh.tet_count()), -1);
+  std::vector<int32_t> vertex_index(static_cast<size_t>(rig.mesh.vertex_count()), -1);
   std::vector<int32_t> tets, vertices;
+  auto number = [](std::vector<int32_t>& index, std::vector<int32_t>& used, int32_t old) {
+    int32_t& renumbered = index[static_cast<size_t>(old)];
+    if (renumbered < 0) renumbered = static_cast<int32_t>(used.size()), used.push_back(old);
+    return renumbered;
+  };
   for (const mapping::Embedding& e : rig.embeddings) {
     mapping::Embedding sub = e;
-    for (int64_t p = 0; p < e.tet.size(); ++p) {
-      const auto [it, fresh] = tet_index.emplace(e.tet(p), static_cast<int32_t>(tets.size()));
-      if (fresh) tets.push_back(e.tet(p));
-      sub.tet(p) = it->second;
-    }
+    for (int64_t p = 0; p < e.tet.size(); ++p) sub.tet(p) = number(tet_index, tets, e.tet(p));
     preview.embeddings.push_back(std::move(sub));
   }
   preview.mesh.tets.resize(static_cast<Eigen::Index>(tets.size()), 4);
   for (size_t t = 0; t < tets.size(); ++t) {
     for (int c = 0; c < 4; ++c) {
-      const int32_t v = rig.mesh.tets(tets[t], c);
-      const auto [it, fresh] = vertex_index.emplace(v, static_cast<int32_t>(vertices.size()));
-      if (fresh) vertices.push_back(v);
-      preview.mesh.tets(static_cast<Eigen::Index>(t), c) = it->second;
+      preview.mesh.tets(static_cast<Eigen::Index>(t), c) = number(vertex_index, vertices, rig.mesh.tets(tets[t], c));
     }
   }
   const auto n = static_cast<Eigen::Index>(vertices.size());
@@ -366,17 +381,19 @@ std::vector<std::string> segment_names(const rig::Skeleton& skeleton) {
 std::vector<int16_t> tet_regions(const Rig& rig, const std::vector<int16_t>& region) {
   const ImageGeometry& g = rig.labels.geometry();
   std::vector<int16_t> tet_region(static_cast<size_t>(rig.mesh.tet_count()), -1);
-  for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
-    const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
-    // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
-    // undefined; such a centre lies in no voxel.
-    auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
-    const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
-    if (rig.labels.contains(i, j, k))
-      tet_region[static_cast<size_t>(t)] = region[static_cast<size_t>(g.offset(i, j, k))];
-  }
+  parallel_for(0, rig.mesh.tet_count(), 4096, [&](int64_t begin, int64_t end) {
+    for (int64_t t = begin; t < end; ++t) {
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
+      const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
+      // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
+      // undefined; such a centre lies in no voxel.
+      auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
+      const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
+      if (rig.labels.contains(i, j, k))
+        tet_region[static_cast<size_t>(t)] = region[static_cast<size_t>(g.offset(i, j, k))];
+    }
+  });
   return tet_region;
 }
 
@@ -391,25 +408,20 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       }
       auto p = std::make_shared<Prepared>();
       p->frames = skinning::rest_tet_frames(rig.mesh);
-      const ImageGeometry& g = rig.labels.geometry();
-      POSEWARP_ASSIGN_OR_RETURN(
-          resample::TetWarp identity,
-          resample::TetWarp::build({.rest = rig.mesh, .posed = rig.mesh.vertices, .source = g, .output = g}, hooks));
-      p->rest_owner = identity.owner();
+      // A rig file holds its owner and region tables; a rig from an earlier version gets them made here.
+      if (rig.rest_owner.empty() || rig.body_region.empty() || rig.bone_substitute.empty()) {
+        POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
+      }
+      p->rest_owner = std::move(rig.rest_owner);
+      p->region = std::move(rig.body_region);
       std::vector<std::vector<Label>> segment_labels;
       for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
-      POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels, resample::bone_voxels(rig.labels, segment_labels));
-      // Body regions for the skin-contact guard: the body as the build made it (default body parameters).
-      POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
-                                labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
-      POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
-      p->region = std::move(regions.segment);
+      POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels, resample::bone_voxels(rig.labels, segment_labels,
+                                                                      std::move(rig.bone_substitute)));
       p->separated = rig::separated_segments(rig.skeleton);
       p->tet_region = tet_regions(rig, p->region);
       p->rest_label_counts = report::label_counts(rig.labels);
-      if (rig.ct) {
-        for (const float v : rig.ct->voxels()) p->ct_minimum = std::min(p->ct_minimum, v);
-      }
+      if (rig.ct) p->ct_minimum = std::min(0.0f, lowest_value(*rig.ct));
       prepare_preview(rig, p->preview);
       p->rig = std::move(rig);
       return PoseEngine(std::move(p));

@@ -4,6 +4,7 @@
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/input_file.h"
 #include "posewarp/common/json.h"
+#include "posewarp/common/parallel.h"
 #include "posewarp/labels/label_map.h"
 #include "posewarp/mapping/tet_locator.h"
 #include "posewarp/rig/skeleton.h"
@@ -12,12 +13,14 @@
 #include <nlohmann/json.hpp>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 
+#include "table_sections.h"
 #include "rig_json.h"
 
 namespace posewarp::api {
@@ -47,7 +50,15 @@ constexpr uint32_t kProvenance = tag("PROV");
 constexpr uint32_t kLabelVolume = tag("LVOL");
 constexpr uint32_t kSurfaces = tag("SURF");
 constexpr uint32_t kCtVolume = tag("CTVO");
+constexpr uint32_t kRestOwner = tag("OWNR");
+constexpr uint32_t kBodyRegion = tag("REGN");
+constexpr uint32_t kBoneSubstitute = tag("SUBS");
 constexpr uint32_t kEnd = tag("END!");
+
+// Sections holding a volume's worth of values: read in parallel, after the others.
+bool is_bulk(uint32_t t) {
+  return t == kLabelVolume || t == kCtVolume || t == kRestOwner || t == kBodyRegion || t == kBoneSubstitute;
+}
 
 uint64_t checksum(const std::string& payload) {
   return std::stoull(hash_bytes(payload.data(), payload.size()), nullptr, 16);
@@ -80,7 +91,7 @@ class Writer {
 
 class Reader {
  public:
-  Reader(const std::string& bytes, std::string section) : bytes_(bytes), section_(std::move(section)) {}
+  Reader(std::string_view bytes, std::string section) : bytes_(bytes), section_(std::move(section)) {}
   template <typename T>
   Status get(T& value) {
     return get_bytes(&value, sizeof(T));
@@ -95,10 +106,17 @@ class Reader {
     return ok_status();
   }
   Status get_string(std::string& s) {
+    std::string_view view;
+    POSEWARP_RETURN_IF_ERROR(get_view(view));
+    s.assign(view);
+    return ok_status();
+  }
+  // A string's bytes where they lie in the payload.
+  Status get_view(std::string_view& s) {
     uint64_t size = 0;
     POSEWARP_RETURN_IF_ERROR(get(size));
     if (size > bytes_.size() - offset_) return data_loss_error("rig section " + section_ + " has a bad string length");
-    s.assign(bytes_.data() + offset_, size);
+    s = bytes_.substr(offset_, size);
     offset_ += size;
     return ok_status();
   }
@@ -128,7 +146,7 @@ class Reader {
   }
 
  private:
-  const std::string& bytes_;
+  std::string_view bytes_;
   std::string section_;
   size_t offset_ = 0;
 };
@@ -161,7 +179,7 @@ std::string volume_section(const Volume<T>& volume) {
 }
 
 template <typename T>
-Status read_volume_section(const std::string& payload, const std::string& name, Volume<T>& volume) {
+Status read_volume_section(std::string_view payload, const std::string& name, Volume<T>& volume) {
   Reader r(payload, name);
   ImageGeometry g;
   for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
@@ -172,8 +190,8 @@ Status read_volume_section(const std::string& payload, const std::string& name, 
   POSEWARP_RETURN_IF_ERROR(r.get(type));
   uint64_t raw = 0;
   POSEWARP_RETURN_IF_ERROR(r.get(raw));
-  std::string packed;
-  POSEWARP_RETURN_IF_ERROR(r.get_string(packed));
+  std::string_view packed;
+  POSEWARP_RETURN_IF_ERROR(r.get_view(packed));
   if (g.validate().ok() == false || raw != static_cast<uint64_t>(g.voxel_count()) * sizeof(T)) {
     return data_loss_error("rig section " + name + " describes an inconsistent volume");
   }
@@ -184,10 +202,7 @@ Status read_volume_section(const std::string& payload, const std::string& name, 
   }
   volume = Volume<T>(g);
   volume.set_source_type(static_cast<PixelType>(type));
-  uLongf size = static_cast<uLongf>(raw);
-  if (uncompress(reinterpret_cast<Bytef*>(volume.data()), &size, reinterpret_cast<const Bytef*>(packed.data()),
-                 static_cast<uLong>(packed.size())) != Z_OK ||
-      size != raw) {
+  if (!internal::inflate_exactly(packed, volume.data(), static_cast<size_t>(raw))) {
     return data_loss_error("rig section " + name + " does not decompress; the file is damaged");
   }
   return ok_status();
@@ -267,6 +282,11 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
   }
   if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, volume_section(rig.labels));
   if (rig.ct) sections.emplace_back(kCtVolume, volume_section(*rig.ct));
+  if (!rig.rest_owner.empty()) sections.emplace_back(kRestOwner, internal::owner_section(rig.rest_owner));
+  if (!rig.body_region.empty()) sections.emplace_back(kBodyRegion, internal::region_section(rig.body_region));
+  if (!rig.bone_substitute.empty()) {
+    sections.emplace_back(kBoneSubstitute, internal::substitute_section(rig.bone_substitute));
+  }
   for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
   {
     nlohmann::json prov;
@@ -379,6 +399,16 @@ Status read_matrix(Reader& r, Target& target) {
 }
 
 // Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
+// A section holding a volume's worth of values: each writes its own member of the rig, so they parse in parallel.
+Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload) {
+  const std::string name = tag_name(t);
+  if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
+  if (t == kCtVolume) return read_volume_section(payload, name, *rig.ct);
+  if (t == kRestOwner) return internal::read_owner_section(payload, rig.rest_owner);
+  if (t == kBodyRegion) return internal::read_region_section(payload, rig.body_region);
+  return internal::read_substitute_section(payload, rig.bone_substitute);
+}
+
 Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   const std::string name = tag_name(t);
   if (t == kGeometry) return read_geometry_section(payload, name, rig);
@@ -418,11 +448,6 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   }
   if (t == kCentres) return read_centres_section(payload, name, rig);
   if (t == kSurfaces) return read_surfaces_section(payload, name, rig);
-  if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
-  if (t == kCtVolume) {
-    rig.ct.emplace();
-    return read_volume_section(payload, name, *rig.ct);
-  }
   if (t == kProvenance) return read_provenance_section(payload, rig);
   rig.unknown_sections.emplace_back(t, payload);
   return ok_status();
@@ -480,6 +505,7 @@ Status check_consistency(const Rig& rig) {
     return data_loss_error("rig weights hold values outside [0, 1]");
   }
   if (!rig.mesh.vertices.allFinite()) return data_loss_error("rig mesh has NaN or infinite vertices");
+  POSEWARP_RETURN_IF_ERROR(internal::check_engine_tables(rig));
   for (const rig::Joint& joint : rig.skeleton.joints) {
     if (!joint.centre_mm.allFinite() || !joint.frame.allFinite()) {
       return data_loss_error("rig joint '" + joint.name + "' has a NaN or infinite centre or frame");
@@ -546,6 +572,15 @@ Result<Rig> load_rig(const std::string& path) {
   return rig_from_bytes(file, "'" + path + "'");
 }
 
+namespace {
+
+Status section_damaged(const std::string& where, uint32_t t) {
+  return data_loss_error(where + ": section " + tag_name(t) +
+                         " fails its checksum; the file is damaged. Rebuild the rig");
+}
+
+}  // namespace
+
 static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::string& where) {
   if (file.size() < 16 || std::memcmp(file.data(), kMagic, sizeof(kMagic)) != 0) {
     return invalid_argument_error(where + " is not a posewarp rig file (build one with `posewarp rig build`)");
@@ -560,7 +595,13 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
   Rig rig;
   size_t offset = 16;
   bool ended = false;
-  std::vector<std::pair<uint32_t, std::string>> sections;
+  std::string digest;  // hash_of_sections's input, from the sections' checksums (the same hash of the same bytes)
+  struct Bulk {
+    uint32_t tag;
+    std::string_view payload;
+    uint64_t sum;
+  };
+  std::vector<Bulk> bulk;  // the large sections, checked and parsed in parallel after the others
   while (offset < file.size()) {
     if (offset + 24 > file.size()) break;
     uint32_t t = 0;
@@ -571,20 +612,48 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     offset += 24;
     if (t == kEnd) {
       ended = true;
-      if (std::stoull(hash_of_sections(sections), nullptr, 16) != sum) {
+      if (std::stoull(hash_bytes(digest.data(), digest.size()), nullptr, 16) != sum) {
         return data_loss_error(where + " fails its content check; the file is damaged. Rebuild the rig");
       }
       break;
     }
     if (size > file.size() - offset) break;
-    std::string payload(file.substr(offset, size));
+    const std::string_view bytes = file.substr(offset, size);
     offset += size;
-    if (checksum(payload) != sum) {
-      return data_loss_error(where + ": section " + tag_name(t) + " fails its checksum; the file is damaged. Rebuild the rig");
+    if (t != kProvenance) {
+      char hex[17];
+      std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(sum));
+      digest += tag_name(t) + hex;
     }
+    if (is_bulk(t)) {
+      if (std::any_of(bulk.begin(), bulk.end(), [t](const Bulk& section) { return section.tag == t; })) {
+        return data_loss_error(where + " holds section " + tag_name(t) +
+                               " twice; the file is damaged. Rebuild the rig");
+      }
+      bulk.push_back({t, bytes, sum});
+      continue;
+    }
+    const std::string payload(bytes);
+    if (checksum(payload) != sum) return section_damaged(where, t);
     Status parsed = parse_section(rig, t, payload);
     if (!parsed.ok()) return parsed.with_context(where);
-    sections.emplace_back(t, std::move(payload));
+  }
+  // The volumes and tables are checked and inflated on every thread, each into its own member of the rig.
+  if (std::any_of(bulk.begin(), bulk.end(), [](const Bulk& section) { return section.tag == kCtVolume; })) {
+    rig.ct.emplace();
+  }
+  std::vector<Status> parsed(bulk.size(), ok_status());
+  parallel_for(0, static_cast<int64_t>(bulk.size()), 1, [&](int64_t begin, int64_t end) {
+    for (int64_t b = begin; b < end; ++b) {
+      const Bulk& section = bulk[static_cast<size_t>(b)];
+      const std::string checked = hash_bytes(section.payload.data(), section.payload.size());
+      parsed[static_cast<size_t>(b)] = std::stoull(checked, nullptr, 16) != section.sum
+                                           ? section_damaged(where, section.tag)
+                                           : parse_bulk_section(rig, section.tag, section.payload);
+    }
+  });
+  for (const Status& status : parsed) {
+    if (!status.ok()) return status.with_context(where);
   }
   if (!ended) {
     return data_loss_error(where + " is truncated (" + std::to_string(file.size()) +

@@ -116,6 +116,25 @@ std::string nifti_header(const ImageGeometry& g, PixelType type) {
   return bytes;
 }
 
+std::string gzip_members(std::string_view bytes) {
+  const auto size = static_cast<int64_t>(bytes.size());
+  const int64_t members = std::max<int64_t>(1, (size + kMemberBytes - 1) / kMemberBytes);
+  std::vector<std::string> packed(static_cast<size_t>(members));
+  parallel_for(0, members, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t m = begin; m < end; ++m) {
+      const int64_t from = m * kMemberBytes;
+      packed[static_cast<size_t>(m)] =
+          pack(bytes.data() + from, static_cast<size_t>(std::min(kMemberBytes, size - from)), true);
+    }
+  });
+  std::string out;
+  size_t total = 0;
+  for (const std::string& member : packed) total += member.size();
+  out.reserve(total);
+  for (const std::string& member : packed) out += member;
+  return out;
+}
+
 Status write_nifti(const ImageGeometry& g, PixelType type, const ConvertVoxels& convert, const std::string& path,
                    bool gzip) {
   for (int a = 0; a < 3; ++a) {

@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <string_view>
 
 #include "posewarp/common/image_geometry.h"
 #include "posewarp/common/result.h"
@@ -20,6 +21,9 @@ using ConvertVoxels = std::function<void(int64_t first, int64_t count, char* out
 
 // The 352 bytes in front of the voxels (header and an empty extension block), as ITK 5.2 writes them.
 std::string nifti_header(const ImageGeometry& geometry, PixelType type);
+
+// `bytes` as a multi-member gzip, its members deflated in parallel.
+std::string gzip_members(std::string_view bytes);
 
 // Writes a scalar volume of `type` to `path` (.nii, or .nii.gz when `gzip`) through an AtomicFile.
 Status write_nifti(const ImageGeometry& geometry, PixelType type, const ConvertVoxels& convert, const std::string& path,

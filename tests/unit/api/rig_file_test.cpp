@@ -45,6 +45,11 @@ TEST(RigFile, RoundTripKeepsEverySection) {
   EXPECT_EQ(back->id(), rig.id());
   EXPECT_EQ(content_hash(*back), content_hash(rig));
   EXPECT_EQ(back->provenance.stage_seconds.size(), rig.provenance.stage_seconds.size());
+  // The engine's tables, made at build: one value per source voxel, as built.
+  ASSERT_EQ(rig.rest_owner.size(), static_cast<size_t>(rig.labels.voxel_count()));
+  EXPECT_EQ(back->rest_owner, rig.rest_owner);
+  EXPECT_EQ(back->body_region, rig.body_region);
+  EXPECT_EQ(back->bone_substitute, rig.bone_substitute);
 }
 
 TEST(RigFile, TruncatedFileIsDataLoss) {
@@ -166,6 +171,21 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
     Rig rig = posewarp::testing::shared_bar_rig();
     rig.labels = LabelVolume();
     refused(std::move(rig), "no label volume");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.rest_owner[rig.rest_owner.size() / 2] = static_cast<int32_t>(rig.mesh.tet_count());
+    refused(std::move(rig), "OWNR");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.bone_substitute.back() = static_cast<int32_t>(rig.bone_substitute.size());
+    refused(std::move(rig), "SUBS");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.body_region.pop_back();
+    refused(std::move(rig), "one value per voxel");
   }
 }
 

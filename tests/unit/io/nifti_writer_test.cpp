@@ -94,6 +94,10 @@ TEST_P(NiftiWriter, WritesItksBytesAndReadsBack) {
     ASSERT_EQ(our_bytes.size(), 352 + static_cast<size_t>(volume.voxel_count() * pixel_type_bytes(c.type)));
     EXPECT_EQ(our_bytes.substr(0, 352), itk_bytes.substr(0, 352)) << "the header differs from ITK's";
     EXPECT_TRUE(our_bytes == itk_bytes) << "the voxels differ from ITK's";
+    // The server's in-memory file is the same file.
+    Result<std::string> in_memory = encode_volume(volume, VolumeFormat::kNifti, gz);
+    ASSERT_TRUE(in_memory.ok()) << in_memory.status().to_string();
+    EXPECT_TRUE(*in_memory == file_bytes(ours)) << "encode_volume differs from write_volume";
     Result<IntensityVolume> back = read_intensity_volume(ours);
     ASSERT_TRUE(back.ok()) << back.status().to_string();
     EXPECT_EQ(back->source_type(), c.type);

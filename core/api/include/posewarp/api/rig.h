@@ -75,6 +75,13 @@ struct Rig {
   // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
   std::vector<SurfaceMesh> surfaces;
   std::vector<Embedding> embeddings;
+  // Per source voxel, what a pose engine would otherwise compute when it opens the rig (a second or more on a whole
+  // body): the tet that owns the voxel at rest (the identity warp's owner), the nearest-bone region of the
+  // skin-contact guard, and the soft-tissue voxel a bone voxel's value is replaced by where soft tissue maps onto
+  // the bone. Made by build_rig; empty in a rig from before them, whose engine computes them.
+  std::vector<int32_t> rest_owner;
+  std::vector<int16_t> body_region;
+  std::vector<int32_t> bone_substitute;
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 

@@ -1,0 +1,28 @@
+#include "engine_tables.h"
+
+#include "posewarp/labels/body.h"
+#include "posewarp/resample/rigid_bones.h"
+#include "posewarp/resample/tet_warp.h"
+#include "posewarp/rig/skin_contacts.h"
+
+namespace posewarp::api::internal {
+
+Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
+  const ImageGeometry& g = rig.labels.geometry();
+  POSEWARP_ASSIGN_OR_RETURN(
+      resample::TetWarp identity,
+      resample::TetWarp::build({.rest = rig.mesh, .posed = rig.mesh.vertices, .source = g, .output = g}, hooks));
+  rig.rest_owner = identity.owner();
+  // Body regions for the skin-contact guard: the body as a build with the default body parameters makes it.
+  POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
+                            labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
+  POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
+  rig.body_region = std::move(regions.segment);
+  std::vector<std::vector<Label>> segment_labels;
+  for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
+  POSEWARP_ASSIGN_OR_RETURN(resample::BoneVoxels bones, resample::bone_voxels(rig.labels, segment_labels));
+  rig.bone_substitute = std::move(bones.substitute);
+  return ok_status();
+}
+
+}  // namespace posewarp::api::internal

@@ -1,0 +1,16 @@
+// What a pose engine derives from its rig's volumes and mesh, one value per source voxel, and costs a whole body a
+// second or more: the identity warp's owner tet, the nearest-bone region and the bone voxels' soft-tissue
+// substitutes. build_rig makes them and the rig file keeps them (sections OWNR, REGN and SUBS), so that opening a rig
+// and creating its engine is reading; a rig from an earlier version has none, and PoseEngine::create makes them.
+#pragma once
+
+#include "posewarp/api/rig.h"
+#include "posewarp/common/progress.h"
+
+namespace posewarp::api::internal {
+
+// Fills rig.rest_owner, rig.body_region and rig.bone_substitute from the rest of the rig (its labels, CT, skeleton
+// and mesh).
+Status make_engine_tables(Rig& rig, const ProgressHooks& hooks);
+
+}  // namespace posewarp::api::internal

@@ -1,0 +1,30 @@
+// The engine's tables (engine_tables.h) as rig file sections, and their checks: what the rig file reader needs of them
+// (no stage but for headers, so the rig file fuzzer compiles it alone).
+#pragma once
+
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "posewarp/api/rig.h"
+
+namespace posewarp::api::internal {
+
+// DATA_LOSS unless the tables a rig file gave are one value per source voxel, each within its range (a tet of the
+// mesh, its shell or none; a segment of the skeleton or -1; a voxel of the grid): the warp indexes with them.
+Status check_engine_tables(const Rig& rig);
+
+// The tables as rig file sections: the value count, then the values deflated in the zlib format (the owner table
+// delta-coded first: neighbouring voxels mostly share a tet), and back. DATA_LOSS for a damaged payload.
+std::string owner_section(const std::vector<int32_t>& owner);
+std::string region_section(const std::vector<int16_t>& region);
+std::string substitute_section(const std::vector<int32_t>& substitute);  // each stored as its offset from its voxel
+Status read_owner_section(std::string_view payload, std::vector<int32_t>& owner);
+Status read_region_section(std::string_view payload, std::vector<int16_t>& region);
+Status read_substitute_section(std::string_view payload, std::vector<int32_t>& substitute);
+
+// zlib-format data inflated into `out` (exactly out_bytes), as libdeflate does it: twice zlib's speed, for the rig's
+// volume sections too. False when the data is damaged or does not fill `out` exactly.
+bool inflate_exactly(std::string_view packed, void* out, size_t out_bytes);
+
+}  // namespace posewarp::api::internal
