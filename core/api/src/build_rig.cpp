@@ -299,9 +299,9 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     rig.skeleton.joints[j].ranges = ranges[j].motions;
   }
   clock.lap("ranges");
-  POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "engine tables").check_cancel());
+  POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "tables").check_cancel());
   POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
-  clock.lap("engine tables");
+  clock.lap("tables");
   rig.provenance.stats_json = stats.dump();
   return rig;
 }

@@ -11,7 +11,6 @@
 #include "posewarp/surface/surface_mesh.h"
 
 #include <nlohmann/json.hpp>
-#include <zlib.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -21,6 +20,7 @@
 #include <map>
 
 #include "table_sections.h"
+#include "volume_sections.h"
 #include "rig_json.h"
 
 namespace posewarp::api {
@@ -158,56 +158,6 @@ void put_matrix(Writer& w, const Matrix& m) {
   w.put_bytes(m.data(), static_cast<size_t>(m.size()) * sizeof(typename Matrix::Scalar));
 }
 
-// A volume section: geometry, source type, then the voxels zlib-compressed (labels compress ~50x).
-template <typename T>
-std::string volume_section(const Volume<T>& volume) {
-  Writer w;
-  const ImageGeometry& g = volume.geometry();
-  for (int a = 0; a < 3; ++a) w.put<int64_t>(g.size[static_cast<size_t>(a)]);
-  for (int a = 0; a < 3; ++a) w.put<double>(g.spacing[static_cast<size_t>(a)]);
-  for (int a = 0; a < 3; ++a) w.put<double>(g.origin[static_cast<size_t>(a)]);
-  for (int e = 0; e < 9; ++e) w.put<double>(g.direction[static_cast<size_t>(e)]);
-  w.put<int32_t>(static_cast<int32_t>(volume.source_type()));
-  const uLong raw = static_cast<uLong>(volume.voxel_count() * static_cast<int64_t>(sizeof(T)));
-  std::string packed(compressBound(raw), '\0');
-  uLongf packed_size = static_cast<uLongf>(packed.size());
-  compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_size, reinterpret_cast<const Bytef*>(volume.data()), raw, 1);
-  packed.resize(packed_size);
-  w.put<uint64_t>(raw);
-  w.put_string(packed);
-  return w.take();
-}
-
-template <typename T>
-Status read_volume_section(std::string_view payload, const std::string& name, Volume<T>& volume) {
-  Reader r(payload, name);
-  ImageGeometry g;
-  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
-  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.spacing[static_cast<size_t>(a)]));
-  for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.origin[static_cast<size_t>(a)]));
-  for (int e = 0; e < 9; ++e) POSEWARP_RETURN_IF_ERROR(r.get(g.direction[static_cast<size_t>(e)]));
-  int32_t type = 0;
-  POSEWARP_RETURN_IF_ERROR(r.get(type));
-  uint64_t raw = 0;
-  POSEWARP_RETURN_IF_ERROR(r.get(raw));
-  std::string_view packed;
-  POSEWARP_RETURN_IF_ERROR(r.get_view(packed));
-  if (g.validate().ok() == false || raw != static_cast<uint64_t>(g.voxel_count()) * sizeof(T)) {
-    return data_loss_error("rig section " + name + " describes an inconsistent volume");
-  }
-  // zlib cannot pack more than 1032:1, so a claim beyond that is damage, refused before the volume is allocated.
-  if (raw / 1032 > packed.size() + 64) {
-    return data_loss_error("rig section " + name + " claims " + std::to_string(raw) + " bytes from " +
-                           std::to_string(packed.size()) + " compressed bytes; the file is damaged");
-  }
-  volume = Volume<T>(g);
-  volume.set_source_type(static_cast<PixelType>(type));
-  if (!internal::inflate_exactly(packed, volume.data(), static_cast<size_t>(raw))) {
-    return data_loss_error("rig section " + name + " does not decompress; the file is damaged");
-  }
-  return ok_status();
-}
-
 // The sections of a rig in file order; provenance last (it is not part of the content hash).
 std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
   std::vector<std::pair<uint32_t, std::string>> sections;
@@ -280,8 +230,8 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
     }
     sections.emplace_back(kSurfaces, w.take());
   }
-  if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, volume_section(rig.labels));
-  if (rig.ct) sections.emplace_back(kCtVolume, volume_section(*rig.ct));
+  if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, internal::volume_section(rig.labels));
+  if (rig.ct) sections.emplace_back(kCtVolume, internal::volume_section(*rig.ct));
   if (!rig.rest_owner.empty()) sections.emplace_back(kRestOwner, internal::owner_section(rig.rest_owner));
   if (!rig.body_region.empty()) sections.emplace_back(kBodyRegion, internal::region_section(rig.body_region));
   if (!rig.bone_substitute.empty()) {
@@ -398,17 +348,18 @@ Status read_matrix(Reader& r, Target& target) {
   return ok_status();
 }
 
-// Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
 // A section holding a volume's worth of values: each writes its own member of the rig, so they parse in parallel.
-Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload) {
+Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32_t format) {
   const std::string name = tag_name(t);
-  if (t == kLabelVolume) return read_volume_section(payload, name, rig.labels);
-  if (t == kCtVolume) return read_volume_section(payload, name, *rig.ct);
-  if (t == kRestOwner) return internal::read_owner_section(payload, rig.rest_owner);
-  if (t == kBodyRegion) return internal::read_region_section(payload, rig.body_region);
-  return internal::read_substitute_section(payload, rig.bone_substitute);
+  if (t == kLabelVolume) return internal::read_volume_section(payload, name, format, rig.labels);
+  if (t == kCtVolume) return internal::read_volume_section(payload, name, format, *rig.ct);
+  const int64_t voxels = rig.source_geometry.voxel_count();  // GEOM was read before the bulk sections
+  if (t == kRestOwner) return internal::read_owner_section(payload, voxels, rig.rest_owner);
+  if (t == kBodyRegion) return internal::read_region_section(payload, voxels, rig.body_region);
+  return internal::read_substitute_section(payload, voxels, rig.bone_substitute);
 }
 
+// Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
 Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   const std::string name = tag_name(t);
   if (t == kGeometry) return read_geometry_section(payload, name, rig);
@@ -638,6 +589,22 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     Status parsed = parse_section(rig, t, payload);
     if (!parsed.ok()) return parsed.with_context(where);
   }
+  // The tables hold one value per voxel of the grid GEOM names; that grid is the label volume's, whose section can
+  // hold at most 1032 voxels per compressed byte: a grid beyond that is damage, refused before any table is made.
+  auto has = [&bulk](uint32_t t) {
+    return std::find_if(bulk.begin(), bulk.end(), [t](const Bulk& section) { return section.tag == t; });
+  };
+  const bool tables = has(kRestOwner) != bulk.end() || has(kBodyRegion) != bulk.end() ||
+                      has(kBoneSubstitute) != bulk.end();
+  if (tables && has(kLabelVolume) == bulk.end()) {
+    return data_loss_error(where + ": rig has no label volume (section LVOL is missing)");
+  }
+  const uint64_t most = tables ? (has(kLabelVolume)->payload.size() + 64) * 1032 : 0;  // 1-byte samples at best
+  const int64_t voxels = rig.source_geometry.voxel_count();
+  if (tables && (voxels < 0 || static_cast<uint64_t>(voxels) > most)) {
+    return data_loss_error(where + ": its grid has more voxels than its label volume can hold; the file is "
+                           "damaged. Rebuild the rig");
+  }
   // The volumes and tables are checked and inflated on every thread, each into its own member of the rig.
   if (std::any_of(bulk.begin(), bulk.end(), [](const Bulk& section) { return section.tag == kCtVolume; })) {
     rig.ct.emplace();
@@ -649,7 +616,7 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
       const std::string checked = hash_bytes(section.payload.data(), section.payload.size());
       parsed[static_cast<size_t>(b)] = std::stoull(checked, nullptr, 16) != section.sum
                                            ? section_damaged(where, section.tag)
-                                           : parse_bulk_section(rig, section.tag, section.payload);
+                                           : parse_bulk_section(rig, section.tag, section.payload, version);
     }
   });
   for (const Status& status : parsed) {

@@ -6,11 +6,13 @@
 
 #include <atomic>
 #include <chrono>
+#include <cstring>
 #include <map>
 #include <set>
 #include <thread>
 #include <vector>
 
+#include "posewarp/api/rig_file.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/pose/pose.h"
 #include "rig_test_support.h"
@@ -388,6 +390,34 @@ TEST(Posing, ARigWithoutItsEngineTablesPosesTheSame) {
   EXPECT_EQ(made->forward_field, kept->forward_field);
   EXPECT_EQ(made->inverse_field, kept->inverse_field);
   EXPECT_EQ(made->report.skin_contact_voxels, kept->report.skin_contact_voxels);
+}
+
+// A rig the last release wrote (format 1: volumes in one zlib stream, no engine tables) opens, and saved again in
+// the current format (volumes in chunks of their source's type) it holds the same volumes and poses the same.
+TEST(Posing, AFormatOneRigOpensAndPosesAsItsFormatTwoCopy) {
+  Result<Rig> old = load_rig(std::string(POSEWARP_SOURCE_DIR) + "/tests/data/rig_format_1/bar.rig");
+  ASSERT_TRUE(old.ok()) << old.status().to_string();
+  EXPECT_TRUE(old->rest_owner.empty());  // made by the engine for such a rig
+  const std::string bytes = rig_to_bytes(*old);
+  uint32_t format = 0;
+  std::memcpy(&format, bytes.data() + 8, 4);
+  EXPECT_EQ(format, kRigFormatVersion);
+  Result<Rig> again = rig_from_bytes(bytes, "the copy");
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->labels.voxels(), old->labels.voxels());
+  EXPECT_EQ(again->labels.source_type(), old->labels.source_type());
+  ASSERT_TRUE(again->ct && old->ct);
+  EXPECT_EQ(again->ct->voxels(), old->ct->voxels());
+  EXPECT_EQ(again->ct->source_type(), old->ct->source_type());
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 50.0, 0.0);
+  Result<PoseEngine> from_old = PoseEngine::create(std::move(old).value());
+  Result<PoseEngine> from_copy = PoseEngine::create(std::move(again).value());
+  ASSERT_TRUE(from_old.ok() && from_copy.ok());
+  Result<PoseResult> a = from_old->pose(request), b = from_copy->pose(request);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->labels->voxels(), b->labels->voxels());
+  EXPECT_EQ(a->ct->voxels(), b->ct->voxels());
 }
 
 TEST(Posing, SixteenThreadsPosingOneEngineGetIdenticalResults) {

@@ -189,9 +189,9 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
   }
 }
 
-// A label volume section whose geometry claims far more voxels than its compressed bytes can hold (zlib packs at
+// A label volume section whose geometry claims far more voxels than its compressed bytes can hold (deflate packs at
 // most 1032:1) is refused before the volume is allocated, even with its checksums recomputed: a few KB cannot cost
-// 32 GB.
+// 8 GB.
 TEST(RigFile, AVolumeSectionClaimingAHugeGridIsRefusedBeforeAllocating) {
   std::string bytes = rig_to_bytes(shared_bar_rig());
   const size_t at = bytes.find("LVOL");
@@ -199,11 +199,29 @@ TEST(RigFile, AVolumeSectionClaimingAHugeGridIsRefusedBeforeAllocating) {
   const size_t payload = at + 24;
   const int64_t big = 2000;
   for (size_t a = 0; a < 3; ++a) std::memcpy(bytes.data() + payload + 8 * a, &big, 8);
-  const uint64_t raw = uint64_t{2000} * 2000 * 2000 * sizeof(Label);
-  std::memcpy(bytes.data() + payload + 148, &raw, 8);  // after size, spacing, origin, direction and the type
+  // One chunk of all of them: after the grid (144 bytes), the source and the stored type.
+  uint64_t chunks = 0;
+  std::memcpy(&chunks, bytes.data() + payload + 160, 8);
+  ASSERT_EQ(chunks, 1u);  // the bar's labels are one chunk
+  const uint64_t all = uint64_t{2000} * 2000 * 2000;
+  std::memcpy(bytes.data() + payload + 152, &all, 8);
   const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(bytes), "crafted rig").status();
   EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
   EXPECT_NE(status.message().find("compressed bytes"), std::string::npos) << status.to_string();
+}
+
+// The engine's tables hold one value per voxel of the grid GEOM names: a grid claiming far more voxels than the
+// label volume's bytes can hold is refused before a table is made (a few bytes of runs could otherwise ask for GBs).
+TEST(RigFile, TablesOfAGridClaimingHugeSizesAreRefusedBeforeAllocating) {
+  std::string bytes = rig_to_bytes(shared_bar_rig());
+  const size_t at = bytes.find("GEOM");
+  ASSERT_NE(at, std::string::npos);
+  const int64_t big = 5000;
+  for (size_t a = 0; a < 3; ++a) std::memcpy(bytes.data() + at + 24 + 8 * a, &big, 8);  // the size comes first
+  const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(bytes), "crafted rig").status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("more voxels than its label volume can hold"), std::string::npos)
+      << status.to_string();
 }
 
 // A fixed-width array (tets: 4 columns) whose section declares another column count, checksums recomputed: Eigen

@@ -15,7 +15,8 @@
 
 namespace posewarp::api {
 
-constexpr uint32_t kRigFormatVersion = 1;
+// 2: volumes stored in their source's type, in chunks that inflate in parallel (format 1 is still read).
+constexpr uint32_t kRigFormatVersion = 2;
 
 // Writes to a temporary file beside `path`, flushes it to disk (fsync) and renames it into place.
 Status save_rig(const Rig& rig, const std::string& path);
