@@ -5,7 +5,8 @@
 // Usage: posewarp_bench_pose [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M (0 = skip)]
 //                            [--body-mvoxels M (0 = skip)] [--repeats R] [--data-dir DIR]
 // With several thread counts it prints the scaling table instead: per case, the whole pose, each stage and ITK on
-// the same warp at each count, and the parallel efficiency from the smallest count of at least 2 to the largest.
+// the same warp at each count, and the parallel efficiency from the first count of at least 2 to the last (from the
+// first count when only the last is 2 or more).
 // --data-dir names the real sample's folder (seg_total.nii.gz, ct.nii.gz) where the build tree's path does not
 // exist (a bundle run on another machine).
 #include <nlohmann/json.hpp>
@@ -280,9 +281,10 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
     });
     for (const std::string& row : rows) ms[row].push_back(1000.0 * best[row]);
   }
-  // Efficiency from the first count of at least 2 threads (a 2-core machine's figure) to the last.
+  // Efficiency from the first count of at least 2 threads (a 2-core machine's figure) to the last; from the first
+  // count when only the last is 2 or more.
   size_t from = 0;
-  while (from + 1 < counts.size() && counts[from] < 2) ++from;
+  while (from + 2 < counts.size() && counts[from] < 2) ++from;
   const size_t to = counts.size() - 1;
   std::printf("\n%s, %lld voxels, ms by threads (efficiency %d -> %d threads):\n\n| stage |", name.c_str(),
               static_cast<long long>(with_fields.output_grid.voxel_count()), counts[from], counts[to]);
@@ -292,6 +294,7 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
   std::printf("\n");
   nlohmann::json table{{"case", name}, {"threads", counts}};
   for (const std::string& row : rows) {
+    if (ms[row][from] <= 0.0) continue;  // a stage this pose does not run (fields)
     std::printf("| %s |", row.c_str());
     for (const double value : ms[row]) std::printf(" %.1f |", value);
     const double efficiency =
