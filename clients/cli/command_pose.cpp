@@ -211,68 +211,45 @@ Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const ap
   return ok_status();
 }
 
-int run_pose(const PoseOptions& o) {
-  std::vector<std::string> inputs{o.rig_path, o.pose_path, o.output.grid_like};
-  inputs.insert(inputs.end(), o.output.extra_surfaces.begin(), o.output.extra_surfaces.end());
-  std::vector<std::string> outputs{o.labels_out, o.ct_out, o.field_out, o.report_out};
-  if (!o.field_out.empty()) outputs.push_back(forward_field_path(o.field_out));
-  if (Status s = refuse_overwriting_inputs(outputs, inputs); !s.ok()) return report(s);
-  if (Status s = check_output_files(outputs); !s.ok()) return report(s);
-  if (Status s = refuse_directories({o.report_out}); !s.ok()) return report(s);
-  Result<Pose> pose = api::read_pose(o.pose_path);
-  if (!pose.ok()) return report(pose.status());
-  // DICOM out needs the source series: its patient, study and images are what the derived series refer to.
-  std::optional<api::SeriesInfo> dicom_source;
-  std::optional<ImageGeometry> dicom_grid;
-  if (std::error_code ec; !o.dicom_out.empty() && fs::exists(o.dicom_out, ec) && !fs::is_empty(o.dicom_out, ec)) {
-    return report(already_exists_error("--dicom-out '" + o.dicom_out + "' is not empty; choose a new directory"));
+// A pose's DICOM output: the source series (its patient, study and images) and its grid, and the pose's name.
+struct DicomOut {
+  std::optional<api::SeriesInfo> source;
+  std::optional<ImageGeometry> grid;
+  std::string pose_name;
+};
+
+// The pose on posewarp-server, its files written here.
+int pose_remotely(const PoseOptions& o, const api::PoseRequest& request, const DicomOut& dicom) {
+  Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
+  if (!poser.ok()) return report(poser.status());
+  // For DICOM out, the rig (its label map names the segments; its grid must be --dicom-source's), before posing.
+  std::optional<api::LabelMap> map;
+  if (dicom.source) {
+    Result<api::Rig> rig = poser->rig();
+    if (!rig.ok()) return report(rig.status());
+    if (!same_place(*dicom.grid, rig->source_geometry)) return report(foreign_dicom_source(o.dicom_source));
+    map = std::move(rig->label_map);
   }
-  if (!o.dicom_out.empty()) {
-    if (o.dicom_source.empty()) {
-      return report(
-          invalid_argument_error("--dicom-out needs --dicom-source DIR: the CT series the rig was built "
-                                 "from (its patient, study and images are referenced)"));
-    }
-    Result<api::CtSeries> source = api::read_ct_directory(o.dicom_source);
-    if (!source.ok()) return report(source.status().with_context("--dicom-source"));
-    dicom_source = source->info;
-    dicom_grid = source->ct.geometry();
+  Result<RemotePoseResult> answer = poser->pose(request);
+  if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
+  for (const std::string& warning : answer->warnings) say("warning: " + warning);
+  Status written = write_outputs(answer->result, answer->report_json, o.labels_out, o.ct_out, o.field_out,
+                                 o.report_out, answer->source_grid);
+  if (!written.ok()) return report(written);
+  if (dicom.source) {
+    if (Status s = write_dicom(o, *dicom.source, answer->result, *map, dicom.pose_name); !s.ok()) return report(s);
   }
-  const std::string pose_name = fs::path(o.pose_path).stem().string();
-  Result<api::PoseRequest> request = make_request(o.output);
-  if (!request.ok()) return report(request.status());
-  request->pose = *pose;
-  request->pose_source = "pose file '" + o.pose_path + "'";  // a pose that does not fit the rig names its file
-  request->want_labels = !o.labels_out.empty() || !o.report_out.empty() || !o.dicom_out.empty();
-  request->want_ct = !o.ct_out.empty() || !o.dicom_out.empty();
-  request->want_fields = !o.field_out.empty();
-  request->want_surfaces = !o.surfaces_out.empty();
-  if (!o.connection.server.empty()) {
-    Result<RemotePoser> poser = RemotePoser::open(o.connection, o.rig_path);
-    if (!poser.ok()) return report(poser.status());
-    // For DICOM out, the rig (its label map names the segments; its grid must be --dicom-source's), before posing.
-    std::optional<api::LabelMap> map;
-    if (dicom_source) {
-      Result<api::Rig> rig = poser->rig();
-      if (!rig.ok()) return report(rig.status());
-      if (!same_place(*dicom_grid, rig->source_geometry)) return report(foreign_dicom_source(o.dicom_source));
-      map = std::move(rig->label_map);
-    }
-    Result<RemotePoseResult> answer = poser->pose(*request);
-    if (!answer.ok()) return report(answer.status().with_context("pose file '" + o.pose_path + "'"));
-    for (const std::string& warning : answer->warnings) say("warning: " + warning);
-    Status written = write_outputs(answer->result, answer->report_json, o.labels_out, o.ct_out, o.field_out,
-                                   o.report_out, answer->source_grid);
-    if (!written.ok()) return report(written);
-    if (dicom_source) {
-      if (Status s = write_dicom(o, *dicom_source, answer->result, *map, pose_name); !s.ok()) return report(s);
-    }
-    Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
-    return surfaces.ok() ? 0 : report(surfaces);
-  }
+  Status surfaces = write_surfaces(answer->result, o.surfaces_out, o.output.surface_format);
+  return surfaces.ok() ? 0 : report(surfaces);
+}
+
+// The pose in this process: each volume written from its own thread as soon as the engine hands it out.
+int pose_locally(const PoseOptions& o, api::PoseRequest request, const DicomOut& dicom) {
   Stopwatch wall;
   std::string breakdown = "wall:";
-  const auto lap = [&](const char* step) { breakdown += std::string(" ") + step + " " + fixed(wall.lap(), 2) + " s,"; };
+  const auto lap = [&](const char* step) {
+    breakdown += std::string(" ") + step + " " + fixed(wall.lap(), 2) + " s,";
+  };
   Result<api::Rig> rig = api::load_rig(o.rig_path);
   if (!rig.ok()) return report(rig.status());
   lap("open");
@@ -280,23 +257,23 @@ int run_pose(const PoseOptions& o) {
   if (!engine.ok()) return report(engine.status());
   lap("engine");
   // The derived series is filed in --dicom-source's study: that series must be the one the rig was built from.
-  if (dicom_grid && !same_place(*dicom_grid, engine->rig().source_geometry)) {
+  if (dicom.grid && !same_place(*dicom.grid, engine->rig().source_geometry)) {
     return report(foreign_dicom_source(o.dicom_source));
   }
   // Each volume is written as soon as it is posed, while the engine goes on (the CT's warp, the label report); a
   // DICOM output needs both volumes at the end instead.
   std::future<Status> labels_written, ct_written;
   if (o.dicom_out.empty() && !o.labels_out.empty()) {
-    request->labels_ready = [&](std::shared_ptr<const LabelVolume> labels) {
+    request.labels_ready = [&](std::shared_ptr<const LabelVolume> labels) {
       labels_written = std::async(std::launch::async, [&, labels] { return api::write_volume(*labels, o.labels_out); });
     };
   }
   if (o.dicom_out.empty() && !o.ct_out.empty()) {
-    request->ct_ready = [&](std::shared_ptr<const IntensityVolume> ct) {
+    request.ct_ready = [&](std::shared_ptr<const IntensityVolume> ct) {
       ct_written = std::async(std::launch::async, [&, ct] { return api::write_volume(*ct, o.ct_out); });
     };
   }
-  Result<api::PoseResult> result = engine->pose(*request, progress_bar());
+  Result<api::PoseResult> result = engine->pose(request, progress_bar());
   if (!result.ok()) return report(result.status());
   lap("pose");
   summarize(*result);
@@ -310,13 +287,51 @@ int run_pose(const PoseOptions& o) {
   if (!written.ok()) return report(written);
   lap("write (what the pose did not overlap)");
   say(breakdown + " total " + fixed(wall.seconds(), 2) + " s");
-  if (dicom_source) {
-    if (Status s = write_dicom(o, *dicom_source, *result, engine->rig().label_map, pose_name); !s.ok())
+  if (dicom.source) {
+    if (Status s = write_dicom(o, *dicom.source, *result, engine->rig().label_map, dicom.pose_name); !s.ok())
       return report(s);
   }
   Status surfaces = write_surfaces(*result, o.surfaces_out, o.output.surface_format);
   if (!surfaces.ok()) return report(surfaces);
   return 0;
+}
+
+int run_pose(const PoseOptions& o) {
+  std::vector<std::string> inputs{o.rig_path, o.pose_path, o.output.grid_like};
+  inputs.insert(inputs.end(), o.output.extra_surfaces.begin(), o.output.extra_surfaces.end());
+  std::vector<std::string> outputs{o.labels_out, o.ct_out, o.field_out, o.report_out};
+  if (!o.field_out.empty()) outputs.push_back(forward_field_path(o.field_out));
+  if (Status s = refuse_overwriting_inputs(outputs, inputs); !s.ok()) return report(s);
+  if (Status s = check_output_files(outputs); !s.ok()) return report(s);
+  if (Status s = refuse_directories({o.report_out}); !s.ok()) return report(s);
+  Result<Pose> pose = api::read_pose(o.pose_path);
+  if (!pose.ok()) return report(pose.status());
+  // DICOM out needs the source series: its patient, study and images are what the derived series refer to.
+  DicomOut dicom;
+  dicom.pose_name = fs::path(o.pose_path).stem().string();
+  if (std::error_code ec; !o.dicom_out.empty() && fs::exists(o.dicom_out, ec) && !fs::is_empty(o.dicom_out, ec)) {
+    return report(already_exists_error("--dicom-out '" + o.dicom_out + "' is not empty; choose a new directory"));
+  }
+  if (!o.dicom_out.empty()) {
+    if (o.dicom_source.empty()) {
+      return report(
+          invalid_argument_error("--dicom-out needs --dicom-source DIR: the CT series the rig was built "
+                                 "from (its patient, study and images are referenced)"));
+    }
+    Result<api::CtSeries> source = api::read_ct_directory(o.dicom_source);
+    if (!source.ok()) return report(source.status().with_context("--dicom-source"));
+    dicom.source = source->info;
+    dicom.grid = source->ct.geometry();
+  }
+  Result<api::PoseRequest> request = make_request(o.output);
+  if (!request.ok()) return report(request.status());
+  request->pose = *pose;
+  request->pose_source = "pose file '" + o.pose_path + "'";  // a pose that does not fit the rig names its file
+  request->want_labels = !o.labels_out.empty() || !o.report_out.empty() || !o.dicom_out.empty();
+  request->want_ct = !o.ct_out.empty() || !o.dicom_out.empty();
+  request->want_fields = !o.field_out.empty();
+  request->want_surfaces = !o.surfaces_out.empty();
+  return o.connection.server.empty() ? pose_locally(o, *request, dicom) : pose_remotely(o, *request, dicom);
 }
 
 struct CompareOptions {
