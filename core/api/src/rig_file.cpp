@@ -348,12 +348,17 @@ Status read_matrix(Reader& r, Target& target) {
   return ok_status();
 }
 
+// The voxels of the rig's grid, -1 for a grid that is not one (GEOM is read unchecked: its sizes may overflow).
+int64_t grid_voxels(const Rig& rig) {
+  return rig.source_geometry.validate().ok() ? rig.source_geometry.voxel_count() : -1;
+}
+
 // A section holding a volume's worth of values: each writes its own member of the rig, so they parse in parallel.
 Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32_t format) {
   const std::string name = tag_name(t);
   if (t == kLabelVolume) return internal::read_volume_section(payload, name, format, rig.labels);
   if (t == kCtVolume) return internal::read_volume_section(payload, name, format, *rig.ct);
-  const int64_t voxels = rig.source_geometry.voxel_count();  // GEOM was read before the bulk sections
+  const int64_t voxels = grid_voxels(rig);  // GEOM was read before the bulk sections
   if (t == kRestOwner) return internal::read_owner_section(payload, voxels, rig.rest_owner);
   if (t == kBodyRegion) return internal::read_region_section(payload, voxels, rig.body_region);
   return internal::read_substitute_section(payload, voxels, rig.bone_substitute);
@@ -600,7 +605,7 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     return data_loss_error(where + ": rig has no label volume (section LVOL is missing)");
   }
   const uint64_t most = tables ? (has(kLabelVolume)->payload.size() + 64) * 1032 : 0;  // 1-byte samples at best
-  const int64_t voxels = rig.source_geometry.voxel_count();
+  const int64_t voxels = grid_voxels(rig);
   if (tables && (voxels < 0 || static_cast<uint64_t>(voxels) > most)) {
     return data_loss_error(where + ": its grid has more voxels than its label volume can hold; the file is "
                            "damaged. Rebuild the rig");

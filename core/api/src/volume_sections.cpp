@@ -135,7 +135,9 @@ Status read_format_2(Cursor& in, const std::string& name, const ImageGeometry& g
   uint64_t chunk_voxels = 0, chunks = 0;
   if (!in.get(stored) || !in.get(chunk_voxels) || !in.get(chunks)) return damaged("ends early");
   const auto voxels = static_cast<uint64_t>(g.voxel_count());
-  if (!is_pixel_type(stored) || chunk_voxels == 0 || chunks != (voxels + chunk_voxels - 1) / chunk_voxels) {
+  // Chunks of at most 2^40 voxels, so that no chunk count or offset below overflows.
+  if (!is_pixel_type(stored) || chunk_voxels == 0 || chunk_voxels > (uint64_t{1} << 40) ||
+      chunks != (voxels + chunk_voxels - 1) / chunk_voxels) {
     return damaged("describes an inconsistent volume");
   }
   const auto type = static_cast<PixelType>(stored);

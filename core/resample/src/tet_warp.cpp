@@ -241,14 +241,15 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
       for (int64_t j = 0; j < n[1]; ++j) {
         for (int64_t i = 0; i < n[0]; ++i) {
           const int32_t o = owner_[output_.offset(i, j, k)];
-          if (o == kNoSample) continue;
+          // No bone value where nothing maps or a soft map does (it takes the substitute): skipped before mapping.
+          const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
+          if (o == kNoSample || soft) continue;
           double s[3];
           apply_map(map_of(o), double(i), double(j), double(k), s);
           const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
           if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
           const int segment = bones_->segment[static_cast<size_t>(x + m[0] * (y + m[1] * z))];
-          const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
-          if (segment < 0 || soft) continue;  // no bone value here (a soft map takes the substitute)
+          if (segment < 0) continue;
           double b[3];
           apply_map(bone_maps_.data() + 12 * segment, double(i), double(j), double(k), b);
           const Eigen::Vector3d d(s[0] - b[0], s[1] - b[1], s[2] - b[2]);
