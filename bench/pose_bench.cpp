@@ -208,7 +208,9 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   // The worst case for posewarp: every tet rasterized, as if the whole body moved off the root's transform.
   const api::Rig& engine_rig = engine->rig();
   const size_t root = static_cast<size_t>(engine_rig.skeleton.root);
+  double all_tets_parts[3] = {1e300, 1e300, 1e300};  // best build, labels, CT
   const double all_tets_s = best_of(repeats, [&] {
+    const auto t0 = std::chrono::steady_clock::now();
     const resample::TetWarp warp =
         std::move(resample::TetWarp::build({.rest = engine_rig.mesh,
                                             .posed = with_fields.posed_vertices,
@@ -217,8 +219,14 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
                                             .background_rotation = with_fields.segment_rotation[root],
                                             .background_translation = with_fields.segment_translation[root]}))
             .value();
+    const auto t1 = std::chrono::steady_clock::now();
     (void)warp.warp_labels(engine_rig.labels);
+    const auto t2 = std::chrono::steady_clock::now();
     (void)warp.warp_intensities(ct, resample::Interpolation::kLinear);
+    const auto t3 = std::chrono::steady_clock::now();
+    const std::chrono::steady_clock::time_point at[4] = {t0, t1, t2, t3};
+    for (int p = 0; p < 3; ++p)
+      all_tets_parts[p] = std::min(all_tets_parts[p], std::chrono::duration<double>(at[p + 1] - at[p]).count());
   });
   row["warp_all_tets_ms"] = 1000.0 * all_tets_s;
   row["speedup_vs_itk_all_tets"] = itk_ms / (1000.0 * all_tets_s);
@@ -232,8 +240,11 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
       "%8.1f ms (%5.1f Mvox/s): %4.1fx\n",
       name.c_str(), voxels, static_cast<long long>(engine->rig().mesh.vertex_count()), 1000.0 * whole_s, warp_ms,
       row["warp_mvoxels_per_s"].get<double>(), itk_ms, row["itk_mvoxels_per_s"].get<double>(), itk_ms / warp_ms);
-  std::printf("               every tet rasterized (worst case): warp labels+CT %7.1f ms (%6.1f Mvox/s): %4.1fx ITK\n",
-              1000.0 * all_tets_s, 2.0 * voxels / all_tets_s / 1e6, itk_ms / (1000.0 * all_tets_s));
+  std::printf(
+      "               every tet rasterized (worst case): warp labels+CT %7.1f ms (%6.1f Mvox/s): %4.1fx ITK "
+      "(best build %.1f, labels %.1f, CT %.1f ms)\n",
+      1000.0 * all_tets_s, 2.0 * voxels / all_tets_s / 1e6, itk_ms / (1000.0 * all_tets_s), 1000.0 * all_tets_parts[0],
+      1000.0 * all_tets_parts[1], 1000.0 * all_tets_parts[2]);
   std::printf("               rasterized tets %lld of %lld; stages:",
               static_cast<long long>(with_fields.report.rasterized_tets),
               static_cast<long long>(engine->rig().mesh.tet_count()));

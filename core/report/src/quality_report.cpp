@@ -66,15 +66,21 @@ std::map<Label, int64_t> label_counts(const LabelVolume& labels) {
   const int64_t n = labels.voxel_count();
   if (n == 0) return counts;
   const Label* v = labels.data();
-  const auto [lo, hi] = std::minmax_element(v, v + n);
-  const int64_t range = static_cast<int64_t>(*hi) - static_cast<int64_t>(*lo) + 1;
+  Label lo = v[0], hi = v[0];
+  std::mutex merge;
+  parallel_for(0, n, int64_t{1} << 20, [&](int64_t begin, int64_t end) {
+    const auto [a, b] = std::minmax_element(v + begin, v + end);
+    const std::lock_guard<std::mutex> lock(merge);
+    lo = std::min(lo, *a);
+    hi = std::max(hi, *b);
+  });
+  const int64_t range = static_cast<int64_t>(hi) - static_cast<int64_t>(lo) + 1;
   if (range > (int64_t{1} << 16)) {  // sparse values: a map
     for (int64_t i = 0; i < n; ++i) ++counts[v[i]];
     return counts;
   }
-  const Label first = *lo;
+  const Label first = lo;
   std::vector<int64_t> total(static_cast<size_t>(range), 0);
-  std::mutex merge;
   parallel_for(0, n, int64_t{1} << 18, [&](int64_t begin, int64_t end) {
     std::vector<int64_t> local(static_cast<size_t>(range), 0);
     for (int64_t i = begin; i < end; ++i) ++local[static_cast<size_t>(v[i] - first)];

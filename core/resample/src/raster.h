@@ -150,6 +150,34 @@ inline void apply_map(const double* m, double i, double j, double k, double s[3]
   s[2] = m[6] * i + m[7] * j + m[8] * k + m[11];
 }
 
+// A neighbour of an uncovered voxel within the skin shell, and how far it is (mm).
+struct ShellOffset {
+  int64_t di, dj, dk;
+  double distance;
+};
+
+// The offsets within the shell's ellipsoid (semi-axes shell[a] mm, at most reach[a] voxels of `output`), nearest
+// first.
+inline std::vector<ShellOffset> shell_offsets(const ImageGeometry& output, const double shell[3],
+                                              const int64_t reach[3]) {
+  std::vector<ShellOffset> offsets;
+  for (int64_t dk = -reach[2]; dk <= reach[2]; ++dk) {
+    for (int64_t dj = -reach[1]; dj <= reach[1]; ++dj) {
+      for (int64_t di = -reach[0]; di <= reach[0]; ++di) {
+        const double x = double(di) * output.spacing[0], y = double(dj) * output.spacing[1],
+                     z = double(dk) * output.spacing[2];
+        const double inside =
+            (x / shell[0]) * (x / shell[0]) + (y / shell[1]) * (y / shell[1]) + (z / shell[2]) * (z / shell[2]);
+        if ((di || dj || dk) && inside <= 1.0 + 1e-12)
+          offsets.push_back({di, dj, dk, std::sqrt(x * x + y * y + z * z)});
+      }
+    }
+  }
+  std::stable_sort(offsets.begin(), offsets.end(),
+                   [](const ShellOffset& a, const ShellOffset& b) { return a.distance < b.distance; });
+  return offsets;
+}
+
 // TetWarp::build's checks of its inputs, before anything is allocated.
 Status check(const WarpInputs& inputs);
 

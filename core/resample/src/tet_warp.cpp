@@ -232,42 +232,83 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c)
       to_mm(r, c) = source_.direction[static_cast<size_t>(3 * r + c)] * source_.spacing[static_cast<size_t>(c)];
-  // Per slice, the deviations of the voxels holding a bone value, by segment; then max and 99th percentile.
-  std::vector<std::vector<std::vector<float>>> found(static_cast<size_t>(n[2]));
+  // Per slice and segment, how many bone voxels sit exactly where their bone puts them (a voxel its own bone's map
+  // claimed lands on that bone: deviation 0, counted, not stored) and the other deviations; then max and 99th
+  // percentile over the zeros and the rest together.
+  struct Found {
+    std::vector<int64_t> exact;
+    std::vector<std::vector<float>> off;
+  };
+  std::vector<Found> found(static_cast<size_t>(n[2]));
   parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {
-      std::vector<std::vector<float>>& slice = found[static_cast<size_t>(k)];
-      slice.assign(static_cast<size_t>(segment_count), {});
+      Found& slice = found[static_cast<size_t>(k)];
+      slice.exact.assign(static_cast<size_t>(segment_count), 0);
+      slice.off.assign(static_cast<size_t>(segment_count), {});
       for (int64_t j = 0; j < n[1]; ++j) {
+        const int32_t* row = owner_.get() + output_.offset(0, j, k);
+        // Where the background map steps one source voxel along x from a whole source index, a background voxel's
+        // source voxel is x0 + i on one source row: most voxels need no mapping to be found off every bone.
+        const int16_t* background_row = nullptr;
+        int64_t x0 = 0;
+        if (const double* bg = background_map_; steps_one_x(bg[0], bg[3], bg[6])) {
+          double r0[3];
+          apply_map(bg, 0.0, double(j), double(k), r0);
+          int64_t y = 0, z = 0;
+          if (integral(r0[0], x0) && integral(r0[1], y) && integral(r0[2], z) && y >= 0 && z >= 0 && y < m[1] &&
+              z < m[2]) {
+            background_row = bones_->segment.data() + m[0] * (y + m[1] * z);
+          }
+        }
         for (int64_t i = 0; i < n[0]; ++i) {
-          const int32_t o = owner_[output_.offset(i, j, k)];
+          const int32_t o = row[i];
           // No bone value where nothing maps or a soft map does (it takes the substitute): skipped before mapping.
           const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
           if (o == kNoSample || soft) continue;
+          if (o == -1 && background_row) {
+            const int64_t x = x0 + i;
+            if (x < 0 || x >= m[0] || background_row[x] < 0) continue;
+          }
           double s[3];
           apply_map(map_of(o), double(i), double(j), double(k), s);
           const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
           if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
           const int segment = bones_->segment[static_cast<size_t>(x + m[0] * (y + m[1] * z))];
           if (segment < 0) continue;
+          if (is_bone_owner(o) && o - kBoneOwner == segment) {  // the same map: s is the bone's own sample
+            ++slice.exact[static_cast<size_t>(segment)];
+            continue;
+          }
           double b[3];
           apply_map(bone_maps_.data() + 12 * segment, double(i), double(j), double(k), b);
           const Eigen::Vector3d d(s[0] - b[0], s[1] - b[1], s[2] - b[2]);
-          slice[static_cast<size_t>(segment)].push_back(static_cast<float>((to_mm * d).norm()));
+          slice.off[static_cast<size_t>(segment)].push_back(static_cast<float>((to_mm * d).norm()));
         }
       }
     }
   });
   std::vector<std::pair<double, double>> result(static_cast<size_t>(segment_count), {0.0, 0.0});
   for (int segment = 0; segment < segment_count; ++segment) {
-    std::vector<float> all;
-    for (const auto& slice : found)
-      all.insert(all.end(), slice[static_cast<size_t>(segment)].begin(), slice[static_cast<size_t>(segment)].end());
-    if (all.empty()) continue;
-    const size_t p99 = std::min(all.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(all.size())));
-    std::nth_element(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(p99), all.end());
-    const double percentile = all[p99];
-    result[static_cast<size_t>(segment)] = {*std::max_element(all.begin(), all.end()), percentile};
+    int64_t zeros = 0;
+    std::vector<float> off;
+    for (const Found& slice : found) {
+      zeros += slice.exact[static_cast<size_t>(segment)];
+      const std::vector<float>& more = slice.off[static_cast<size_t>(segment)];
+      off.insert(off.end(), more.begin(), more.end());
+    }
+    const size_t count = static_cast<size_t>(zeros) + off.size();
+    if (count == 0) continue;
+    // Sorted, the deviations (norms, never below zero) are the zeros and then the rest: the percentile is a zero or
+    // the rest's element, the maximum the rest's.
+    const size_t p99 = std::min(count - 1, static_cast<size_t>(0.99 * static_cast<double>(count)));
+    double percentile = 0.0, highest = 0.0;
+    if (!off.empty()) highest = *std::max_element(off.begin(), off.end());
+    if (p99 >= static_cast<size_t>(zeros)) {
+      const auto at = off.begin() + static_cast<std::ptrdiff_t>(p99 - static_cast<size_t>(zeros));
+      std::nth_element(off.begin(), at, off.end());
+      percentile = *at;
+    }
+    result[static_cast<size_t>(segment)] = {highest, percentile};
   }
   return result;
 }

@@ -20,16 +20,6 @@ namespace posewarp::resample {
 
 using namespace internal;
 
-namespace {
-
-// A neighbour of an uncovered voxel within the skin shell, and how far it is (mm).
-struct ShellOffset {
-  int64_t di, dj, dk;
-  double distance;
-};
-
-}  // namespace
-
 // build()'s steps, split the way ITK splits a filter: the maps (background and bones), the tets to rasterize and
 // their raster data, then three passes over output slabs in parallel (each thread owns whole slabs): rasterize the
 // moving tets and resolve folds, find the skin shell, classify every voxel and let the bones claim theirs. Each step
@@ -66,7 +56,7 @@ class TetWarp::Builder {
       split_into_slabs();
       in_slabs([this](int64_t s) { rasterize_slab(s); });  // pass 1
       POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
-      find_shell_offsets();
+      offsets_ = shell_offsets(in_.output, shell_, reach_);
       in_slabs([this](int64_t s) { find_shell(s); });     // pass 2
       in_slabs([this](int64_t s) { classify_slab(s); });  // pass 3
       POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
@@ -418,25 +408,6 @@ class TetWarp::Builder {
     }
   }
 
-  // The shell's neighbour offsets, nearest first.
-  void find_shell_offsets() {
-    const ImageGeometry& output = in_.output;
-    for (int64_t dk = -reach_[2]; dk <= reach_[2]; ++dk) {
-      for (int64_t dj = -reach_[1]; dj <= reach_[1]; ++dj) {
-        for (int64_t di = -reach_[0]; di <= reach_[0]; ++di) {
-          const double x = double(di) * output.spacing[0], y = double(dj) * output.spacing[1],
-                       z = double(dk) * output.spacing[2];
-          const double inside =
-              (x / shell_[0]) * (x / shell_[0]) + (y / shell_[1]) * (y / shell_[1]) + (z / shell_[2]) * (z / shell_[2]);
-          if ((di || dj || dk) && inside <= 1.0 + 1e-12)
-            offsets_.push_back({di, dj, dk, std::sqrt(x * x + y * y + z * z)});
-        }
-      }
-    }
-    std::stable_sort(offsets_.begin(), offsets_.end(),
-                     [](const ShellOffset& a, const ShellOffset& b) { return a.distance < b.distance; });
-  }
-
   // Pass 2 over slab s, the skin shell: an uncovered voxel whose shell ellipsoid holds a covered voxel's centre takes
   // the map of the nearest such voxel's tet. Rows far from any covered voxel are skipped by the rows' covered extents.
   void find_shell(int64_t s) {
@@ -590,9 +561,20 @@ class TetWarp::Builder {
         if (fast && y >= 0 && z >= 0 && y < in_.source.size[1] && z < in_.source.size[2]) {
           rest_row = in_.rest_owner->data() + in_.source.offset(0, y, z);
         }
+        // The moving bones' reach on this row: outside it, and off the shell, a voxel no moving tet covers is
+        // classified by its rest owner alone (no fold, no contact to guard, no bone to claim).
+        int64_t bones_lo = n_[0], bones_hi = -1;
+        for (const auto& [segment, i0, i1] : row_bones)
+          bones_lo = std::min(bones_lo, i0), bones_hi = std::max(bones_hi, i1);
         for (int64_t i = 0; i < n_[0]; ++i) {
           const int64_t local = local_begin + i;
           int32_t& o = owner_[row_begin + i];
+          if (o == -1 && fast && (i < bones_lo || i > bones_hi) &&
+              (next_shell >= found.size() || found[next_shell].first != local)) {
+            const int64_t x = x0 + i;
+            classify_uncovered(o, rest_row && x >= 0 && x < in_.source.size[0] ? rest_row[x] : -1, stats);
+            continue;
+          }
           int32_t shell_owner = -1;
           if (next_shell < found.size() && found[next_shell].first == local) shell_owner = found[next_shell++].second;
           if (!in_.rest_owner) {
@@ -627,6 +609,18 @@ class TetWarp::Builder {
       o = -2 - shell_owner;
       ++stats.extrapolated_voxels;
     } else {
+      ++stats.background_voxels;
+    }
+  }
+
+  // classify_by_rest_owner for a voxel that no moving tet covers and no shell reaches.
+  void classify_uncovered(int32_t& o, int32_t ro, WarpStats& stats) const {
+    int32_t rt = ro >= 0 ? ro : (ro <= -2 && ro != kNoSample) ? -2 - ro : -1;
+    if (rt >= in_.rest.tet_count()) ro = rt = -1;
+    if (rt >= 0 && !moving_[static_cast<size_t>(rt)]) {
+      ++(ro >= 0 ? stats.covered_voxels : stats.extrapolated_voxels);  // o stays -1
+    } else {
+      o = rt < 0 ? -1 : kNoSample;
       ++stats.background_voxels;
     }
   }

@@ -13,6 +13,7 @@
 #include "posewarp/labels/body.h"
 #include "posewarp/mesh/mesher.h"
 #include "posewarp/phantom/phantom.h"
+#include "posewarp/resample/rigid_bones.h"
 
 namespace posewarp::resample {
 namespace {
@@ -216,6 +217,80 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
   // The body's extent agrees to a few shell voxels (a still tet's rest shell now wins over a moving tet's shell).
   EXPECT_NEAR(static_cast<double>(full->stats().covered_voxels + full->stats().extrapolated_voxels),
               static_cast<double>(lean->stats().covered_voxels + lean->stats().extrapolated_voxels), 1e-3 * body);
+}
+
+TEST(TetWarp, BoneDeviationCountsExactVoxelsAndFindsThePercentileOverAll) {
+  // Every bone label its own segment; the last bone turns 4 degrees about its centre while the mesh stays: the
+  // background shows that bone's rest voxels the turned bone left (each off by its own distance), the bone's own map
+  // claims the rest exactly (deviation 0).
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  std::vector<std::vector<Label>> segment_labels;
+  for (const labels::LabelEntry& e : s.phantom.label_map.entries()) {
+    if (e.role == labels::LabelRole::kBone) segment_labels.push_back({e.value});
+  }
+  ASSERT_GE(segment_labels.size(), 2u);
+  Result<BoneVoxels> voxels = bone_voxels(s.phantom.labels, segment_labels);
+  ASSERT_TRUE(voxels.ok());
+  const size_t moved = segment_labels.size() - 1;
+  const std::array<int64_t, 6>& box = voxels->box[moved];
+  const Vec3 c = g.index_to_physical(
+      {0.5 * double(box[0] + box[3]), 0.5 * double(box[1] + box[4]), 0.5 * double(box[2] + box[5])});
+  const Eigen::Vector3d centre(c[0], c[1], c[2]);
+  RigidBones bones;
+  bones.voxels = &*voxels;
+  bones.rotation.assign(segment_labels.size(), Eigen::Matrix3d::Identity());
+  bones.translation.assign(segment_labels.size(), Eigen::Vector3d::Zero());
+  bones.rotation[moved] = Eigen::AngleAxisd(4.0 * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  bones.translation[moved] = centre - bones.rotation[moved] * centre;
+  Result<TetWarp> warp = TetWarp::build({.rest = s.mesh,
+                                         .posed = s.mesh.vertices,
+                                         .source = g,
+                                         .output = g,
+                                         .rest_owner = &s.rest_owner,
+                                         .bones = &bones});
+  ASSERT_TRUE(warp.ok());
+  // The reference: every output voxel a bone or the background maps onto a bone's source voxel, the distance (mm)
+  // between that source point and where the bone's own inverse takes the voxel; max and 99th percentile over all of
+  // them, zeros included.
+  auto inverse = [&](size_t segment, const Eigen::Vector3d& x) -> Eigen::Vector3d {
+    return bones.rotation[segment].transpose() * (x - bones.translation[segment]);
+  };
+  const std::vector<int32_t> owner = warp->owner();
+  std::vector<std::vector<float>> all(segment_labels.size());
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (int64_t j = 0; j < g.size[1]; ++j) {
+      for (int64_t i = 0; i < g.size[0]; ++i) {
+        const int32_t o = owner[static_cast<size_t>(g.offset(i, j, k))];
+        if (o != -1 && !TetWarp::is_bone_owner(o)) continue;
+        const Vec3 p = g.index_to_physical({double(i), double(j), double(k)});
+        const Eigen::Vector3d x(p[0], p[1], p[2]);
+        const Eigen::Vector3d from = o == -1 ? x : inverse(static_cast<size_t>(o - TetWarp::kBoneOwner), x);
+        const Vec3 u = g.physical_to_index({from.x(), from.y(), from.z()});
+        const int64_t si = std::llround(u[0]), sj = std::llround(u[1]), sk = std::llround(u[2]);
+        if (!s.phantom.labels.contains(si, sj, sk)) continue;
+        const int segment = voxels->segment[static_cast<size_t>(g.offset(si, sj, sk))];
+        if (segment < 0) continue;
+        all[static_cast<size_t>(segment)].push_back(
+            static_cast<float>((from - inverse(static_cast<size_t>(segment), x)).norm()));
+      }
+    }
+  }
+  const std::vector<std::pair<double, double>> deviation = warp->bone_deviation_mm();
+  ASSERT_EQ(deviation.size(), segment_labels.size());
+  for (size_t segment = 0; segment < all.size(); ++segment) {
+    std::vector<float>& d = all[segment];
+    if (d.empty()) continue;
+    const size_t p99 = std::min(d.size() - 1, static_cast<size_t>(0.99 * static_cast<double>(d.size())));
+    std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(p99), d.end());
+    EXPECT_NEAR(deviation[segment].second, d[p99], 1e-4) << "segment " << segment;
+    EXPECT_NEAR(deviation[segment].first, *std::max_element(d.begin(), d.end()), 1e-4) << "segment " << segment;
+  }
+  const std::vector<float>& turned = all[moved];
+  const auto zeros = std::count(turned.begin(), turned.end(), 0.0f);
+  EXPECT_GT(zeros, 0);  // the turned bone has exact voxels and deviations both
+  EXPECT_LT(zeros, static_cast<std::ptrdiff_t>(turned.size()));
+  EXPECT_GT(deviation[moved].second, 0.0);
 }
 
 TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) {
