@@ -43,6 +43,36 @@ Status write_samples(const PoseWrite& write, const T* data, int64_t n, PixelType
   return ok_status();
 }
 
+// n labels as runs of equal values, (value as `type`, count as uint32) pairs little-endian, in chunks of whole runs
+// of about chunk_bytes; each chunk's offset and the first's total_bytes count the decoded samples' bytes.
+Status write_runs(const PoseWrite& write, const Label* data, int64_t n, PixelType type, uint64_t chunk_bytes) {
+  const int64_t sample = pixel_type_bytes(type);
+  const size_t pair = static_cast<size_t>(sample) + 4;
+  const size_t per_chunk = std::max<size_t>(pair, static_cast<size_t>(chunk_bytes) / pair * pair);
+  for (int64_t first = 0; first < n;) {
+    v1::PoseResponse message;
+    v1::VolumeChunk* part = message.mutable_labels();
+    part->set_offset(static_cast<uint64_t>(first * sample));
+    if (first == 0) part->set_total_bytes(static_cast<uint64_t>(n * sample));
+    std::string* bytes = part->mutable_data();
+    while (first < n && bytes->size() + pair <= per_chunk) {
+      int64_t end = first + 1;
+      while (end < n && data[end] == data[first] && end - first < int64_t{0xffffffff}) ++end;
+      const size_t at = bytes->size();
+      bytes->resize(at + pair);
+      if (!convert_samples(data + first, 1, type, bytes->data() + at)) {
+        return internal_error("a posed label does not fit the study's voxel type " +
+                              std::string(pixel_type_name(type)) + "; ask for computed samples");
+      }
+      const uint32_t count = static_cast<uint32_t>(end - first);
+      for (int b = 0; b < 4; ++b) (*bytes)[at + static_cast<size_t>(sample + b)] = static_cast<char>(count >> (8 * b));
+      first = end;
+    }
+    if (!write(message)) return client_gone();
+  }
+  return ok_status();
+}
+
 // The posed volumes of one call, written to its stream from a thread of their own while the engine goes on. Each
 // volume waits for the one before it, and the call writes nothing else until wait(): one writer at a time.
 class VolumeSender {
@@ -58,6 +88,10 @@ class VolumeSender {
                    [this, before = std::move(last_), volume = std::move(volume), type, field]() mutable -> Status {
                      if (before.valid()) {
                        if (Status s = before.get(); !s.ok()) return s;
+                     }
+                     if constexpr (std::is_same_v<T, Label>) {
+                       if (encoding_.label_runs)
+                         return write_runs(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_);
                      }
                      if (!encoding_.format)
                        return write_samples(write_, volume->data(), volume->voxel_count(), type, chunk_bytes_, field);
@@ -131,6 +165,16 @@ Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api
   } else if (request.samples() != v1::SAMPLE_TYPE_COMPUTED) {
     return invalid_argument_error("samples is SAMPLE_TYPE_STORED or SAMPLE_TYPE_COMPUTED");
   }
+  if (request.label_encoding() == v1::LABEL_ENCODING_RUNS) {
+    if (e.format) {
+      return invalid_argument_error(
+          "label_encoding LABEL_ENCODING_RUNS is for raw samples (FILE_FORMAT_RAW); a file format compresses "
+          "its own bytes: leave label_encoding out");
+    }
+    e.label_runs = true;
+  } else if (request.label_encoding() != v1::LABEL_ENCODING_SAMPLES) {
+    return invalid_argument_error("label_encoding is LABEL_ENCODING_SAMPLES or LABEL_ENCODING_RUNS");
+  }
   return e;
 }
 
@@ -181,6 +225,7 @@ v1::PoseResponse pose_header(const api::PosePlan& plan, const api::Rig& rig, con
   if (core.want_labels) header->set_label_sample_type(wire_pixel_type(encoding.label_type));
   if (core.want_ct) header->set_ct_sample_type(wire_pixel_type(encoding.ct_type));
   header->set_format(format);
+  if (core.want_labels && encoding.label_runs) header->set_label_encoding(v1::LABEL_ENCODING_RUNS);
   if (core.want_fields) {
     header->set_inverse_field_bytes(voxels * 12);
     header->set_forward_field_bytes(static_cast<uint64_t>(rig.labels.voxel_count()) * 12);

@@ -19,6 +19,7 @@ struct VolumeEncoding {
   bool gzip = false;
   PixelType label_type = PixelType::kInt32;
   PixelType ct_type = PixelType::kFloat32;
+  bool label_runs = false;  // raw labels as runs of equal values (LABEL_ENCODING_RUNS)
 };
 Result<VolumeEncoding> volume_encoding(const v1::PoseRequest& request, const api::Rig& rig);
 

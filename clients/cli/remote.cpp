@@ -293,7 +293,8 @@ v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_
   request.set_want_surfaces(r.want_surfaces);
   request.set_want_fields(r.want_fields);
   request.set_max_output_bytes(static_cast<uint64_t>(std::max<int64_t>(0, r.limits.max_bytes)));
-  request.set_samples(v1::SAMPLE_TYPE_STORED);  // what the files hold, in the fewest bytes
+  request.set_samples(v1::SAMPLE_TYPE_STORED);            // what the files hold, in the fewest bytes
+  request.set_label_encoding(v1::LABEL_ENCODING_RUNS);  // labels in runs: a fraction of their samples' bytes
   for (const SurfaceMesh& mesh : r.extra_surfaces) {
     v1::Surface* m = request.add_meshes();
     m->set_name(mesh.name);

@@ -53,6 +53,9 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     np.testing.assert_allclose(posed.affine, cli_labels.affine, atol=1e-4)
     cli_ct = np.asarray(nibabel.load(str(work / "cli_ct.nii.gz")).dataobj, dtype=np.float32)
     np.testing.assert_array_equal(posed.ct, cli_ct)  # stored samples: rounded as the file is
+    samples = client.pose(rig, POSE, method="dqs", ct=False, label_runs=False)  # one sample per voxel, not runs
+    assert samples.labels.dtype == posed.labels.dtype
+    np.testing.assert_array_equal(samples.labels, posed.labels)
     computed = client.pose(rig, POSE, method="dqs", samples="computed", fields=True,
                            meshes={"needle": (posed.surfaces[next(iter(posed.surfaces))][0][:4], [[0, 1, 2]])})
     assert computed.ct.dtype == np.float32 and computed.labels.dtype == np.int32

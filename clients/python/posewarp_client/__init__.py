@@ -65,6 +65,12 @@ def _volume(data, grid, dtype):
     return np.frombuffer(data, dtype=dtype).reshape(size[2], size[1], size[0]).transpose(2, 1, 0)
 
 
+def _runs(data, dtype):
+    """The samples of a chunk of runs: (value as dtype, count as uint32) pairs, little-endian, packed."""
+    pairs = np.frombuffer(data, dtype=np.dtype([("value", np.dtype(dtype).newbyteorder("<")), ("count", "<u4")]))
+    return np.repeat(pairs["value"], pairs["count"]).astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+
+
 class Client:
     def __init__(self, address, timeout_s=600.0, token=None, tls_ca=None, retries=3):
         """token: the server's bearer token (or None); tls_ca: path of the CA certificate (PEM) of a TLS server;
@@ -157,7 +163,7 @@ class Client:
                 return found
 
     def pose(self, rig_id, pose, method="cor", grid="input", labels=True, ct=True, surfaces=False,
-             samples="stored", fields=False, meshes=None, fem_iterations=0, fem_volume_weight=0.0):
+             samples="stored", fields=False, meshes=None, fem_iterations=0, fem_volume_weight=0.0, label_runs=True):
         """Poses a rig: `pose` is the CLI's pose JSON as a dict (or a path to one).
 
         method: "cor" (centres of rotation, the default), "dqs", "lbs" or "fem" (CoR refined by the soft tissue's
@@ -168,7 +174,8 @@ class Client:
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
         bytes); "computed" gives int32 labels and float32 CT as computed. fields: also the inverse (output grid) and
         forward (study grid) displacement fields, (x, y, z, 3) float32 arrays in LPS mm. meshes: {name: (vertices,
-        triangles)} of your own in rest space (LPS mm), posed and returned among the surfaces."""
+        triangles)} of your own in rest space (LPS mm), posed and returned among the surfaces. label_runs: the labels
+        travel as runs of equal values (a fraction of their samples' bytes) and come back as the same array."""
         if isinstance(pose, (str, os.PathLike)) and os.path.exists(pose):
             with open(pose) as f:
                 pose = json.load(f)
@@ -179,7 +186,8 @@ class Client:
                                  want_labels=labels, want_ct=ct, want_surfaces=surfaces or bool(meshes),
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
                                  want_fields=fields,
-                                 fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight))
+                                 fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight),
+                                 label_encoding=pb.LABEL_ENCODING_RUNS if label_runs else pb.LABEL_ENCODING_SAMPLES)
         for name, (vertices, triangles) in (meshes or {}).items():
             request.meshes.add(name=name, vertices=np.asarray(vertices, dtype=float).ravel().tolist(),
                                triangles=np.asarray(triangles, dtype=np.int32).ravel().tolist())
@@ -194,6 +202,8 @@ class Client:
                     kind = part.WhichOneof("part")
                     if kind == "header":
                         header = part.header
+                    elif kind == "labels" and header.label_encoding == pb.LABEL_ENCODING_RUNS:
+                        parts[kind] += _runs(part.labels.data, _sample_dtype(header.label_sample_type))
                     elif kind in parts:
                         parts[kind] += getattr(part, kind).data
                     elif kind == "surface":

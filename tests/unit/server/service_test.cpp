@@ -331,6 +331,44 @@ TEST(ServiceInProcess, ABuiltRigIsWatchedToItsEndListedPosedAsTheStudyPreviewedA
   ASSERT_EQ(posed.size(), static_cast<size_t>(voxels) * 4);
   EXPECT_EQ(std::memcmp(posed.data(), phantom->labels.data(), posed.size()), 0);
 
+  // The same labels as runs: each chunk whole (value, count) pairs that decode where its offset says, in fewer bytes;
+  // runs with a file format are refused.
+  request.set_label_encoding(v1::LABEL_ENCODING_RUNS);
+  auto r = context();
+  auto runs = service.stub().Pose(r.get(), request);
+  ASSERT_TRUE(runs->Read(&message) && message.has_header());
+  EXPECT_EQ(message.header().label_encoding(), v1::LABEL_ENCODING_RUNS);
+  EXPECT_EQ(message.header().label_bytes(), static_cast<uint64_t>(voxels) * 4);
+  std::string decoded;
+  size_t encoded = 0;
+  while (runs->Read(&message)) {
+    if (!message.has_labels()) continue;
+    const std::string& data = message.labels().data();
+    EXPECT_EQ(message.labels().offset(), decoded.size());
+    ASSERT_EQ(data.size() % 8, 0u);
+    encoded += data.size();
+    for (size_t at = 0; at < data.size(); at += 8) {
+      uint32_t count = 0;
+      std::memcpy(&count, data.data() + at + 4, 4);
+      ASSERT_GT(count, 0u);
+      for (uint32_t n = 0; n < count; ++n) decoded.append(data, at, 4);
+    }
+  }
+  ASSERT_TRUE(runs->Finish().ok());
+  ASSERT_EQ(decoded.size(), posed.size());
+  EXPECT_EQ(decoded, posed);
+  EXPECT_LT(encoded * 10, posed.size());
+  request.set_format(v1::FILE_FORMAT_NIFTI_GZ);
+  auto refused_context = context();
+  auto refused = service.stub().Pose(refused_context.get(), request);
+  while (refused->Read(&message)) {
+  }
+  const grpc::Status why = refused->Finish();
+  EXPECT_EQ(why.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(why.error_message().find("label_encoding"), std::string::npos) << why.error_message();
+  request.set_format(v1::FILE_FORMAT_RAW);
+  request.clear_label_encoding();
+
   // A preview stream: each update answered in turn, a refused one with its code, and the stream goes on.
   auto v = context();
   auto preview = service.stub().Preview(v.get());
