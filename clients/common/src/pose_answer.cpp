@@ -73,7 +73,7 @@ grpc::Status read_pose(grpc::ClientContext& context, grpc::ClientReaderInterface
         labels.expected = answer->header.label_bytes();
         if (answer->header.label_encoding() == v1::LABEL_ENCODING_RUNS) {
           labels.run_sample = sample_bytes(answer->header.label_sample_type());
-          in_order = labels.run_sample > 0;
+          in_order = labels.run_sample > 0 || labels.expected == 0;  // runs of samples of a known type
         }
         ct.expected = answer->header.ct_bytes();
         inverse.expected = answer->header.inverse_field_bytes();

@@ -68,7 +68,7 @@ def _volume(data, grid, dtype):
 def _runs(data, dtype):
     """The samples of a chunk of runs: (value as dtype, count as uint32) pairs, little-endian, packed."""
     pairs = np.frombuffer(data, dtype=np.dtype([("value", np.dtype(dtype).newbyteorder("<")), ("count", "<u4")]))
-    return np.repeat(pairs["value"], pairs["count"]).astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+    return np.repeat(pairs["value"], pairs["count"]).tobytes()
 
 
 class Client:
