@@ -77,20 +77,6 @@ double sample(const std::string& bytes, size_t i) {
   return static_cast<double>(value);
 }
 
-size_t sample_size(v1::PixelType type) {
-  switch (type) {
-    case v1::PIXEL_TYPE_UINT8:
-    case v1::PIXEL_TYPE_INT8: return 1;
-    case v1::PIXEL_TYPE_UINT16:
-    case v1::PIXEL_TYPE_INT16: return 2;
-    case v1::PIXEL_TYPE_UINT32:
-    case v1::PIXEL_TYPE_INT32:
-    case v1::PIXEL_TYPE_FLOAT32: return 4;
-    case v1::PIXEL_TYPE_FLOAT64: return 8;
-    default: return 0;
-  }
-}
-
 double read_sample(const std::string& bytes, v1::PixelType type, size_t i) {
   switch (type) {
     case v1::PIXEL_TYPE_UINT8: return sample<uint8_t>(bytes, i);
@@ -132,8 +118,9 @@ bool slice_volume(const PosedVolumes& posed, SliceVolume* volume, std::string* e
   }
   const size_t voxels = static_cast<size_t>(n[0] * n[1] * n[2]);
   const v1::PixelType label_type = posed.header.label_sample_type(), ct_type = posed.header.ct_sample_type();
-  if (sample_size(label_type) == 0 || sample_size(ct_type) == 0 ||
-      posed.labels.size() != voxels * sample_size(label_type) || posed.ct.size() != voxels * sample_size(ct_type)) {
+  const size_t label_bytes = client::sample_bytes(label_type), ct_bytes = client::sample_bytes(ct_type);
+  if (label_bytes == 0 || ct_bytes == 0 || posed.labels.size() != voxels * label_bytes ||
+      posed.ct.size() != voxels * ct_bytes) {
     *error = "the server's volumes do not match their header (sizes or sample types)";
     return false;
   }

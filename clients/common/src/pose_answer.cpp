@@ -6,21 +6,6 @@
 namespace posewarp::client {
 namespace {
 
-// Bytes of one sample of a wire pixel type; 0 for none.
-size_t sample_bytes(v1::PixelType type) {
-  switch (type) {
-    case v1::PIXEL_TYPE_UINT8:
-    case v1::PIXEL_TYPE_INT8: return 1;
-    case v1::PIXEL_TYPE_UINT16:
-    case v1::PIXEL_TYPE_INT16: return 2;
-    case v1::PIXEL_TYPE_UINT32:
-    case v1::PIXEL_TYPE_INT32:
-    case v1::PIXEL_TYPE_FLOAT32: return 4;
-    case v1::PIXEL_TYPE_FLOAT64: return 8;
-    default: return 0;
-  }
-}
-
 // One volume or field as its chunks arrive: where the next chunk must start, and its size once known. Labels sent as
 // runs (LABEL_ENCODING_RUNS) are decoded as they come: `run_sample` is then their sample's size.
 struct Incoming {
@@ -59,6 +44,20 @@ struct Incoming {
 };
 
 }  // namespace
+
+size_t sample_bytes(v1::PixelType type) {
+  switch (type) {
+    case v1::PIXEL_TYPE_UINT8:
+    case v1::PIXEL_TYPE_INT8: return 1;
+    case v1::PIXEL_TYPE_UINT16:
+    case v1::PIXEL_TYPE_INT16: return 2;
+    case v1::PIXEL_TYPE_UINT32:
+    case v1::PIXEL_TYPE_INT32:
+    case v1::PIXEL_TYPE_FLOAT32: return 4;
+    case v1::PIXEL_TYPE_FLOAT64: return 8;
+    default: return 0;
+  }
+}
 
 grpc::Status read_pose(grpc::ClientContext& context, grpc::ClientReaderInterface<v1::PoseResponse>& reader,
                        PoseAnswer* answer, const PoseProgress& progress) {

@@ -22,6 +22,9 @@ struct PoseAnswer {
   v1::QualityReport report;
 };
 
+// Bytes of one sample of a wire pixel type (PIXEL_TYPE_INT16: 2); 0 for PIXEL_TYPE_UNSPECIFIED or an unknown one.
+size_t sample_bytes(v1::PixelType type);
+
 // Called after each part with the volume bytes received so far and those expected (0 until the server has said).
 using PoseProgress = std::function<void(uint64_t received, uint64_t expected)>;
 
