@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cstring>
 #include <future>
 #include <iostream>
 
@@ -116,6 +117,13 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     if (const client::CallError e = client::pose(*connection, request, &answer); e.failed()) throw std::runtime_error(e.message);
     server_ms.push_back(1e3 * start.seconds());
     row["volume_mb_per_pose"] = static_cast<double>(answer.labels.size() + answer.ct.size()) / 1e6;
+    // The labels' bytes as runs: each run one (value, uint32 count) pair (no run is split between chunks).
+    const size_t sample = client::sample_bytes(answer.header.label_sample_type());
+    size_t runs = answer.labels.empty() ? 0 : 1;
+    for (size_t at = sample; sample > 0 && at < answer.labels.size(); at += sample)
+      runs += std::memcmp(answer.labels.data() + at, answer.labels.data() + at - sample, sample) != 0;
+    row["label_mb_per_pose"] = {{"samples", static_cast<double>(answer.labels.size()) / 1e6},
+                                {"runs", static_cast<double>(runs * (sample + 4)) / 1e6}};
     if (r + 1 == repeats) {
       const nlohmann::json report = nlohmann::json::parse(answer.report.json());
       std::printf("%-12s server stages (ms):", name.c_str());
@@ -132,9 +140,11 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
               name.c_str(), static_cast<long long>(voxels), percentile(local_ms, 50), percentile(local_ms, 99),
               percentile(server_ms, 50), percentile(server_ms, 99), percentile(server_ms, 50) / percentile(local_ms, 50),
               row["volume_mb_per_pose"].get<double>());
-  std::printf("%-12s the same with labels as one sample per voxel instead of runs: server p50 %7.1f ms p99 %7.1f (x%.2f)\n",
+  std::printf("%-12s the same with labels as one sample per voxel instead of runs: server p50 %7.1f ms p99 %7.1f (x%.2f); "
+              "labels %.2f MB as samples, %.2f MB as runs\n",
               name.c_str(), percentile(samples_ms, 50), percentile(samples_ms, 99),
-              percentile(samples_ms, 50) / percentile(local_ms, 50));
+              percentile(samples_ms, 50) / percentile(local_ms, 50),
+              row["label_mb_per_pose"]["samples"].get<double>(), row["label_mb_per_pose"]["runs"].get<double>());
   std::printf("%-12s rig %.1f MB: upload %.0f MB/s, load from the store %.0f ms (in process), first GetRig %.0f ms\n",
               name.c_str(), row["rig_mb"].get<double>(), row["upload_mb_per_s"].get<double>(),
               row["rig_load_ms"].get<double>(), row["first_get_rig_ms"].get<double>());

@@ -150,6 +150,14 @@ inline void apply_map(const double* m, double i, double j, double k, double s[3]
   s[2] = m[6] * i + m[7] * j + m[8] * k + m[11];
 }
 
+// Whether `m` takes output row (j, k) along one source row: one source voxel along x per output voxel, from the whole
+// source index (x0, y, z) at i = 0. `start` is the map at i = 0 either way.
+inline bool along_source_row(const double* m, double j, double k, double start[3], int64_t& x0, int64_t& y,
+                             int64_t& z) {
+  apply_map(m, 0.0, j, k, start);
+  return steps_one_x(m[0], m[3], m[6]) && integral(start[0], x0) && integral(start[1], y) && integral(start[2], z);
+}
+
 // A neighbour of an uncovered voxel within the skin shell, and how far it is (mm).
 struct ShellOffset {
   int64_t di, dj, dk;

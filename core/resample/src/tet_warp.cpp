@@ -247,18 +247,14 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
       slice.off.assign(static_cast<size_t>(segment_count), {});
       for (int64_t j = 0; j < n[1]; ++j) {
         const int32_t* row = owner_.get() + output_.offset(0, j, k);
-        // Where the background map steps one source voxel along x from a whole source index, a background voxel's
-        // source voxel is x0 + i on one source row: most voxels need no mapping to be found off every bone.
+        // Where the background map runs along one source row, a background voxel's source voxel is x0 + i on it: most
+        // voxels need no mapping to be found off every bone.
         const int16_t* background_row = nullptr;
-        int64_t x0 = 0;
-        if (const double* bg = background_map_; steps_one_x(bg[0], bg[3], bg[6])) {
-          double r0[3];
-          apply_map(bg, 0.0, double(j), double(k), r0);
-          int64_t y = 0, z = 0;
-          if (integral(r0[0], x0) && integral(r0[1], y) && integral(r0[2], z) && y >= 0 && z >= 0 && y < m[1] &&
-              z < m[2]) {
-            background_row = bones_->segment.data() + m[0] * (y + m[1] * z);
-          }
+        double start[3];
+        int64_t x0 = 0, y0 = 0, z0 = 0;
+        if (along_source_row(background_map_, double(j), double(k), start, x0, y0, z0) && y0 >= 0 && z0 >= 0 &&
+            y0 < m[1] && z0 < m[2]) {
+          background_row = bones_->segment.data() + m[0] * (y0 + m[1] * z0);
         }
         for (int64_t i = 0; i < n[0]; ++i) {
           const int32_t o = row[i];

@@ -544,20 +544,17 @@ class TetWarp::Builder {
     const std::vector<std::pair<int64_t, int32_t>>& found = shells_[static_cast<size_t>(s)];
     size_t next_shell = 0;
     const double* bg = warp_.background_map_;
-    // Where the background map steps one source voxel along x per output voxel from a whole source index (the root
-    // does not move and the grid is the input's), a row's rest owners are one row of rest_owner.
-    const bool bg_steps_x = steps_one_x(bg[0], bg[3], bg[6]);
     for (int64_t k = kb; k < ke; ++k) {
       for (int64_t j = 0; j < n_[1]; ++j) {
         bones_on_row(j, k, row_bones);
         const int64_t row_begin = in_.output.offset(0, j, k);
         const int64_t local_begin = row_begin - slab_begin;
+        // Where the background map runs along one source row (the root does not move and the grid is the input's),
+        // a row's rest owners are one row of rest_owner.
         double row[3];
-        apply_map(bg, 0.0, double(j), double(k), row);
         const int32_t* rest_row = nullptr;  // rest_owner at source x = i + x0 for this output row
         int64_t x0 = 0, y = 0, z = 0;
-        const bool fast =
-            in_.rest_owner && bg_steps_x && integral(row[0], x0) && integral(row[1], y) && integral(row[2], z);
+        const bool fast = along_source_row(bg, double(j), double(k), row, x0, y, z) && in_.rest_owner;
         if (fast && y >= 0 && z >= 0 && y < in_.source.size[1] && z < in_.source.size[2]) {
           rest_row = in_.rest_owner->data() + in_.source.offset(0, y, z);
         }
