@@ -1,5 +1,5 @@
-// The rigs the service benchmarks pose (the real sample's, the mannequin phantom's, cached between runs since the
-// mannequin's takes minutes to build) and their percentiles.
+// The rigs the service benchmarks pose (the real sample's, the mannequin and body phantoms', cached between runs
+// since a 20M-voxel phantom's takes minutes to build) and their percentiles.
 #pragma once
 
 #include <algorithm>
@@ -34,19 +34,28 @@ inline std::string sample_rig_bytes(const std::string& sample_dir) {
   return api::rig_to_bytes(*rig);
 }
 
-// The mannequin phantom's rig at about `mvoxels` million voxels; with a cache directory, read from or kept in
-// mannequin-M.rig there.
-inline std::string mannequin_rig_bytes(double mvoxels, const std::filesystem::path& cache) {
+// A phantom's rig ("mannequin" or "body") at about `mvoxels` million voxels; with a cache directory, read from or
+// kept in KIND-M.rig there.
+inline std::string phantom_rig_bytes(const std::string& kind, double mvoxels, const std::filesystem::path& cache) {
   const std::filesystem::path cached =
-      cache.empty() ? std::filesystem::path() : cache / ("mannequin-" + std::to_string(mvoxels) + ".rig");
+      cache.empty() ? std::filesystem::path() : cache / (kind + "-" + std::to_string(mvoxels) + ".rig");
   if (!cached.empty() && std::filesystem::exists(cached)) {
     Result<std::string> bytes = api::read_text_input(cached.string(), "cached bench rig", int64_t{1} << 34);
     if (!bytes.ok()) throw std::runtime_error(bytes.status().to_string());
     return *bytes;
   }
-  api::MannequinParams params;
-  params.spacing_mm = api::mannequin_spacing_for_voxels(params, static_cast<int64_t>(mvoxels * 1e6));
-  Result<api::Phantom> p = api::make_mannequin(params);
+  const auto voxels = static_cast<int64_t>(mvoxels * 1e6);
+  if (kind != "mannequin" && kind != "body") throw std::runtime_error("unknown phantom '" + kind + "'; known: mannequin, body");
+  Result<api::Phantom> p = [&] {
+    if (kind == "body") {
+      api::BodyParams params;
+      params.spacing_mm = api::body_spacing_for_voxels(params, voxels);
+      return api::make_body(params);
+    }
+    api::MannequinParams params;
+    params.spacing_mm = api::mannequin_spacing_for_voxels(params, voxels);
+    return api::make_mannequin(params);
+  }();
   if (!p.ok()) throw std::runtime_error(p.status().to_string());
   api::BuildInputs inputs;
   inputs.labels = p->labels;

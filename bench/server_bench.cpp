@@ -2,8 +2,10 @@
 // same pose in process (labels + CT returned), throughput with 1, 4 and 16 clients, preview round trips, upload
 // throughput, rig load time from the store, and the server's memory over 100 poses. On the real sample and on the
 // mannequin phantom.
-// Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--repeats R] [--latency-only]
-//                              [--rig-cache DIR (keeps the mannequin's rig between runs)]
+// Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip, the default)]
+//                              [--repeats R] [--latency-only] [--rig-cache DIR (keeps the phantoms' rigs between runs)]
+//                              [--source-dir DIR (the repository: its data/ where the build tree's path does not exist)]
+// Elsewhere than the build tree (a bundle on a bigger machine), POSEWARP_SERVER_BINARY names the server to start.
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -232,13 +234,18 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
 }  // namespace
 
 int main(int argc, char** argv) {
-  double mannequin_mvoxels = 20.0;
+  double mannequin_mvoxels = 20.0, body_mvoxels = 0.0;
+  fs::path source = POSEWARP_SOURCE_DIR;
   int repeats = 10;
   bool latency_only = false;
   fs::path rig_cache;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--mannequin-mvoxels") && i + 1 < argc) {
       mannequin_mvoxels = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--body-mvoxels") && i + 1 < argc) {
+      body_mvoxels = std::atof(argv[++i]);
+    } else if (!std::strcmp(argv[i], "--source-dir") && i + 1 < argc) {
+      source = argv[++i];
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(2, std::atoi(argv[++i]));
     } else if (!std::strcmp(argv[i], "--latency-only")) {
@@ -246,8 +253,8 @@ int main(int argc, char** argv) {
     } else if (!std::strcmp(argv[i], "--rig-cache") && i + 1 < argc) {
       rig_cache = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--repeats R] [--latency-only] "
-                           "[--rig-cache DIR]\n", argv[0]);
+      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)] [--repeats R] "
+                           "[--latency-only] [--rig-cache DIR] [--source-dir DIR]\n", argv[0]);
       return 2;
     }
   }
@@ -255,8 +262,8 @@ int main(int argc, char** argv) {
   fs::create_directories(work);
   nlohmann::json out;
   try {
-    const std::string dir = POSEWARP_SAMPLE_DIR;
-    const std::string hip = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/sample_hip_flexion.json");
+    const std::string dir = (source / "data/totalsegmentator_example").string();
+    const std::string hip = file_text(source / "data/poses/sample_hip_flexion.json");
     out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only));
     // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
     {
@@ -272,11 +279,12 @@ int main(int argc, char** argv) {
                   out["volume_upload_mb_per_s"].get<double>());
       server.stop();
     }
-    if (mannequin_mvoxels > 0.0) {
-      // The mannequin's rig takes minutes to build: --rig-cache keeps it between runs.
-      const std::string rig_bytes = bench::mannequin_rig_bytes(mannequin_mvoxels, rig_cache);
-      const std::string knee = file_text(fs::path(POSEWARP_SOURCE_DIR) / "data/poses/knee_bent.json");
-      out["cases"].push_back(bench_case("mannequin", work, rig_bytes, knee, std::max(2, repeats / 2), latency_only));
+    const std::string knee = file_text(source / "data/poses/knee_bent.json");
+    for (const auto& [kind, mvoxels] : {std::pair<std::string, double>{"mannequin", mannequin_mvoxels}, {"body", body_mvoxels}}) {
+      if (mvoxels <= 0.0) continue;
+      // A phantom's rig takes minutes to build: --rig-cache keeps it between runs.
+      const std::string rig_bytes = bench::phantom_rig_bytes(kind, mvoxels, rig_cache);
+      out["cases"].push_back(bench_case(kind, work, rig_bytes, knee, std::max(2, repeats / 2), latency_only));
     }
   } catch (const std::exception& error) {
     std::fprintf(stderr, "posewarp_bench_server: %s\n", error.what());

@@ -171,7 +171,7 @@ int main(int argc, char** argv) {
                                       steps, width, height));
     if (mannequin_mvoxels > 0.0) {
       // The same cache file as posewarp_bench_server's --rig-cache.
-      const std::string rig_bytes = bench::mannequin_rig_bytes(mannequin_mvoxels, rig_cache);
+      const std::string rig_bytes = bench::phantom_rig_bytes("mannequin", mannequin_mvoxels, rig_cache);
       out["cases"].push_back(bench_case("mannequin", work, rig_bytes, "knee_left", steps, width, height));
     }
   } catch (const std::exception& error) {

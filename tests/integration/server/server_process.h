@@ -58,13 +58,15 @@ class ServerProcess {
       if (err >= 0) ::dup2(err, 2);
       for (const auto& [k, v] : env) ::setenv(k.c_str(), v.c_str(), 1);
       // A port the server picks, unless `extra` names one.
-      std::vector<std::string> args{POSEWARP_SERVER, "--store", store.string()};
+      // POSEWARP_SERVER_BINARY: the server where the build tree's path does not exist (a bench bundle elsewhere).
+      const char* binary = std::getenv("POSEWARP_SERVER_BINARY") ? std::getenv("POSEWARP_SERVER_BINARY") : POSEWARP_SERVER;
+      std::vector<std::string> args{binary, "--store", store.string()};
       if (std::find(extra.begin(), extra.end(), "--listen") == extra.end()) args.insert(args.end(), {"--listen", "127.0.0.1:0"});
       args.insert(args.end(), extra.begin(), extra.end());
       std::vector<char*> argv;
       for (std::string& a : args) argv.push_back(a.data());
       argv.push_back(nullptr);
-      ::execv(POSEWARP_SERVER, argv.data());
+      ::execv(binary, argv.data());
       ::_exit(127);
     }
     ::close(out[1]);

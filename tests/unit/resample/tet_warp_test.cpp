@@ -358,7 +358,7 @@ TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
     return std::move(warp->warp_labels(s.phantom.labels)).value().voxels();
   };
   constexpr int kWarps = 8;
-  std::vector<std::vector<Label>> expected(kWarps), got(kWarps);
+  std::vector<VoxelVector<Label>> expected(kWarps), got(kWarps);
   for (int w = 0; w < kWarps; ++w) expected[static_cast<size_t>(w)] = warp_labels(0.05 * w);
   parallel_for(0, kWarps, 1, [&](int64_t begin, int64_t end) {
     for (int64_t w = begin; w < end; ++w) got[static_cast<size_t>(w)] = warp_labels(0.05 * static_cast<double>(w));

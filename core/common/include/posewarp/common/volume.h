@@ -1,13 +1,18 @@
 // Volume<T>: a typed, contiguous 3D image with physical geometry; LabelVolume and IntensityVolume.
 #pragma once
 
+#include <algorithm>
+#include <cstddef>
 #include <cstdint>
+#include <memory>
+#include <new>
 #include <string_view>
 #include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "posewarp/common/image_geometry.h"
+#include "posewarp/common/parallel.h"
 
 namespace posewarp {
 
@@ -30,14 +35,45 @@ bool convert_samples(const float* in, int64_t n, PixelType type, char* out);
 bool read_samples(const char* in, int64_t n, PixelType type, int32_t* out);
 bool read_samples(const char* in, int64_t n, PixelType type, float* out);
 
+// The allocator of a volume's voxels. Elements it constructs without a value are left uninitialised: a Volume fills
+// its voxels itself on every thread, so that a 20M-voxel output's pages are not all faulted in and written by one
+// thread before the parallel warp starts.
+template <typename T>
+struct VoxelAllocator {
+  using value_type = T;
+  VoxelAllocator() = default;
+  template <typename U>
+  VoxelAllocator(const VoxelAllocator<U>&) noexcept {}  // NOLINT(google-explicit-constructor): as std::allocator
+  T* allocate(size_t n) { return std::allocator<T>().allocate(n); }
+  void deallocate(T* p, size_t n) noexcept { std::allocator<T>().deallocate(p, n); }
+  template <typename U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(p)) U;  // default-initialised: no write for arithmetic types
+  }
+  template <typename U, typename... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+  friend bool operator==(const VoxelAllocator&, const VoxelAllocator&) { return true; }
+  friend bool operator!=(const VoxelAllocator&, const VoxelAllocator&) { return false; }
+};
+
+template <typename T>
+using VoxelVector = std::vector<T, VoxelAllocator<T>>;
+
 template <typename T>
 class Volume {
  public:
   using value_type = T;
 
   Volume() = default;
+  // Every voxel `fill`, written on all threads.
   explicit Volume(ImageGeometry geometry, T fill = T{})
-      : geometry_(geometry), voxels_(static_cast<size_t>(geometry.voxel_count()), fill) {}
+      : geometry_(geometry), voxels_(static_cast<size_t>(geometry.voxel_count())) {
+    T* voxels = voxels_.data();
+    parallel_for(0, voxel_count(), int64_t{1} << 18,
+                 [&](int64_t begin, int64_t end) { std::fill(voxels + begin, voxels + end, fill); });
+  }
 
   const ImageGeometry& geometry() const { return geometry_; }
   // Changes placement only (origin, spacing, direction); the size must stay the same.
@@ -53,8 +89,8 @@ class Volume {
 
   T* data() { return voxels_.data(); }
   const T* data() const { return voxels_.data(); }
-  std::vector<T>& voxels() { return voxels_; }
-  const std::vector<T>& voxels() const { return voxels_; }
+  VoxelVector<T>& voxels() { return voxels_; }
+  const VoxelVector<T>& voxels() const { return voxels_; }
 
   T& at(int64_t i, int64_t j, int64_t k) { return voxels_[static_cast<size_t>(geometry_.offset(i, j, k))]; }
   const T& at(int64_t i, int64_t j, int64_t k) const {
@@ -69,7 +105,7 @@ class Volume {
 
  private:
   ImageGeometry geometry_;
-  std::vector<T> voxels_;
+  VoxelVector<T> voxels_;
   PixelType source_type_ = default_source_type();
 
   static constexpr PixelType default_source_type() {
