@@ -282,11 +282,15 @@ void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTra
 // Step 4: each surface vertex follows its rest tet's barycentric combination of posed tet vertices.
 Status pose_surfaces(const Prepared& p, const PoseRequest& request, PoseResult& result) {
   const TetMesh& mesh = p.rig.mesh;
-  for (size_t i = 0; i < p.rig.surfaces.size(); ++i) {
-    SurfaceMesh posed = p.rig.surfaces[i];
-    posed.vertices = mapping::deform_points(p.rig.embeddings[i], mesh, result.posed_vertices);
-    result.surfaces.push_back(std::move(posed));
-  }
+  // The rig's surfaces side by side (most are small), each one's vertices moved and its triangles copied.
+  result.surfaces.resize(p.rig.surfaces.size());
+  parallel_for(0, static_cast<int64_t>(p.rig.surfaces.size()), 1, [&](int64_t s0, int64_t s1) {
+    for (auto i = static_cast<size_t>(s0); i < static_cast<size_t>(s1); ++i) {
+      const SurfaceMesh& rest = p.rig.surfaces[i];
+      result.surfaces[i] = {rest.name, rest.label, mapping::deform_points(p.rig.embeddings[i], mesh, result.posed_vertices),
+                            rest.triangles};
+    }
+  });
   for (const SurfaceMesh& extra : request.extra_surfaces) {
     POSEWARP_ASSIGN_OR_RETURN(const mapping::Embedding e, mapping::embed_points(mesh, extra.vertices, {}));
     SurfaceMesh posed = extra;

@@ -73,7 +73,7 @@ std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
   const int64_t n = rest.vertex_count();
   // A vertex inside the mesh is surrounded by its tets (their solid angles add up to 4 pi); one on the boundary is
   // not. Summed per thread over its share of the tets, then added up.
-  const int threads = std::max(1, static_cast<int>(std::min<int64_t>(4, rest.tet_count() / 65536 + 1)));
+  const int threads = std::max(1, static_cast<int>(std::min<int64_t>(thread_count(), rest.tet_count() / 65536 + 1)));
   std::vector<std::vector<double>> angle(static_cast<size_t>(threads), std::vector<double>(static_cast<size_t>(n), 0.0));
   parallel_for(0, threads, 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {

@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <iomanip>
@@ -14,6 +15,22 @@
 #include "posewarp/common/parallel.h"
 
 namespace posewarp::report {
+
+namespace {
+
+// body(begin, end, partial) over fixed blocks of `n` tets in parallel, each block's figures in its own partial: the
+// blocks are the same whatever the thread count, so that figures added up in block order are the same on any machine.
+template <typename Partial, typename Body>
+std::vector<Partial> per_block(int64_t n, const Partial& zero, const Body& body) {
+  constexpr int64_t kBlock = 16384;
+  std::vector<Partial> partial(static_cast<size_t>((n + kBlock - 1) / kBlock), zero);
+  parallel_for(0, static_cast<int64_t>(partial.size()), 1, [&](int64_t b0, int64_t b1) {
+    for (int64_t b = b0; b < b1; ++b) body(b * kBlock, std::min(n, (b + 1) * kBlock), partial[static_cast<size_t>(b)]);
+  });
+  return partial;
+}
+
+}  // namespace
 
 MeshChange mesh_change(const TetMesh& rest, const Eigen::VectorXd& det, const Eigen::VectorXd& rest_volume) {
   MeshChange change;
@@ -46,17 +63,22 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
     result[static_cast<size_t>(k)].segment =
         k < static_cast<int>(segment_names.size()) ? segment_names[static_cast<size_t>(k)] : std::to_string(k);
   }
-  for (int64_t t = 0; t < rest.tet_count(); ++t) {
-    const int k = rest.tet_class(t) - kFirstBoneClass;
-    if (k < 0 || k >= rest.segment_count || static_cast<size_t>(k) >= rotation.size()) continue;
-    for (int c = 0; c < 4; ++c) {
-      const int32_t v = rest.tets(t, c);
-      const Eigen::Vector3d expected =
-          rotation[static_cast<size_t>(k)] * rest.vertices.row(v).transpose() + translation[static_cast<size_t>(k)];
-      const double error = (posed.row(v).transpose() - expected).norm();
-      double& worst = result[static_cast<size_t>(k)].max_error_mm;
-      worst = std::max(worst, error);
-    }
+  const auto segments = static_cast<size_t>(rest.segment_count);
+  const std::vector<std::vector<double>> worst =
+      per_block(rest.tet_count(), std::vector<double>(segments, 0.0), [&](int64_t t0, int64_t t1, std::vector<double>& most) {
+        for (int64_t t = t0; t < t1; ++t) {
+          const int k = rest.tet_class(t) - kFirstBoneClass;
+          if (k < 0 || k >= rest.segment_count || static_cast<size_t>(k) >= rotation.size()) continue;
+          for (int c = 0; c < 4; ++c) {
+            const int32_t v = rest.tets(t, c);
+            const Eigen::Vector3d expected = rotation[static_cast<size_t>(k)] * rest.vertices.row(v).transpose() +
+                                             translation[static_cast<size_t>(k)];
+            most[static_cast<size_t>(k)] = std::max(most[static_cast<size_t>(k)], (posed.row(v).transpose() - expected).norm());
+          }
+        }
+      });
+  for (const std::vector<double>& most : worst) {
+    for (size_t k = 0; k < segments; ++k) result[k].max_error_mm = std::max(result[k].max_error_mm, most[k]);
   }
   return result;
 }
@@ -108,24 +130,43 @@ std::vector<JointRegionChange> joint_region_changes(const TetMesh& rest, const E
                                                    const Eigen::VectorXd& rest_volume,
                                                    const std::vector<std::pair<std::string, Eigen::Vector3d>>& joints,
                                                    const std::vector<double>& radii_mm) {
-  std::vector<JointRegionChange> changes;
-  for (const auto& [name, centre] : joints) {
-    for (const double radius : radii_mm) {
-      JointRegionChange change;
-      change.joint = name;
-      change.radius_mm = radius;
-      double rest_sum = 0.0, posed_sum = 0.0, folded = 0.0, stretched = 0.0;
-      for (int64_t t = 0; t < rest.tet_count(); ++t) {
-        if (rest.tet_class(t) != kSoftTissueClass) continue;
-        Eigen::Vector3d c = Eigen::Vector3d::Zero();
-        for (int q = 0; q < 4; ++q) c += rest.vertices.row(rest.tets(t, q)).transpose();
-        if ((0.25 * c - centre).squaredNorm() > radius * radius) continue;
-        const double v = rest_volume(t), d = det(t);
-        rest_sum += v;
-        posed_sum += v * d;
-        if (d <= 0.0) folded += v;
-        else if (d > 2.0 || d < 0.5) stretched += v;
+  // One pass over the soft tets: per joint and radius, the rest and posed volume, folded and stretched.
+  const size_t regions = joints.size() * radii_mm.size();
+  using Sums = std::vector<std::array<double, 4>>;
+  const std::vector<Sums> partial = per_block(rest.tet_count(), Sums(regions, {0.0, 0.0, 0.0, 0.0}),
+                                              [&](int64_t t0, int64_t t1, Sums& sums) {
+    for (int64_t t = t0; t < t1; ++t) {
+      if (rest.tet_class(t) != kSoftTissueClass) continue;
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      for (int q = 0; q < 4; ++q) c += rest.vertices.row(rest.tets(t, q)).transpose();
+      const double v = rest_volume(t), d = det(t);
+      for (size_t j = 0; j < joints.size(); ++j) {
+        const double distance2 = (0.25 * c - joints[j].second).squaredNorm();
+        for (size_t r = 0; r < radii_mm.size(); ++r) {
+          if (distance2 > radii_mm[r] * radii_mm[r]) continue;
+          std::array<double, 4>& sum = sums[j * radii_mm.size() + r];
+          sum[0] += v;
+          sum[1] += v * d;
+          if (d <= 0.0) sum[2] += v;
+          else if (d > 2.0 || d < 0.5) sum[3] += v;
+        }
       }
+    }
+  });
+  std::vector<JointRegionChange> changes;
+  for (size_t j = 0; j < joints.size(); ++j) {
+    for (size_t r = 0; r < radii_mm.size(); ++r) {
+      double rest_sum = 0.0, posed_sum = 0.0, folded = 0.0, stretched = 0.0;
+      for (const Sums& sums : partial) {
+        const std::array<double, 4>& sum = sums[j * radii_mm.size() + r];
+        rest_sum += sum[0];
+        posed_sum += sum[1];
+        folded += sum[2];
+        stretched += sum[3];
+      }
+      JointRegionChange change;
+      change.joint = joints[j].first;
+      change.radius_mm = radii_mm[r];
       change.rest_volume_ml = rest_sum / 1000.0;
       if (rest_sum > 0.0) {
         change.volume_change = posed_sum / rest_sum - 1.0;
