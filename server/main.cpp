@@ -178,6 +178,9 @@ std::string finish_config(Flags& f) {
   }
   options.cache_bytes = f.cache_mb << 20;
   options.memory_bytes = (f.memory_mb - f.cache_mb - kBaseMb) << 20;
+  // A quarter of what poses may use, at most 512 MB, holds the last poses' freed outputs for the next pose.
+  options.kept_output_bytes = std::min<int64_t>(options.memory_bytes / 4, int64_t{512} << 20);
+  options.memory_bytes -= options.kept_output_bytes;
   options.stall_timeout_ms = static_cast<int>(f.stall_timeout_s * 1000.0);
   options.max_upload_bytes = f.max_upload_mb << 20;
   options.client.upload_bytes = (f.upload_mb_per_client > 0 ? f.upload_mb_per_client : f.max_upload_mb) << 20;

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <thread>
 
+#include "posewarp/common/voxel_memory.h"
+
 namespace posewarp::server {
 namespace {
 
@@ -40,6 +42,7 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
       pose_slots_(options_.pose_slots, options_.pose_queue),
       previews_(options_.preview_streams_per_client) {
   metrics_.set_gauges([this] { return gauges(); });
+  set_voxel_memory_kept_limit(static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)));
 }
 
 PosewarpService::~PosewarpService() {

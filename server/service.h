@@ -42,6 +42,8 @@ struct ServiceOptions {
   int64_t max_output_bytes = 0;                  // one pose's outputs (0: the whole memory budget)
   // Poses and uploads in flight together, by their estimates (the engine cache's cache_bytes come on top).
   int64_t memory_bytes = int64_t{4} << 30;
+  // Freed pose outputs kept for the next pose (posewarp/common/voxel_memory.h), on top of memory_bytes.
+  int64_t kept_output_bytes = int64_t{512} << 20;
   int stall_timeout_ms = 10000;        // a stream that makes no progress this long is cancelled
   ClientLimitOptions client;           // per client (its token, else its address)
   int preview_streams_per_client = 4;  // open preview streams per client

@@ -13,6 +13,7 @@
 
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/voxel_memory.h"
 #include "posewarp/resample/tet_warp.h"
 #include "raster.h"
 
@@ -275,7 +276,9 @@ class TetWarp::Builder {
         interior[static_cast<size_t>(s)].push_back(static_cast<int32_t>(c));
       }
     }
-    warp_.owner_ = std::shared_ptr<int32_t[]>(new int32_t[static_cast<size_t>(in_.output.voxel_count())]);
+    const size_t owner_bytes = static_cast<size_t>(in_.output.voxel_count()) * sizeof(int32_t);
+    warp_.owner_ = std::shared_ptr<int32_t[]>(static_cast<int32_t*>(allocate_voxels(owner_bytes)),
+                                              [owner_bytes](int32_t* p) { free_voxels(p, owner_bytes); });
     owner_ = warp_.owner_.get();
     const int64_t row_count = n_[1] * n_[2];
     row_first_.resize(static_cast<size_t>(row_count));

@@ -13,6 +13,7 @@
 
 #include "posewarp/common/image_geometry.h"
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/voxel_memory.h"
 
 namespace posewarp {
 
@@ -35,17 +36,20 @@ bool convert_samples(const float* in, int64_t n, PixelType type, char* out);
 bool read_samples(const char* in, int64_t n, PixelType type, int32_t* out);
 bool read_samples(const char* in, int64_t n, PixelType type, float* out);
 
-// The allocator of a volume's voxels. Elements it constructs without a value are left uninitialised: a Volume fills
-// its voxels itself on every thread, so that a 20M-voxel output's pages are not all faulted in and written by one
-// thread before the parallel warp starts.
+// The allocator of a volume's voxels: blocks from allocate_voxels (a pose's outputs reuse the last pose's pages).
+// Elements it constructs without a value are left uninitialised: a Volume fills its voxels itself on every thread, so
+// that a 20M-voxel output is not written by one thread before the parallel warp starts.
 template <typename T>
 struct VoxelAllocator {
   using value_type = T;
   VoxelAllocator() = default;
   template <typename U>
   VoxelAllocator(const VoxelAllocator<U>&) noexcept {}  // NOLINT(google-explicit-constructor): as std::allocator
-  T* allocate(size_t n) { return std::allocator<T>().allocate(n); }
-  void deallocate(T* p, size_t n) noexcept { std::allocator<T>().deallocate(p, n); }
+  T* allocate(size_t n) {
+    if (n > std::allocator_traits<std::allocator<T>>::max_size(std::allocator<T>())) throw std::bad_array_new_length();
+    return static_cast<T*>(allocate_voxels(n * sizeof(T)));
+  }
+  void deallocate(T* p, size_t n) noexcept { free_voxels(p, n * sizeof(T)); }
   template <typename U>
   void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
     ::new (static_cast<void*>(p)) U;  // default-initialised: no write for arithmetic types
