@@ -322,7 +322,13 @@ void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& 
 // The label report, which needs only the posed labels: counts before and after, names, each bone's voxel deviation.
 void report_labels(const Prepared& p, const resample::TetWarp& warp, const LabelVolume& posed,
                    const std::vector<std::string>& names, QualityReport& qr) {
-  qr.labels = report::label_change(p.rest_label_counts, report::label_counts(posed));
+  // The posed values are rest values or the background: their range is known.
+  std::optional<std::pair<Label, Label>> range;
+  if (!p.rest_label_counts.empty()) {
+    range.emplace(std::min(p.rest_label_counts.begin()->first, warp.label_background()),
+                  std::max(p.rest_label_counts.rbegin()->first, warp.label_background()));
+  }
+  qr.labels = report::label_change(p.rest_label_counts, report::label_counts(posed, range));
   for (const auto& [value, counts] : qr.labels.voxels) {
     if (const labels::LabelEntry* entry = p.rig.label_map.find(value)) qr.label_names[value] = entry->name;
   }

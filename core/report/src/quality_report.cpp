@@ -11,6 +11,7 @@
 #include <mutex>
 #include <sstream>
 #include <string>
+#include <tuple>
 
 #include "posewarp/common/parallel.h"
 
@@ -83,19 +84,24 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
   return result;
 }
 
-std::map<Label, int64_t> label_counts(const LabelVolume& labels) {
+std::map<Label, int64_t> label_counts(const LabelVolume& labels, std::optional<std::pair<Label, Label>> expected) {
   std::map<Label, int64_t> counts;
   const int64_t n = labels.voxel_count();
   if (n == 0) return counts;
   const Label* v = labels.data();
-  Label lo = v[0], hi = v[0];
   std::mutex merge;
-  parallel_for(0, n, int64_t{1} << 20, [&](int64_t begin, int64_t end) {
-    const auto [a, b] = std::minmax_element(v + begin, v + end);
-    const std::lock_guard<std::mutex> lock(merge);
-    lo = std::min(lo, *a);
-    hi = std::max(hi, *b);
-  });
+  Label lo = v[0], hi = v[0];
+  if (expected && expected->first <= expected->second) {
+    std::tie(lo, hi) = *expected;
+  } else {
+    parallel_for(0, n, int64_t{1} << 20, [&](int64_t begin, int64_t end) {
+      const auto [a, b] = std::minmax_element(v + begin, v + end);
+      const std::lock_guard<std::mutex> lock(merge);
+      lo = std::min(lo, *a);
+      hi = std::max(hi, *b);
+    });
+    expected.reset();
+  }
   const int64_t range = static_cast<int64_t>(hi) - static_cast<int64_t>(lo) + 1;
   if (range > (int64_t{1} << 16)) {  // sparse values: a map
     for (int64_t i = 0; i < n; ++i) ++counts[v[i]];
@@ -103,12 +109,23 @@ std::map<Label, int64_t> label_counts(const LabelVolume& labels) {
   }
   const Label first = lo;
   std::vector<int64_t> total(static_cast<size_t>(range), 0);
+  int64_t outside = 0;  // values off the expected range
   parallel_for(0, n, int64_t{1} << 18, [&](int64_t begin, int64_t end) {
     std::vector<int64_t> local(static_cast<size_t>(range), 0);
-    for (int64_t i = begin; i < end; ++i) ++local[static_cast<size_t>(v[i] - first)];
+    int64_t off = 0;
+    for (int64_t i = begin; i < end; ++i) {
+      const auto bin = static_cast<uint64_t>(static_cast<int64_t>(v[i]) - first);
+      if (bin < static_cast<uint64_t>(range)) {
+        ++local[bin];
+      } else {
+        ++off;
+      }
+    }
     const std::lock_guard<std::mutex> lock(merge);
     for (size_t b = 0; b < local.size(); ++b) total[b] += local[b];
+    outside += off;
   });
+  if (outside > 0) return label_counts(labels);
   for (size_t b = 0; b < total.size(); ++b) {
     if (total[b] > 0) counts[static_cast<Label>(first + static_cast<int64_t>(b))] = total[b];
   }

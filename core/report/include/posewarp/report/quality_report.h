@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -51,8 +52,10 @@ struct WarningThresholds {
   double stretched_fraction = 0.05;
 };
 
-// Voxels per label value (parallel; dense counting where the values span a small range).
-std::map<Label, int64_t> label_counts(const LabelVolume& labels);
+// Voxels per label value (parallel; dense counting where the values span a small range). `expected`, the range the
+// values should lie in (a posed volume's: the rest values and the background), spares a pass that finds it; a value
+// outside it is still counted (the range is then found, as without it).
+std::map<Label, int64_t> label_counts(const LabelVolume& labels, std::optional<std::pair<Label, Label>> expected = {});
 LabelChange label_change(const std::map<Label, int64_t>& before, const std::map<Label, int64_t>& after);
 
 // Fills report.warnings from its figures. `voxel_mm`: the source grid's smallest spacing.

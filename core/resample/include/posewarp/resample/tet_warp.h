@@ -118,6 +118,8 @@ class TetWarp {
   static Result<TetWarp> build(const WarpInputs& inputs, const ProgressHooks& hooks = {});
 
   const ImageGeometry& output() const { return output_; }
+  // The label of output voxels that nothing maps back into the body.
+  Label label_background() const { return label_background_; }
   const WarpStats& stats() const { return stats_; }
   // Tets rasterized (those that move differently from the background; all of them without a rest owner).
   int64_t rasterized_tets() const { return rasterized_tets_; }
