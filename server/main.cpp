@@ -83,7 +83,8 @@ void add_work_options(CLI::App& app, Flags& f) {
   app.add_option("--pose-threads", options.pose_threads, "Threads of one pose (0 = all cores)")->capture_default_str();
   app.add_option("--memory-mb", f.memory_mb,
                  "The server's memory ceiling, MB (default 3/4 of the machine's): loaded rigs (--cache-mb), poses and "
-                 "uploads in flight and a 256 MB base share it; work that would go past it waits or is refused "
+                 "uploads in flight, the last poses' freed outputs kept for the next (a quarter of what poses may use, "
+                 "at most 512 MB) and a 256 MB base share it; work that would go past it waits or is refused "
                  "RESOURCE_EXHAUSTED")
       ->capture_default_str()
       ->check(CLI::Range(int64_t{512}, int64_t{1} << 40));
