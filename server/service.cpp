@@ -4,7 +4,7 @@
 #include <algorithm>
 #include <thread>
 
-#include "posewarp/common/voxel_memory.h"
+#include "posewarp/api/support.h"
 
 namespace posewarp::server {
 namespace {
@@ -42,7 +42,7 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
       pose_slots_(options_.pose_slots, options_.pose_queue),
       previews_(options_.preview_streams_per_client) {
   metrics_.set_gauges([this] { return gauges(); });
-  set_voxel_memory_kept_limit(static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)));
+  api::set_voxel_memory_kept_limit(static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)));
 }
 
 PosewarpService::~PosewarpService() {
@@ -66,6 +66,7 @@ std::vector<std::pair<std::string, double>> PosewarpService::gauges() {
   values.emplace_back("memory_budget_bytes", static_cast<double>(memory_.total()));
   values.emplace_back("cache_bytes", static_cast<double>(engines_.bytes()));
   values.emplace_back("cache_rigs", static_cast<double>(engines_.rigs()));
+  values.emplace_back("kept_output_bytes", static_cast<double>(api::voxel_memory_kept()));
   return values;
 }
 

@@ -282,6 +282,7 @@ TEST_F(ServerService, ACancelledOrExpiredPoseFreesItsSlotForTheNextCall) {
   EXPECT_GE(metric(text, "posewarp_requests_total{method=\"Pose\",code=\"DEADLINE_EXCEEDED\"}"), 1.0) << text;
   EXPECT_GE(metric(text, "posewarp_cache_hits_total"), 1.0) << text;
   EXPECT_GT(metric(text, "posewarp_cache_bytes"), 0.0) << text;
+  EXPECT_NE(text.find("\nposewarp_kept_output_bytes "), std::string::npos) << text;
   EXPECT_NE(text.find("posewarp_request_seconds_bucket{method=\"Pose\",le=\"+Inf\"}"), std::string::npos);
 }
 

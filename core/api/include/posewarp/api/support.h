@@ -1,6 +1,6 @@
 // core/common's shared mechanisms, named through the facade for server/ and the CLI (which include posewarp/api
 // only): files written whole, inputs read within limits, content ids, the strict JSON reader, the clients' retry
-// policy, the stopwatch, and the process's thread ceiling.
+// policy, the stopwatch, the process's thread ceiling, and the voxel memory kept for the next pose.
 #pragma once
 
 #include "posewarp/common/atomic_file.h"
@@ -12,6 +12,7 @@
 #include "posewarp/common/retry.h"
 #include "posewarp/common/sha256.h"
 #include "posewarp/common/stopwatch.h"
+#include "posewarp/common/voxel_memory.h"
 
 namespace posewarp::api {
 
@@ -35,5 +36,10 @@ using posewarp::Stopwatch;
 
 // The process-wide ceiling on worker threads, for programs that own the process (the CLI's --threads).
 using posewarp::set_thread_count;
+
+// How much of the last poses' freed outputs the process keeps for the next pose of the same size (a server's share
+// of its memory ceiling).
+using posewarp::set_voxel_memory_kept_limit;
+using posewarp::voxel_memory_kept;
 
 }  // namespace posewarp::api
