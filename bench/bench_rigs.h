@@ -45,7 +45,8 @@ inline std::string phantom_rig_bytes(const std::string& kind, double mvoxels, co
     return *bytes;
   }
   const auto voxels = static_cast<int64_t>(mvoxels * 1e6);
-  if (kind != "mannequin" && kind != "body") throw std::runtime_error("unknown phantom '" + kind + "'; known: mannequin, body");
+  if (kind != "mannequin" && kind != "body")
+    throw std::runtime_error("unknown phantom '" + kind + "'; known: mannequin, body");
   Result<api::Phantom> p = [&] {
     if (kind == "body") {
       api::BodyParams params;

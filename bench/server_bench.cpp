@@ -4,7 +4,7 @@
 // mannequin phantom.
 // Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip, the default)]
 //                              [--repeats R] [--latency-only] [--rig-cache DIR (keeps the phantoms' rigs between runs)]
-//                              [--source-dir DIR (the repository: its data/ where the build tree's path does not exist)]
+//                              [--source-dir DIR (the repository, for its data/ where the build tree is not)]
 // Elsewhere than the build tree (a bundle on a bigger machine), POSEWARP_SERVER_BINARY names the server to start.
 #include <nlohmann/json.hpp>
 
@@ -253,8 +253,10 @@ int main(int argc, char** argv) {
     } else if (!std::strcmp(argv[i], "--rig-cache") && i + 1 < argc) {
       rig_cache = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: %s [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)] [--repeats R] "
-                           "[--latency-only] [--rig-cache DIR] [--source-dir DIR]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)] [--repeats R] "
+                   "[--latency-only] [--rig-cache DIR] [--source-dir DIR]\n",
+                   argv[0]);
       return 2;
     }
   }
@@ -280,7 +282,8 @@ int main(int argc, char** argv) {
       server.stop();
     }
     const std::string knee = file_text(source / "data/poses/knee_bent.json");
-    for (const auto& [kind, mvoxels] : {std::pair<std::string, double>{"mannequin", mannequin_mvoxels}, {"body", body_mvoxels}}) {
+    for (const auto& [kind, mvoxels] :
+         {std::pair<std::string, double>{"mannequin", mannequin_mvoxels}, {"body", body_mvoxels}}) {
       if (mvoxels <= 0.0) continue;
       // A phantom's rig takes minutes to build: --rig-cache keeps it between runs.
       const std::string rig_bytes = bench::phantom_rig_bytes(kind, mvoxels, rig_cache);

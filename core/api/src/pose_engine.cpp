@@ -287,8 +287,8 @@ Status pose_surfaces(const Prepared& p, const PoseRequest& request, PoseResult& 
   parallel_for(0, static_cast<int64_t>(p.rig.surfaces.size()), 1, [&](int64_t s0, int64_t s1) {
     for (auto i = static_cast<size_t>(s0); i < static_cast<size_t>(s1); ++i) {
       const SurfaceMesh& rest = p.rig.surfaces[i];
-      result.surfaces[i] = {rest.name, rest.label, mapping::deform_points(p.rig.embeddings[i], mesh, result.posed_vertices),
-                            rest.triangles};
+      result.surfaces[i] = {rest.name, rest.label,
+                            mapping::deform_points(p.rig.embeddings[i], mesh, result.posed_vertices), rest.triangles};
     }
   });
   for (const SurfaceMesh& extra : request.extra_surfaces) {

@@ -65,8 +65,8 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
         k < static_cast<int>(segment_names.size()) ? segment_names[static_cast<size_t>(k)] : std::to_string(k);
   }
   const auto segments = static_cast<size_t>(rest.segment_count);
-  const std::vector<std::vector<double>> worst =
-      per_block(rest.tet_count(), std::vector<double>(segments, 0.0), [&](int64_t t0, int64_t t1, std::vector<double>& most) {
+  const std::vector<std::vector<double>> worst = per_block(
+      rest.tet_count(), std::vector<double>(segments, 0.0), [&](int64_t t0, int64_t t1, std::vector<double>& most) {
         for (int64_t t = t0; t < t1; ++t) {
           const int k = rest.tet_class(t) - kFirstBoneClass;
           if (k < 0 || k >= rest.segment_count || static_cast<size_t>(k) >= rotation.size()) continue;
@@ -74,7 +74,8 @@ std::vector<SegmentRigidity> bone_rigidity(const TetMesh& rest, const Eigen::Mat
             const int32_t v = rest.tets(t, c);
             const Eigen::Vector3d expected = rotation[static_cast<size_t>(k)] * rest.vertices.row(v).transpose() +
                                              translation[static_cast<size_t>(k)];
-            most[static_cast<size_t>(k)] = std::max(most[static_cast<size_t>(k)], (posed.row(v).transpose() - expected).norm());
+            most[static_cast<size_t>(k)] =
+                std::max(most[static_cast<size_t>(k)], (posed.row(v).transpose() - expected).norm());
           }
         }
       });
@@ -100,7 +101,6 @@ std::map<Label, int64_t> label_counts(const LabelVolume& labels, std::optional<s
       lo = std::min(lo, *a);
       hi = std::max(hi, *b);
     });
-    expected.reset();
   }
   const int64_t range = static_cast<int64_t>(hi) - static_cast<int64_t>(lo) + 1;
   if (range > (int64_t{1} << 16)) {  // sparse values: a map
@@ -150,26 +150,29 @@ std::vector<JointRegionChange> joint_region_changes(const TetMesh& rest, const E
   // One pass over the soft tets: per joint and radius, the rest and posed volume, folded and stretched.
   const size_t regions = joints.size() * radii_mm.size();
   using Sums = std::vector<std::array<double, 4>>;
-  const std::vector<Sums> partial = per_block(rest.tet_count(), Sums(regions, {0.0, 0.0, 0.0, 0.0}),
-                                              [&](int64_t t0, int64_t t1, Sums& sums) {
-    for (int64_t t = t0; t < t1; ++t) {
-      if (rest.tet_class(t) != kSoftTissueClass) continue;
-      Eigen::Vector3d c = Eigen::Vector3d::Zero();
-      for (int q = 0; q < 4; ++q) c += rest.vertices.row(rest.tets(t, q)).transpose();
-      const double v = rest_volume(t), d = det(t);
-      for (size_t j = 0; j < joints.size(); ++j) {
-        const double distance2 = (0.25 * c - joints[j].second).squaredNorm();
-        for (size_t r = 0; r < radii_mm.size(); ++r) {
-          if (distance2 > radii_mm[r] * radii_mm[r]) continue;
-          std::array<double, 4>& sum = sums[j * radii_mm.size() + r];
-          sum[0] += v;
-          sum[1] += v * d;
-          if (d <= 0.0) sum[2] += v;
-          else if (d > 2.0 || d < 0.5) sum[3] += v;
+  const std::vector<Sums> partial =
+      per_block(rest.tet_count(), Sums(regions, {0.0, 0.0, 0.0, 0.0}), [&](int64_t t0, int64_t t1, Sums& sums) {
+        for (int64_t t = t0; t < t1; ++t) {
+          if (rest.tet_class(t) != kSoftTissueClass) continue;
+          Eigen::Vector3d c = Eigen::Vector3d::Zero();
+          for (int q = 0; q < 4; ++q) c += rest.vertices.row(rest.tets(t, q)).transpose();
+          const double v = rest_volume(t), d = det(t);
+          for (size_t j = 0; j < joints.size(); ++j) {
+            const double distance2 = (0.25 * c - joints[j].second).squaredNorm();
+            for (size_t r = 0; r < radii_mm.size(); ++r) {
+              if (distance2 > radii_mm[r] * radii_mm[r]) continue;
+              std::array<double, 4>& sum = sums[j * radii_mm.size() + r];
+              sum[0] += v;
+              sum[1] += v * d;
+              if (d <= 0.0) {
+                sum[2] += v;
+              } else if (d > 2.0 || d < 0.5) {
+                sum[3] += v;
+              }
+            }
+          }
         }
-      }
-    }
-  });
+      });
   std::vector<JointRegionChange> changes;
   for (size_t j = 0; j < joints.size(); ++j) {
     for (size_t r = 0; r < radii_mm.size(); ++r) {

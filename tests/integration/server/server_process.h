@@ -59,7 +59,8 @@ class ServerProcess {
       for (const auto& [k, v] : env) ::setenv(k.c_str(), v.c_str(), 1);
       // A port the server picks, unless `extra` names one.
       // POSEWARP_SERVER_BINARY: the server where the build tree's path does not exist (a bench bundle elsewhere).
-      const char* binary = std::getenv("POSEWARP_SERVER_BINARY") ? std::getenv("POSEWARP_SERVER_BINARY") : POSEWARP_SERVER;
+      const char* binary =
+          std::getenv("POSEWARP_SERVER_BINARY") ? std::getenv("POSEWARP_SERVER_BINARY") : POSEWARP_SERVER;
       std::vector<std::string> args{binary, "--store", store.string()};
       if (std::find(extra.begin(), extra.end(), "--listen") == extra.end()) args.insert(args.end(), {"--listen", "127.0.0.1:0"});
       args.insert(args.end(), extra.begin(), extra.end());

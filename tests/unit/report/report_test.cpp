@@ -41,7 +41,7 @@ struct RandomMesh {
 TEST(JointRegionChanges, OnePassOverTheTetsGivesWhatAPassPerJointAndRadiusGaveAtAnyThreadCount) {
   const RandomMesh r(100000);
   const std::vector<std::pair<std::string, Eigen::Vector3d>> joints{{"knee", {100.0, 150.0, 80.0}},
-                                                                     {"elbow", {220.0, 60.0, 200.0}}};
+                                                                    {"elbow", {220.0, 60.0, 200.0}}};
   const std::vector<double> radii{50.0, 100.0};
   set_thread_count(2);
   const std::vector<JointRegionChange> two = joint_region_changes(r.mesh, r.det, r.rest_volume, joints, radii);
@@ -60,8 +60,10 @@ TEST(JointRegionChanges, OnePassOverTheTetsGivesWhatAPassPerJointAndRadiusGaveAt
         if ((0.25 * c - joints[j].second).norm() > radii[k]) continue;
         rest += r.rest_volume(t);
         posed += r.rest_volume(t) * r.det(t);
-        if (r.det(t) <= 0.0) folded += r.rest_volume(t);
-        else if (r.det(t) > 2.0 || r.det(t) < 0.5) stretched += r.rest_volume(t);
+        if (r.det(t) <= 0.0)
+          folded += r.rest_volume(t);
+        else if (r.det(t) > 2.0 || r.det(t) < 0.5)
+          stretched += r.rest_volume(t);
       }
       const JointRegionChange& got = two[j * radii.size() + k];
       EXPECT_EQ(got.joint, joints[j].first);
