@@ -11,7 +11,7 @@ import nibabel
 import numpy as np
 import pytest
 
-from posewarp_client import Client, PosewarpError
+from posewarp_client import Client, PosewarpError, _runs
 
 SERVER = os.environ["POSEWARP_SERVER"]
 CLI = os.environ["POSEWARP_CLI"]
@@ -75,6 +75,18 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     with pytest.raises(PosewarpError) as too_many:
         client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=20000)
     assert too_many.value.code == grpc.StatusCode.INVALID_ARGUMENT and "max_iterations" in str(too_many.value)
+
+
+def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
+    def runs(*pairs, value="<i2"):
+        return np.array(list(pairs), dtype=[("value", value), ("count", "<u4")]).tobytes()
+
+    assert np.frombuffer(_runs(runs((3, 2), (-1, 3)), np.int16), np.int16).tolist() == [3, 3, -1, -1, -1]
+    assert np.frombuffer(_runs(runs((200, 4), value="u1"), np.uint8), np.uint8).tolist() == [200] * 4
+    for chunk in (runs((3, 2))[:-1], runs((3, 2), (4, 0))):  # a torn pair, a run of none
+        with pytest.raises(PosewarpError) as malformed:
+            _runs(chunk, np.int16)
+        assert malformed.value.code == grpc.StatusCode.DATA_LOSS
 
 
 def test_refusals_carry_their_codes(study):

@@ -66,8 +66,15 @@ def _volume(data, grid, dtype):
 
 
 def _runs(data, dtype):
-    """The samples of a chunk of runs: (value as dtype, count as uint32) pairs, little-endian, packed."""
-    pairs = np.frombuffer(data, dtype=np.dtype([("value", np.dtype(dtype).newbyteorder("<")), ("count", "<u4")]))
+    """The samples of a chunk of runs: (value as dtype, count as uint32) pairs, little-endian, packed. A chunk no
+    well-behaved server sends (a torn pair, a run of none) is DATA_LOSS, as the C++ clients answer it."""
+    pair = np.dtype([("value", np.dtype(dtype).newbyteorder("<")), ("count", "<u4")])
+    if len(data) % pair.itemsize:
+        raise PosewarpError(grpc.StatusCode.DATA_LOSS, f"the server's labels end inside a run ({len(data)} bytes "
+                            f"of {pair.itemsize}-byte runs); pose again")
+    pairs = np.frombuffer(data, dtype=pair)
+    if (pairs["count"] == 0).any():
+        raise PosewarpError(grpc.StatusCode.DATA_LOSS, "the server's labels hold a run of no samples; pose again")
     return np.repeat(pairs["value"], pairs["count"]).tobytes()
 
 
