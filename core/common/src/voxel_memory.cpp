@@ -76,12 +76,6 @@ void set_voxel_memory_kept_limit(size_t bytes) {
   c.make_room(0);
 }
 
-size_t voxel_memory_kept_limit() {
-  Cache& c = cache();
-  const std::lock_guard<std::mutex> guard(c.lock);
-  return c.limit;
-}
-
 size_t voxel_memory_kept() {
   Cache& c = cache();
   const std::lock_guard<std::mutex> guard(c.lock);

@@ -8,16 +8,15 @@ namespace posewarp {
 
 // A block of at least `bytes` for voxels (aligned as operator new aligns). A block of 8 MB or more that was freed
 // with free_voxels and is still kept is handed out again: a service posing one rig again and again reuses its last
-// outputs' pages instead of faulting in fresh ones (first touch of 80 MB costs 30-60 ms on 2 cores; a write to pages
-// already mapped, under 5). Throws std::bad_alloc.
+// outputs' pages instead of faulting in fresh ones (a first touch costs many times a write to pages already mapped).
+// Throws std::bad_alloc.
 void* allocate_voxels(size_t bytes);
 // Gives a block from allocate_voxels back. Large blocks are kept, the oldest freed first when the kept total would
-// pass voxel_memory_kept_limit(); the rest are freed.
+// pass the limit; the rest are freed.
 void free_voxels(void* p, size_t bytes) noexcept;
 
 // How many bytes of freed blocks are kept at most (default 512 MB; 0 keeps none and frees what is kept).
 void set_voxel_memory_kept_limit(size_t bytes);
-size_t voxel_memory_kept_limit();
 // Bytes kept now (for tests and the server's metrics).
 size_t voxel_memory_kept();
 
