@@ -3,6 +3,8 @@
 
 #include <algorithm>
 
+#include "posewarp/api/support.h"
+
 namespace posewarp::server {
 namespace {
 
@@ -66,6 +68,28 @@ void StallWatch::run() {
       stream->context_->TryCancel();  // the blocked Read or Write returns false; the call's hooks see the cancel
       if (on_stall_) on_stall_();
     }
+  }
+}
+
+KeptOutputTrim::KeptOutputTrim(std::chrono::milliseconds idle) : idle_(idle) {
+  thread_ = std::thread([this] { run(); });
+}
+
+KeptOutputTrim::~KeptOutputTrim() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+  }
+  stop_.notify_all();
+  thread_.join();
+}
+
+void KeptOutputTrim::run() {
+  const auto period = std::max(std::chrono::milliseconds(100), idle_ / 4);
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stopping_) {
+    stop_.wait_for(lock, period, [this] { return stopping_; });
+    (void)api::trim_voxel_memory(idle_);
   }
 }
 

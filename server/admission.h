@@ -76,6 +76,25 @@ class StallWatch {
 
 // Bytes of memory that poses and uploads in flight may hold together. A request reserves its estimate before it
 // allocates; one larger than the whole budget is refused at once, others wait for room (until their deadline).
+// Gives the pose outputs kept for a next pose (posewarp/api/support.h) back to the system once no pose has taken them
+// for `idle`: a server that was busy and then waits keeps no more than it needs. Looks every quarter of `idle` (at
+// least every 100 ms) from a thread of its own.
+class KeptOutputTrim {
+ public:
+  explicit KeptOutputTrim(std::chrono::milliseconds idle);
+  ~KeptOutputTrim();
+  KeptOutputTrim(const KeptOutputTrim&) = delete;
+  KeptOutputTrim& operator=(const KeptOutputTrim&) = delete;
+
+ private:
+  void run();
+  const std::chrono::milliseconds idle_;
+  std::mutex mutex_;
+  std::condition_variable stop_;
+  bool stopping_ = false;
+  std::thread thread_;
+};
+
 class MemoryBudget {
  public:
   class Reservation {

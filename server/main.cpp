@@ -88,6 +88,11 @@ void add_work_options(CLI::App& app, Flags& f) {
                  "RESOURCE_EXHAUSTED")
       ->capture_default_str()
       ->check(CLI::Range(int64_t{512}, int64_t{1} << 40));
+  app.add_option("--kept-output-idle-s", options.kept_output_idle_s,
+                 "The last poses' freed outputs that no pose has taken for this long go back to the system, seconds "
+                 "(0 = keep none: every pose maps fresh memory and the kept quarter stays with poses)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 86400));
   app.add_option("--cache-mb", f.cache_mb,
                  "Loaded rigs kept in memory, MB, out of --memory-mb (0 = a third of it, at "
                  "most 8192)")
@@ -180,7 +185,8 @@ std::string finish_config(Flags& f) {
   options.cache_bytes = f.cache_mb << 20;
   options.memory_bytes = (f.memory_mb - f.cache_mb - kBaseMb) << 20;
   // A quarter of what poses may use, at most 512 MB, holds the last poses' freed outputs for the next pose.
-  options.kept_output_bytes = std::min<int64_t>(options.memory_bytes / 4, int64_t{512} << 20);
+  options.kept_output_bytes =
+      options.kept_output_idle_s > 0 ? std::min<int64_t>(options.memory_bytes / 4, int64_t{512} << 20) : 0;
   options.memory_bytes -= options.kept_output_bytes;
   options.stall_timeout_ms = static_cast<int>(f.stall_timeout_s * 1000.0);
   options.max_upload_bytes = f.max_upload_mb << 20;

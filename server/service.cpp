@@ -40,7 +40,8 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
       engines_(*store_, memory_, metrics, options_.cache_bytes, options_.pose_threads),
       builds_(*store_, metrics, build_options(options_)),
       pose_slots_(options_.pose_slots, options_.pose_queue),
-      previews_(options_.preview_streams_per_client) {
+      previews_(options_.preview_streams_per_client),
+      kept_output_trim_(std::chrono::seconds(std::max(1, options_.kept_output_idle_s))) {
   metrics_.set_gauges([this] { return gauges(); });
   api::set_voxel_memory_kept_limit(static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)));
 }

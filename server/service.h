@@ -44,6 +44,7 @@ struct ServiceOptions {
   int64_t memory_bytes = int64_t{4} << 30;
   // Freed pose outputs kept for the next pose (posewarp/common/voxel_memory.h), on top of memory_bytes.
   int64_t kept_output_bytes = int64_t{512} << 20;
+  int kept_output_idle_s = 60;         // ... given back to the system once no pose has taken them this long
   int stall_timeout_ms = 10000;        // a stream that makes no progress this long is cancelled
   ClientLimitOptions client;           // per client (its token, else its address)
   int preview_streams_per_client = 4;  // open preview streams per client
@@ -124,6 +125,7 @@ class PosewarpService final : public v1::Posewarp::Service {
   BuildQueue builds_;
   PoseSlots pose_slots_;
   PreviewStreams previews_;
+  KeptOutputTrim kept_output_trim_;
 };
 
 }  // namespace posewarp::server

@@ -13,6 +13,7 @@ constexpr size_t kKeptFrom = size_t{8} << 20;
 struct Kept {
   void* block;
   size_t bytes;
+  std::chrono::steady_clock::time_point freed;
 };
 
 struct Cache {
@@ -61,7 +62,7 @@ void free_voxels(void* p, size_t bytes) noexcept {
     const std::lock_guard<std::mutex> guard(c.lock);
     if (bytes <= c.limit) {
       c.make_room(bytes);
-      c.blocks.push_back({p, bytes});
+      c.blocks.push_back({p, bytes, std::chrono::steady_clock::now()});
       c.total += bytes;
       return;
     }
@@ -80,6 +81,21 @@ size_t voxel_memory_kept() {
   Cache& c = cache();
   const std::lock_guard<std::mutex> guard(c.lock);
   return c.total;
+}
+
+size_t trim_voxel_memory(std::chrono::steady_clock::duration unused_for) {
+  Cache& c = cache();
+  const std::lock_guard<std::mutex> guard(c.lock);
+  // Blocks are kept in the order they were freed: the ones unused for that long are at the front.
+  const auto before = std::chrono::steady_clock::now() - unused_for;
+  size_t freed = 0;
+  while (!c.blocks.empty() && c.blocks.front().freed <= before) {
+    ::operator delete(c.blocks.front().block);
+    freed += c.blocks.front().bytes;
+    c.total -= c.blocks.front().bytes;
+    c.blocks.pop_front();
+  }
+  return freed;
 }
 
 }  // namespace posewarp

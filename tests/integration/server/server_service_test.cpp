@@ -286,6 +286,38 @@ TEST_F(ServerService, ACancelledOrExpiredPoseFreesItsSlotForTheNextCall) {
   EXPECT_NE(text.find("posewarp_request_seconds_bucket{method=\"Pose\",le=\"+Inf\"}"), std::string::npos);
 }
 
+TEST_F(ServerService, PoseOutputsKeptForTheNextPoseGoBackToTheSystemOnceIdle) {
+  const int metrics_port = free_port();
+  ServerProcess server(store("kept"),
+                       {"--kept-output-idle-s", "3", "--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port)});
+  auto stub = v1::Posewarp::NewStub(server.channel());
+  const std::string rig_id = build_rig(*stub);
+  const PoseAnswer first = pose_remote(*stub, bend(rig_id));
+  ASSERT_TRUE(first.status.ok()) << first.status.error_message();
+  // 128^3 voxels of 1 mm around the bar: 8 MB of labels and 8 MB of CT, outputs large enough to be kept.
+  v1::PoseRequest large = bend(rig_id);
+  large.set_grid(v1::GRID_POLICY_GIVEN);
+  v1::Grid* grid = large.mutable_given_grid();
+  const v1::Grid& source = first.header.grid();
+  for (int a = 0; a < 3; ++a) {
+    grid->add_size(128);
+    grid->add_spacing(1.0);
+    grid->add_origin(source.origin(a) + 0.5 * static_cast<double>(source.size(a) - 1) * source.spacing(a) - 63.5);
+  }
+  for (int e = 0; e < 9; ++e) grid->add_direction(e % 4 == 0 ? 1.0 : 0.0);
+  const PoseAnswer posed = pose_remote(*stub, large);
+  ASSERT_TRUE(posed.status.ok()) << posed.status.error_message();
+  const double kept = metric(scrape_metrics(metrics_port), "posewarp_kept_output_bytes");
+  EXPECT_GE(kept, 2.0 * 128 * 128 * 128 * 4) << "both outputs kept for the next pose";
+  // Nobody poses: within a few seconds of the idle time, everything kept has gone back.
+  double now = kept;
+  for (int i = 0; i < 100 && now != 0.0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    now = metric(scrape_metrics(metrics_port), "posewarp_kept_output_bytes");
+  }
+  EXPECT_EQ(now, 0.0);
+}
+
 TEST_F(ServerService, SigtermWithAPoseInFlightLetsItFinishAndExitsZero) {
   const fs::path at = store("sigterm");
   std::string rig_id;

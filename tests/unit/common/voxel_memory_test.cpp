@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstring>
+#include <thread>
 
 #include "posewarp/common/volume.h"
 
@@ -62,6 +64,25 @@ TEST_F(VoxelMemory, TheOldestGoFirstWhenTheLimitWouldBePassedAndALimitOfNoneFree
   free_voxels(too_big, 100 * kMb);
   EXPECT_EQ(voxel_memory_kept(), 45 * kMb);
   set_voxel_memory_kept_limit(0);
+  EXPECT_EQ(voxel_memory_kept(), 0u);
+}
+
+TEST_F(VoxelMemory, TrimFreesOnlyTheBlocksUnusedForTheGivenTime) {
+  using namespace std::chrono_literals;
+  void* old_block = allocate_voxels(10 * kMb);
+  free_voxels(old_block, 10 * kMb);
+  std::this_thread::sleep_for(50ms);
+  void* recent = allocate_voxels(12 * kMb);
+  free_voxels(recent, 12 * kMb);
+  EXPECT_EQ(trim_voxel_memory(1h), 0u);  // none waited that long
+  EXPECT_EQ(voxel_memory_kept(), 22 * kMb);
+  EXPECT_EQ(trim_voxel_memory(30ms), 10 * kMb);  // the older only
+  EXPECT_EQ(voxel_memory_kept(), 12 * kMb);
+  void* again = allocate_voxels(12 * kMb);  // taken, so not trimmed
+  EXPECT_EQ(again, recent);
+  EXPECT_EQ(trim_voxel_memory(0ms), 0u);
+  free_voxels(again, 12 * kMb);
+  EXPECT_EQ(trim_voxel_memory(0ms), 12 * kMb);
   EXPECT_EQ(voxel_memory_kept(), 0u);
 }
 

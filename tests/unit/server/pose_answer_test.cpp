@@ -95,5 +95,32 @@ TEST(PoseAnswer, MalformedRunsAreDataLoss) {
   EXPECT_EQ(read(torn, &answer).error_code(), grpc::StatusCode::DATA_LOSS);
 }
 
+TEST(PoseAnswer, SizesPastTheLimitOrBytesPastTheSizeAreDataLossBeforeAnyAllocation) {
+  // A header that announces more than any answer holds: refused on the header, nothing reserved for it.
+  v1::PoseResponse huge;
+  huge.mutable_header()->set_ct_bytes(kMaxAnswerVolumeBytes + 1);
+  PoseAnswer answer;
+  EXPECT_EQ(read({huge}, &answer).error_code(), grpc::StatusCode::DATA_LOSS);
+  // A file's first chunk that announces as much.
+  v1::PoseResponse file;
+  file.mutable_ct()->set_total_bytes(uint64_t{1} << 62);
+  file.mutable_ct()->set_data("x");
+  EXPECT_EQ(read({v1::PoseResponse(), file}, &answer).error_code(), grpc::StatusCode::DATA_LOSS);
+  // Raw samples past the size the header gave.
+  v1::PoseResponse header, chunk;
+  header.mutable_header()->set_ct_bytes(4);
+  chunk.mutable_ct()->set_data("12345");
+  EXPECT_EQ(read({header, chunk}, &answer).error_code(), grpc::StatusCode::DATA_LOSS);
+  // Within both, the same parts make an answer.
+  chunk.mutable_ct()->set_data("1234");
+  ASSERT_TRUE(read({header, chunk}, &answer).ok());
+  EXPECT_EQ(answer.ct, "1234");
+  // The assembler's own limit, as the fuzzer sets it.
+  PoseAssembler small(&answer, 8);
+  EXPECT_TRUE(small.add(header));
+  header.mutable_header()->set_ct_bytes(9);
+  EXPECT_FALSE(small.add(header));
+}
+
 }  // namespace
 }  // namespace posewarp::client

@@ -6,24 +6,12 @@
 
 #include <cstdint>
 #include <functional>
-#include <string>
-#include <vector>
 
-#include "posewarp_client/connection.h"
 #include "posewarp/v1/posewarp.grpc.pb.h"
+#include "posewarp_client/connection.h"
+#include "posewarp_client/pose_assembler.h"
 
 namespace posewarp::client {
-
-struct PoseAnswer {
-  v1::PoseHeader header;
-  std::string labels, ct;  // raw samples (the header's sample types) or the bytes of the requested file format
-  std::string inverse_field, forward_field;  // float32 x y z per voxel
-  std::vector<v1::Surface> surfaces;
-  v1::QualityReport report;
-};
-
-// Bytes of one sample of a wire pixel type (PIXEL_TYPE_INT16: 2); 0 for PIXEL_TYPE_UNSPECIFIED or an unknown one.
-size_t sample_bytes(v1::PixelType type);
 
 // Called after each part with the volume bytes received so far and those expected (0 until the server has said).
 using PoseProgress = std::function<void(uint64_t received, uint64_t expected)>;

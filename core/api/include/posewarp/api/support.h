@@ -38,8 +38,9 @@ using posewarp::Stopwatch;
 using posewarp::set_thread_count;
 
 // How much of the last poses' freed outputs the process keeps for the next pose of the same size (a server's share
-// of its memory ceiling).
+// of its memory ceiling), and for how long when no pose takes it.
 using posewarp::set_voxel_memory_kept_limit;
+using posewarp::trim_voxel_memory;
 using posewarp::voxel_memory_kept;
 
 }  // namespace posewarp::api

@@ -1,6 +1,7 @@
 // The memory of volumes and per-voxel tables: large blocks kept when freed and handed out again for the same size.
 #pragma once
 
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 
@@ -19,5 +20,8 @@ void free_voxels(void* p, size_t bytes) noexcept;
 void set_voxel_memory_kept_limit(size_t bytes);
 // Bytes kept now (for tests and the server's metrics).
 size_t voxel_memory_kept();
+// Frees the kept blocks that no allocation has taken for `unused_for` since they were freed, and returns their bytes:
+// a service calls it now and then, so that an idle process gives the memory kept for a next pose back to the system.
+size_t trim_voxel_memory(std::chrono::steady_clock::duration unused_for);
 
 }  // namespace posewarp
