@@ -91,12 +91,23 @@ template <typename Sample>
 void TetWarp::for_each_mapped_run(const Sample& sample) const {
   const Index3& n = output_.size;
   const int32_t* owner = owner_.get();
+  const double* maps = maps_.get();
+  constexpr int64_t kMapLookahead = 16;
   parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {
       for (int64_t j = 0; j < n[1]; ++j) {
         const int64_t row = output_.offset(0, j, k);
         for (int64_t i = 0; i < n[0];) {
           const int32_t o = owner[row + i];
+          // Asks for the map of the tet 16 voxels on: maps lie in the raster's tet order, not along a row, and a
+          // short run (1-2 voxels where every tet moves) would otherwise wait for its map's cache lines.
+          if (i + kMapLookahead < n[0]) {
+            const int32_t ahead = owner[row + i + kMapLookahead];
+            if (ahead >= 0) {
+              __builtin_prefetch(maps + 12 * ahead);
+              __builtin_prefetch(maps + 12 * ahead + 8);
+            }
+          }
           int64_t end = i + 1;
           while (end < n[0] && owner[row + end] == o) ++end;
           if (o != kNoSample) {
