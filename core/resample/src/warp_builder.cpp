@@ -327,8 +327,7 @@ class TetWarp::Builder {
     std::fill(owner_ + slab_begin, owner_ + slab_begin + slab_voxels, -1);
     std::fill(row_first_.begin() + kb * n_[1], row_first_.begin() + ke * n_[1], static_cast<int32_t>(n_[0]));
     std::fill(row_last_.begin() + kb * n_[1], row_last_.begin() + ke * n_[1], -1);
-    std::vector<uint8_t>& conflict = conflicts_[static_cast<size_t>(s)];
-    conflict.assign(static_cast<size_t>(slab_voxels), 0);
+    std::vector<int64_t>& conflicts = conflicts_[static_cast<size_t>(s)];
     for (const int32_t t : scratch_->interior[static_cast<size_t>(s)]) {
       const RasterTet& r = raster_[static_cast<size_t>(t)];
       const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2])));
@@ -342,11 +341,14 @@ class TetWarp::Builder {
         int32_t& o = owner_[v];
         if (o < 0) {
           o = t;
-        } else if (wins(warp_.maps_.get() + 12 * t, warp_.tets_[static_cast<size_t>(t)], warp_.maps_.get() + 12 * o,
-                        warp_.tets_[static_cast<size_t>(o)], double(i), double(j), double(k),
-                        conflict[static_cast<size_t>(v - slab_begin)])) {
+          return;
+        }
+        uint8_t folded = 0;
+        if (wins(warp_.maps_.get() + 12 * t, warp_.tets_[static_cast<size_t>(t)], warp_.maps_.get() + 12 * o,
+                 warp_.tets_[static_cast<size_t>(o)], double(i), double(j), double(k), folded)) {
           o = t;
         }
+        if (folded) conflicts.push_back(v - slab_begin);
       };
       if ((i1 - i0 + 1) * (j1 - j0 + 1) * (k1 - k0 + 1) <= kSmallBox) {
         rasterize_small(r, {i0, j0, k0}, {i1, j1, k1}, claim);
@@ -540,7 +542,11 @@ class TetWarp::Builder {
     int64_t kb = 0, ke = 0;
     if (!slab_range(s, kb, ke)) return;
     const int64_t slab_begin = kb * n_[0] * n_[1];
-    std::vector<uint8_t>& conflict = conflicts_[static_cast<size_t>(s)];
+    // The voxels pass 1 found folded, in order (a voxel is listed once per pair of tets that disagree on it).
+    std::vector<int64_t>& conflicts = conflicts_[static_cast<size_t>(s)];
+    std::sort(conflicts.begin(), conflicts.end());
+    conflicts.erase(std::unique(conflicts.begin(), conflicts.end()), conflicts.end());
+    size_t next_conflict = 0;
     WarpStats& stats = slab_stats_[static_cast<size_t>(s)];
     const bool guard_contacts = in_.bones && in_.bones->region && in_.bones->tet_region && in_.bones->separated;
     std::vector<std::array<int64_t, 3>> row_bones;
@@ -571,12 +577,21 @@ class TetWarp::Builder {
           int32_t& o = owner_[row_begin + i];
           if (o == -1 && fast && (i < bones_lo || i > bones_hi) &&
               (next_shell >= found.size() || found[next_shell].first != local)) {
-            const int64_t x = x0 + i;
-            classify_uncovered(o, rest_row && x >= 0 && x < in_.source.size[0] ? rest_row[x] : -1, stats);
+            // This voxel and those after it up to the next that needs more than its rest owner (a moving tet covers
+            // it, a moving bone reaches it, or it is in the shell), in one loop.
+            const int64_t shell_at = next_shell < found.size() ? found[next_shell].first - local_begin : n_[0];
+            const int64_t stop = std::min({n_[0], shell_at, i < bones_lo ? bones_lo : n_[0]});
+            i = classify_uncovered_run(owner_ + row_begin, i, stop, x0, rest_row, stats) - 1;
             continue;
           }
           int32_t shell_owner = -1;
           if (next_shell < found.size() && found[next_shell].first == local) shell_owner = found[next_shell++].second;
+          // Folded voxels are covered by a moving tet, never on the fast path: every one is reached here.
+          uint8_t conflicted = 0;
+          if (next_conflict < conflicts.size() && conflicts[next_conflict] == local) {
+            conflicted = 1;
+            ++next_conflict;
+          }
           if (!in_.rest_owner) {
             classify_alone(o, shell_owner, stats);
           } else {
@@ -589,15 +604,15 @@ class TetWarp::Builder {
               const double sb[3] = {row[0] + di * bg[0], row[1] + di * bg[3], row[2] + di * bg[6]};
               ro = rest_owner_at(sb);
             }
-            classify_by_rest_owner(o, ro, shell_owner, i, j, k, conflict[static_cast<size_t>(local)], stats);
+            classify_by_rest_owner(o, ro, shell_owner, i, j, k, conflicted, stats);
           }
-          stats.conflicted_voxels += conflict[static_cast<size_t>(local)];
+          stats.conflicted_voxels += conflicted;
           if (guard_contacts) guard_contact(o, i, j, k, stats);
           if (segment_count_ > 0) claim_bone(o, i, j, k, row_bones, stats);
         }
       }
     }
-    std::vector<uint8_t>().swap(conflict);
+    std::vector<int64_t>().swap(conflicts);
     progress_->advance(1, 2 * slab_count_);
   }
 
@@ -611,6 +626,26 @@ class TetWarp::Builder {
     } else {
       ++stats.background_voxels;
     }
+  }
+
+  // classify_uncovered for voxels i.. of an output row (`row`: their owners) up to `stop` or the first that a moving
+  // tet covers, whose rest owners are rest_row[x0 + i] (none where rest_row is null or x is off the source grid).
+  // Returns where it stopped. Most are outside the body: their rest owner is -1, and they stay background.
+  int64_t classify_uncovered_run(int32_t* row, int64_t i, int64_t stop, int64_t x0, const int32_t* rest_row,
+                                 WarpStats& stats) const {
+    const int64_t width = in_.source.size[0];
+    int64_t background = 0;
+    for (; i < stop && row[i] == -1; ++i) {
+      const int64_t x = x0 + i;
+      const int32_t ro = rest_row && x >= 0 && x < width ? rest_row[x] : -1;
+      if (ro == -1) {
+        ++background;  // as classify_uncovered has it: nothing held the voxel, it keeps the background
+        continue;
+      }
+      classify_uncovered(row[i], ro, stats);
+    }
+    stats.background_voxels += background;
+    return i;
   }
 
   // classify_by_rest_owner for a voxel that no moving tet covers and no shell reaches.
@@ -671,11 +706,11 @@ class TetWarp::Builder {
   RasterScratch* scratch_ = nullptr;
   RasterTet* raster_ = nullptr;
   std::vector<std::array<int32_t, 2>> k_range_;
-  // The slabs, and what the passes leave per slab: folds per voxel, shell voxels found, statistics.
+  // The slabs, and what the passes leave per slab: folded voxels, shell voxels found, statistics.
   int64_t slab_count_ = 0, slab_depth_ = 0;
   int32_t* owner_ = nullptr;
   std::vector<int32_t> row_first_, row_last_;
-  std::vector<std::vector<uint8_t>> conflicts_;
+  std::vector<std::vector<int64_t>> conflicts_;  // per slab: its folded voxels (slab-local indices)
   std::vector<ShellOffset> offsets_;
   std::vector<std::vector<std::pair<int64_t, int32_t>>> shells_;  // (slab voxel, owner)
   std::vector<WarpStats> slab_stats_;
