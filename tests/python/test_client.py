@@ -87,6 +87,11 @@ def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
         with pytest.raises(PosewarpError) as malformed:
             _runs(chunk, np.int16)
         assert malformed.value.code == grpc.StatusCode.DATA_LOSS
+    # Runs past the size the header gave (here 4 billion samples from 6 bytes): refused before any allocation.
+    assert np.frombuffer(_runs(runs((7, 5)), np.int16, room=5), np.int16).tolist() == [7] * 5
+    with pytest.raises(PosewarpError) as past:
+        _runs(runs((7, 2**32 - 1)), np.int16, room=1000)
+    assert past.value.code == grpc.StatusCode.DATA_LOSS
 
 
 def test_refusals_carry_their_codes(study):

@@ -65,9 +65,10 @@ def _volume(data, grid, dtype):
     return np.frombuffer(data, dtype=dtype).reshape(size[2], size[1], size[0]).transpose(2, 1, 0)
 
 
-def _runs(data, dtype):
+def _runs(data, dtype, room=None):
     """The samples of a chunk of runs: (value as dtype, count as uint32) pairs, little-endian, packed. A chunk no
-    well-behaved server sends (a torn pair, a run of none) is DATA_LOSS, as the C++ clients answer it."""
+    well-behaved server sends (a torn pair, a run of none, more samples than `room` left of the size its header gave)
+    is DATA_LOSS, as the C++ clients answer it: nothing is allocated for it."""
     pair = np.dtype([("value", np.dtype(dtype).newbyteorder("<")), ("count", "<u4")])
     if len(data) % pair.itemsize:
         raise PosewarpError(grpc.StatusCode.DATA_LOSS, f"the server's labels end inside a run ({len(data)} bytes "
@@ -75,6 +76,10 @@ def _runs(data, dtype):
     pairs = np.frombuffer(data, dtype=pair)
     if (pairs["count"] == 0).any():
         raise PosewarpError(grpc.StatusCode.DATA_LOSS, "the server's labels hold a run of no samples; pose again")
+    total = int(pairs["count"].sum(dtype=np.uint64))
+    if room is not None and total > room:
+        raise PosewarpError(grpc.StatusCode.DATA_LOSS, f"the server's labels run {total} samples past the "
+                            f"{room} its header left room for; pose again")
     return np.repeat(pairs["value"], pairs["count"]).tobytes()
 
 
@@ -210,7 +215,9 @@ class Client:
                     if kind == "header":
                         header = part.header
                     elif kind == "labels" and header.label_encoding == pb.LABEL_ENCODING_RUNS:
-                        parts[kind] += _runs(part.labels.data, _sample_dtype(header.label_sample_type))
+                        dtype = _sample_dtype(header.label_sample_type)
+                        room = (header.label_bytes - len(parts[kind])) // np.dtype(dtype).itemsize
+                        parts[kind] += _runs(part.labels.data, dtype, room)
                     elif kind in parts:
                         parts[kind] += getattr(part, kind).data
                     elif kind == "surface":
