@@ -5,6 +5,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -184,6 +185,41 @@ inline std::vector<ShellOffset> shell_offsets(const ImageGeometry& output, const
   std::stable_sort(offsets.begin(), offsets.end(),
                    [](const ShellOffset& a, const ShellOffset& b) { return a.distance < b.distance; });
   return offsets;
+}
+
+// The output index box (lo x, y, z, hi x, y, z) of a source index box (i0, j0, k0, i1, j1, k1) moved by a rigid
+// transform (rest -> posed, LPS), its voxels' outer faces included, clamped to just outside the output grid of size n.
+inline std::array<double, 6> posed_index_box(const std::array<int64_t, 6>& box, const Eigen::Matrix3d& rotation,
+                                             const Eigen::Vector3d& translation, const IndexSpace& source,
+                                             const IndexSpace& output, const Index3& n) {
+  std::array<double, 6> out;
+  for (int a = 0; a < 3; ++a)
+    out[static_cast<size_t>(a)] = std::numeric_limits<double>::infinity(),
+    out[static_cast<size_t>(a + 3)] = -std::numeric_limits<double>::infinity();
+  for (int corner = 0; corner < 8; ++corner) {
+    const Eigen::Vector3d u((corner & 1) ? box[3] + 0.5 : box[0] - 0.5, (corner & 2) ? box[4] + 0.5 : box[1] - 0.5,
+                            (corner & 4) ? box[5] + 0.5 : box[2] - 0.5);
+    const Eigen::Vector3d rest_point = source.origin + source.to_physical * u;
+    const Eigen::Vector3d o = output.to_index * (rotation * rest_point + translation - output.origin);
+    for (int a = 0; a < 3; ++a) {
+      const double top = static_cast<double>(n[static_cast<size_t>(a)]);
+      out[static_cast<size_t>(a)] = std::min(out[static_cast<size_t>(a)], std::clamp(o(a), -2.0, top + 1.0));
+      out[static_cast<size_t>(a + 3)] = std::max(out[static_cast<size_t>(a + 3)], std::clamp(o(a), -2.0, top + 1.0));
+    }
+  }
+  return out;
+}
+
+// How TetWarp::build classifies a voxel without a rest owner: covered, shell (-2 - its tet) or background.
+inline void classify_alone(int32_t& o, int32_t shell_owner, WarpStats& stats) {
+  if (o >= 0) {
+    ++stats.covered_voxels;
+  } else if (shell_owner >= 0) {
+    o = -2 - shell_owner;
+    ++stats.extrapolated_voxels;
+  } else {
+    ++stats.background_voxels;
+  }
 }
 
 // TetWarp::build's checks of its inputs, before anything is allocated.

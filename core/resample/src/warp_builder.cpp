@@ -122,22 +122,7 @@ class TetWarp::Builder {
         bone_moves_[static_cast<size_t>(k)] = 0;
         continue;
       }
-      for (int a = 0; a < 3; ++a)
-        out_box[static_cast<size_t>(a)] = std::numeric_limits<double>::infinity(),
-        out_box[static_cast<size_t>(a + 3)] = -std::numeric_limits<double>::infinity();
-      for (int corner = 0; corner < 8; ++corner) {
-        const Eigen::Vector3d u((corner & 1) ? box[3] + 0.5 : box[0] - 0.5, (corner & 2) ? box[4] + 0.5 : box[1] - 0.5,
-                                (corner & 4) ? box[5] + 0.5 : box[2] - 0.5);
-        const Eigen::Vector3d rest_point = src_space_.origin + src_space_.to_physical * u;
-        const Eigen::Vector3d o = out_space_.to_index * (rotation * rest_point + translation - out_space_.origin);
-        for (int a = 0; a < 3; ++a) {
-          const double top = static_cast<double>(n_[static_cast<size_t>(a)]);
-          out_box[static_cast<size_t>(a)] =
-              std::min(out_box[static_cast<size_t>(a)], std::clamp(o(a), -2.0, top + 1.0));
-          out_box[static_cast<size_t>(a + 3)] =
-              std::max(out_box[static_cast<size_t>(a + 3)], std::clamp(o(a), -2.0, top + 1.0));
-        }
-      }
+      out_box = posed_index_box(box, rotation, translation, src_space_, out_space_, n_);
     }
   }
 
@@ -614,18 +599,6 @@ class TetWarp::Builder {
     }
     std::vector<int64_t>().swap(conflicts);
     progress_->advance(1, 2 * slab_count_);
-  }
-
-  // A voxel without a rest owner: covered, shell or background.
-  static void classify_alone(int32_t& o, int32_t shell_owner, WarpStats& stats) {
-    if (o >= 0) {
-      ++stats.covered_voxels;
-    } else if (shell_owner >= 0) {
-      o = -2 - shell_owner;
-      ++stats.extrapolated_voxels;
-    } else {
-      ++stats.background_voxels;
-    }
   }
 
   // classify_uncovered for voxels i.. of an output row (`row`: their owners) up to `stop` or the first that a moving
