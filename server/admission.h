@@ -1,6 +1,7 @@
 // Admission under slow and hostile clients: a stall watch that cancels a call whose stream makes no progress, a
-// memory budget shared by every pose and upload, and per-client limits on concurrent calls, uploads and upload
-// bytes in flight. No gRPC service logic here; the service asks and gets a reservation or a refusal.
+// memory budget shared by every pose and upload (and the kept pose outputs given back when idle), and per-client
+// limits on concurrent calls, uploads and upload bytes in flight. No gRPC service logic here; the service asks and
+// gets a reservation or a refusal.
 #pragma once
 
 #include <grpcpp/server_context.h>
@@ -74,8 +75,6 @@ class StallWatch {
   std::thread thread_;
 };
 
-// Bytes of memory that poses and uploads in flight may hold together. A request reserves its estimate before it
-// allocates; one larger than the whole budget is refused at once, others wait for room (until their deadline).
 // Gives the pose outputs kept for a next pose (posewarp/api/support.h) back to the system once no pose has taken them
 // for `idle`: a server that was busy and then waits keeps no more than it needs. Looks every quarter of `idle` (at
 // least every 100 ms) from a thread of its own.
@@ -95,6 +94,8 @@ class KeptOutputTrim {
   std::thread thread_;
 };
 
+// Bytes of memory that poses and uploads in flight may hold together. A request reserves its estimate before it
+// allocates; one larger than the whole budget is refused at once, others wait for room (until their deadline).
 class MemoryBudget {
  public:
   class Reservation {
