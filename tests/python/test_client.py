@@ -11,7 +11,7 @@ import nibabel
 import numpy as np
 import pytest
 
-from posewarp_client import Client, PosewarpError, _runs
+from posewarp_client import Client, PosewarpError, _runs, _sample_dtype
 
 SERVER = os.environ["POSEWARP_SERVER"]
 CLI = os.environ["POSEWARP_CLI"]
@@ -92,6 +92,11 @@ def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
     with pytest.raises(PosewarpError) as past:
         _runs(runs((7, 2**32 - 1)), np.int16, room=1000)
     assert past.value.code == grpc.StatusCode.DATA_LOSS
+    # Samples of no type, or of one this client does not know.
+    for pixel_type in (0, 999):
+        with pytest.raises(PosewarpError) as untyped:
+            _sample_dtype(pixel_type)
+        assert untyped.value.code == grpc.StatusCode.DATA_LOSS
 
 
 def test_refusals_carry_their_codes(study):

@@ -255,8 +255,14 @@ def _stream_cut(error):
 
 
 def _sample_dtype(pixel_type):
-    """numpy's dtype of a header's sample type (PIXEL_TYPE_UINT8 -> uint8)."""
-    return _DTYPES[pb.PixelType.Name(pixel_type)[len("PIXEL_TYPE_"):].lower()]
+    """numpy's dtype of a header's sample type (PIXEL_TYPE_UINT8 -> uint8); a type no well-behaved server sends with
+    samples (unspecified, or unknown to this client) is DATA_LOSS, as the C++ clients answer it."""
+    name = pb.PixelType.Name(pixel_type) if pixel_type in pb.PixelType.values() else "unknown"
+    dtype = _DTYPES.get(name[len("PIXEL_TYPE_"):].lower())
+    if dtype is None:
+        raise PosewarpError(grpc.StatusCode.DATA_LOSS, f"the server sent samples of type {name} ({pixel_type}), "
+                            "which this client does not know; pose again, or update the client")
+    return dtype
 
 
 def _field(data, grid):
