@@ -72,7 +72,7 @@ void StallWatch::run() {
 }
 
 KeptOutputTrim::KeptOutputTrim(std::chrono::milliseconds idle) : idle_(idle) {
-  thread_ = std::thread([this] { run(); });
+  if (idle_.count() > 0) thread_ = std::thread([this] { run(); });
 }
 
 KeptOutputTrim::~KeptOutputTrim() {
@@ -81,7 +81,7 @@ KeptOutputTrim::~KeptOutputTrim() {
     stopping_ = true;
   }
   stop_.notify_all();
-  thread_.join();
+  if (thread_.joinable()) thread_.join();
 }
 
 void KeptOutputTrim::run() {

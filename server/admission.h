@@ -77,7 +77,7 @@ class StallWatch {
 
 // Gives the pose outputs kept for a next pose (posewarp/api/support.h) back to the system once no pose has taken them
 // for `idle`: a server that was busy and then waits keeps no more than it needs. Looks every quarter of `idle` (at
-// least every 100 ms) from a thread of its own.
+// least every 100 ms) from a thread of its own; an idle time of 0 (nothing is kept) starts none.
 class KeptOutputTrim {
  public:
   explicit KeptOutputTrim(std::chrono::milliseconds idle);

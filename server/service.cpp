@@ -41,9 +41,11 @@ PosewarpService::PosewarpService(std::unique_ptr<RigStore> store, ServiceOptions
       builds_(*store_, metrics, build_options(options_)),
       pose_slots_(options_.pose_slots, options_.pose_queue),
       previews_(options_.preview_streams_per_client),
-      kept_output_trim_(std::chrono::seconds(std::max(1, options_.kept_output_idle_s))) {
+      kept_output_trim_(std::chrono::seconds(std::max(0, options_.kept_output_idle_s))) {
   metrics_.set_gauges([this] { return gauges(); });
-  api::set_voxel_memory_kept_limit(static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)));
+  // An idle time of 0 keeps nothing (no trim would give it back).
+  api::set_voxel_memory_kept_limit(
+      options_.kept_output_idle_s > 0 ? static_cast<size_t>(std::max<int64_t>(0, options_.kept_output_bytes)) : 0);
 }
 
 PosewarpService::~PosewarpService() {

@@ -22,13 +22,18 @@ struct Cache {
   size_t total = 0;
   size_t limit = size_t{512} << 20;
 
+  // Frees the oldest block; returns its bytes. Called with the lock held, blocks not empty.
+  size_t free_oldest() {
+    const size_t bytes = blocks.front().bytes;
+    ::operator delete(blocks.front().block);
+    total -= bytes;
+    blocks.pop_front();
+    return bytes;
+  }
+
   // Frees the oldest blocks until `room` more bytes fit under the limit. Called with the lock held.
   void make_room(size_t room) {
-    while (!blocks.empty() && total + room > limit) {
-      ::operator delete(blocks.front().block);
-      total -= blocks.front().bytes;
-      blocks.pop_front();
-    }
+    while (!blocks.empty() && total + room > limit) free_oldest();
   }
 };
 
@@ -89,12 +94,7 @@ size_t trim_voxel_memory(std::chrono::steady_clock::duration unused_for) {
   // Blocks are kept in the order they were freed: the ones unused for that long are at the front.
   const auto before = std::chrono::steady_clock::now() - unused_for;
   size_t freed = 0;
-  while (!c.blocks.empty() && c.blocks.front().freed <= before) {
-    ::operator delete(c.blocks.front().block);
-    freed += c.blocks.front().bytes;
-    c.total -= c.blocks.front().bytes;
-    c.blocks.pop_front();
-  }
+  while (!c.blocks.empty() && c.blocks.front().freed <= before) freed += c.free_oldest();
   return freed;
 }
 

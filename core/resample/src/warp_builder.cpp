@@ -603,21 +603,14 @@ class TetWarp::Builder {
 
   // classify_uncovered for voxels i.. of an output row (`row`: their owners) up to `stop` or the first that a moving
   // tet covers, whose rest owners are rest_row[x0 + i] (none where rest_row is null or x is off the source grid).
-  // Returns where it stopped. Most are outside the body: their rest owner is -1, and they stay background.
+  // Returns where it stopped.
   int64_t classify_uncovered_run(int32_t* row, int64_t i, int64_t stop, int64_t x0, const int32_t* rest_row,
                                  WarpStats& stats) const {
     const int64_t width = in_.source.size[0];
-    int64_t background = 0;
     for (; i < stop && row[i] == -1; ++i) {
       const int64_t x = x0 + i;
-      const int32_t ro = rest_row && x >= 0 && x < width ? rest_row[x] : -1;
-      if (ro == -1) {
-        ++background;  // as classify_uncovered has it: nothing held the voxel, it keeps the background
-        continue;
-      }
-      classify_uncovered(row[i], ro, stats);
+      classify_uncovered(row[i], rest_row && x >= 0 && x < width ? rest_row[x] : -1, stats);
     }
-    stats.background_voxels += background;
     return i;
   }
 
