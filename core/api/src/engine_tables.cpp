@@ -21,7 +21,7 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
   std::vector<std::vector<Label>> segment_labels;
   for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
   POSEWARP_ASSIGN_OR_RETURN(resample::BoneVoxels bones, resample::bone_voxels(rig.labels, segment_labels));
-  rig.bone_substitute = std::move(bones.substitute);
+  rig.bone_substitute = bones.sparse();
   return ok_status();
 }
 

@@ -419,15 +419,16 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       auto p = std::make_shared<Prepared>();
       p->frames = skinning::rest_tet_frames(rig.mesh);
       // A rig file holds its owner and region tables; a rig from an earlier version gets them made here.
-      if (rig.rest_owner.empty() || rig.body_region.empty() || rig.bone_substitute.empty()) {
+      if (rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute) {
         POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
       }
       p->rest_owner = std::move(rig.rest_owner);
       p->region = std::move(rig.body_region);
       std::vector<std::vector<Label>> segment_labels;
       for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
-      POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels, resample::bone_voxels(rig.labels, segment_labels,
-                                                                      std::move(rig.bone_substitute)));
+      POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels,
+                                resample::bone_voxels(rig.labels, segment_labels, &*rig.bone_substitute));
+      rig.bone_substitute.reset();  // the engine keeps them as the bone voxels' own
       p->separated = rig::separated_segments(rig.skeleton);
       p->tet_region = tet_regions(rig, p->region);
       p->rest_label_counts = report::label_counts(rig.labels);

@@ -234,8 +234,9 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
   if (rig.ct) sections.emplace_back(kCtVolume, internal::volume_section(*rig.ct));
   if (!rig.rest_owner.empty()) sections.emplace_back(kRestOwner, internal::owner_section(rig.rest_owner));
   if (!rig.body_region.empty()) sections.emplace_back(kBodyRegion, internal::region_section(rig.body_region));
-  if (!rig.bone_substitute.empty()) {
-    sections.emplace_back(kBoneSubstitute, internal::substitute_section(rig.bone_substitute));
+  if (rig.bone_substitute) {
+    sections.emplace_back(kBoneSubstitute,
+                          internal::substitute_section(*rig.bone_substitute, rig.labels.voxel_count()));
   }
   for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
   {
@@ -361,7 +362,7 @@ Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32
   const int64_t voxels = grid_voxels(rig);  // GEOM was read before the bulk sections
   if (t == kRestOwner) return internal::read_owner_section(payload, voxels, rig.rest_owner);
   if (t == kBodyRegion) return internal::read_region_section(payload, voxels, rig.body_region);
-  return internal::read_substitute_section(payload, voxels, rig.bone_substitute);
+  return internal::read_substitute_section(payload, voxels, *rig.bone_substitute);
 }
 
 // Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
@@ -611,9 +612,8 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
                            "damaged. Rebuild the rig");
   }
   // The volumes and tables are checked and inflated on every thread, each into its own member of the rig.
-  if (std::any_of(bulk.begin(), bulk.end(), [](const Bulk& section) { return section.tag == kCtVolume; })) {
-    rig.ct.emplace();
-  }
+  if (has(kCtVolume) != bulk.end()) rig.ct.emplace();
+  if (has(kBoneSubstitute) != bulk.end()) rig.bone_substitute.emplace();
   std::vector<Status> parsed(bulk.size(), ok_status());
   parallel_for(0, static_cast<int64_t>(bulk.size()), 1, [&](int64_t begin, int64_t end) {
     for (int64_t b = begin; b < end; ++b) {

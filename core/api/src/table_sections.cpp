@@ -14,9 +14,10 @@
 namespace posewarp::api::internal {
 
 Status check_engine_tables(const Rig& rig) {
-  if (rig.rest_owner.empty() && rig.body_region.empty() && rig.bone_substitute.empty()) return ok_status();
+  if (rig.rest_owner.empty() && rig.body_region.empty() && !rig.bone_substitute) return ok_status();
   const auto voxels = static_cast<size_t>(rig.labels.voxel_count());
-  if (rig.rest_owner.size() != voxels || rig.body_region.size() != voxels || rig.bone_substitute.size() != voxels) {
+  if (rig.rest_owner.size() != voxels || rig.body_region.size() != voxels || !rig.bone_substitute ||
+      rig.bone_substitute->voxel.size() != rig.bone_substitute->substitute.size()) {
     return data_loss_error("rig's owner, region and substitute tables (sections OWNR, REGN, SUBS) do not hold one "
                            "value per voxel of its volumes; the file is damaged. Rebuild the rig");
   }
@@ -29,13 +30,19 @@ Status check_engine_tables(const Rig& rig) {
       // A tet (>= 0), a tet's skin shell (-2 - tet), the background (-1) or nothing (kNoSample).
       const int64_t owner = rig.rest_owner[static_cast<size_t>(v)];
       const int16_t region = rig.body_region[static_cast<size_t>(v)];
-      const int32_t substitute = rig.bone_substitute[static_cast<size_t>(v)];
       ok &= ((owner >= -1 - tets && owner < tets) || owner == resample::TetWarp::kNoSample) && region >= -1 &&
-            region < segments && substitute >= 0 && static_cast<size_t>(substitute) < voxels;
+            region < segments;
     }
     if (!ok) in_range = false;
   });
-  if (!in_range) {
+  bool ascending = true;
+  const BoneSubstitutes& substitutes = *rig.bone_substitute;
+  for (size_t e = 0; e < substitutes.voxel.size(); ++e) {
+    const int32_t v = substitutes.voxel[e], s = substitutes.substitute[e];
+    ascending &= v >= 0 && static_cast<size_t>(v) < voxels && (e == 0 || v > substitutes.voxel[e - 1]) && s >= 0 &&
+                 static_cast<size_t>(s) < voxels;
+  }
+  if (!in_range || !ascending) {
     return data_loss_error("rig's owner, region or substitute table (sections OWNR, REGN, SUBS) names a tet, segment "
                            "or voxel the rig does not have; the file is damaged. Rebuild the rig");
   }
@@ -62,6 +69,18 @@ void put(std::string& out, T value) {
 // count, the run count, then the runs' values and their lengths, each deflated (libdeflate's fastest level, zlib
 // format). Filling runs is several times faster than inflating every value.
 template <typename T>
+std::string packed_runs(uint64_t count, const std::vector<T>& run_values, const std::vector<uint32_t>& run_lengths) {
+  const std::string packed_values = deflated(run_values.data(), run_values.size() * sizeof(T));
+  std::string section;
+  put<uint64_t>(section, count);
+  put<uint64_t>(section, run_values.size());
+  put<uint64_t>(section, packed_values.size());
+  section += packed_values;
+  section += deflated(run_lengths.data(), run_lengths.size() * sizeof(uint32_t));
+  return section;
+}
+
+template <typename T>
 std::string runs_section(const std::vector<T>& values) {
   std::vector<T> run_values;
   std::vector<uint32_t> run_lengths;
@@ -72,22 +91,19 @@ std::string runs_section(const std::vector<T>& values) {
     run_lengths.push_back(static_cast<uint32_t>(end - v));
     v = end;
   }
-  const std::string packed_values = deflated(run_values.data(), run_values.size() * sizeof(T));
-  std::string section;
-  put<uint64_t>(section, values.size());
-  put<uint64_t>(section, run_values.size());
-  put<uint64_t>(section, packed_values.size());
-  section += packed_values;
-  section += deflated(run_lengths.data(), run_lengths.size() * sizeof(uint32_t));
-  return section;
+  return packed_runs(values.size(), run_values, run_lengths);
 }
 
-// Refuses a table of another size than the rig's grid (`voxels`) and runs that do not add up to it, before the
-// table is allocated.
-// With `plus_index`, each value is stored as its offset from its own index (the substitutes: 0 but at bones).
+// A table's runs, inflated and checked: a table of another size than the rig's grid (`voxels`) and runs that do not
+// add up to it are refused before the runs are allocated.
 template <typename T>
-Status read_runs_section(std::string_view payload, const char* name, int64_t voxels, std::vector<T>& values,
-                         bool plus_index = false) {
+struct Runs {
+  std::vector<T> values;
+  std::vector<uint32_t> lengths;
+};
+
+template <typename T>
+Result<Runs<T>> read_runs(std::string_view payload, const char* name, int64_t voxels) {
   auto damaged = [name](const std::string& what) {
     return data_loss_error(std::string("rig section ") + name + " " + what + "; the file is damaged. Rebuild the rig");
   };
@@ -102,36 +118,24 @@ Status read_runs_section(std::string_view payload, const char* name, int64_t vox
   const std::string_view packed_lengths = payload.substr(24 + values_bytes);
   // Deflate packs at most 1032:1: a run count beyond that is damage, refused before the runs are allocated.
   if (runs > (packed_lengths.size() + 64) * 1032 / sizeof(uint32_t)) return damaged("claims more runs than it holds");
-  std::vector<T> run_values(static_cast<size_t>(runs));
-  std::vector<uint32_t> run_lengths(static_cast<size_t>(runs));
-  if (!inflate_exactly(packed_values, run_values.data(), run_values.size() * sizeof(T)) ||
-      !inflate_exactly(packed_lengths, run_lengths.data(), run_lengths.size() * sizeof(uint32_t))) {
+  Runs<T> out{std::vector<T>(static_cast<size_t>(runs)), std::vector<uint32_t>(static_cast<size_t>(runs))};
+  if (!inflate_exactly(packed_values, out.values.data(), out.values.size() * sizeof(T)) ||
+      !inflate_exactly(packed_lengths, out.lengths.data(), out.lengths.size() * sizeof(uint32_t))) {
     return damaged("does not decompress");
   }
   uint64_t total = 0;
-  for (const uint32_t length : run_lengths) total += length;
+  for (const uint32_t length : out.lengths) total += length;
   if (total != count) return damaged("has runs that do not add up to its values");
-  values.resize(static_cast<size_t>(count));
-  T* out = values.data();
-  if (!plus_index) {
-    for (size_t r = 0; r < run_values.size(); ++r) out = std::fill_n(out, run_lengths[r], run_values[r]);
-    return ok_status();
-  }
-  auto index = uint32_t{0};
-  for (size_t r = 0; r < run_values.size(); ++r) {
-    const auto offset = static_cast<uint32_t>(run_values[r]);
-    for (uint32_t i = 0; i < run_lengths[r]; ++i) *out++ = static_cast<T>(offset + index++);
-  }
-  return ok_status();
+  return out;
 }
 
-// Substitutes as offsets from their own voxel: 0 for every voxel but the bones'.
-std::vector<int32_t> offsets(const std::vector<int32_t>& values) {
-  std::vector<int32_t> offset(values.size());
-  for (size_t v = 0; v < values.size(); ++v) {
-    offset[v] = static_cast<int32_t>(static_cast<uint32_t>(values[v]) - static_cast<uint32_t>(v));
-  }
-  return offset;
+template <typename T>
+Status read_runs_section(std::string_view payload, const char* name, int64_t voxels, std::vector<T>& values) {
+  POSEWARP_ASSIGN_OR_RETURN(const Runs<T> runs, read_runs<T>(payload, name, voxels));
+  values.resize(static_cast<size_t>(voxels));
+  T* out = values.data();
+  for (size_t r = 0; r < runs.values.size(); ++r) out = std::fill_n(out, runs.lengths[r], runs.values[r]);
+  return ok_status();
 }
 
 }  // namespace
@@ -148,8 +152,28 @@ std::string owner_section(const std::vector<int32_t>& owner) { return runs_secti
 
 std::string region_section(const std::vector<int16_t>& region) { return runs_section(region); }
 
-std::string substitute_section(const std::vector<int32_t>& substitute) {
-  return runs_section(offsets(substitute));
+// Each substitute is stored as its offset from its own voxel: 0 but at the bones listed.
+std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxels) {
+  std::vector<int32_t> run_values;
+  std::vector<uint32_t> run_lengths;
+  auto extend = [&](int32_t value, uint32_t length) {
+    if (length == 0) return;
+    if (!run_values.empty() && run_values.back() == value) {
+      run_lengths.back() += length;
+    } else {
+      run_values.push_back(value);
+      run_lengths.push_back(length);
+    }
+  };
+  uint32_t at = 0;  // the first voxel not yet in a run
+  for (size_t e = 0; e < substitutes.voxel.size(); ++e) {
+    const auto v = static_cast<uint32_t>(substitutes.voxel[e]);
+    extend(0, v - at);
+    extend(static_cast<int32_t>(static_cast<uint32_t>(substitutes.substitute[e]) - v), 1);
+    at = v + 1;
+  }
+  extend(0, static_cast<uint32_t>(voxels) - at);
+  return packed_runs(static_cast<uint64_t>(voxels), run_values, run_lengths);
 }
 
 Status read_owner_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& owner) {
@@ -160,8 +184,27 @@ Status read_region_section(std::string_view payload, int64_t voxels, std::vector
   return read_runs_section(payload, "REGN", voxels, region);
 }
 
-Status read_substitute_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& substitute) {
-  return read_runs_section(payload, "SUBS", voxels, substitute, true);
+Status read_substitute_section(std::string_view payload, int64_t voxels, BoneSubstitutes& substitutes) {
+  POSEWARP_ASSIGN_OR_RETURN(const Runs<int32_t> runs, read_runs<int32_t>(payload, "SUBS", voxels));
+  size_t listed = 0;
+  for (size_t r = 0; r < runs.values.size(); ++r) listed += runs.values[r] != 0 ? runs.lengths[r] : 0;
+  substitutes.voxel.clear();
+  substitutes.substitute.clear();
+  substitutes.voxel.reserve(listed);
+  substitutes.substitute.reserve(listed);
+  auto index = uint32_t{0};
+  for (size_t r = 0; r < runs.values.size(); ++r) {
+    const auto offset = static_cast<uint32_t>(runs.values[r]);
+    if (offset == 0) {
+      index += runs.lengths[r];
+      continue;
+    }
+    for (uint32_t i = 0; i < runs.lengths[r]; ++i, ++index) {
+      substitutes.voxel.push_back(static_cast<int32_t>(index));
+      substitutes.substitute.push_back(static_cast<int32_t>(offset + index));
+    }
+  }
+  return ok_status();
 }
 
 }  // namespace posewarp::api::internal

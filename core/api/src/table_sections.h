@@ -11,17 +11,18 @@
 namespace posewarp::api::internal {
 
 // DATA_LOSS unless the tables a rig file gave are one value per source voxel, each within its range (a tet of the
-// mesh, its shell or none; a segment of the skeleton or -1; a voxel of the grid): the warp indexes with them.
+// mesh, its shell or none; a segment of the skeleton or -1), and substitutes of ascending voxels by voxels of the
+// grid: the warp indexes with them.
 Status check_engine_tables(const Rig& rig);
 
 // The tables as rig file sections (runs of equal values, deflated) and back. `voxels` is the rig's grid
 // (source_geometry): a table of another size, or a damaged payload, is DATA_LOSS before anything large is allocated.
 std::string owner_section(const std::vector<int32_t>& owner);
 std::string region_section(const std::vector<int16_t>& region);
-std::string substitute_section(const std::vector<int32_t>& substitute);  // each stored as its offset from its voxel
+std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxels);  // as offsets, 0 but at bones
 Status read_owner_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& owner);
 Status read_region_section(std::string_view payload, int64_t voxels, std::vector<int16_t>& region);
-Status read_substitute_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& substitute);
+Status read_substitute_section(std::string_view payload, int64_t voxels, BoneSubstitutes& substitutes);
 
 // zlib-format data inflated into `out` (exactly out_bytes), as libdeflate does it: twice zlib's speed, for the rig's
 // volume sections too. False when the data is damaged or does not fill `out` exactly.

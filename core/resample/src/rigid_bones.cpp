@@ -4,6 +4,7 @@
 #include "posewarp/resample/rigid_bones.h"
 
 #include <algorithm>
+#include <bit>
 #include <limits>
 #include <mutex>
 #include <new>
@@ -11,8 +12,75 @@
 
 namespace posewarp::resample {
 
+namespace {
+
+// The rank index over the bone voxels (BoneVoxels::bone_bits, bones_before), and room for their substitutes.
+void index_bone_voxels(BoneVoxels& bones) {
+  const int64_t n = static_cast<int64_t>(bones.segment.size()), words = (n + 63) / 64;
+  bones.bone_bits.assign(static_cast<size_t>(words), 0);
+  bones.bones_before.resize(static_cast<size_t>(words));
+  const int16_t* segment = bones.segment.data();
+  parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
+    for (int64_t w = w0; w < w1; ++w) {
+      uint64_t bits = 0;
+      for (int64_t v = 64 * w, end = std::min(n, v + 64); v < end; ++v) {
+        if (segment[v] != BoneVoxels::kNone) bits |= uint64_t{1} << (v & 63);
+      }
+      bones.bone_bits[static_cast<size_t>(w)] = bits;
+    }
+  });
+  int32_t before = 0;
+  for (int64_t w = 0; w < words; ++w) {
+    bones.bones_before[static_cast<size_t>(w)] = before;
+    before += std::popcount(bones.bone_bits[static_cast<size_t>(w)]);
+  }
+  bones.substitute.assign(static_cast<size_t>(before), -1);
+}
+
+// Calls visit(v, rank) for each bone voxel v in voxel order, rank its entry of `substitute`.
+template <typename Visit>
+void for_each_bone_voxel(const BoneVoxels& bones, Visit&& visit) {
+  int32_t rank = 0;
+  for (size_t w = 0; w < bones.bone_bits.size(); ++w) {
+    for (uint64_t bits = bones.bone_bits[w]; bits != 0; bits &= bits - 1) {
+      visit(static_cast<int64_t>(64 * w) + std::countr_zero(bits), rank++);
+    }
+  }
+}
+
+// The substitutes a rig file kept: each voxel its own but those listed.
+Status take_substitutes(const BoneSubstitutes& given, BoneVoxels& bones) {
+  if (given.voxel.size() != given.substitute.size()) {
+    return data_loss_error("a substitute table of " + std::to_string(given.voxel.size()) + " voxels and " +
+                           std::to_string(given.substitute.size()) + " substitutes; rebuild the rig that kept it");
+  }
+  size_t next = 0;
+  for_each_bone_voxel(bones, [&](int64_t v, int32_t rank) {
+    const bool listed = next < given.voxel.size() && given.voxel[next] == v;
+    bones.substitute[static_cast<size_t>(rank)] = listed ? given.substitute[next++] : static_cast<int32_t>(v);
+  });
+  if (next != given.voxel.size()) {
+    return data_loss_error("the substitute table (rig section SUBS) names voxel " + std::to_string(given.voxel[next]) +
+                           ", which is no bone voxel of the rig's labels; the file is damaged. Rebuild the rig");
+  }
+  return ok_status();
+}
+
+}  // namespace
+
+BoneSubstitutes BoneVoxels::sparse() const {
+  BoneSubstitutes out;
+  for_each_bone_voxel(*this, [&](int64_t v, int32_t rank) {
+    const int32_t s = substitute[static_cast<size_t>(rank)];
+    if (s == v) return;
+    out.voxel.push_back(static_cast<int32_t>(v));
+    out.substitute.push_back(s);
+  });
+  return out;
+}
+
 Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std::vector<Label>>& segment_labels,
-                               std::vector<int32_t> substitute) {
+                               const BoneSubstitutes* substitutes) {
   if (segment_labels.size() > static_cast<size_t>(std::numeric_limits<int16_t>::max())) {
     return invalid_argument_error("too many bone segments for the voxel map (" + std::to_string(segment_labels.size()) +
                                   ")");
@@ -77,17 +145,14 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
         }
       }
     });
-    if (!substitute.empty()) {
-      if (static_cast<int64_t>(substitute.size()) != n) {
-        return invalid_argument_error("a substitute table of " + std::to_string(substitute.size()) + " voxels for " +
-                                      std::to_string(n) + " voxels of labels");
-      }
-      bones.substitute = std::move(substitute);
+    index_bone_voxels(bones);
+    if (substitutes) {
+      POSEWARP_RETURN_IF_ERROR(take_substitutes(*substitutes, bones));
       return bones;
     }
-    bones.substitute.assign(static_cast<size_t>(n), -1);
     // Breadth first from the non-bone voxels next to a bone inward: each bone voxel inherits the substitute of the
     // neighbour that reached it first.
+    auto substitute = [&bones](int64_t v) -> int32_t& { return bones.substitute[bones.rank_of(v)]; };
     std::vector<int64_t> front, next;
     auto for_neighbours = [&](int64_t v, auto&& visit) {
       const int64_t i = v % g.size[0], j = (v / g.size[0]) % g.size[1], k = v / (g.size[0] * g.size[1]);
@@ -100,21 +165,20 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
         }
       }
     };
-    for (int64_t v = 0; v < n; ++v) {
-      if (bones.segment[static_cast<size_t>(v)] == BoneVoxels::kNone) continue;
+    for_each_bone_voxel(bones, [&](int64_t v, int32_t rank) {
+      int32_t& mine = bones.substitute[static_cast<size_t>(rank)];
       for_neighbours(v, [&](int64_t w) {
-        if (bones.substitute[static_cast<size_t>(v)] < 0 && bones.segment[static_cast<size_t>(w)] == BoneVoxels::kNone) {
-          bones.substitute[static_cast<size_t>(v)] = static_cast<int32_t>(w);
-        }
+        if (mine < 0 && bones.segment[static_cast<size_t>(w)] == BoneVoxels::kNone) mine = static_cast<int32_t>(w);
       });
-      if (bones.substitute[static_cast<size_t>(v)] >= 0) front.push_back(v);
-    }
+      if (mine >= 0) front.push_back(v);
+    });
     while (!front.empty()) {
       next.clear();
       for (const int64_t v : front) {
+        const int32_t mine = substitute(v);
         for_neighbours(v, [&](int64_t w) {
-          if (bones.segment[static_cast<size_t>(w)] != BoneVoxels::kNone && bones.substitute[static_cast<size_t>(w)] < 0) {
-            bones.substitute[static_cast<size_t>(w)] = bones.substitute[static_cast<size_t>(v)];
+          if (bones.segment[static_cast<size_t>(w)] != BoneVoxels::kNone && substitute(w) < 0) {
+            substitute(w) = mine;
             next.push_back(w);
           }
         });
@@ -122,9 +186,10 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
       front.swap(next);
     }
     // A bone that fills the whole grid has no soft voxel to offer: it keeps its own values.
-    for (int64_t v = 0; v < n; ++v) {
-      if (bones.substitute[static_cast<size_t>(v)] < 0) bones.substitute[static_cast<size_t>(v)] = static_cast<int32_t>(v);
-    }
+    for_each_bone_voxel(bones, [&](int64_t v, int32_t rank) {
+      int32_t& mine = bones.substitute[static_cast<size_t>(rank)];
+      if (mine < 0) mine = static_cast<int32_t>(v);
+    });
     return bones;
   });
 }

@@ -48,7 +48,8 @@ Status check(const WarpInputs& in) {
   POSEWARP_RETURN_IF_ERROR(validate(in.params));
   if (const RigidBones* bones = in.bones) {
     if (!bones->voxels || static_cast<int64_t>(bones->voxels->segment.size()) != in.source.voxel_count() ||
-        bones->voxels->substitute.size() != bones->voxels->segment.size()) {
+        bones->voxels->bone_bits.size() != (bones->voxels->segment.size() + 63) / 64 ||
+        bones->voxels->bones_before.size() != bones->voxels->bone_bits.size()) {
       return invalid_argument_error("the bone voxels do not match the source grid");
     }
     if (bones->rotation.size() != bones->translation.size() || bones->rotation.size() != bones->voxels->box.size() ||
@@ -137,7 +138,6 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   const Label* in = labels.data();
   Label* dst = out.data();
   const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
-  const int32_t* substitute = bones_ ? bones_->substitute.data() : nullptr;
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
     const bool keep_bones_out = soft && bone_of;
     if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
@@ -150,7 +150,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
                     z = round_index(s0[2] + dc * ds[2]);
       if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
       int64_t at = x + m[0] * (y + m[1] * z);
-      if (keep_bones_out && bone_of[at] >= 0) at = substitute[at];
+      if (keep_bones_out && bone_of[at] >= 0) at = bones_->substitute_of(at);
       dst[v + c] = in[at];
     }
   });
@@ -177,7 +177,6 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   const int64_t base_max[3] = {std::max<int64_t>(0, m[0] - 2), std::max<int64_t>(0, m[1] - 2),
                                std::max<int64_t>(0, m[2] - 2)};
   const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
-  const int32_t* substitute = bones_ ? bones_->substitute.data() : nullptr;
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
     const bool keep_bones_out = soft && bone_of;
     int64_t x0 = 0, y = 0, z = 0;
@@ -194,7 +193,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
       if (keep_bones_out) {
         const int64_t nearest = round_index(s[0]) + sy * round_index(s[1]) + sz * round_index(s[2]);
         if (bone_of[nearest] >= 0) {
-          dst[v + c] = in[substitute[nearest]];
+          dst[v + c] = in[bones_->substitute_of(nearest)];
           continue;
         }
       }

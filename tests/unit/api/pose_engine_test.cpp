@@ -376,7 +376,7 @@ TEST(Posing, ARigWithoutItsEngineTablesPosesTheSame) {
   ASSERT_FALSE(old.rest_owner.empty());
   old.rest_owner.clear();
   old.body_region.clear();
-  old.bone_substitute.clear();
+  old.bone_substitute.reset();
   Result<PoseEngine> engine = PoseEngine::create(std::move(old));
   ASSERT_TRUE(engine.ok()) << engine.status().to_string();
   PoseRequest request;

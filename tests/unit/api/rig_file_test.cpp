@@ -179,7 +179,8 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
   }
   {
     Rig rig = posewarp::testing::shared_bar_rig();
-    rig.bone_substitute.back() = static_cast<int32_t>(rig.bone_substitute.size());
+    ASSERT_TRUE(rig.bone_substitute && !rig.bone_substitute->substitute.empty());
+    rig.bone_substitute->substitute.back() = static_cast<int32_t>(rig.labels.voxel_count());
     refused(std::move(rig), "SUBS");
   }
   {

@@ -293,6 +293,44 @@ TEST(TetWarp, BoneDeviationCountsExactVoxelsAndFindsThePercentileOverAll) {
   EXPECT_GT(deviation[moved].second, 0.0);
 }
 
+// Each bone voxel's substitute is a voxel outside the bones; kept sparse (as a rig file keeps them) they give back the
+// same table, and a sparse table naming a voxel that is no bone is refused as damage.
+TEST(BoneVoxels, SubstitutesAreSoftVoxelsAndSurviveTheSparseFormTheRigKeeps) {
+  const Scene& s = bar_scene();
+  std::vector<std::vector<Label>> segment_labels;
+  for (const labels::LabelEntry& e : s.phantom.label_map.entries()) {
+    if (e.role == labels::LabelRole::kBone) segment_labels.push_back({e.value});
+  }
+  Result<BoneVoxels> bones = bone_voxels(s.phantom.labels, segment_labels);
+  ASSERT_TRUE(bones.ok()) << bones.status().to_string();
+  ASSERT_GT(bones->bone_voxels, 1000);
+  ASSERT_EQ(bones->substitute.size(), static_cast<size_t>(bones->bone_voxels));
+  int64_t seen = 0, first_soft = -1;
+  for (int64_t v = 0; v < static_cast<int64_t>(bones->segment.size()); ++v) {
+    if (bones->segment[static_cast<size_t>(v)] == BoneVoxels::kNone) {
+      if (first_soft < 0) first_soft = v;
+      continue;
+    }
+    const int32_t substitute = bones->substitute_of(v);
+    ASSERT_EQ(bones->rank_of(v), static_cast<size_t>(seen++));
+    ASSERT_EQ(bones->segment[static_cast<size_t>(substitute)], BoneVoxels::kNone) << "bone voxel " << v;
+  }
+  EXPECT_EQ(seen, bones->bone_voxels);
+  const BoneSubstitutes sparse = bones->sparse();
+  EXPECT_EQ(sparse.voxel.size(), static_cast<size_t>(bones->bone_voxels));  // no bone voxel is its own here
+  Result<BoneVoxels> again = bone_voxels(s.phantom.labels, segment_labels, &sparse);
+  ASSERT_TRUE(again.ok()) << again.status().to_string();
+  EXPECT_EQ(again->substitute, bones->substitute);
+  ASSERT_GE(first_soft, 0);
+  ASSERT_LT(first_soft, sparse.voxel.front());
+  BoneSubstitutes damaged = sparse;
+  damaged.voxel.insert(damaged.voxel.begin(), static_cast<int32_t>(first_soft));
+  damaged.substitute.insert(damaged.substitute.begin(), 0);
+  const Status refused = bone_voxels(s.phantom.labels, segment_labels, &damaged).status();
+  EXPECT_EQ(refused.code(), StatusCode::kDataLoss) << refused.to_string();
+  EXPECT_NE(refused.message().find("no bone voxel"), std::string::npos) << refused.to_string();
+}
+
 TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();

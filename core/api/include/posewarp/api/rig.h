@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/common/bone_substitutes.h"
 #include "posewarp/common/label_map.h"
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
@@ -75,13 +76,13 @@ struct Rig {
   // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
   std::vector<SurfaceMesh> surfaces;
   std::vector<Embedding> embeddings;
-  // Per source voxel, what a pose engine would otherwise compute when it opens the rig (a second or more on a whole
-  // body): the tet that owns the voxel at rest (the identity warp's owner), the nearest-bone region of the
-  // skin-contact guard, and the soft-tissue voxel a bone voxel's value is replaced by where soft tissue maps onto
-  // the bone. Made by build_rig; empty in a rig from before them, whose engine computes them.
+  // What a pose engine would otherwise compute when it opens the rig (a second or more on a whole body): per source
+  // voxel the tet that owns it at rest (the identity warp's owner) and the nearest-bone region of the skin-contact
+  // guard, and the soft-tissue voxel a bone voxel's value is replaced by where soft tissue maps onto the bone. Made
+  // by build_rig; empty (no substitutes) in a rig from before them, whose engine computes them.
   std::vector<int32_t> rest_owner;
   std::vector<int16_t> body_region;
-  std::vector<int32_t> bone_substitute;
+  std::optional<BoneSubstitutes> bone_substitute;
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 
