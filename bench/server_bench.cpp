@@ -4,6 +4,8 @@
 // mannequin phantom.
 // Usage: posewarp_bench_server [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip, the default)]
 //                              [--repeats R] [--latency-only] [--rig-cache DIR (keeps the phantoms' rigs between runs)]
+//                              [--pose-threads N (the server's --pose-threads and the same in process: 1 on 2 cores
+//                              leaves the client a core of its own)]
 //                              [--source-dir DIR (the repository, for its data/ where the build tree is not)]
 // Elsewhere than the build tree (a bundle on a bigger machine), POSEWARP_SERVER_BINARY names the server to start.
 #include <nlohmann/json.hpp>
@@ -38,7 +40,7 @@ std::unique_ptr<client::Connection> connect_to(const ServerProcess& server) {
 }
 
 nlohmann::json bench_case(const std::string& name, const fs::path& work, const std::string& rig_bytes,
-                          const std::string& pose_json, int repeats, bool latency_only) {
+                          const std::string& pose_json, int repeats, bool latency_only, int pose_threads) {
   nlohmann::json row{{"case", name}};
   // In process: the engine posing labels + CT, as the server will.
   Result<api::Rig> rig = api::rig_from_bytes(rig_bytes, name);
@@ -49,23 +51,28 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   api::PoseRequest local;
   local.pose = *api::pose_from_json(pose_json, "bench pose");
   local.want_surfaces = false;  // as the server request below: labels + CT
+  ProgressHooks hooks;
+  hooks.threads = pose_threads;
+  // One pose in process, timed; the stages of the last.
   std::vector<double> local_ms;
-  for (int r = 0; r < repeats; ++r) {
+  auto pose_locally = [&](bool last) {
     const api::Stopwatch start;
-    Result<api::PoseResult> result = engine->pose(local);
+    Result<api::PoseResult> result = engine->pose(local, hooks);
     if (!result.ok()) throw std::runtime_error(result.status().to_string());
     local_ms.push_back(1e3 * start.seconds());
-    if (r + 1 == repeats) {
+    if (last) {
       std::printf("%-12s local stages (ms):", name.c_str());
       for (const auto& [stage, seconds] : result->report.stage_seconds) std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds);
       std::printf("\n");
     }
-  }
+  };
 
   const fs::path store = work / ("store-" + name);
   const int metrics_port = free_port();
-  ServerProcess server(store, {"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port), "--pose-queue", "64"},
-                       {}, work / (name + "-server.log"));
+  std::vector<std::string> server_args{"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port), "--pose-queue",
+                                       "64"};
+  if (pose_threads > 0) server_args.insert(server_args.end(), {"--pose-threads", std::to_string(pose_threads)});
+  ServerProcess server(store, server_args, {}, work / (name + "-server.log"));
   if (server.port() == 0) throw std::runtime_error("the server did not start: " + server.log());
   auto stub = v1::Posewarp::NewStub(server.channel());
   const std::unique_ptr<client::Connection> connection = connect_to(server);  // poses: the clients' own library
@@ -105,8 +112,10 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
   request.set_label_encoding(v1::LABEL_ENCODING_RUNS);
   v1::PoseRequest as_samples = request;
   as_samples.set_label_encoding(v1::LABEL_ENCODING_SAMPLES);
+  // Each repeat poses in process, then through the server twice, so that the machine's drift falls on all three.
   std::vector<double> server_ms, samples_ms;
   for (int r = 0; r < repeats; ++r) {
+    pose_locally(r + 1 == repeats);
     {
       const api::Stopwatch start;
       client::PoseAnswer answer;
@@ -236,7 +245,7 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
 int main(int argc, char** argv) {
   double mannequin_mvoxels = 20.0, body_mvoxels = 0.0;
   fs::path source = POSEWARP_SOURCE_DIR;
-  int repeats = 10;
+  int repeats = 10, pose_threads = 0;
   bool latency_only = false;
   fs::path rig_cache;
   for (int i = 1; i < argc; ++i) {
@@ -248,6 +257,8 @@ int main(int argc, char** argv) {
       source = argv[++i];
     } else if (!std::strcmp(argv[i], "--repeats") && i + 1 < argc) {
       repeats = std::max(2, std::atoi(argv[++i]));
+    } else if (!std::strcmp(argv[i], "--pose-threads") && i + 1 < argc) {
+      pose_threads = std::max(0, std::atoi(argv[++i]));
     } else if (!std::strcmp(argv[i], "--latency-only")) {
       latency_only = true;
     } else if (!std::strcmp(argv[i], "--rig-cache") && i + 1 < argc) {
@@ -255,7 +266,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: %s [--mannequin-mvoxels M (0 = skip)] [--body-mvoxels M (0 = skip)] [--repeats R] "
-                   "[--latency-only] [--rig-cache DIR] [--source-dir DIR]\n",
+                   "[--latency-only] [--pose-threads N] [--rig-cache DIR] [--source-dir DIR]\n",
                    argv[0]);
       return 2;
     }
@@ -266,7 +277,8 @@ int main(int argc, char** argv) {
   try {
     const std::string dir = (source / "data/totalsegmentator_example").string();
     const std::string hip = file_text(source / "data/poses/sample_hip_flexion.json");
-    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only));
+    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only,
+                                      pose_threads));
     // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
     {
       ServerProcess server(work / "store-upload", {}, {}, work / "upload.log");
@@ -287,7 +299,7 @@ int main(int argc, char** argv) {
       if (mvoxels <= 0.0) continue;
       // A phantom's rig takes minutes to build: --rig-cache keeps it between runs.
       const std::string rig_bytes = bench::phantom_rig_bytes(kind, mvoxels, rig_cache);
-      out["cases"].push_back(bench_case(kind, work, rig_bytes, knee, std::max(2, repeats / 2), latency_only));
+      out["cases"].push_back(bench_case(kind, work, rig_bytes, knee, std::max(2, repeats / 2), latency_only, pose_threads));
     }
   } catch (const std::exception& error) {
     std::fprintf(stderr, "posewarp_bench_server: %s\n", error.what());
