@@ -1,6 +1,7 @@
-"""posewarp_client against the real posewarp-server: upload, build and pose the bar phantom and compare with the
+"""The posewarp package against the real posewarp-server: upload, build and pose the bar phantom and compare with the
 CLI's local pose of the same stored rig. Paths come from the environment (set by CTest): POSEWARP_SERVER,
-POSEWARP_CLI, POSEWARP_SOURCE_DIR."""
+POSEWARP_CLI, POSEWARP_SOURCE_DIR; tests/python/run-installed installs the package into the project's venv and sets
+POSEWARP_INSTALLED, so that these tests run on the installed package, as its users have it."""
 import json
 import os
 import re
@@ -11,7 +12,9 @@ import nibabel
 import numpy as np
 import pytest
 
-from posewarp_client import Client, PosewarpError, _runs, _sample_dtype
+import posewarp
+from posewarp import (Client, DataLossError, InvalidArgumentError, NotFoundError, PosewarpError, UnauthenticatedError,
+                      _runs, _sample_dtype)
 
 SERVER = os.environ["POSEWARP_SERVER"]
 CLI = os.environ["POSEWARP_CLI"]
@@ -75,6 +78,58 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     with pytest.raises(PosewarpError) as too_many:
         client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=20000)
     assert too_many.value.code == grpc.StatusCode.INVALID_ARGUMENT and "max_iterations" in str(too_many.value)
+    assert isinstance(too_many.value, InvalidArgumentError)
+
+
+def test_the_package_is_the_installed_one():
+    if not os.environ.get("POSEWARP_INSTALLED"):
+        pytest.skip("run by tests/python/run-installed, on the installed package")
+    where = os.path.realpath(posewarp.__file__)
+    assert where.startswith(os.path.realpath(os.environ["POSEWARP_INSTALLED"])), where
+    assert "site-packages" in where
+    assert os.path.realpath(posewarp.pb.__file__).startswith(os.path.dirname(where))  # its stubs inside it
+    assert posewarp.__version__
+
+
+def test_typed_joints_pose_as_the_json_pose_and_a_misspelt_joint_names_the_rigs(study):
+    work, client = study
+    rig = _bar_rig(work, client)
+    from_file = client.pose(rig, POSE, method="cor")
+    typed = client.pose(rig, joints={"joint_2_3": {"flexion": 90}}, method="cor")
+    as_tuple = client.pose(rig, joints={"joint_2_3": (90, 0, 0)}, method="cor", ct=False)
+    np.testing.assert_array_equal(typed.labels, from_file.labels)
+    np.testing.assert_array_equal(typed.ct, from_file.ct)
+    np.testing.assert_array_equal(as_tuple.labels, from_file.labels)
+    with pytest.raises(InvalidArgumentError) as misspelt:
+        client.pose(rig, joints={"joint_2_33": {"flexion": 90}}, labels=False, ct=False)
+    assert "joint_2_33" in misspelt.value.message and "joint_2_3" in misspelt.value.message
+    with pytest.raises(ValueError):
+        posewarp.make_pose({"joint_2_3": {"flection": 90}})
+
+
+def test_a_posed_volume_reads_in_simpleitk_as_its_users_read_it(study, tmp_path):
+    sitk = pytest.importorskip("SimpleITK", reason="SimpleITK comes from PyPI into the venv scripts/python-env makes")
+    work, client = study
+    posed = client.pose(_bar_rig(work, client), POSE)
+    posed.to_nibabel("labels").to_filename(str(tmp_path / "labels.nii.gz"))
+    posed.to_nibabel("ct").to_filename(str(tmp_path / "ct.nii.gz"))
+    for name, array in (("labels", posed.labels), ("ct", posed.ct)):
+        image = sitk.ReadImage(str(tmp_path / f"{name}.nii.gz"))
+        # SimpleITK's arrays are (z, y, x) and its geometry LPS; the package's arrays (x, y, z) with a RAS affine.
+        np.testing.assert_array_equal(sitk.GetArrayFromImage(image).transpose(2, 1, 0), array)
+        lps = np.diag([-1.0, -1.0, 1.0, 1.0]) @ posed.affine
+        np.testing.assert_allclose(image.GetOrigin(), lps[:3, 3], atol=1e-3)
+        np.testing.assert_allclose(image.GetSpacing(), np.linalg.norm(lps[:3, :3], axis=0), rtol=1e-5)
+        direction = np.array(image.GetDirection()).reshape(3, 3)
+        np.testing.assert_allclose(direction, lps[:3, :3] / np.linalg.norm(lps[:3, :3], axis=0), atol=1e-5)
+
+
+def _bar_rig(work, client):
+    """The bar's rig on the study's server (built once; a second build of the same inputs is found, not made)."""
+    labels = client.upload(work / "bar" / "labels.nii.gz", kind="labels")
+    ct = client.upload(work / "bar" / "ct.nii.gz", kind="intensity")
+    with open(work / "bar" / "label_map.json") as f:
+        return client.build_rig(labels, ct, label_map=json.load(f), name="bar")
 
 
 def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
@@ -84,7 +139,7 @@ def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
     assert np.frombuffer(_runs(runs((3, 2), (-1, 3)), np.int16), np.int16).tolist() == [3, 3, -1, -1, -1]
     assert np.frombuffer(_runs(runs((200, 4), value="u1"), np.uint8), np.uint8).tolist() == [200] * 4
     for chunk in (runs((3, 2))[:-1], runs((3, 2), (4, 0))):  # a torn pair, a run of none
-        with pytest.raises(PosewarpError) as malformed:
+        with pytest.raises(DataLossError) as malformed:
             _runs(chunk, np.int16)
         assert malformed.value.code == grpc.StatusCode.DATA_LOSS
     # Runs past the size the header gave (here 4 billion samples from 6 bytes): refused before any allocation.
@@ -101,10 +156,10 @@ def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
 
 def test_refusals_carry_their_codes(study):
     _, client = study
-    with pytest.raises(PosewarpError) as unknown:
+    with pytest.raises(NotFoundError) as unknown:
         client.pose("0" * 64, {"joints": {}})
     assert unknown.value.code == grpc.StatusCode.NOT_FOUND
-    with pytest.raises(PosewarpError) as bad_id:
+    with pytest.raises(InvalidArgumentError) as bad_id:
         client.pose("../etc/passwd", {"joints": {}})
     assert bad_id.value.code == grpc.StatusCode.INVALID_ARGUMENT
 
@@ -114,7 +169,7 @@ def test_an_array_uploads_with_its_affine(study):
     array = np.zeros((8, 7, 6), dtype=np.uint8)
     array[2:5, 2:5, 2:4] = 1
     affine = np.diag([1.5, 1.5, 2.5, 1.0])
-    volume_id = client.upload(array=array, affine=affine, kind="labels")
+    volume_id = client.upload((array, affine), kind="labels")
     assert re.fullmatch(r"[0-9a-f]{64}", volume_id)
     assert client.upload(array=array, affine=affine, kind="labels") == volume_id  # stored once
 
@@ -126,7 +181,7 @@ def test_a_token_protected_server_needs_the_clients_token(tmp_path):
     try:
         port = re.search(r":(\d+), store", server.stdout.readline()).group(1)
         with Client(f"127.0.0.1:{port}") as anonymous:
-            with pytest.raises(PosewarpError) as refused:
+            with pytest.raises(UnauthenticatedError) as refused:
                 anonymous.rigs()
             assert refused.value.code == grpc.StatusCode.UNAUTHENTICATED
         with Client(f"127.0.0.1:{port}", token="python-token") as client:

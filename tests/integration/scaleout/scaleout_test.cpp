@@ -90,7 +90,7 @@ class ScaleOut : public ::testing::Test {
   // The Python client's pose (labels and CT), retries on: the exit code of its interpreter.
   static int python_pose(const std::string& server, const std::string& rig_id) {
     const std::string script =
-        "import sys; from posewarp_client import Client\n"
+        "import sys; from posewarp import Client\n"
         "with Client(sys.argv[1], retries=8) as c:\n"
         "    r = c.pose(sys.argv[2], sys.argv[3])\n"
         "    sys.exit(0 if r.labels is not None and r.ct is not None else 1)\n";
