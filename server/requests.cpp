@@ -1,8 +1,11 @@
 // Request checks: uploads, grids, meshes, poses, previews and builds, before any work.
 #include "requests.h"
 
+#include <nlohmann/json.hpp>
+
 #include <cmath>
 #include <cstdio>
+#include <set>
 
 namespace posewarp::server {
 namespace {
@@ -19,6 +22,106 @@ Status check_json_size(const std::string& json, const std::string& field) {
                                   std::to_string(kMaxRequestJsonBytes) + " are read");
   }
   return ok_status();
+}
+
+// A typed pose's numbers must be finite (JSON has no NaN); `field` names the one that is not.
+Status finite(std::initializer_list<double> values, const std::string& field) {
+  for (const double v : values) {
+    if (!std::isfinite(v)) return invalid_argument_error(field + " holds NaN or infinity; give finite numbers");
+  }
+  return ok_status();
+}
+
+Result<nlohmann::json> quaternion_json(const v1::Quaternion& q, const std::string& field) {
+  POSEWARP_RETURN_IF_ERROR(finite({q.w(), q.x(), q.y(), q.z()}, field));
+  return nlohmann::json{{"quaternion", {q.w(), q.x(), q.y(), q.z()}}};
+}
+
+Result<nlohmann::json> axis_angle_json(const v1::AxisAngle& a, const std::string& field) {
+  if (a.axis_size() != 3) {
+    return invalid_argument_error(field + ".axis holds " + std::to_string(a.axis_size()) + " values; give 3");
+  }
+  POSEWARP_RETURN_IF_ERROR(finite({a.axis(0), a.axis(1), a.axis(2), a.degrees()}, field));
+  return nlohmann::json{{"axis_angle", {{"axis", {a.axis(0), a.axis(1), a.axis(2)}}, {"degrees", a.degrees()}}}};
+}
+
+// A typed pose as the pose JSON it stands for: the same checks and the same pose as that JSON (doubles written with
+// 17 digits read back exactly). What JSON cannot say is refused here: NaN, a joint twice, a joint without rotation.
+Result<std::string> typed_pose_json(const v1::Pose& pose) {
+  if (pose.joints_size() > kMaxPoseJoints) {
+    return invalid_argument_error("pose.joints holds " + std::to_string(pose.joints_size()) + " joints; at most " +
+                                  std::to_string(kMaxPoseJoints));
+  }
+  nlohmann::json doc{{"format", "posewarp.pose"}, {"version", 1}, {"joints", nlohmann::json::object()}};
+  if (!pose.name().empty()) doc["name"] = pose.name();
+  if (pose.has_root()) {
+    const v1::RootMotion& root = pose.root();
+    nlohmann::json motion = nlohmann::json::object();
+    if (root.translation_mm_size() != 0 && root.translation_mm_size() != 3) {
+      return invalid_argument_error("pose.root.translation_mm holds " + std::to_string(root.translation_mm_size()) +
+                                    " values; give 3 (LPS mm) or none");
+    }
+    if (root.translation_mm_size() == 3) {
+      POSEWARP_RETURN_IF_ERROR(finite({root.translation_mm(0), root.translation_mm(1), root.translation_mm(2)},
+                                      "pose.root.translation_mm"));
+      motion["translation_mm"] = {root.translation_mm(0), root.translation_mm(1), root.translation_mm(2)};
+    }
+    if (root.has_rotation()) {
+      const v1::Rotation& r = root.rotation();
+      if (r.has_quaternion()) {
+        POSEWARP_ASSIGN_OR_RETURN(motion["rotation"], quaternion_json(r.quaternion(), "pose.root.rotation.quaternion"));
+      } else if (r.has_axis_angle()) {
+        POSEWARP_ASSIGN_OR_RETURN(motion["rotation"], axis_angle_json(r.axis_angle(), "pose.root.rotation.axis_angle"));
+      } else {
+        return invalid_argument_error("pose.root.rotation is set but empty; give quaternion or axis_angle");
+      }
+    }
+    doc["root"] = std::move(motion);
+  }
+  std::set<std::string> seen;
+  for (int i = 0; i < pose.joints_size(); ++i) {
+    const v1::JointRotation& joint = pose.joints(i);
+    const std::string field = "pose.joints[" + std::to_string(i) + "] (\"" + joint.joint().substr(0, 64) + "\")";
+    if (joint.joint().empty()) return invalid_argument_error(field + " has no joint name; GetRig lists the joints");
+    if (!seen.insert(joint.joint()).second) {
+      return invalid_argument_error(field + " gives the joint a second time; give each joint one rotation");
+    }
+    nlohmann::json rotation;
+    switch (joint.rotation_case()) {
+      case v1::JointRotation::kAngles: {
+        const v1::AnatomicalAngles& a = joint.angles();
+        POSEWARP_RETURN_IF_ERROR(finite({a.flexion_deg(), a.abduction_deg(), a.rotation_deg()}, field + ".angles"));
+        rotation = {{"angles_deg",
+                     {{"flexion", a.flexion_deg()}, {"abduction", a.abduction_deg()}, {"rotation", a.rotation_deg()}}}};
+        break;
+      }
+      case v1::JointRotation::kQuaternion: {
+        POSEWARP_ASSIGN_OR_RETURN(rotation, quaternion_json(joint.quaternion(), field + ".quaternion"));
+        break;
+      }
+      case v1::JointRotation::kAxisAngle: {
+        POSEWARP_ASSIGN_OR_RETURN(rotation, axis_angle_json(joint.axis_angle(), field + ".axis_angle"));
+        break;
+      }
+      case v1::JointRotation::ROTATION_NOT_SET:
+        return invalid_argument_error(field + " gives no rotation; set angles, quaternion or axis_angle");
+    }
+    doc["joints"][joint.joint()] = std::move(rotation);
+  }
+  return doc.dump();
+}
+
+// The pose of a request: pose_json, or the typed pose (one of the two); `what` names the request in messages.
+Result<api::Pose> pose_of(const std::string& pose_json, const v1::Pose* typed, const std::string& what) {
+  if (typed && !pose_json.empty()) {
+    return invalid_argument_error(what + " gives both pose and pose_json; give the pose one way");
+  }
+  if (typed) {
+    POSEWARP_ASSIGN_OR_RETURN(const std::string text, typed_pose_json(*typed));
+    return api::pose_from_json(text, "(the typed pose of " + what + ")");
+  }
+  POSEWARP_RETURN_IF_ERROR(check_json_size(pose_json, "pose_json"));
+  return api::pose_from_json(pose_json, what == "the request" ? "pose_json" : "pose_json of " + what);
 }
 
 // An upload header's sha256 and size_bytes, the same for volumes and rigs.
@@ -251,8 +354,8 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request) {
     POSEWARP_ASSIGN_OR_RETURN(api::SurfaceMesh parsed, surface_from(mesh));
     checked.meshes.push_back(std::move(parsed));
   }
-  POSEWARP_RETURN_IF_ERROR(check_json_size(request.pose_json(), "pose_json"));
-  Result<api::Pose> parsed = api::pose_from_json(request.pose_json(), "pose_json");
+  Result<api::Pose> parsed =
+      pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr, "the request");
   if (!parsed.ok()) return parsed.status();
   checked.pose = std::move(parsed).value();
   return checked;
@@ -260,8 +363,8 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request) {
 
 Result<api::Pose> check_preview_request(const v1::PreviewRequest& request) {
   POSEWARP_RETURN_IF_ERROR(method_from(request.method(), "method").status());
-  POSEWARP_RETURN_IF_ERROR(check_json_size(request.pose_json(), "pose_json"));
-  return api::pose_from_json(request.pose_json(), "pose_json of preview update " + std::to_string(request.sequence()));
+  return pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr,
+                 "preview update " + std::to_string(request.sequence()));
 }
 
 Status check_build_request(const v1::BuildRigRequest& request) {

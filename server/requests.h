@@ -34,6 +34,7 @@ inline constexpr double kMaxSpacingMm = 1e3;
 inline constexpr double kMaxOriginMm = 1e6;
 // JSON carried in a request (pose, label map, rig spec): far more than any real one.
 inline constexpr size_t kMaxRequestJsonBytes = size_t{1} << 20;
+inline constexpr int kMaxPoseJoints = 1000;  // joints of a typed pose
 
 // What an upload's header says, checked.
 struct UploadPlan {

@@ -270,10 +270,38 @@ void put_grid(const ImageGeometry& g, v1::Grid* grid) {
   for (int e = 0; e < 9; ++e) grid->add_direction(g.direction[static_cast<size_t>(e)]);
 }
 
+void set_quaternion(const Eigen::Quaterniond& q, v1::Quaternion* out) {
+  out->set_w(q.w());
+  out->set_x(q.x());
+  out->set_y(q.y());
+  out->set_z(q.z());
+}
+
+// The pose, typed: the same numbers its JSON (api::pose_to_json) would carry, so the server poses it the same.
+void put_pose(const Pose& pose, v1::Pose* out) {
+  out->set_name(pose.name);
+  if (pose.root.rotation != Eigen::Matrix3d::Identity() || !pose.root.translation.isZero(0.0)) {
+    v1::RootMotion* root = out->mutable_root();
+    for (int a = 0; a < 3; ++a) root->add_translation_mm(pose.root.translation[a]);
+    set_quaternion(Eigen::Quaterniond(pose.root.rotation), root->mutable_rotation()->mutable_quaternion());
+  }
+  for (const JointRotation& joint : pose.joints) {
+    v1::JointRotation* typed = out->add_joints();
+    typed->set_joint(joint.joint);
+    if (joint.angles_deg) {
+      typed->mutable_angles()->set_flexion_deg(joint.angles_deg->x());
+      typed->mutable_angles()->set_abduction_deg(joint.angles_deg->y());
+      typed->mutable_angles()->set_rotation_deg(joint.angles_deg->z());
+    } else {
+      set_quaternion(joint.rotation, typed->mutable_quaternion());
+    }
+  }
+}
+
 v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_id) {
   v1::PoseRequest request;
   request.set_rig_id(rig_id);
-  request.set_pose_json(api::pose_to_json(r.pose));
+  put_pose(r.pose, request.mutable_pose());
   request.set_method(r.method == api::Method::kDqs   ? v1::METHOD_DQS
                      : r.method == api::Method::kLbs ? v1::METHOD_LBS
                      : r.method == api::Method::kFem ? v1::METHOD_FEM

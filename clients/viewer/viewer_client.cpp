@@ -66,6 +66,28 @@ std::string pose_json(const Pose& pose, const std::string& name) {
   return doc.dump();
 }
 
+void put_pose(const Pose& pose, v1::Pose* out, const std::string& name) {
+  out->set_name(name);
+  if (pose.root_deg != std::array<double, 3>{} || pose.root_mm != std::array<double, 3>{}) {
+    v1::RootMotion* root = out->mutable_root();
+    for (const double mm : pose.root_mm) root->add_translation_mm(mm);
+    const Quaternion q = root_quaternion(pose.root_deg);
+    v1::Quaternion* typed = root->mutable_rotation()->mutable_quaternion();
+    typed->set_w(q[0]);
+    typed->set_x(q[1]);
+    typed->set_y(q[2]);
+    typed->set_z(q[3]);
+  }
+  for (const auto& [joint, a] : pose.joints) {
+    if (a.is_zero()) continue;
+    v1::JointRotation* typed = out->add_joints();
+    typed->set_joint(joint);
+    typed->mutable_angles()->set_flexion_deg(a.flexion);
+    typed->mutable_angles()->set_abduction_deg(a.abduction);
+    typed->mutable_angles()->set_rotation_deg(a.rotation);
+  }
+}
+
 std::optional<Pose> pose_from_json(const std::string& text, std::string* error) {
   const nlohmann::json doc = nlohmann::json::parse(text, nullptr, false);
   if (doc.is_discarded() || !doc.is_object() || !doc.contains("joints") || !doc["joints"].is_object()) {
@@ -191,7 +213,7 @@ uint64_t PreviewSession::send(const Pose& pose, v1::Method method) {
   }
   if (sequence == 1) update.set_rig_id(rig_id_);
   update.set_sequence(sequence);
-  update.set_pose_json(pose_json(pose));
+  put_pose(pose, update.mutable_pose());
   update.set_method(method);
   std::lock_guard<std::mutex> lock(write_mutex_);
   stream_->Write(update);
@@ -262,7 +284,7 @@ VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_
     : context_(client.context(rig_id)), client_(client) {
   v1::PoseRequest request;
   request.set_rig_id(rig_id);
-  request.set_pose_json(pose_json(pose));
+  put_pose(pose, request.mutable_pose());
   request.set_method(method);
   request.set_grid(grid);
   request.set_want_labels(true);
@@ -271,13 +293,14 @@ VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_
   request.set_format(raw ? v1::FILE_FORMAT_RAW : v1::FILE_FORMAT_NIFTI_GZ);
   request.set_samples(v1::SAMPLE_TYPE_STORED);
   if (raw) request.set_label_encoding(v1::LABEL_ENCODING_RUNS);  // decoded as they come, in a fraction of the bytes
-  result_.pose_json = request.pose_json();
+  result_.pose_json = pose_json(pose);
   thread_ = std::thread([this, request] { run(request); });
 }
 
-VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request)
+VolumeRequest::VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request,
+                             std::string asked)
     : context_(client.context(rig_id)), client_(client) {
-  result_.pose_json = request.pose_json();
+  result_.pose_json = std::move(asked);
   thread_ = std::thread([this, request] { run(request); });
 }
 
@@ -285,12 +308,12 @@ std::unique_ptr<VolumeRequest> VolumeRequest::report_only(const ViewerClient& cl
                                                           const Pose& pose, v1::Method method) {
   v1::PoseRequest request;
   request.set_rig_id(rig_id);
-  request.set_pose_json(pose_json(pose));
+  put_pose(pose, request.mutable_pose());
   request.set_method(method);
   request.set_want_labels(false);
   request.set_want_ct(false);
   request.set_want_surfaces(false);
-  return std::unique_ptr<VolumeRequest>(new VolumeRequest(client, rig_id, std::move(request)));
+  return std::unique_ptr<VolumeRequest>(new VolumeRequest(client, rig_id, std::move(request), pose_json(pose)));
 }
 
 VolumeRequest::~VolumeRequest() {
@@ -301,7 +324,10 @@ VolumeRequest::~VolumeRequest() {
 void VolumeRequest::run(v1::PoseRequest request) {
   auto reader = client_.stub().Pose(context_.get(), request);
   PosedVolumes result;
-  result.pose_json = request.pose_json();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    result.pose_json = result_.pose_json;  // the pose file of what was asked, set before this thread started
+  }
   const grpc::Status status =
       client::read_pose(*context_, *reader, &result, [this](uint64_t received, uint64_t expected) {
         std::lock_guard<std::mutex> lock(mutex_);

@@ -47,8 +47,9 @@ struct Pose {
   bool is_rest() const;
 };
 
-// The pose JSON the server (and the CLI) reads.
+// The pose JSON the server (and the CLI) reads, and the same pose typed, as the viewer's requests carry it.
 std::string pose_json(const Pose& pose, const std::string& name = "posewarp-view");
+void put_pose(const Pose& pose, v1::Pose* out, const std::string& name = "posewarp-view");
 // A pose from a pose JSON: joints in the "angles_deg" form, the root in any rotation form; an error otherwise.
 std::optional<Pose> pose_from_json(const std::string& text, std::string* error);
 
@@ -148,7 +149,7 @@ class VolumeRequest {
   bool wait(int timeout_ms);
 
  private:
-  VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request);
+  VolumeRequest(const ViewerClient& client, const std::string& rig_id, v1::PoseRequest request, std::string asked);
   void run(v1::PoseRequest request);
   std::unique_ptr<grpc::ClientContext> context_;
   const ViewerClient& client_;

@@ -100,6 +100,17 @@ def test_typed_joints_pose_as_the_json_pose_and_a_misspelt_joint_names_the_rigs(
     np.testing.assert_array_equal(typed.labels, from_file.labels)
     np.testing.assert_array_equal(typed.ct, from_file.ct)
     np.testing.assert_array_equal(as_tuple.labels, from_file.labels)
+    # The root and a quaternion joint, typed, against the same pose as JSON (make_pose's dict, sent as pose_json).
+    root = {"translation_mm": [3.5, -2, 5], "rotation": {"axis_angle": {"axis": [0, 0, 1], "degrees": 10}}}
+    joints = {"joint_2_3": {"flexion": 60, "abduction": 15}, "joint_1_2": {"quaternion": [0.9659258, 0.2588190, 0, 0]}}
+    moved = client.pose(rig, joints=joints, root=root, samples="computed")
+    as_json = client.pose(rig, posewarp.make_pose(joints, root), samples="computed")
+    np.testing.assert_array_equal(moved.labels, as_json.labels)
+    np.testing.assert_array_equal(moved.ct, as_json.ct)
+    assert not np.array_equal(moved.labels, typed.labels)  # the root and hip did move it
+    listed = {j["name"]: j for j in client.joints(rig)}
+    assert {"joint_1_2", "joint_2_3"} <= set(listed)
+    assert listed["joint_2_3"]["kind"] and len(listed["joint_2_3"]["flexion_axis"]) == 3
     with pytest.raises(InvalidArgumentError) as misspelt:
         client.pose(rig, joints={"joint_2_33": {"flexion": 90}}, labels=False, ct=False)
     assert "joint_2_33" in misspelt.value.message and "joint_2_3" in misspelt.value.message

@@ -142,15 +142,36 @@ class PoseResult:
         return image
 
 
+def _joint_rotation(joint: str, angles: Any) -> Tuple[str, Any]:
+    """A joint's rotation as ("angles", (flexion, abduction, rotation)), ("quaternion", [w, x, y, z]) or
+    ("axis_angle", {"axis": [x, y, z], "degrees": d})."""
+    if isinstance(angles, Mapping) and "quaternion" in angles:
+        return "quaternion", [float(v) for v in angles["quaternion"]]
+    if isinstance(angles, Mapping) and "axis_angle" in angles:
+        axis_angle = angles["axis_angle"]
+        return "axis_angle", {"axis": [float(v) for v in axis_angle["axis"]], "degrees": float(axis_angle["degrees"])}
+    if isinstance(angles, Mapping):
+        given = angles.get("angles_deg", angles)
+        unknown = set(given) - set(_ANGLES)
+        if unknown:
+            raise ValueError(f"joint {joint!r}: angles are {', '.join(_ANGLES)} (degrees), not {sorted(unknown)}")
+        return "angles", tuple(float(given.get(name, 0.0)) for name in _ANGLES)
+    values = tuple(float(v) for v in angles)
+    if len(values) != 3:
+        raise ValueError(f"joint {joint!r}: give (flexion, abduction, rotation) in degrees")
+    return "angles", values
+
+
 def make_pose(joints: Optional[Mapping[str, Any]] = None, root: Optional[Mapping[str, Any]] = None,
               name: str = "") -> Dict[str, Any]:
-    """A pose as the server and the CLI read it (posewarp.pose version 1).
+    """A pose as a pose file holds it (posewarp.pose version 1, the JSON the CLI reads), e.g. to save with json.dump.
 
     joints: {joint: angles}, where angles are anatomical degrees, either a mapping with any of "flexion",
     "abduction" and "rotation", or a sequence (flexion, abduction, rotation); a mapping with "quaternion" [w, x, y,
-    z] or "axis_angle" {"axis": [x, y, z], "degrees": d} in the joint's frame is passed as it is. root: {"translation_mm":
-    [x, y, z], "rotation": {...}} in LPS. Joints not named stay at rest; the server checks the names against the rig
-    (`posewarp rig info` lists them) and answers a misspelt one with InvalidArgumentError naming the rig's joints."""
+    z] or "axis_angle" {"axis": [x, y, z], "degrees": d} is a rotation in the joint's frame. root:
+    {"translation_mm": [x, y, z], "rotation": {"quaternion": [...]} or {"axis_angle": {...}}} in LPS. Joints not
+    named stay at rest; the server checks the names against the rig (Client.joints() lists them) and answers a
+    misspelt one with InvalidArgumentError naming the rig's joints."""
     pose: Dict[str, Any] = {"format": "posewarp.pose", "version": 1}
     if name:
         pose["name"] = name
@@ -158,21 +179,44 @@ def make_pose(joints: Optional[Mapping[str, Any]] = None, root: Optional[Mapping
         pose["root"] = dict(root)
     converted: Dict[str, Any] = {}
     for joint, angles in (joints or {}).items():
-        if isinstance(angles, Mapping) and ("quaternion" in angles or "axis_angle" in angles or
-                                            "angles_deg" in angles):
-            converted[joint] = dict(angles)
-        elif isinstance(angles, Mapping):
-            unknown = set(angles) - set(_ANGLES)
-            if unknown:
-                raise ValueError(f"joint {joint!r}: angles are {', '.join(_ANGLES)} (degrees), not {sorted(unknown)}")
-            converted[joint] = {"angles_deg": {k: float(v) for k, v in angles.items()}}
-        else:
-            values = [float(v) for v in angles]
-            if len(values) != 3:
-                raise ValueError(f"joint {joint!r}: give (flexion, abduction, rotation) in degrees")
-            converted[joint] = {"angles_deg": dict(zip(_ANGLES, values))}
+        form, value = _joint_rotation(joint, angles)
+        converted[joint] = {"angles_deg": dict(zip(_ANGLES, value))} if form == "angles" else {form: value}
     pose["joints"] = converted
     return pose
+
+
+def _put_rotation(rotation: Mapping[str, Any], out) -> None:
+    if "quaternion" in rotation:
+        out.quaternion.w, out.quaternion.x, out.quaternion.y, out.quaternion.z = (float(v) for v in
+                                                                                  rotation["quaternion"])
+    elif "axis_angle" in rotation:
+        out.axis_angle.axis.extend(float(v) for v in rotation["axis_angle"]["axis"])
+        out.axis_angle.degrees = float(rotation["axis_angle"]["degrees"])
+    else:
+        raise ValueError("a rotation is {'quaternion': [w, x, y, z]} or {'axis_angle': {'axis': [...], 'degrees': d}}")
+
+
+def _typed_pose(joints: Optional[Mapping[str, Any]], root: Optional[Mapping[str, Any]], name: str = ""):
+    """The pose as the proto's typed Pose (what the server checks and poses exactly as the same pose in JSON)."""
+    message = pb.Pose(name=name)
+    if root is not None:
+        message.root.SetInParent()
+        if "translation_mm" in root:
+            message.root.translation_mm.extend(float(v) for v in root["translation_mm"])
+        if root.get("rotation"):
+            _put_rotation(root["rotation"], message.root.rotation)
+        unknown = set(root) - {"translation_mm", "rotation"}
+        if unknown:
+            raise ValueError(f"root takes translation_mm and rotation, not {sorted(unknown)}")
+    for joint, angles in (joints or {}).items():
+        typed = message.joints.add(joint=joint)
+        form, value = _joint_rotation(joint, angles)
+        if form == "angles":
+            typed.angles.SetInParent()
+            typed.angles.flexion_deg, typed.angles.abduction_deg, typed.angles.rotation_deg = value
+        else:
+            _put_rotation({form: value}, typed)
+    return message
 
 
 def _affine(grid) -> np.ndarray:
@@ -319,6 +363,16 @@ class Client:
             if not token:
                 return found
 
+    def joints(self, rig_id: str) -> List[Dict[str, Any]]:
+        """The rig's joints, to build a pose from: each a dict with name, parent and child (segments), kind ("ball",
+        "hinge" or "plane"), centre_mm, the flexion, abduction and rotation axes (unit vectors, LPS) and the ranges
+        measured at rig build ({motion: (negative_deg, positive_deg)}: how far it turns before its bones meet)."""
+        rig = self._call(self._stub.GetRig, pb.GetRigRequest(rig_id=rig_id))
+        return [{"name": j.name, "parent": j.parent, "child": j.child, "kind": j.kind,
+                 "centre_mm": list(j.centre_mm), "flexion_axis": list(j.flexion_axis),
+                 "abduction_axis": list(j.abduction_axis), "rotation_axis": list(j.rotation_axis),
+                 "ranges": {r.motion: (r.negative_deg, r.positive_deg) for r in j.ranges}} for j in rig.joints]
+
     def pose(self, rig_id: str, pose: Union[Mapping[str, Any], PathLike, None] = None, method: str = "cor",
              grid: str = "input", labels: bool = True, ct: bool = True, surfaces: bool = False,
              samples: str = "stored", fields: bool = False,
@@ -328,8 +382,9 @@ class Client:
         """Poses a rig and returns the PoseResult.
 
         The pose: joints={"knee_left": {"flexion": 90}, "hip_right": (30, 10, 0)} (anatomical degrees: flexion,
-        abduction, rotation) and root={"translation_mm": [...], "rotation": {...}}, as make_pose() takes them; or
-        `pose`, the CLI's pose JSON as a dict, or the path of a pose file.
+        abduction, rotation; joints() lists the rig's) and root={"translation_mm": [...], "rotation": {...}}, as
+        make_pose() takes them, sent as the proto's typed Pose; or `pose`, the CLI's pose JSON as a dict, or the path
+        of a pose file.
 
         method: "cor" (centres of rotation, the default), "dqs", "lbs" or "fem" (CoR refined by the soft tissue's
         volume-preserving steady state: slower, folds less tissue at bent joints). With "fem", fem_iterations (1 to
@@ -342,13 +397,14 @@ class Client:
         forward (study grid) displacement fields, (x, y, z, 3) float32 arrays in LPS mm. meshes: {name: (vertices,
         triangles)} of your own in rest space (LPS mm), posed and returned among the surfaces. label_runs: the labels
         travel as runs of equal values (a fraction of their samples' bytes) and come back as the same array."""
+        typed = None
         if joints is not None or root is not None:
             if pose is not None:
                 raise ValueError("give the pose either as joints=/root= or as `pose`, not both")
-            pose = make_pose(joints, root)
-        if pose is None:
+            typed = _typed_pose(joints, root)
+        elif pose is None:
             raise ValueError("pose takes joints={...} (and root=), a pose dict or a pose file")
-        if isinstance(pose, (str, os.PathLike)) and os.path.exists(pose):
+        elif isinstance(pose, (str, os.PathLike)) and os.path.exists(pose):
             with open(pose) as f:
                 pose = json.load(f)
         if method not in _METHODS:
@@ -357,13 +413,17 @@ class Client:
             raise ValueError("samples is 'stored' or 'computed'")
         if grid not in ("input", "grow"):
             raise ValueError("grid is 'input' or 'grow'")
-        request = pb.PoseRequest(rig_id=rig_id, pose_json=_json_text(pose), method=_METHODS[method],
+        request = pb.PoseRequest(rig_id=rig_id, method=_METHODS[method],
                                  grid=pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
                                  want_labels=labels, want_ct=ct, want_surfaces=surfaces or bool(meshes),
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
                                  want_fields=fields,
                                  fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight),
                                  label_encoding=pb.LABEL_ENCODING_RUNS if label_runs else pb.LABEL_ENCODING_SAMPLES)
+        if typed is not None:
+            request.pose.CopyFrom(typed)  # typed: joints and angles the server checks field by field
+        else:
+            request.pose_json = _json_text(pose)
         for name, (vertices, triangles) in (meshes or {}).items():
             request.meshes.add(name=name, vertices=np.asarray(vertices, dtype=float).ravel().tolist(),
                                triangles=np.asarray(triangles, dtype=np.int32).ravel().tolist())

@@ -266,9 +266,10 @@ TEST_F(ServerService, ACancelledOrExpiredPoseFreesItsSlotForTheNextCall) {
     }
     EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
   }
-  // The one slot is free again within 1 s: the metrics say so and the next pose runs.
+  // The one slot is free again within 5 s (well within one when the machine is not running other tests): the
+  // metrics say so and the next pose runs.
   double running = -1;
-  for (int i = 0; i < 20 && running != 0.0; ++i) {
+  for (int i = 0; i < 100 && running != 0.0; ++i) {
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
     running = metric(scrape_metrics(metrics_port), "posewarp_poses_running");
   }

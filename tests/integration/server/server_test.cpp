@@ -8,10 +8,12 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <sstream>
 #include <string>
@@ -174,6 +176,101 @@ TEST_F(Server, UploadBuildAndPoseGiveWhatTheEnginePosesLocally) {
   ASSERT_TRUE(stub_->ListRigs(&list_context, {}, &listed).ok());
   ASSERT_EQ(listed.rigs_size(), 1);
   EXPECT_EQ(listed.rigs(0).id(), rig_id);
+}
+
+// A pose request's labels and CT as computed (int32, float32), or why it was refused.
+grpc::Status posed_volumes(v1::Posewarp::Stub& stub, v1::PoseRequest request, std::string* labels, std::string* ct) {
+  request.set_want_labels(true);
+  request.set_want_ct(true);
+  request.set_samples(v1::SAMPLE_TYPE_COMPUTED);
+  grpc::ClientContext context;
+  auto reader = stub.Pose(&context, request);
+  v1::PoseResponse part;
+  while (reader->Read(&part)) {
+    if (part.has_labels()) *labels += part.labels().data();
+    if (part.has_ct()) *ct += part.ct().data();
+  }
+  return reader->Finish();
+}
+
+// The typed Pose poses exactly as the same pose in JSON (root turned and moved, anatomical angles, a quaternion), and
+// what the JSON could not say wrongly or that the rig does not have is refused with the field named.
+TEST_F(Server, ATypedPoseGivesTheVolumesOfTheSamePoseInJsonAndItsMistakesAreNamed) {
+  const std::string rig_id = bar_rig_id();
+  v1::PoseRequest as_json;
+  as_json.set_rig_id(rig_id);
+  as_json.set_pose_json(R"({"format": "posewarp.pose", "version": 1, "name": "typed",
+    "root": {"translation_mm": [3.5, -2, 5], "rotation": {"axis_angle": {"axis": [0, 0, 1], "degrees": 10}}},
+    "joints": {"joint_2_3": {"angles_deg": {"flexion": 60, "abduction": 15}},
+               "joint_1_2": {"quaternion": [0.9659258262890683, 0.25881904510252074, 0, 0]}}})");
+  v1::PoseRequest typed;
+  typed.set_rig_id(rig_id);
+  v1::Pose* pose = typed.mutable_pose();
+  pose->set_name("typed");
+  for (const double mm : {3.5, -2.0, 5.0}) pose->mutable_root()->add_translation_mm(mm);
+  v1::AxisAngle* turn = pose->mutable_root()->mutable_rotation()->mutable_axis_angle();
+  for (const double a : {0.0, 0.0, 1.0}) turn->add_axis(a);
+  turn->set_degrees(10);
+  v1::JointRotation* knee = pose->add_joints();
+  knee->set_joint("joint_2_3");
+  knee->mutable_angles()->set_flexion_deg(60);
+  knee->mutable_angles()->set_abduction_deg(15);
+  v1::JointRotation* hip = pose->add_joints();
+  hip->set_joint("joint_1_2");
+  hip->mutable_quaternion()->set_w(0.9659258262890683);
+  hip->mutable_quaternion()->set_x(0.25881904510252074);
+  std::string json_labels, json_ct, typed_labels, typed_ct;
+  ASSERT_TRUE(posed_volumes(*stub_, as_json, &json_labels, &json_ct).ok());
+  const grpc::Status status = posed_volumes(*stub_, typed, &typed_labels, &typed_ct);
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  ASSERT_FALSE(json_labels.empty());
+  EXPECT_TRUE(typed_labels == json_labels);  // byte for byte
+  EXPECT_TRUE(typed_ct == json_ct);
+  std::string rest_labels, rest_ct;  // and the pose did move something
+  v1::PoseRequest rest;
+  rest.set_rig_id(rig_id);
+  rest.mutable_pose();
+  ASSERT_TRUE(posed_volumes(*stub_, rest, &rest_labels, &rest_ct).ok());
+  EXPECT_FALSE(rest_labels == typed_labels);
+
+  const std::vector<std::pair<std::function<void(v1::PoseRequest&)>, std::string>> mistakes = {
+      {[](v1::PoseRequest& r) { r.set_pose_json("{\"joints\": {}}"); }, "both pose and pose_json"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->set_joint("joint_2_33"); }, "joint_2_3\""},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->mutable_angles()->set_flexion_deg(NAN); },
+       "NaN"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->mutable_angles()->set_flexion_deg(400); },
+       "flexion"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->set_joint("joint_2_3"); }, "second time"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->clear_quaternion(); }, "no rotation"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->mutable_quaternion()->set_w(2); }, "quaternion"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_root()->mutable_translation_mm()->RemoveLast(); },
+       "give 3"},
+  };
+  for (const auto& [spoil, says] : mistakes) {
+    v1::PoseRequest wrong = typed;
+    spoil(wrong);
+    std::string l, c;
+    const grpc::Status refused = posed_volumes(*stub_, wrong, &l, &c);
+    EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << says << ": " << refused.error_message();
+    EXPECT_NE(refused.error_message().find(says), std::string::npos) << refused.error_message();
+  }
+  // The preview takes it too.
+  grpc::ClientContext context;
+  auto stream = stub_->Preview(&context);
+  v1::PreviewRequest update;
+  update.set_rig_id(rig_id);
+  update.set_sequence(1);
+  *update.mutable_pose() = typed.pose();
+  ASSERT_TRUE(stream->Write(update));
+  v1::PreviewResponse answer;
+  ASSERT_TRUE(stream->Read(&answer));
+  EXPECT_EQ(answer.error_code(), 0) << answer.error_message();
+  EXPECT_EQ(answer.sequence(), 1u);
+  EXPECT_GT(answer.surfaces_size(), 0);
+  stream->WritesDone();
+  while (stream->Read(&answer)) {
+  }
+  EXPECT_TRUE(stream->Finish().ok());
 }
 
 TEST_F(Server, BadRequestsGetTheirCanonicalCodesAndTheServerKeepsServing) {
