@@ -62,7 +62,8 @@ nlohmann::json bench_case(const std::string& name, const fs::path& work, const s
     local_ms.push_back(1e3 * start.seconds());
     if (last) {
       std::printf("%-12s local stages (ms):", name.c_str());
-      for (const auto& [stage, seconds] : result->report.stage_seconds) std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds);
+      for (const auto& [stage, seconds] : result->report.stage_seconds)
+        std::printf(" %s %.1f", stage.c_str(), 1e3 * seconds);
       std::printf("\n");
     }
   };
@@ -277,8 +278,8 @@ int main(int argc, char** argv) {
   try {
     const std::string dir = (source / "data/totalsegmentator_example").string();
     const std::string hip = file_text(source / "data/poses/sample_hip_flexion.json");
-    out["cases"].push_back(bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only,
-                                      pose_threads));
+    out["cases"].push_back(
+        bench_case("real-sample", work, bench::sample_rig_bytes(dir), hip, repeats, latency_only, pose_threads));
     // Volume upload throughput: the sample's CT file, through UploadVolume (checked and stored).
     {
       ServerProcess server(work / "store-upload", {}, {}, work / "upload.log");
@@ -299,7 +300,8 @@ int main(int argc, char** argv) {
       if (mvoxels <= 0.0) continue;
       // A phantom's rig takes minutes to build: --rig-cache keeps it between runs.
       const std::string rig_bytes = bench::phantom_rig_bytes(kind, mvoxels, rig_cache);
-      out["cases"].push_back(bench_case(kind, work, rig_bytes, knee, std::max(2, repeats / 2), latency_only, pose_threads));
+      out["cases"].push_back(
+          bench_case(kind, work, rig_bytes, knee, std::max(2, repeats / 2), latency_only, pose_threads));
     }
   } catch (const std::exception& error) {
     std::fprintf(stderr, "posewarp_bench_server: %s\n", error.what());

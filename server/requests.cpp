@@ -62,8 +62,8 @@ Result<std::string> typed_pose_json(const v1::Pose& pose) {
                                     " values; give 3 (LPS mm) or none");
     }
     if (root.translation_mm_size() == 3) {
-      POSEWARP_RETURN_IF_ERROR(finite({root.translation_mm(0), root.translation_mm(1), root.translation_mm(2)},
-                                      "pose.root.translation_mm"));
+      POSEWARP_RETURN_IF_ERROR(
+          finite({root.translation_mm(0), root.translation_mm(1), root.translation_mm(2)}, "pose.root.translation_mm"));
       motion["translation_mm"] = {root.translation_mm(0), root.translation_mm(1), root.translation_mm(2)};
     }
     if (root.has_rotation()) {

@@ -236,15 +236,13 @@ TEST_F(Server, ATypedPoseGivesTheVolumesOfTheSamePoseInJsonAndItsMistakesAreName
   const std::vector<std::pair<std::function<void(v1::PoseRequest&)>, std::string>> mistakes = {
       {[](v1::PoseRequest& r) { r.set_pose_json("{\"joints\": {}}"); }, "both pose and pose_json"},
       {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->set_joint("joint_2_33"); }, "joint_2_3\""},
-      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->mutable_angles()->set_flexion_deg(NAN); },
-       "NaN"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->mutable_angles()->set_flexion_deg(NAN); }, "NaN"},
       {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(0)->mutable_angles()->set_flexion_deg(400); },
        "flexion"},
       {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->set_joint("joint_2_3"); }, "second time"},
       {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->clear_quaternion(); }, "no rotation"},
       {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_joints(1)->mutable_quaternion()->set_w(2); }, "quaternion"},
-      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_root()->mutable_translation_mm()->RemoveLast(); },
-       "give 3"},
+      {[](v1::PoseRequest& r) { r.mutable_pose()->mutable_root()->mutable_translation_mm()->RemoveLast(); }, "give 3"},
   };
   for (const auto& [spoil, says] : mistakes) {
     v1::PoseRequest wrong = typed;
