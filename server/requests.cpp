@@ -111,8 +111,10 @@ Result<std::string> typed_pose_json(const v1::Pose& pose) {
   return doc.dump();
 }
 
-// The pose of a request: pose_json, or the typed pose (one of the two); `what` names the request in messages.
-Result<api::Pose> pose_of(const std::string& pose_json, const v1::Pose* typed, const std::string& what) {
+// The pose of a request: pose_json, or the typed pose (one of the two). `what` names the request in messages,
+// `json_source` its pose_json.
+Result<api::Pose> pose_of(const std::string& pose_json, const v1::Pose* typed, const std::string& what,
+                          const std::string& json_source) {
   if (typed && !pose_json.empty()) {
     return invalid_argument_error(what + " gives both pose and pose_json; give the pose one way");
   }
@@ -121,7 +123,7 @@ Result<api::Pose> pose_of(const std::string& pose_json, const v1::Pose* typed, c
     return api::pose_from_json(text, "(the typed pose of " + what + ")");
   }
   POSEWARP_RETURN_IF_ERROR(check_json_size(pose_json, "pose_json"));
-  return api::pose_from_json(pose_json, what == "the request" ? "pose_json" : "pose_json of " + what);
+  return api::pose_from_json(pose_json, json_source);
 }
 
 // An upload header's sha256 and size_bytes, the same for volumes and rigs.
@@ -355,7 +357,7 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request) {
     checked.meshes.push_back(std::move(parsed));
   }
   Result<api::Pose> parsed =
-      pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr, "the request");
+      pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr, "the request", "pose_json");
   if (!parsed.ok()) return parsed.status();
   checked.pose = std::move(parsed).value();
   return checked;
@@ -363,8 +365,8 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request) {
 
 Result<api::Pose> check_preview_request(const v1::PreviewRequest& request) {
   POSEWARP_RETURN_IF_ERROR(method_from(request.method(), "method").status());
-  return pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr,
-                 "preview update " + std::to_string(request.sequence()));
+  const std::string update = "preview update " + std::to_string(request.sequence());
+  return pose_of(request.pose_json(), request.has_pose() ? &request.pose() : nullptr, update, "pose_json of " + update);
 }
 
 Status check_build_request(const v1::BuildRigRequest& request) {

@@ -69,39 +69,42 @@ void put(std::string& out, T value) {
 // count, the run count, then the runs' values and their lengths, each deflated (libdeflate's fastest level, zlib
 // format). Filling runs is several times faster than inflating every value.
 template <typename T>
-std::string packed_runs(uint64_t count, const std::vector<T>& run_values, const std::vector<uint32_t>& run_lengths) {
-  const std::string packed_values = deflated(run_values.data(), run_values.size() * sizeof(T));
-  std::string section;
-  put<uint64_t>(section, count);
-  put<uint64_t>(section, run_values.size());
-  put<uint64_t>(section, packed_values.size());
-  section += packed_values;
-  section += deflated(run_lengths.data(), run_lengths.size() * sizeof(uint32_t));
-  return section;
-}
+struct Runs {
+  std::vector<T> values;
+  std::vector<uint32_t> lengths;
+
+  // `length` more of `value`: the last run grows when it holds the same value.
+  void extend(T value, uint32_t length) {
+    if (length == 0) return;
+    if (!values.empty() && values.back() == value && lengths.back() <= UINT32_MAX - length) {
+      lengths.back() += length;
+    } else {
+      values.push_back(value);
+      lengths.push_back(length);
+    }
+  }
+
+  std::string packed(uint64_t count) const {
+    const std::string packed_values = deflated(values.data(), values.size() * sizeof(T));
+    std::string section;
+    put<uint64_t>(section, count);
+    put<uint64_t>(section, values.size());
+    put<uint64_t>(section, packed_values.size());
+    section += packed_values;
+    section += deflated(lengths.data(), lengths.size() * sizeof(uint32_t));
+    return section;
+  }
+};
 
 template <typename T>
 std::string runs_section(const std::vector<T>& values) {
-  std::vector<T> run_values;
-  std::vector<uint32_t> run_lengths;
-  for (size_t v = 0; v < values.size();) {
-    size_t end = v + 1;
-    while (end < values.size() && values[end] == values[v] && end - v < UINT32_MAX) ++end;
-    run_values.push_back(values[v]);
-    run_lengths.push_back(static_cast<uint32_t>(end - v));
-    v = end;
-  }
-  return packed_runs(values.size(), run_values, run_lengths);
+  Runs<T> runs;
+  for (const T& value : values) runs.extend(value, 1);
+  return runs.packed(values.size());
 }
 
 // A table's runs, inflated and checked: a table of another size than the rig's grid (`voxels`) and runs that do not
 // add up to it are refused before the runs are allocated.
-template <typename T>
-struct Runs {
-  std::vector<T> values;
-  std::vector<uint32_t> lengths;
-};
-
 template <typename T>
 Result<Runs<T>> read_runs(std::string_view payload, const char* name, int64_t voxels) {
   auto damaged = [name](const std::string& what) {
@@ -154,26 +157,16 @@ std::string region_section(const std::vector<int16_t>& region) { return runs_sec
 
 // Each substitute is stored as its offset from its own voxel: 0 but at the bones listed.
 std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxels) {
-  std::vector<int32_t> run_values;
-  std::vector<uint32_t> run_lengths;
-  auto extend = [&](int32_t value, uint32_t length) {
-    if (length == 0) return;
-    if (!run_values.empty() && run_values.back() == value) {
-      run_lengths.back() += length;
-    } else {
-      run_values.push_back(value);
-      run_lengths.push_back(length);
-    }
-  };
+  Runs<int32_t> runs;
   uint32_t at = 0;  // the first voxel not yet in a run
   for (size_t e = 0; e < substitutes.voxel.size(); ++e) {
     const auto v = static_cast<uint32_t>(substitutes.voxel[e]);
-    extend(0, v - at);
-    extend(static_cast<int32_t>(static_cast<uint32_t>(substitutes.substitute[e]) - v), 1);
+    runs.extend(0, v - at);
+    runs.extend(static_cast<int32_t>(static_cast<uint32_t>(substitutes.substitute[e]) - v), 1);
     at = v + 1;
   }
-  extend(0, static_cast<uint32_t>(voxels) - at);
-  return packed_runs(static_cast<uint64_t>(voxels), run_values, run_lengths);
+  runs.extend(0, static_cast<uint32_t>(voxels) - at);
+  return runs.packed(static_cast<uint64_t>(voxels));
 }
 
 Status read_owner_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& owner) {
