@@ -26,6 +26,7 @@
 #include "posewarp/api/support.h"
 #include "posewarp/api/pacs.h"
 #include "batch_manifest.h"
+#include "dicom_format_options.h"
 #include "remote.h"
 
 namespace posewarp::cli {
@@ -40,6 +41,7 @@ struct BatchOptions {
   PacsOptions pacs;
   Connection server;  // rows posed by posewarp-server (one rig per study built there) instead of in this process
   std::string uid_root = "2.25";
+  DicomFormatOptions dicom_formats;
   // Rows from a query instead of a manifest.
   std::string query, pose, animation, method = "cor", out_dir;
   bool to_pacs = false;
@@ -368,6 +370,9 @@ class Batch {
     std::string source = s.dicom->series_instance_uid;
     for (const std::string& uid : s.dicom->sop_instance_uids) source += "\n" + uid;
     options.uid_seed = api::sha256_hex(source) + "/" + pose_hash(row) + "/" + row.method + "/" + frame;
+    // Another format is another series (a PACS would otherwise mix the two under one UID).
+    if (!o_.dicom_formats.defaults()) options.uid_seed += "/" + o_.dicom_formats.ct + "/" + o_.dicom_formats.seg;
+    o_.dicom_formats.apply(&options);
     options.series_description =
         "posewarp: " + pose_name + (frame.empty() ? "" : " " + frame) + " (" + row.method + ")";
     options.derivation_description =
@@ -633,6 +638,7 @@ void add_batch_command(CLI::App& app) {
                   "there (the server keeps it; a rerun finds it), the rows' poses answered by the server");
   add_connection_options(cmd, o->server);
   cmd->add_option("--uid-root", o->uid_root, "Root of the derived series' UIDs")->capture_default_str();
+  add_dicom_format_options(cmd, o->dicom_formats);
   cmd->add_option("--query", o->query,
                   "QIDO-RS study query (e.g. 'Modality=CT&StudyDate=20250101-'): one row per study");
   cmd->add_option("--pose", o->pose, "With --query: the pose for every study");

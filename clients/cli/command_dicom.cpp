@@ -4,6 +4,7 @@
 #include <filesystem>
 
 #include "cli_support.h"
+#include "dicom_format_options.h"
 #include "pacs_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
@@ -16,6 +17,7 @@ namespace fs = std::filesystem;
 struct ExportOptions {
   std::string ct_path, labels_path, label_map_path, preset = "totalsegmentator", out;
   std::string patient_name = "Anonymous", patient_id = "POSEWARP", uid_root = "2.25";
+  DicomFormatOptions formats;
 };
 
 int run_export(const ExportOptions& o) {
@@ -35,13 +37,17 @@ int run_export(const ExportOptions& o) {
   }
   api::DerivedSeriesOptions options;
   options.uid_root = o.uid_root;
+  o.formats.apply(&options);
   options.series_description = "CT (" + fs::path(o.ct_path).filename().string() + ")";
   Result<api::DicomOutputs> outputs =
       api::encode_new_dicom_study(*ct, *labels, *map, o.patient_name, o.patient_id, options);
   if (!outputs.ok()) return report(outputs.status());
   if (Status s = api::write_dicom_outputs(*outputs, o.out); !s.ok()) return report(s);
-  say("wrote a CT series of " + std::to_string(outputs->ct_files.size()) + " images (" + o.out + "/ct/) and its SEG (" +
-      o.out + "/seg.dcm), study " + outputs->ct.study_instance_uid);
+  const std::string written = outputs->ct.frame_numbers.empty()
+                             ? "a CT series of " + std::to_string(outputs->ct_files.size()) + " images"
+                             : "an Enhanced CT of " + std::to_string(outputs->ct.slice_count()) + " frames";
+  say("wrote " + written + " (" + o.out + "/ct/) and its " + o.formats.seg + " SEG (" + o.out + "/seg.dcm), study " +
+      outputs->ct.study_instance_uid);
   return 0;
 }
 
@@ -54,8 +60,10 @@ int run_dicom_info(const InfoOptions& o) {
   if (!series.ok()) return report(series.status());
   const api::SeriesInfo& i = series->info;
   const ImageGeometry& g = series->ct.geometry();
-  std::printf("study %s, series %s (%s), %zu images\n", i.study_instance_uid.c_str(), i.series_instance_uid.c_str(),
-              i.series_description.c_str(), i.sop_instance_uids.size());
+  std::printf("study %s, series %s (%s), %s\n", i.study_instance_uid.c_str(), i.series_instance_uid.c_str(),
+              i.series_description.c_str(),
+              i.frame_numbers.empty() ? (std::to_string(i.slice_count()) + " images").c_str()
+                                      : ("one multi-frame image of " + std::to_string(i.slice_count()) + " frames").c_str());
   std::printf("grid %lld x %lld x %lld, spacing %.3f x %.3f x %.3f mm\n", static_cast<long long>(g.size[0]),
               static_cast<long long>(g.size[1]), static_cast<long long>(g.size[2]), g.spacing[0], g.spacing[1],
               g.spacing[2]);
@@ -112,6 +120,7 @@ void add_dicom_commands(CLI::App& app) {
         ->capture_default_str();
     cmd->add_option("--patient-id", o->patient_id, "Patient ID")->capture_default_str();
     cmd->add_option("--uid-root", o->uid_root, "Root of the new UIDs (2.25: UUID-derived)")->capture_default_str();
+    add_dicom_format_options(cmd, o->formats);
     cmd->add_option("-o,--out", o->out, "Output directory (new or empty)")->required();
     cmd->callback([o] {
       if (int code = run_export(*o); code != 0) throw CLI::RuntimeError(code);

@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_support.h"
+#include "dicom_format_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
@@ -44,6 +45,7 @@ struct PoseOptions {
   std::string report_out;
   // DICOM out: the posed CT as a derived series and the labels as a SEG of the source series' study.
   std::string dicom_out, dicom_source, uid_root = "2.25", series_description;
+  DicomFormatOptions dicom_formats;
   Connection connection;  // pose on posewarp-server; rig_path is then a rig id
   OutputOptions output;
 };
@@ -199,6 +201,7 @@ Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const ap
   if (!result.ct || !result.labels) return internal_error("the pose returned no CT or labels for the DICOM output");
   api::DerivedSeriesOptions options;
   options.uid_root = o.uid_root;
+  o.dicom_formats.apply(&options);
   options.series_description =
       o.series_description.empty() ? "posewarp: " + pose_name + " (" + o.output.method + ")" : o.series_description;
   options.derivation_description =
@@ -206,8 +209,11 @@ Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const ap
   POSEWARP_ASSIGN_OR_RETURN(const api::DicomOutputs outputs,
                             api::encode_dicom_outputs(*result.ct, *result.labels, map, source, options));
   POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(outputs, o.dicom_out));
-  say("wrote the derived CT series (" + std::to_string(outputs.ct_files.size()) + " images) and its SEG to " +
-      o.dicom_out);
+  say("wrote the derived CT (" +
+      (outputs.ct.frame_numbers.empty() ? std::to_string(outputs.ct_files.size()) + " images"
+                                        : "one Enhanced CT image of " + std::to_string(outputs.ct.slice_count()) +
+                                              " frames") +
+      ") and its " + o.dicom_formats.seg + " SEG to " + o.dicom_out);
   return ok_status();
 }
 
@@ -620,6 +626,7 @@ void add_pose_commands(CLI::App& app) {
         ->capture_default_str();
     cmd->add_option("--series-description", o->series_description,
                     "Series Description of the derived series (default: posewarp: POSE (METHOD))");
+    add_dicom_format_options(cmd, o->dicom_formats);
     add_connection_options(cmd, o->connection);
     cmd->add_option(
         "--server", o->connection.server,

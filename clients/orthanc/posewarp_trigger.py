@@ -18,7 +18,9 @@
 #     "PacsUrl": "http://127.0.0.1:8042/dicom-web",  # this Orthanc's DICOMweb root, as the batch reaches it
 #     "PacsUser": "", "PacsPasswordFile": "",     # its credentials, when authentication is on
 #     "WorkDirectory": "/var/lib/orthanc/posewarp",  # queue file, batch state and logs (default: beside the storage)
-#     "TimeoutSeconds": 3600                      # a batch running longer is stopped and the study marked failed
+#     "TimeoutSeconds": 3600,                     # a batch running longer is stopped and the study marked failed
+#     "CtFormat": "series",                       # the posed CT: a CT series, or "enhanced": one Enhanced CT image
+#     "SegFormat": "binary"                       # the posed labels: a binary SEG, or "labelmap" (Supplement 243)
 #   }
 # Logs name studies by Orthanc's resource id only (no patient data).
 
@@ -58,7 +60,18 @@ def _settings():
     settings.setdefault("PacsPasswordFile", "")
     settings.setdefault("WorkDirectory", os.path.join(storage, "posewarp"))
     settings.setdefault("TimeoutSeconds", 3600)
+    settings.setdefault("CtFormat", "series")
+    settings.setdefault("SegFormat", "binary")
     return settings
+
+
+_FORMATS = {"CtFormat": ("series", "enhanced"), "SegFormat": ("binary", "labelmap")}
+
+
+def _format_errors(settings):
+    """What is wrong with the configured DICOM formats, in words (empty when they are right)."""
+    return ["Posewarp.%s is '%s'; it must be one of %s" % (key, settings[key], ", ".join(allowed))
+            for key, allowed in _FORMATS.items() if settings[key] not in allowed]
 
 
 def _queue_file():
@@ -116,7 +129,8 @@ def _enqueue(study_id, by_hand=False):
 
 def _batch_command(study_uid, manifest):
     s = _SETTINGS
-    command = [s["Command"], "-q", "batch", manifest, "--pacs", s["PacsUrl"]]
+    command = [s["Command"], "-q", "batch", manifest, "--pacs", s["PacsUrl"],
+               "--ct-format", s["CtFormat"], "--seg-format", s["SegFormat"]]
     if s["PacsUser"]:
         command += ["--pacs-user", s["PacsUser"]]
     if s["PacsPasswordFile"]:
@@ -138,6 +152,8 @@ def _run(key):
         return "failed", "the study is gone"
     if not _SETTINGS["Poses"]:
         return "failed", "no poses configured (Posewarp.Poses)"
+    if _format_errors(_SETTINGS):
+        return "failed", "; ".join(_format_errors(_SETTINGS))
     uid = study.get("MainDicomTags", {}).get("StudyInstanceUID", "")
     work = os.path.join(_SETTINGS["WorkDirectory"], study_id)
     os.makedirs(work, exist_ok=True)
@@ -231,8 +247,11 @@ _SETTINGS = _settings()
 os.makedirs(_SETTINGS["WorkDirectory"], exist_ok=True)
 if not _SETTINGS["Poses"]:
     _log("no poses configured (Posewarp.Poses): studies are queued but nothing is posed")
+for _error in _format_errors(_SETTINGS):
+    _log(_error + ": studies are queued but nothing is posed until it is fixed")
 _replay()
 orthanc.RegisterOnChangeCallback(_on_change)
 orthanc.RegisterRestCallback("/posewarp/queue", _rest_queue)
-_log("trigger ready: %d poses, %s" % (len(_SETTINGS["Poses"]),
-                                      "server " + _SETTINGS["Server"] if _SETTINGS["Server"] else "posed locally"))
+_log("trigger ready: %d poses, %s, CT as %s, SEG %s" % (
+    len(_SETTINGS["Poses"]), "server " + _SETTINGS["Server"] if _SETTINGS["Server"] else "posed locally",
+    _SETTINGS["CtFormat"], _SETTINGS["SegFormat"]))

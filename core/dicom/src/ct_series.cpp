@@ -4,10 +4,7 @@
 #include <dcmtk/config/osconfig.h>  // before any other DCMTK header
 #include <dcmtk/dcmdata/dcdeftag.h>
 #include <dcmtk/dcmdata/dcfilefo.h>
-#include <dcmtk/dcmdata/dcrledrg.h>
 #include <dcmtk/dcmdata/dcuid.h>
-#include <dcmtk/dcmjpeg/djdecode.h>
-#include <dcmtk/dcmjpls/djdecode.h>
 #include <dcmtk/oflog/oflog.h>
 
 #include <algorithm>
@@ -20,6 +17,8 @@
 #include <map>
 #include <mutex>
 
+#include "derived_ct.h"
+#include "multiframe.h"
 #include "part10.h"
 #include "posewarp/common/atomic_file.h"
 #include "posewarp/common/input_file.h"
@@ -35,8 +34,6 @@ void quiet_dcmtk() {
 
 namespace {
 
-using Vec = std::array<double, 3>;
-
 Vec cross(const Vec& a, const Vec& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
@@ -45,17 +42,6 @@ double dot(const Vec& a, const Vec& b) {
 }
 double norm(const Vec& a) {
   return std::sqrt(dot(a, a));
-}
-
-// The decoders of compressed pixel data DCMTK has (RLE, JPEG, JPEG-LS), registered once.
-void register_decoders() {
-  static std::once_flag once;
-  std::call_once(once, [] {
-    quiet_dcmtk();
-    DcmRLEDecoderRegistration::registerCodecs();
-    DJDecoderRegistration::registerCodecs();
-    DJLSDecoderRegistration::registerCodecs();
-  });
 }
 
 std::string text(DcmItem& item, const DcmTagKey& tag) {
@@ -81,8 +67,9 @@ struct Slice {
   double pixel_spacing[2] = {0, 0};  // between rows, between columns
   int rows = 0, columns = 0;
   double slope = 1, intercept = 0;
-  double along = 0;  // position along the slice normal
-  int index = 0;     // in the input, for messages
+  double along = 0;                // position along the slice normal
+  int index = 0;                   // in the input, for messages
+  const char* unit = "instance";  // what it is, for messages: an instance, or a frame of a multi-frame image
 };
 
 Result<Slice> parse(const std::string& bytes, int index) {
@@ -96,34 +83,11 @@ Result<Slice> parse(const std::string& bytes, int index) {
   return slice;
 }
 
-// Geometry and pixel format of a CT slice; an error naming what is missing.
-Status check_slice(Slice& slice) {
-  const std::string name = "instance " + std::to_string(slice.index + 1) + " of series " + slice.series_uid;
-  DcmDataset& d = *slice.file->getDataset();
+// An image of the CT: modality CT, 16-bit greyscale pixels (decoded here where compressed); its rows and columns.
+Status check_ct_pixels(DcmDataset& d, const std::string& name, int* rows_out, int* columns_out) {
   const std::string modality = text(d, DCM_Modality);
   if (modality != "CT") {
     return invalid_argument_error(name + " has modality '" + modality + "'; posewarp reads CT series here");
-  }
-  Sint32 frames = 1;
-  if (d.findAndGetSint32(DCM_NumberOfFrames, frames).good() && frames > 1) {
-    return invalid_argument_error(name + " is a multi-frame image (" + std::to_string(frames) +
-                                  " frames); posewarp reads single-frame CT series (convert enhanced CT first)");
-  }
-  double orientation[6];
-  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) ||
-      !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
-      !numbers(d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
-    return invalid_argument_error(name +
-                                  " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
-                                  "its place in the patient is unknown");
-  }
-  slice.row = {orientation[0], orientation[1], orientation[2]};
-  slice.column = {orientation[3], orientation[4], orientation[5]};
-  if (std::abs(norm(slice.row) - 1) > 1e-3 || std::abs(norm(slice.column) - 1) > 1e-3 ||
-      std::abs(dot(slice.row, slice.column)) > 1e-3 || slice.pixel_spacing[0] <= 0 || slice.pixel_spacing[1] <= 0) {
-    return invalid_argument_error(name +
-                                  " has an orientation that is not two unit, orthogonal vectors, or a "
-                                  "spacing that is not positive");
   }
   Uint16 rows = 0, columns = 0, bits = 0, samples = 1;
   d.findAndGetUint16(DCM_Rows, rows);
@@ -135,22 +99,44 @@ Status check_slice(Slice& slice) {
                                   ", columns " + std::to_string(columns) + ", bits allocated " + std::to_string(bits) +
                                   ")");
   }
-  slice.rows = rows, slice.columns = columns;
-  Float64 slope = 1, intercept = 0;
-  if (d.findAndGetFloat64(DCM_RescaleSlope, slope).good()) slice.slope = slope;
-  if (d.findAndGetFloat64(DCM_RescaleIntercept, intercept).good()) slice.intercept = intercept;
+  *rows_out = rows, *columns_out = columns;
+  // Compressed pixel data is decoded to little-endian explicit here (or refused).
+  return decode_pixel_data(d, name);
+}
+
+// A slice's plane: two unit, orthogonal directions, a positive spacing and a usable rescale.
+Status check_plane(const Slice& slice, const std::string& name) {
+  if (std::abs(norm(slice.row) - 1) > 1e-3 || std::abs(norm(slice.column) - 1) > 1e-3 ||
+      std::abs(dot(slice.row, slice.column)) > 1e-3 || slice.pixel_spacing[0] <= 0 || slice.pixel_spacing[1] <= 0) {
+    return invalid_argument_error(name +
+                                  " has an orientation that is not two unit, orthogonal vectors, or a "
+                                  "spacing that is not positive");
+  }
   if (!std::isfinite(slice.slope) || !std::isfinite(slice.intercept) || slice.slope == 0) {
     return invalid_argument_error(name + " has a rescale slope of 0 or a non-finite rescale");
   }
-  // Compressed pixel data is decoded to little-endian explicit here (or refused).
-  if (DcmXfer(d.getOriginalXfer()).isEncapsulated()) {
-    register_decoders();
-    if (d.chooseRepresentation(EXS_LittleEndianExplicit, nullptr).bad() || !d.canWriteXfer(EXS_LittleEndianExplicit)) {
-      return invalid_argument_error(name + " has pixel data in a transfer syntax posewarp cannot decode (" +
-                                    std::string(DcmXfer(d.getOriginalXfer()).getXferName()) + ")");
-    }
-  }
   return ok_status();
+}
+
+// Geometry and pixel format of a single-frame CT slice; an error naming what is missing.
+Status check_slice(Slice& slice) {
+  const std::string name = "instance " + std::to_string(slice.index + 1) + " of series " + slice.series_uid;
+  DcmDataset& d = *slice.file->getDataset();
+  double orientation[6];
+  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) ||
+      !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
+      !numbers(d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
+    return invalid_argument_error(name +
+                                  " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
+                                  "its place in the patient is unknown");
+  }
+  slice.row = {orientation[0], orientation[1], orientation[2]};
+  slice.column = {orientation[3], orientation[4], orientation[5]};
+  Float64 slope = 1, intercept = 0;
+  if (d.findAndGetFloat64(DCM_RescaleSlope, slope).good()) slice.slope = slope;
+  if (d.findAndGetFloat64(DCM_RescaleIntercept, intercept).good()) slice.intercept = intercept;
+  POSEWARP_RETURN_IF_ERROR(check_plane(slice, name));
+  return check_ct_pixels(d, name, &slice.rows, &slice.columns);
 }
 
 std::string describe_series(const std::map<std::string, int>& counts) {
@@ -159,14 +145,6 @@ std::string describe_series(const std::map<std::string, int>& counts) {
   return list;
 }
 
-std::string date_now(const char* format) {
-  const std::time_t now = std::time(nullptr);
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  char out[32];
-  std::strftime(out, sizeof out, format, &utc);
-  return out;
-}
 
 // Every instance parsed, in input order; `counts` receives the number of instances of each series.
 Result<std::vector<Slice>> parse_instances(const std::vector<std::string>& instances,
@@ -201,14 +179,14 @@ Status check_one_stack(const std::vector<Slice>& slices, const std::string& uid)
   for (const Slice& s : slices) {
     if (norm(cross(s.row, first.row)) > 1e-4 || norm(cross(s.column, first.column)) > 1e-4 ||
         dot(s.row, first.row) < 0 || dot(s.column, first.column) < 0) {
-      return invalid_argument_error("series " + uid + " mixes image orientations (instance " +
+      return invalid_argument_error("series " + uid + " mixes image orientations (" + s.unit + " " +
                                     std::to_string(s.index + 1) + "); posewarp reads one stack of parallel slices");
     }
     if (s.rows != first.rows || s.columns != first.columns ||
         std::abs(s.pixel_spacing[0] - first.pixel_spacing[0]) > 1e-4 ||
         std::abs(s.pixel_spacing[1] - first.pixel_spacing[1]) > 1e-4) {
-      return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (instance " +
-                                    std::to_string(s.index + 1) + ")");
+      return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (" + s.unit +
+                                    " " + std::to_string(s.index + 1) + ")");
     }
   }
   return ok_status();
@@ -323,24 +301,59 @@ void read_series_info(DcmDataset& d, const std::string& uid, SeriesInfo* info) {
   info->sop_class_uid = text(d, DCM_SOPClassUID);
 }
 
-// A grid's axes as DICOM writes them.
-struct SliceAxes {
-  Vec row, column, slice_axis;
-  bool reverse = false;  // DICOM's slice normal is row x column; a left-handed grid's slices go out in reverse order
-};
-
-// One instance of a derived series: its UID, its place in the series and when the series was made.
-struct DerivedInstance {
-  std::string sop_uid;
-  int64_t index = 0;  // its place in the series, from 0
-  int64_t slice = 0;  // the volume's slice it holds
-  std::string date, time;
-};
-
-// A string attribute, inserted or replaced.
-void put(DcmItem& d, const DcmTagKey& tag, const std::string& value) {
-  d.putAndInsertString(tag, value.c_str());
+// A multi-frame CT image (an Enhanced CT) as the volume of its frames: each frame placed by its functional groups,
+// the frames checked as one stack, sorted along their normal and rescaled.
+Result<CtSeries> read_multiframe_ct(Slice& image, const std::string& uid) {
+  const std::string name = "the multi-frame image of series " + uid;
+  DcmDataset& d = *image.file->getDataset();
+  int rows = 0, columns = 0;
+  POSEWARP_RETURN_IF_ERROR(check_ct_pixels(d, name, &rows, &columns));
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<FramePlane> planes, read_frame_planes(d, name));
+  std::vector<Slice> frames(planes.size());
+  for (size_t f = 0; f < planes.size(); ++f) {
+    Slice& frame = frames[f];
+    frame.index = static_cast<int>(f);
+    frame.unit = "frame";
+    frame.row = planes[f].row, frame.column = planes[f].column, frame.position = planes[f].position;
+    frame.pixel_spacing[0] = planes[f].spacing[0], frame.pixel_spacing[1] = planes[f].spacing[1];
+    frame.slope = planes[f].slope, frame.intercept = planes[f].intercept;
+    frame.rows = rows, frame.columns = columns;
+    POSEWARP_RETURN_IF_ERROR(check_plane(frame, name + ", frame " + std::to_string(f + 1) + ","));
+  }
+  POSEWARP_RETURN_IF_ERROR(check_one_stack(frames, uid));
+  const Vec normal = cross(frames.front().row, frames.front().column);
+  for (Slice& s : frames) s.along = dot(s.position, normal);
+  std::sort(frames.begin(), frames.end(), [](const Slice& a, const Slice& b) { return a.along < b.along; });
+  POSEWARP_ASSIGN_OR_RETURN(const double spacing, slice_spacing(frames, normal, uid));
+  POSEWARP_ASSIGN_OR_RETURN(const ImageGeometry g, volume_geometry(frames, normal, spacing));
+  const size_t per_frame = static_cast<size_t>(rows) * static_cast<size_t>(columns);
+  Uint16 representation = 0;
+  d.findAndGetUint16(DCM_PixelRepresentation, representation);
+  const Uint16* words = nullptr;
+  unsigned long count = 0;
+  if (d.findAndGetUint16Array(DCM_PixelData, words, &count).bad() || words == nullptr ||
+      count < per_frame * frames.size()) {
+    return data_loss_error(name + " has less pixel data than its frames x rows x columns");
+  }
+  CtSeries out;
+  out.ct = IntensityVolume(g);
+  out.ct.set_source_type(PixelType::kInt16);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    const Uint16* frame = words + static_cast<size_t>(frames[k].index) * per_frame;
+    float* out_slice = out.ct.data() + k * per_frame;
+    for (size_t i = 0; i < per_frame; ++i) {
+      const double stored =
+          representation == 1 ? static_cast<double>(static_cast<int16_t>(frame[i])) : static_cast<double>(frame[i]);
+      out_slice[i] = static_cast<float>(stored * frames[k].slope + frames[k].intercept);
+    }
+    out.info.frame_numbers.push_back(frames[k].index + 1);
+  }
+  read_series_info(d, uid, &out.info);
+  out.info.sop_instance_uids = {text(d, DCM_SOPInstanceUID)};
+  return out;
 }
+
+}  // namespace
 
 // An error unless the grid can be written as a derived CT series of `source`.
 Status check_derived_input(const ImageGeometry& g, const SeriesInfo& source) {
@@ -376,6 +389,7 @@ Result<SeriesInfo> derived_series_info(const SeriesInfo& source, const DerivedSe
     POSEWARP_ASSIGN_OR_RETURN(info.frame_of_reference_uid, uid_for(options, "frame-of-reference"));
   }
   info.sop_instance_uids.clear();
+  info.frame_numbers.clear();
   return info;
 }
 
@@ -388,7 +402,7 @@ void put_series_attributes(DcmDataset& d, const SeriesInfo& info, const DerivedS
   if (!info.study_description.empty()) put(d, DCM_StudyDescription, info.study_description);
   if (!options.derivation_description.empty()) put(d, DCM_DerivationDescription, options.derivation_description);
   const std::pair<DcmTagKey, std::string> attributes[] = {
-      {DCM_SOPClassUID, UID_CTImageStorage},
+      {DCM_SOPClassUID, info.sop_class_uid},
       {DCM_SOPInstanceUID, instance.sop_uid},
       {DCM_ImageType, "DERIVED\\SECONDARY\\AXIAL"},
       {DCM_InstanceCreationDate, instance.date},
@@ -424,6 +438,24 @@ void put_series_attributes(DcmDataset& d, const SeriesInfo& info, const DerivedS
   };
   for (const auto& [tag, value] : attributes) put(d, tag, value);
 }
+
+int64_t hu_samples(const IntensityVolume& ct, int64_t k, int16_t* out) {
+  const ImageGeometry& g = ct.geometry();
+  const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
+  int64_t clipped = 0;
+  const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
+  for (size_t i = 0; i < per_slice; ++i) {
+    // Half away from zero, as the volume writers round (io: lround): a posed value of exactly -118.5 is -119 in the
+    // series and in the NIfTI of the same pose alike.
+    const float v = std::isfinite(slice[i]) ? std::round(slice[i]) : 0.0f;
+    const float bounded = std::clamp(v, -32768.0f, 32767.0f);
+    clipped += bounded != v;
+    out[i] = static_cast<int16_t>(bounded);
+  }
+  return clipped;
+}
+
+namespace {
 
 // Where it came from: every source image, in each slice (each posed slice draws on all of them), and the source
 // series with its instances (Common Instance Reference).
@@ -483,17 +515,8 @@ int64_t put_ct_pixels(DcmDataset& d, const IntensityVolume& ct, int64_t k) {
   put(d, DCM_WindowCenter, "40");
   put(d, DCM_WindowWidth, "400");
   const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
-  std::vector<Sint16> samples(per_slice);
-  int64_t clipped = 0;
-  const float* slice = ct.data() + static_cast<size_t>(k) * per_slice;
-  for (size_t i = 0; i < per_slice; ++i) {
-    // Half away from zero, as the volume writers round (io: lround): a posed value of exactly -118.5 is -119 in the
-    // series and in the NIfTI of the same pose alike.
-    const float v = std::isfinite(slice[i]) ? std::round(slice[i]) : 0.0f;
-    const float bounded = std::clamp(v, -32768.0f, 32767.0f);
-    clipped += bounded != v;
-    samples[i] = static_cast<Sint16>(bounded);
-  }
+  std::vector<int16_t> samples(per_slice);
+  const int64_t clipped = hu_samples(ct, k, samples.data());
   // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
   std::vector<Uint16> words(per_slice);
   std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
@@ -512,6 +535,21 @@ Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const
   std::vector<Slice> slices;
   for (Slice& s : all) {
     if (s.series_uid == uid) slices.push_back(std::move(s));
+  }
+  for (Slice& s : slices) {
+    Sint32 frames = 1;
+    if (s.file->getDataset()->findAndGetSint32(DCM_NumberOfFrames, frames).good() && frames > 1) {
+      if (slices.size() > 1) {
+        return invalid_argument_error("series " + uid + " holds " + std::to_string(slices.size()) +
+                                      " images, some of them multi-frame; posewarp reads one multi-frame image "
+                                      "(an Enhanced CT) or a series of single-frame ones");
+      }
+      POSEWARP_ASSIGN_OR_RETURN(CtSeries out, read_multiframe_ct(s, uid));
+      if (out.info.study_instance_uid.empty()) {
+        return invalid_argument_error("series " + uid + " has no StudyInstanceUID");
+      }
+      return out;
+    }
   }
   for (Slice& s : slices) POSEWARP_RETURN_IF_ERROR(check_slice(s));
   const Vec normal = cross(slices.front().row, slices.front().column);
@@ -576,13 +614,17 @@ Result<CtSeries> read_ct_directory(const std::string& directory, const std::stri
 Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
                                                    const DerivedSeriesOptions& options, SeriesInfo* info_out) {
   quiet_dcmtk();
+  if (options.ct_format == CtFormat::kEnhanced) {
+    POSEWARP_ASSIGN_OR_RETURN(std::string image, encode_enhanced_ct(ct, source, options, info_out));
+    return std::vector<std::string>{std::move(image)};
+  }
   const ImageGeometry& g = ct.geometry();
   POSEWARP_RETURN_IF_ERROR(check_derived_input(g, source));
   const SliceAxes axes = slice_axes(g);
   POSEWARP_ASSIGN_OR_RETURN(SeriesInfo info, derived_series_info(source, options));
   DerivedInstance instance;
-  instance.date = date_now("%Y%m%d");
-  instance.time = date_now("%H%M%S");
+  instance.date = utc_now("%Y%m%d");
+  instance.time = utc_now("%H%M%S");
   std::vector<std::string> files;
   int64_t clipped = 0;
   for (int64_t n = 0; n < g.size[2]; ++n) {

@@ -3,6 +3,13 @@
 
 #include <dcmtk/dcmdata/dcistrmb.h>
 #include <dcmtk/dcmdata/dcostrmb.h>
+#include <dcmtk/dcmdata/dcrledrg.h>
+#include <dcmtk/dcmjpeg/djdecode.h>
+#include <dcmtk/dcmjpls/djdecode.h>
+
+#include <mutex>
+
+#include "posewarp/dicom/ct_series.h"
 
 namespace posewarp::dicom {
 
@@ -35,6 +42,22 @@ Result<std::string> encode_part10(DcmFileFormat& file, const std::string& what) 
   out.flushBuffer(buffer, used);
   bytes.resize(static_cast<size_t>(used));
   return bytes;
+}
+
+Status decode_pixel_data(DcmDataset& d, const std::string& what) {
+  if (!DcmXfer(d.getOriginalXfer()).isEncapsulated()) return ok_status();
+  static std::once_flag once;
+  std::call_once(once, [] {
+    quiet_dcmtk();
+    DcmRLEDecoderRegistration::registerCodecs();
+    DJDecoderRegistration::registerCodecs();
+    DJLSDecoderRegistration::registerCodecs();
+  });
+  if (d.chooseRepresentation(EXS_LittleEndianExplicit, nullptr).bad() || !d.canWriteXfer(EXS_LittleEndianExplicit)) {
+    return invalid_argument_error(what + " has pixel data in a transfer syntax posewarp cannot decode (" +
+                                  std::string(DcmXfer(d.getOriginalXfer()).getXferName()) + ")");
+  }
+  return ok_status();
 }
 
 }  // namespace posewarp::dicom

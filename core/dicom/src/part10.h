@@ -15,5 +15,8 @@ namespace posewarp::dicom {
 Result<std::unique_ptr<DcmFileFormat>> parse_part10(const std::string& bytes, const std::string& what);
 // A file as Part 10 bytes, explicit little-endian; INTERNAL naming `what` when DCMTK cannot write it.
 Result<std::string> encode_part10(DcmFileFormat& file, const std::string& what);
+// Compressed pixel data of `d` (RLE, JPEG, JPEG-LS) decoded in place to explicit little-endian; nothing for
+// uncompressed data; INVALID_ARGUMENT naming `what` for a transfer syntax DCMTK cannot decode.
+Status decode_pixel_data(DcmDataset& d, const std::string& what);
 
 }  // namespace posewarp::dicom

@@ -21,12 +21,12 @@
 #include <memory>
 #include <set>
 
+#include "label_map_segmentation.h"
+#include "multiframe.h"
 #include "part10.h"
 
 namespace posewarp::dicom {
 namespace {
-
-using Vec = std::array<double, 3>;
 
 std::string text(const OFString& s) {
   return s.c_str();
@@ -133,65 +133,17 @@ std::vector<Segment> read_segments(DcmSegmentation& seg) {
   return segments;
 }
 
-// The frames' pixel spacing, where the SEG gives one, must be the grid's.
-Status check_pixel_spacing(FGInterface& groups, const ImageGeometry& grid) {
-  if (auto* measures = static_cast<FGPixelMeasures*>(groups.get(0, DcmFGTypes::EFG_PIXELMEASURES))) {
-    Float64 between_rows = 0, between_columns = 0;
-    if (measures->getPixelSpacing(between_rows, 0).good() && measures->getPixelSpacing(between_columns, 1).good() &&
-        (std::abs(between_rows - grid.spacing[1]) > 1e-3 || std::abs(between_columns - grid.spacing[0]) > 1e-3)) {
-      return invalid_argument_error("the segmentation's pixel spacing (" + format("%.3f", between_columns) + " x " +
-                                    format("%.3f", between_rows) + " mm) is not the CT's: it was not made on this CT");
-    }
-  }
-  return ok_status();
-}
-
-// A frame's orientation must be the grid's slices'.
-Status check_frame_orientation(FGPlaneOrientationPatient& orientation, const ImageGeometry& grid,
-                               const std::string& name) {
-  const Vec row{grid.direction[0], grid.direction[3], grid.direction[6]};
-  const Vec column{grid.direction[1], grid.direction[4], grid.direction[7]};
-  Float64 o[6];
-  for (int i = 0; i < 6; ++i) {
-    OFString component;
-    orientation.getImageOrientationPatient(component, i);
-    o[i] = std::atof(component.c_str());
-  }
-  for (int i = 0; i < 3; ++i) {
-    if (std::abs(o[i] - row[static_cast<size_t>(i)]) > 1e-3 ||
-        std::abs(o[i + 3] - column[static_cast<size_t>(i)]) > 1e-3) {
-      return invalid_argument_error(name + " is not oriented as the CT's slices: it was not made on this CT");
-    }
-  }
-  return ok_status();
-}
-
-// Frame `f`'s segment and slice: its orientation must be the grid's, its position one of the grid's slice origins.
-Result<SegFrame> place_frame(FGInterface& groups, size_t f, const ImageGeometry& grid) {
+// Frame `f`'s segment, and the slice its plane lies on.
+Result<SegFrame> place_frame(FGInterface& groups, size_t f, const FramePlane& plane, const ImageGeometry& grid) {
   SegFrame frame;
   frame.index = f;
   frame.name = "segmentation frame " + std::to_string(f + 1);
-  const std::string& name = frame.name;
-  auto* position = static_cast<FGPlanePosPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEPOSPATIENT));
-  auto* orientation =
-      static_cast<FGPlaneOrientationPatient*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_PLANEORIENTPATIENT));
   auto* identification = static_cast<FGSegmentation*>(groups.get(static_cast<Uint32>(f), DcmFGTypes::EFG_SEGMENTATION));
-  Float64 x = 0, y = 0, z = 0;
-  if (position == nullptr || identification == nullptr || position->getImagePositionPatient(x, y, z).bad() ||
-      identification->getReferencedSegmentNumber(frame.number).bad() || frame.number == 0) {
-    return invalid_argument_error(name + " has no position or segment number");
+  if (identification == nullptr || identification->getReferencedSegmentNumber(frame.number).bad() ||
+      frame.number == 0) {
+    return invalid_argument_error(frame.name + " has no segment number");
   }
-  if (orientation == nullptr) return invalid_argument_error(name + " has no orientation");
-  POSEWARP_RETURN_IF_ERROR(check_frame_orientation(*orientation, grid, name));
-  const Vec3 index = grid.physical_to_index({x, y, z});
-  const double k = std::round(index[2]);
-  if (std::abs(index[0]) > 0.01 || std::abs(index[1]) > 0.01 || std::abs(index[2] - k) > 0.01 || k < 0 ||
-      k >= static_cast<double>(grid.size[2])) {
-    return invalid_argument_error(name + " lies off the CT's slices (at " + format("%.2f", x) + ", " +
-                                  format("%.2f", y) + ", " + format("%.2f", z) +
-                                  " mm): it was not made on this CT's grid");
-  }
-  frame.slice = static_cast<size_t>(k);
+  POSEWARP_ASSIGN_OR_RETURN(frame.slice, slice_on_grid(plane, grid, frame.name));
   return frame;
 }
 
@@ -239,10 +191,9 @@ void add_paint_warnings(const PaintCounts& counts, std::vector<std::string>* war
 // The voxel count of each label value present; an error unless the labels can be a SEG on the CT's grid.
 Result<LabelCounts> labels_present(const LabelVolume& labels, const SeriesInfo& ct) {
   const ImageGeometry& g = labels.geometry();
-  if (ct.sop_instance_uids.size() != static_cast<size_t>(g.size[2])) {
+  if (ct.slice_count() != static_cast<size_t>(g.size[2])) {
     return invalid_argument_error("the labels have " + std::to_string(g.size[2]) + " slices and the CT series " +
-                                  std::to_string(ct.sop_instance_uids.size()) +
-                                  " images: the SEG must be on the CT's grid");
+                                  std::to_string(ct.slice_count()) + " images: the SEG must be on the CT's grid");
   }
   if (g.size[0] > 65535 || g.size[1] > 65535)
     return invalid_argument_error("a SEG frame has at most 65535 rows and columns");
@@ -323,34 +274,46 @@ Status add_shared_geometry(DcmSegmentation& seg, const ImageGeometry& g) {
   return ok_status();
 }
 
-// One segment per label value present, in value order, described by `segments` where one has that value as its
-// number; DICOM numbers segments 1, 2, 3, ..., so values that skip are renumbered (the result says how; the
-// segment's label keeps the name).
-Result<SegmentNumbers> add_segments(DcmSegmentation& seg, const LabelCounts& present,
-                                    const std::vector<Segment>& segments) {
+// One segment per label value present, in value order, numbered by its value and described by `segments` where one
+// has that value as its number (else "label N", tissue).
+std::vector<Segment> describe_segments(const LabelCounts& present, const std::vector<Segment>& segments) {
   std::map<int, const Segment*> described;
   for (const Segment& s : segments) described[s.number] = &s;
-  SegmentNumbers number_of;
+  std::vector<Segment> out;
   for (const auto& [value, count] : present) {
     const auto d = described.find(value);
-    const Segment* given = d == described.end() ? nullptr : d->second;
-    const std::string label = given && !given->label.empty() ? given->label : "label " + std::to_string(value);
-    const Code category = given && !given->category.value.empty() ? given->category : Code{"85756007", "SCT", "Tissue"};
-    const Code type = given && !given->type.value.empty() ? given->type : Code{"85756007", "SCT", "Tissue"};
+    Segment segment = d == described.end() ? Segment{} : *d->second;
+    segment.number = value;
+    if (segment.label.empty()) segment.label = "label " + std::to_string(value);
+    if (segment.category.value.empty()) segment.category = {"85756007", "SCT", "Tissue"};
+    if (segment.type.value.empty()) segment.type = {"85756007", "SCT", "Tissue"};
+    out.push_back(segment);
+  }
+  return out;
+}
+
+// The segments added to a binary SEG; DICOM numbers its segments 1, 2, 3, ..., so values that skip are renumbered
+// (the result says how; the segment's label keeps the name).
+Result<SegmentNumbers> add_segments(DcmSegmentation& seg, const std::vector<Segment>& segments) {
+  SegmentNumbers number_of;
+  for (const Segment& given : segments) {
+    const Code &category = given.category, &type = given.type;
     DcmSegment* segment = nullptr;
     const OFCondition ok =
-        DcmSegment::create(segment, label.c_str(),
+        DcmSegment::create(segment, given.label.c_str(),
                            CodeSequenceMacro(category.value.c_str(), category.scheme.c_str(), category.meaning.c_str()),
                            CodeSequenceMacro(type.value.c_str(), type.scheme.c_str(), type.meaning.c_str()),
                            DcmSegTypes::SAT_AUTOMATIC, "posewarp");
-    if (ok.bad() || segment == nullptr) return internal_error("cannot describe segment '" + label + "': " + ok.text());
-    if (given && !given->description.empty()) segment->setSegmentDescription(given->description.c_str(), OFFalse);
+    if (ok.bad() || segment == nullptr) {
+      return internal_error("cannot describe segment '" + given.label + "': " + ok.text());
+    }
+    if (!given.description.empty()) segment->setSegmentDescription(given.description.c_str(), OFFalse);
     Uint16 number = 0;
     if (seg.addSegment(segment, number).bad()) {
       delete segment;
-      return internal_error("cannot add segment '" + label + "'");
+      return internal_error("cannot add segment '" + given.label + "'");
     }
-    number_of[value] = number;
+    number_of[given.number] = number;
   }
   return number_of;
 }
@@ -370,11 +333,14 @@ std::map<Label, std::vector<int64_t>> slices_of_labels(const LabelVolume& labels
   return slices_of;
 }
 
-// The Derivation Image functional group naming CT slice `ct_index` as a frame's source (null if DCMTK made none).
+// The Derivation Image functional group naming CT slice `ct_index` (an image, or a frame) as a frame's source (null
+// if DCMTK made none).
 std::unique_ptr<FGDerivationImage> derivation_from(const SeriesInfo& ct, size_t ct_index) {
+  const SourceImage source = source_slice(ct, ct_index);
   OFVector<ImageSOPInstanceReferenceMacro> sources(1);
-  sources[0].setReferencedSOPClassUID(ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
-  sources[0].setReferencedSOPInstanceUID(ct.sop_instance_uids[ct_index].c_str());
+  sources[0].setReferencedSOPClassUID(source.sop_class_uid.c_str());
+  sources[0].setReferencedSOPInstanceUID(source.sop_instance_uid.c_str());
+  if (source.frame > 0) sources[0].addReferencedFrameNumber(static_cast<Uint16>(source.frame));
   return std::unique_ptr<FGDerivationImage>(DcmSegmentation::createDerivationImageFG(sources, "posewarp posed labels"));
 }
 
@@ -441,18 +407,7 @@ Status write_seg_dataset(DcmSegmentation& seg, const SeriesInfo& ct, DcmFileForm
   if (ok.bad()) return internal_error(std::string("cannot write the segmentation: ") + ok.text());
   DcmDataset& d = *file->getDataset();
   d.findAndDeleteElement(DCM_ReferencedSeriesSequence);
-  DcmItem* series_item = nullptr;
-  if (d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, -2).good()) {
-    series_item->putAndInsertString(DCM_SeriesInstanceUID, ct.series_instance_uid.c_str());
-    for (const std::string& uid : ct.sop_instance_uids) {
-      DcmItem* item = nullptr;
-      if (series_item->findOrCreateSequenceItem(DCM_ReferencedInstanceSequence, item, -2).good()) {
-        item->putAndInsertString(DCM_ReferencedSOPClassUID,
-                                 ct.sop_class_uid.empty() ? UID_CTImageStorage : ct.sop_class_uid.c_str());
-        item->putAndInsertString(DCM_ReferencedSOPInstanceUID, uid.c_str());
-      }
-    }
-  }
+  put_referenced_series(d, ct);
   return ok_status();
 }
 
@@ -463,7 +418,11 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
   POSEWARP_RETURN_IF_ERROR(grid.validate());
   POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmFileFormat> file, parse_part10(bytes, "the segmentation"));
   DcmDataset& d = *file->getDataset();
+  OFString sop_class;
+  d.findAndGetOFString(DCM_SOPClassUID, sop_class);
+  if (sop_class == kLabelMapSegmentationStorage) return read_label_map_segmentation(d, grid);
   POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmSegmentation> seg, load_segmentation(d));
+  POSEWARP_ASSIGN_OR_RETURN(const std::vector<FramePlane> planes, read_frame_planes(d, "the segmentation"));
   POSEWARP_ASSIGN_OR_RETURN(const FrameLayout layout, frame_layout(d, *seg, grid));
   Segmentation out;
   out.labels = LabelVolume(grid, 0);
@@ -473,10 +432,10 @@ Result<Segmentation> read_segmentation(const std::string& bytes, const ImageGeom
   // Each frame onto its slice: its orientation must be the grid's, its position one of the grid's slice origins, its
   // pixels the grid's size.
   FGInterface& groups = seg->getFunctionalGroups();
-  POSEWARP_RETURN_IF_ERROR(check_pixel_spacing(groups, grid));
+  if (planes.size() != seg->getNumberOfFrames()) return data_loss_error("the segmentation's frames are incomplete");
   PaintCounts counts;
   for (size_t f = 0; f < seg->getNumberOfFrames(); ++f) {
-    POSEWARP_ASSIGN_OR_RETURN(const SegFrame frame, place_frame(groups, f, grid));
+    POSEWARP_ASSIGN_OR_RETURN(const SegFrame frame, place_frame(groups, f, planes[f], grid));
     POSEWARP_RETURN_IF_ERROR(paint_frame(*seg, frame, layout, &out.labels, &counts));
   }
   add_paint_warnings(counts, &out.warnings);
@@ -490,17 +449,26 @@ Result<std::string> encode_segmentation(const LabelVolume& labels, const std::ve
   const ImageGeometry& g = labels.geometry();
   POSEWARP_RETURN_IF_ERROR(g.validate());
   POSEWARP_ASSIGN_OR_RETURN(const LabelCounts present, labels_present(labels, ct));
-  POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmSegmentation> seg, create_segmentation(g, options));
-  POSEWARP_ASSIGN_OR_RETURN(const SeriesInfo info, seg_series_info(ct, options));
-  set_seg_modules(*seg, ct, info);
-  POSEWARP_RETURN_IF_ERROR(add_shared_geometry(*seg, g));
-  POSEWARP_ASSIGN_OR_RETURN(const SegmentNumbers number_of, add_segments(*seg, present, segments));
-  POSEWARP_RETURN_IF_ERROR(add_frames(*seg, labels, ct, number_of));
-  POSEWARP_RETURN_IF_ERROR(add_dimensions(*seg, options));
-  DcmFileFormat file;
-  POSEWARP_RETURN_IF_ERROR(write_seg_dataset(*seg, ct, &file));
+  POSEWARP_ASSIGN_OR_RETURN(SeriesInfo info, seg_series_info(ct, options));
+  const std::vector<Segment> described = describe_segments(present, segments);
   std::string bytes;
-  POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "the segmentation"));
+  SegmentNumbers number_of;
+  if (options.seg_format == SegFormat::kLabelMap) {
+    // A label map's segments are numbered by their values.
+    info.sop_class_uid = kLabelMapSegmentationStorage;
+    POSEWARP_ASSIGN_OR_RETURN(bytes, encode_label_map_segmentation(labels, described, ct, info, options));
+    for (const Segment& s : described) number_of[s.number] = static_cast<Uint16>(s.number);
+  } else {
+    POSEWARP_ASSIGN_OR_RETURN(const std::unique_ptr<DcmSegmentation> seg, create_segmentation(g, options));
+    set_seg_modules(*seg, ct, info);
+    POSEWARP_RETURN_IF_ERROR(add_shared_geometry(*seg, g));
+    POSEWARP_ASSIGN_OR_RETURN(number_of, add_segments(*seg, described));
+    POSEWARP_RETURN_IF_ERROR(add_frames(*seg, labels, ct, number_of));
+    POSEWARP_RETURN_IF_ERROR(add_dimensions(*seg, options));
+    DcmFileFormat file;
+    POSEWARP_RETURN_IF_ERROR(write_seg_dataset(*seg, ct, &file));
+    POSEWARP_ASSIGN_OR_RETURN(bytes, encode_part10(file, "the segmentation"));
+  }
   if (info_out != nullptr) *info_out = info;
   if (numbers != nullptr) numbers->insert(number_of.begin(), number_of.end());
   return bytes;

@@ -69,7 +69,9 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
       {"Server", server.address()},
       {"PacsUser", "posewarp"},
       {"PacsPasswordFile", (dir / "password").string()},
-      {"WorkDirectory", (dir / "work").string()}};
+      {"WorkDirectory", (dir / "work").string()},
+      {"CtFormat", "enhanced"},
+      {"SegFormat", "labelmap"}};
   const std::string extra = "\"StableAge\": 1, \"PythonScript\": \"" + std::string(POSEWARP_SOURCE_DIR) +
                             "/clients/orthanc/posewarp_trigger.py\", \"Posewarp\": " + settings.dump();
   const fs::path queue = dir / "work" / "queue.jsonl";
@@ -79,11 +81,16 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
     OrthancProcess orthanc(dir / "orthanc", extra, {kPythonPlugin});
     ASSERT_TRUE(orthanc.ready()) << orthanc.log();
     EXPECT_NE(orthanc.log().find("posewarp: trigger ready: 1 poses, server"), std::string::npos) << orthanc.log();
-    // The sample as a study with its SEG, stored as a modality would.
+    EXPECT_NE(orthanc.log().find("CT as enhanced, SEG labelmap"), std::string::npos) << orthanc.log();
+    // The sample as a study with its SEG, stored as a modality would (an Enhanced CT and a label map SEG: what the
+    // trigger writes back, it reads).
     const std::string sample = std::string(POSEWARP_SOURCE_DIR) + "/data/totalsegmentator_example";
+    api::DerivedSeriesOptions formats;
+    formats.ct_format = api::CtFormat::kEnhanced;
+    formats.seg_format = api::SegFormat::kLabelMap;
     Result<api::DicomOutputs> study = api::encode_new_dicom_study(
         *api::read_intensity_volume(sample + "/ct.nii.gz"), *api::read_label_volume(sample + "/seg_total.nii.gz"),
-        *api::preset_by_name("totalsegmentator"), "Trigger^Test", "PW-TRIGGER", {});
+        *api::preset_by_name("totalsegmentator"), "Trigger^Test", "PW-TRIGGER", formats);
     ASSERT_TRUE(study.ok()) << study.status().to_string();
     study_uid = study->ct.study_instance_uid;
     pacs::DicomWebClient client(orthanc.options());
@@ -100,13 +107,29 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
     ASSERT_EQ(series_count(), 4u);
     Result<std::vector<pacs::DicomWebRecord>> series = client.search_series(study_uid);
     ASSERT_TRUE(series.ok());
-    bool derived_ct = false, derived_seg = false;
+    std::string derived_ct, derived_seg;
     for (const pacs::DicomWebRecord& s : *series) {
       const std::string description = s.count("SeriesDescription") ? s.at("SeriesDescription") : "";
-      derived_ct |= s.at("Modality") == "CT" && description == "posewarp: sample_hip_flexion (cor)";
-      derived_seg |= s.at("Modality") == "SEG" && description == "posewarp: sample_hip_flexion (cor) labels";
+      if (s.at("Modality") == "CT" && description == "posewarp: sample_hip_flexion (cor)") {
+        derived_ct = s.at("SeriesInstanceUID");
+      }
+      if (s.at("Modality") == "SEG" && description == "posewarp: sample_hip_flexion (cor) labels") {
+        derived_seg = s.at("SeriesInstanceUID");
+      }
     }
-    EXPECT_TRUE(derived_ct && derived_seg) << "the derived CT series and SEG are in the study";
+    ASSERT_TRUE(!derived_ct.empty() && !derived_seg.empty()) << "the derived CT and SEG are in the study";
+    // In the formats configured: one Enhanced CT image and a label map SEG, read back on its grid.
+    Result<std::vector<std::string>> ct_files = client.retrieve_series(study_uid, derived_ct, (dir / "ct").string());
+    Result<std::vector<std::string>> seg_files = client.retrieve_series(study_uid, derived_seg, (dir / "seg").string());
+    ASSERT_TRUE(ct_files.ok() && seg_files.ok() && ct_files->size() == 1 && seg_files->size() == 1);
+    Result<api::DicomStudy> posed = api::read_dicom_study((dir / "ct").string(), seg_files->front(),
+                                                          *api::preset_by_name("totalsegmentator"));
+    ASSERT_TRUE(posed.ok()) << posed.status().to_string();
+    EXPECT_EQ(posed->ct.info.sop_class_uid, "1.2.840.10008.5.1.4.1.1.2.1");
+    EXPECT_EQ(posed->ct.info.frame_numbers.size(), static_cast<size_t>(posed->ct.ct.geometry().size[2]));
+    EXPECT_NE(text(seg_files->front()).find("1.2.840.10008.5.1.4.1.1.66.7"), std::string::npos)
+        << "a label map SEG";
+    EXPECT_GT(posed->segments.size(), 20u);
     // The rig was built on the server.
     EXPECT_EQ(testing_support::run({POSEWARP_CLI, "-q", "rig", "list", "--server", server.address()}, dir / "list.txt"),
               0);

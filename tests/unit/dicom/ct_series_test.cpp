@@ -6,6 +6,7 @@
 #include <dcmtk/dcmdata/dcfilefo.h>
 #include <dcmtk/dcmdata/dcistrmb.h>
 #include <dcmtk/dcmdata/dcostrmb.h>
+#include <dcmtk/dcmdata/dcsequen.h>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -142,6 +143,110 @@ TEST_F(DicomCt, ADerivedSeriesNamesItsPatientStudyAndSource) {
   EXPECT_EQ(info.sop_instance_uids.size(), derived->size());
 }
 
+// Every voxel of `back` sits (to a micrometre) on a voxel of `ct`, with its value.
+void expect_same_voxels(const IntensityVolume& ct, const IntensityVolume& back) {
+  const ImageGeometry &a = ct.geometry(), &b = back.geometry();
+  for (int axis = 0; axis < 3; ++axis) {
+    EXPECT_EQ(a.size[static_cast<size_t>(axis)], b.size[static_cast<size_t>(axis)]);
+    EXPECT_NEAR(a.spacing[static_cast<size_t>(axis)], b.spacing[static_cast<size_t>(axis)], 1e-6);
+  }
+  for (int64_t k = 0; k < b.size[2]; ++k) {
+    for (int64_t j = 0; j < b.size[1]; j += 3) {
+      for (int64_t i = 0; i < b.size[0]; i += 2) {
+        const Vec3 p = b.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+        const Vec3 at = a.physical_to_index(p);
+        for (double c : at) ASSERT_NEAR(c, std::round(c), 1e-4);
+        ASSERT_EQ(back.at(i, j, k), ct.at(std::lround(at[0]), std::lround(at[1]), std::lround(at[2])));
+      }
+    }
+  }
+}
+
+TEST_F(DicomCt, TheSampleGoesThroughAnEnhancedCtAndBackExactlyWhateverItsFramesOrder) {
+  const IntensityVolume ct = sample_ct();
+  DerivedSeriesOptions options;
+  options.ct_format = CtFormat::kEnhanced;
+  SeriesInfo info;
+  Result<std::vector<std::string>> written = encode_derived_ct(ct, made_up_source(), options, &info);
+  ASSERT_TRUE(written.ok()) << written.status().to_string();
+  ASSERT_EQ(written->size(), 1u);
+  EXPECT_EQ(info.sop_instance_uids.size(), 1u);
+  EXPECT_EQ(info.slice_count(), static_cast<size_t>(ct.size()[2]));
+  EXPECT_EQ(text_of(written->front(), DCM_SOPClassUID), "1.2.840.10008.5.1.4.1.1.2.1");
+  EXPECT_EQ(text_of(written->front(), DCM_NumberOfFrames), std::to_string(ct.size()[2]));
+  Result<CtSeries> back = read_ct_series(*written);
+  ASSERT_TRUE(back.ok()) << back.status().to_string();
+  expect_same_voxels(ct, back->ct);
+  EXPECT_EQ(back->info.frame_numbers.front(), 1);
+  EXPECT_EQ(back->info.patient_name, "Sample^Phantom");
+  // The same image with its frames (their groups and their pixels) in reverse order reads as the same volume; the
+  // info says which frame each slice is.
+  const size_t frames = static_cast<size_t>(ct.size()[2]), per_frame = static_cast<size_t>(ct.size()[0] * ct.size()[1]);
+  const std::string reversed = edited(written->front(), [&](DcmDataset& d) {
+    DcmSequenceOfItems* groups = nullptr;
+    ASSERT_TRUE(d.findAndGetSequence(DCM_PerFrameFunctionalGroupsSequence, groups).good());
+    std::vector<DcmItem*> items;
+    while (groups->card() > 0) items.push_back(groups->remove(0UL));
+    for (auto it = items.rbegin(); it != items.rend(); ++it) groups->append(*it);
+    const Uint16* words = nullptr;
+    unsigned long count = 0;
+    ASSERT_TRUE(d.findAndGetUint16Array(DCM_PixelData, words, &count).good());
+    std::vector<Uint16> pixels(count);
+    for (size_t f = 0; f < frames; ++f) {
+      std::copy(words + f * per_frame, words + (f + 1) * per_frame, pixels.begin() + (frames - 1 - f) * per_frame);
+    }
+    d.putAndInsertUint16Array(DCM_PixelData, pixels.data(), count);
+  });
+  Result<CtSeries> shuffled = read_ct_series({reversed});
+  ASSERT_TRUE(shuffled.ok()) << shuffled.status().to_string();
+  expect_same_voxels(ct, shuffled->ct);
+  EXPECT_EQ(shuffled->info.frame_numbers.front(), static_cast<int32_t>(frames));
+  // A frame without its position is refused, by name.
+  const std::string lost = edited(written->front(), [&](DcmDataset& d) {
+    DcmItem* frame = nullptr;
+    ASSERT_TRUE(d.findAndGetSequenceItem(DCM_PerFrameFunctionalGroupsSequence, frame, 4).good());
+    frame->findAndDeleteElement(DCM_PlanePositionSequence);
+  });
+  Result<CtSeries> refused = read_ct_series({lost});
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("frame 5, lacks its position"), std::string::npos)
+      << refused.status().message();
+  // A multi-frame image in a series of other images is refused.
+  std::vector<std::string> mixed = *encode_derived_ct(ct, made_up_source(), {});
+  mixed.push_back(edited(written->front(), [&](DcmDataset& d) {
+    d.putAndInsertString(DCM_SeriesInstanceUID, text_of(mixed.front(), DCM_SeriesInstanceUID).c_str());
+  }));
+  Result<CtSeries> both = read_ct_series(mixed);
+  ASSERT_FALSE(both.ok());
+  EXPECT_NE(both.status().message().find("some of them multi-frame"), std::string::npos) << both.status().message();
+}
+
+TEST_F(DicomCt, AnEnhancedCtNamesEverySourceImageOnceForAllFrames) {
+  std::vector<std::string> original = *encode_derived_ct(sample_ct(), made_up_source(), {});
+  Result<CtSeries> source = read_ct_series(original);
+  ASSERT_TRUE(source.ok()) << source.status().to_string();
+  DerivedSeriesOptions options;
+  options.ct_format = CtFormat::kEnhanced;
+  Result<std::vector<std::string>> derived = encode_derived_ct(source->ct, source->info, options);
+  ASSERT_TRUE(derived.ok()) << derived.status().to_string();
+  EXPECT_EQ(text_of(derived->front(), DCM_StudyInstanceUID), source->info.study_instance_uid);
+  EXPECT_EQ(text_of(derived->front(), DCM_ImageType), "DERIVED\\PRIMARY\\VOLUME\\NONE");
+  edited(derived->front(), [&](DcmDataset& d) {
+    DcmItem* shared = nullptr;
+    DcmItem* derivation = nullptr;
+    DcmSequenceOfItems* images = nullptr;
+    ASSERT_TRUE(d.findAndGetSequenceItem(DCM_SharedFunctionalGroupsSequence, shared, 0).good());
+    ASSERT_TRUE(shared->findAndGetSequenceItem(DCM_DerivationImageSequence, derivation, 0).good());
+    ASSERT_TRUE(derivation->findAndGetSequence(DCM_SourceImageSequence, images).good());
+    EXPECT_EQ(images->card(), source->info.sop_instance_uids.size());
+    DcmItem* evidence = nullptr;
+    ASSERT_TRUE(d.findAndGetSequenceItem(DCM_SourceImageEvidenceSequence, evidence, 0).good());
+    OFString study;
+    evidence->findAndGetOFString(DCM_StudyInstanceUID, study);
+    EXPECT_EQ(std::string(study.c_str()), source->info.study_instance_uid);
+  });
+}
+
 TEST_F(DicomCt, InstancesInMemoryReadAsTheirDirectory) {
   const IntensityVolume ct = sample_ct();
   std::vector<std::string> files = *encode_derived_ct(ct, made_up_source(), {});
@@ -151,7 +256,7 @@ TEST_F(DicomCt, InstancesInMemoryReadAsTheirDirectory) {
   Result<CtSeries> memory = read_ct_series(files);
   ASSERT_TRUE(memory.ok()) << memory.status().to_string();
   for (size_t i = 0; i < files.size(); ++i) {
-    std::ofstream((dir_ / ("f" + std::to_string(i) + ".dcm")).string(), std::ios::binary) << files[i];
+    std::ofstream((dir_ / (std::to_string(i) + ".dcm")).string(), std::ios::binary) << files[i];
   }
   std::ofstream(dir_ / "README.txt") << "not DICOM";
   Result<CtSeries> directory = read_ct_directory(dir_.string());

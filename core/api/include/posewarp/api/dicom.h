@@ -13,8 +13,10 @@
 
 namespace posewarp::api {
 
+using posewarp::CtFormat;
 using posewarp::CtSeries;
 using posewarp::DerivedSeriesOptions;
+using posewarp::SegFormat;
 using posewarp::DicomSegment;
 using posewarp::SeriesInfo;
 
@@ -43,10 +45,11 @@ Result<DicomStudy> read_dicom_study(const std::vector<std::string>& ct_instances
                                     const LabelMap& map);
 
 // A pose's CT and labels as DICOM of `source`'s study: a derived CT series and a SEG on it, whose segments are
-// named by `map` (each label value present a segment).
+// named by `map` (each label value present a segment), in the formats options.ct_format and options.seg_format
+// name.
 struct DicomOutputs {
   SeriesInfo ct, seg;
-  std::vector<std::string> ct_files;  // Part 10 bytes, one per slice
+  std::vector<std::string> ct_files;  // Part 10 bytes, one per slice (one Enhanced CT: one)
   std::string seg_file;
 };
 Result<DicomOutputs> encode_dicom_outputs(const IntensityVolume& ct, const LabelVolume& labels,

@@ -18,10 +18,11 @@ using posewarp::CtSeries;
 using posewarp::DerivedSeriesOptions;
 using posewarp::SeriesInfo;
 
-// A CT series from Part 10 files' bytes (one single-frame image each). Several series: `series_uid` names the one
-// to read (an error lists them otherwise). Refused with a message: missing geometry, multi-frame images, other
-// modalities, mixed orientations or sizes, gantry tilt, missing or duplicated slices, uneven slice spacing,
-// compressed pixel data without a decoder.
+// A CT series from Part 10 files' bytes: single-frame images, one per slice, or one multi-frame image (an Enhanced
+// CT) whose frames are the slices. Several series: `series_uid` names the one to read (an error lists them
+// otherwise). Refused with a message: missing geometry, multi-frame images mixed with others, other modalities, mixed
+// orientations or sizes, gantry tilt, missing or duplicated slices, uneven slice spacing, compressed pixel data
+// without a decoder.
 Result<CtSeries> read_ct_series(const std::vector<std::string>& instances, const std::string& series_uid = "");
 // True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
 bool is_dicom_file(const std::string& path);
@@ -39,10 +40,12 @@ Result<std::string> new_uid(const std::string& root);
 // set, else new.
 Result<std::string> uid_for(const DerivedSeriesOptions& options, const std::string& purpose);
 
-// `ct` as a derived CT series of `source`'s study (same patient and study, new series and instance UIDs, ImageType
-// DERIVED\SECONDARY\AXIAL, the original series referenced, every source instance in each slice's Source Image Sequence,
-// int16 samples with rescale slope 1 and intercept 0), one Part 10 file's bytes per slice in slice order. A left-
-// handed grid is written with its slices in reverse order. `info` (optional) receives the new series' description.
+// `ct` as a derived CT series of `source`'s study (same patient and study, new series and instance UIDs, the
+// original series referenced, every source image in each slice's derivation, int16 samples with rescale slope 1 and
+// intercept 0). options.ct_format says how: single-frame CT images (ImageType DERIVED\SECONDARY\AXIAL), one Part 10
+// file's bytes per slice in slice order; or one multi-frame Enhanced CT image (DERIVED\PRIMARY\VOLUME\NONE), one
+// file. A left-handed grid is written with its slices in reverse order. `info` (optional) receives the new series'
+// description (an Enhanced CT's: its frame numbers too).
 Result<std::vector<std::string>> encode_derived_ct(const IntensityVolume& ct, const SeriesInfo& source,
                                                    const DerivedSeriesOptions& options, SeriesInfo* info = nullptr);
 // The same written into `directory` (made; it must be empty or missing), one file per slice named by instance
