@@ -36,6 +36,7 @@ struct Formats {
 // One format: the sample stored `studies` times in a fresh Orthanc, the batch run over it; the per-row table and the
 // ratio of fetch + encode + store to the pose.
 void run_format(const Formats& formats, int studies, int jobs, const fs::path& work) {
+  std::fflush(stdout);  // Orthanc's process starts from this one: it must not inherit what is buffered here
   fs::create_directories(work);
   testing_support::OrthancProcess orthanc(work / "orthanc");
   if (!orthanc.ready()) throw std::runtime_error("Orthanc did not start:\n" + orthanc.log());

@@ -1,6 +1,8 @@
-// The DICOM path of the posewarp command, as a PACS-side user runs it: the sample exported as a DICOM CT series and
-// SEG, a rig built from them, a pose written as a derived CT series and a SEG of the same study; the DICOM outputs
-// hold what the NIfTI outputs of the same pose hold, and refer to the study and series they came from.
+// The DICOM path of the posewarp command, as a PACS-side user runs it, in each format (a CT series and a binary SEG;
+// one Enhanced CT and a label map SEG): the sample exported as DICOM, a rig built from it, a pose written as a
+// derived CT and a SEG of the same study; the DICOM outputs hold what the NIfTI outputs of the same pose hold, voxel
+// for voxel, as posewarp reads them and as highdicom, dcmqi and SimpleITK read them; they refer to the study and
+// series they came from.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -22,8 +24,16 @@ namespace fs = std::filesystem;
 using testing_support::run;
 using testing_support::text;
 
-TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
-  const fs::path dir = fs::temp_directory_path() / ("posewarp-dicom-cli-" + std::to_string(::getpid()));
+struct Formats {
+  std::string ct, seg;
+};
+
+class DicomCli : public ::testing::TestWithParam<Formats> {};
+
+TEST_P(DicomCli, TheSampleIsPosedFromDicomToDicom) {
+  const std::string ct_format = GetParam().ct, seg_format = GetParam().seg;
+  const fs::path dir =
+      fs::temp_directory_path() / ("posewarp-dicom-cli-" + std::to_string(::getpid()) + "-" + ct_format);
   fs::remove_all(dir);
   fs::create_directories(dir);
   const std::string sample = std::string(POSEWARP_SOURCE_DIR) + "/data/totalsegmentator_example";
@@ -31,7 +41,8 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   const fs::path log = dir / "log.txt";
   ASSERT_EQ(
       run({POSEWARP_CLI, "dicom", "export", "--ct", sample + "/ct.nii.gz", "--labels", sample + "/seg_total.nii.gz",
-           "--patient-name", "Sample^Phantom", "--patient-id", "PW-7", "-o", (dir / "study").string()},
+           "--patient-name", "Sample^Phantom", "--patient-id", "PW-7", "--ct-format", ct_format, "--seg-format",
+           seg_format, "-o", (dir / "study").string()},
           log),
       0)
       << text(log);
@@ -43,11 +54,12 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
                  (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string(), "--uid-root",
                  "1.2.826.0.1.3680043.10.42", "--labels-out", (dir / "labels.nii.gz").string(), "--ct-out",
-                 (dir / "ct.nii.gz").string()},
+                 (dir / "ct.nii.gz").string(), "--ct-format", ct_format, "--seg-format", seg_format},
                 log),
             0)
       << text(log);
   EXPECT_EQ(text(log).find("W: "), std::string::npos) << "DCMTK's own log leaked: " << text(log);
+  EXPECT_EQ(api::list_dicom_files((dir / "posed/ct").string())->size(), ct_format == "enhanced" ? 1u : 112u);
   // The derived CT series: the same voxels as the NIfTI CT of the same pose, in the source's study.
   Result<api::CtSeries> source = api::read_ct_directory((dir / "study/ct").string());
   Result<api::CtSeries> posed = api::read_ct_directory((dir / "posed/ct").string());
@@ -103,6 +115,18 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
     }
   }
   EXPECT_GT(labelled, 5000);
+  // Readers that are not posewarp's see the same voxels (tests/dicom/read_independently.py, in the project's venv).
+  const fs::path venv_path = dir / "venv.txt";
+  ASSERT_EQ(std::system((std::string(POSEWARP_SOURCE_DIR) + "/scripts/python-env > '" + venv_path.string() + "'").c_str()),
+            0);
+  const std::string venv = text(venv_path).substr(0, text(venv_path).find('\n'));
+  const int independent =
+      run({"/usr/bin/env", "PATH=" + venv + "/bin:/usr/bin:/bin", venv + "/bin/python",
+           std::string(POSEWARP_SOURCE_DIR) + "/tests/dicom/read_independently.py", (dir / "posed").string(),
+           (dir / "labels.nii.gz").string(), (dir / "ct.nii.gz").string()},
+          log);
+  EXPECT_EQ(independent, 0) << text(log);
+  EXPECT_EQ(testing_support::lines_of(log), 4u) << text(log);  // highdicom and dcmqi (the SEG), highdicom and SimpleITK
   // An output directory that holds something is refused before any work.
   EXPECT_EQ(run({POSEWARP_CLI, "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
                  (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string()},
@@ -132,6 +156,13 @@ TEST(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   EXPECT_NE(text(log).find("is not the CT series the rig was built from"), std::string::npos) << text(log);
   fs::remove_all(dir);
 }
+
+INSTANTIATE_TEST_SUITE_P(Formats, DicomCli,
+                         ::testing::Values(Formats{"series", "binary"}, Formats{"enhanced", "labelmap"}),
+                         [](const ::testing::TestParamInfo<Formats>& param_info) {
+                           return param_info.param.ct == "series" ? std::string("CtSeriesBinarySeg")
+                                                                  : std::string("EnhancedCtLabelMapSeg");
+                         });
 
 }  // namespace
 }  // namespace posewarp
