@@ -16,6 +16,7 @@
 #include <set>
 
 #include "posewarp/dicom/ct_series.h"
+#include "posewarp/dicom/segmentation.h"
 #include "made_up_source.h"
 #include "posewarp/io/volume_io.h"
 
@@ -302,6 +303,34 @@ TEST_F(DicomCt, TiltedGappyRepeatedMixedAndOtherSeriesAreRefusedWithAReason) {
   // Another modality; a damaged file.
   refused({edited(files[0], [](DcmDataset& d) { d.putAndInsertString(DCM_Modality, "MR"); })}, "modality 'MR'");
   refused({files[0].substr(0, 300)}, "not a readable DICOM file");
+}
+
+// A damaged length field (an element declaring more bytes than the file has) is refused before DCMTK allocates
+// what it declares; the fuzzer's inputs (tests/fuzz/corpus/dicom) give a volume, a segmentation or an error.
+TEST_F(DicomCt, ALengthBeyondTheFileIsRefusedBeforeItIsAllocated) {
+  const std::vector<std::string> files = *encode_derived_ct(sample_ct(), made_up_source(), {});
+  std::string damaged = files.front();
+  const size_t at = damaged.find(std::string("\x10\x00\x10\x00PN", 6));  // Patient's Name, a 2-byte length
+  ASSERT_NE(at, std::string::npos);
+  damaged.replace(at + 4, 4, std::string("OB\0\0", 4));  // now an OB: 2 reserved bytes, a 4-byte length
+  damaged.insert(at + 8, std::string("\xf0\xff\xff\xff", 4));
+  Result<CtSeries> refused = read_ct_series({damaged});
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), StatusCode::kDataLoss);
+  EXPECT_NE(refused.status().message().find("element (0010,0010) declares 4294967280 bytes"), std::string::npos)
+      << refused.status().message();
+  int inputs = 0;
+  for (const auto& entry : fs::directory_iterator(std::string(POSEWARP_SOURCE_DIR) + "/tests/fuzz/corpus/dicom")) {
+    std::ifstream in(entry.path(), std::ios::binary);
+    const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    if (bytes.empty()) continue;
+    (void)read_ct_series({bytes.substr(1)});
+    ImageGeometry grid;
+    grid.size = {8, 6, 4};
+    (void)read_segmentation(bytes.substr(1), grid);
+    ++inputs;
+  }
+  EXPECT_GE(inputs, 7);
 }
 
 TEST_F(DicomCt, EachSlicesRescaleIsApplied) {
