@@ -53,8 +53,8 @@ void run_format(const Formats& formats, int studies, int jobs, const fs::path& w
   const std::string poses = std::string(POSEWARP_SOURCE_DIR) + "/data/poses";
   size_t ct_bytes = 0, seg_bytes = 0, ct_files = 0;
   for (int s = 0; s < studies; ++s) {
-    Result<api::DicomOutputs> study = api::encode_new_dicom_study(
-        ct, labels, map, "Bench^Patient" + std::to_string(s), "BENCH-" + std::to_string(s), options);
+    Result<api::DicomOutputs> study = api::encode_new_dicom_study(ct, labels, map, "Bench^Patient" + std::to_string(s),
+                                                                  "BENCH-" + std::to_string(s), options);
     if (!study.ok()) throw std::runtime_error(study.status().to_string());
     for (const std::string& f : study->ct_files) ct_bytes += f.size();
     seg_bytes += study->seg_file.size();
@@ -71,25 +71,25 @@ void run_format(const Formats& formats, int studies, int jobs, const fs::path& w
   const std::string command = std::string("'") + POSEWARP_CLI + "' -q batch '" + (work / "rows.csv").string() +
                               "' --jobs " + std::to_string(jobs) + " --ct-format " + formats.ct + " --seg-format " +
                               formats.seg + " --pacs '" + orthanc.options().base_url +
-                              "' --pacs-user posewarp --pacs-password-file '" + (work / "password").string() +
-                              "' > '" + (work / "batch.log").string() + "' 2>&1";
+                              "' --pacs-user posewarp --pacs-password-file '" + (work / "password").string() + "' > '" +
+                              (work / "batch.log").string() + "' 2>&1";
   std::fflush(stdout);  // the batch's process must not inherit what is buffered here
   const auto start = std::chrono::steady_clock::now();
   const int code = std::system(command.c_str());
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (code != 0) throw std::runtime_error("the batch failed:\n" + file_text(work / "batch.log"));
   const nlohmann::json summary = nlohmann::json::parse(file_text(work / "rows.summary.json"));
-  std::printf("\n== CT %s, SEG %s: %d studies of the sample in Orthanc (CT %.1f MB in %zu files, SEG %.1f MB), %zu rows, "
-              "--jobs %d: %.1f s wall\n",
-              formats.ct.c_str(), formats.seg.c_str(), studies, static_cast<double>(ct_bytes) / studies / 1e6, ct_files,
-              static_cast<double>(seg_bytes) / studies / 1e6, summary["rows"].size(), jobs, wall);
+  std::printf(
+      "\n== CT %s, SEG %s: %d studies of the sample in Orthanc (CT %.1f MB in %zu files, SEG %.1f MB), %zu rows, "
+      "--jobs %d: %.1f s wall\n",
+      formats.ct.c_str(), formats.seg.c_str(), studies, static_cast<double>(ct_bytes) / studies / 1e6, ct_files,
+      static_cast<double>(seg_bytes) / studies / 1e6, summary["rows"].size(), jobs, wall);
   std::printf("%-10s %8s %8s %8s %8s %8s   (seconds)\n", "row", "fetch", "rig", "pose", "encode", "store");
   double overhead_sum = 0, pose_sum = 0, rows = 0;
   for (const nlohmann::json& row : summary["rows"]) {
     const nlohmann::json& t = row["seconds"];
-    std::printf("%-10s %8.3f %8.3f %8.3f %8.3f %8.3f\n", row["id"].get<std::string>().c_str(),
-                t["fetch"].get<double>(), t["rig"].get<double>(), t["pose"].get<double>(), t["encode"].get<double>(),
-                t["store"].get<double>());
+    std::printf("%-10s %8.3f %8.3f %8.3f %8.3f %8.3f\n", row["id"].get<std::string>().c_str(), t["fetch"].get<double>(),
+                t["rig"].get<double>(), t["pose"].get<double>(), t["encode"].get<double>(), t["store"].get<double>());
     // A study's fetch is charged to its first row: the sums compare (per row on average).
     overhead_sum += t["fetch"].get<double>() + t["encode"].get<double>() + t["store"].get<double>();
     pose_sum += t["pose"].get<double>();
@@ -115,13 +115,16 @@ int main(int argc, char** argv) {
         formats.push_back({item.substr(0, slash), slash == std::string::npos ? "binary" : item.substr(slash + 1)});
         const Formats& f = formats.back();
         if ((f.ct != "series" && f.ct != "enhanced") || (f.seg != "binary" && f.seg != "labelmap")) {
-          std::fprintf(stderr, "posewarp_bench_pacs: --formats takes CT/SEG pairs: series|enhanced / binary|labelmap\n");
+          std::fprintf(stderr,
+                       "posewarp_bench_pacs: --formats takes CT/SEG pairs: series|enhanced / binary|labelmap\n");
           return 2;
         }
       }
     } else {
-      std::fprintf(stderr, "usage: %s [--studies N (5)] [--jobs J (1)] [--formats CT/SEG,... "
-                           "(series/binary,enhanced/labelmap)]\n", argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--studies N (5)] [--jobs J (1)] [--formats CT/SEG,... "
+                   "(series/binary,enhanced/labelmap)]\n",
+                   argv[0]);
       return 2;
     }
   }

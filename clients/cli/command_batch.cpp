@@ -17,16 +17,16 @@
 #include <sstream>
 #include <thread>
 
+#include "batch_manifest.h"
 #include "cli_support.h"
+#include "dicom_format_options.h"
 #include "pacs_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/pacs.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/api/support.h"
-#include "posewarp/api/pacs.h"
-#include "batch_manifest.h"
-#include "dicom_format_options.h"
 #include "remote.h"
 
 namespace posewarp::cli {

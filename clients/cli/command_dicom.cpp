@@ -44,8 +44,8 @@ int run_export(const ExportOptions& o) {
   if (!outputs.ok()) return report(outputs.status());
   if (Status s = api::write_dicom_outputs(*outputs, o.out); !s.ok()) return report(s);
   const std::string written = outputs->ct.frame_numbers.empty()
-                             ? "a CT series of " + std::to_string(outputs->ct_files.size()) + " images"
-                             : "an Enhanced CT of " + std::to_string(outputs->ct.slice_count()) + " frames";
+                                  ? "a CT series of " + std::to_string(outputs->ct_files.size()) + " images"
+                                  : "an Enhanced CT of " + std::to_string(outputs->ct.slice_count()) + " frames";
   say("wrote " + written + " (" + o.out + "/ct/) and its " + o.formats.seg + " SEG (" + o.out + "/seg.dcm), study " +
       outputs->ct.study_instance_uid);
   return 0;
@@ -62,8 +62,9 @@ int run_dicom_info(const InfoOptions& o) {
   const ImageGeometry& g = series->ct.geometry();
   std::printf("study %s, series %s (%s), %s\n", i.study_instance_uid.c_str(), i.series_instance_uid.c_str(),
               i.series_description.c_str(),
-              i.frame_numbers.empty() ? (std::to_string(i.slice_count()) + " images").c_str()
-                                      : ("one multi-frame image of " + std::to_string(i.slice_count()) + " frames").c_str());
+              i.frame_numbers.empty()
+                  ? (std::to_string(i.slice_count()) + " images").c_str()
+                  : ("one multi-frame image of " + std::to_string(i.slice_count()) + " frames").c_str());
   std::printf("grid %lld x %lld x %lld, spacing %.3f x %.3f x %.3f mm\n", static_cast<long long>(g.size[0]),
               static_cast<long long>(g.size[1]), static_cast<long long>(g.size[2]), g.spacing[0], g.spacing[1],
               g.spacing[2]);

@@ -210,9 +210,9 @@ Status write_dicom(const PoseOptions& o, const api::SeriesInfo& source, const ap
                             api::encode_dicom_outputs(*result.ct, *result.labels, map, source, options));
   POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(outputs, o.dicom_out));
   say("wrote the derived CT (" +
-      (outputs.ct.frame_numbers.empty() ? std::to_string(outputs.ct_files.size()) + " images"
-                                        : "one Enhanced CT image of " + std::to_string(outputs.ct.slice_count()) +
-                                              " frames") +
+      (outputs.ct.frame_numbers.empty()
+           ? std::to_string(outputs.ct_files.size()) + " images"
+           : "one Enhanced CT image of " + std::to_string(outputs.ct.slice_count()) + " frames") +
       ") and its " + o.dicom_formats.seg + " SEG to " + o.dicom_out);
   return ok_status();
 }

@@ -67,8 +67,8 @@ struct Slice {
   double pixel_spacing[2] = {0, 0};  // between rows, between columns
   int rows = 0, columns = 0;
   double slope = 1, intercept = 0;
-  double along = 0;                // position along the slice normal
-  int index = 0;                   // in the input, for messages
+  double along = 0;               // position along the slice normal
+  int index = 0;                  // in the input, for messages
   const char* unit = "instance";  // what it is, for messages: an instance, or a frame of a multi-frame image
 };
 
@@ -145,7 +145,6 @@ std::string describe_series(const std::map<std::string, int>& counts) {
   return list;
 }
 
-
 // Every instance parsed, in input order; `counts` receives the number of instances of each series.
 Result<std::vector<Slice>> parse_instances(const std::vector<std::string>& instances,
                                            std::map<std::string, int>* counts) {
@@ -185,8 +184,8 @@ Status check_one_stack(const std::vector<Slice>& slices, const std::string& uid)
     if (s.rows != first.rows || s.columns != first.columns ||
         std::abs(s.pixel_spacing[0] - first.pixel_spacing[0]) > 1e-4 ||
         std::abs(s.pixel_spacing[1] - first.pixel_spacing[1]) > 1e-4) {
-      return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (" + s.unit +
-                                    " " + std::to_string(s.index + 1) + ")");
+      return invalid_argument_error("series " + uid + " mixes image sizes or pixel spacings (" + s.unit + " " +
+                                    std::to_string(s.index + 1) + ")");
     }
   }
   return ok_status();

@@ -120,7 +120,8 @@ Status check_part10_lengths(const std::string& b, const std::string& what) {
       const uint32_t length = is_long ? u32(b, p + 8) : u16(b, p + 6);
       const size_t value = p + (is_long ? 12 : 8);
       if (length > b.size() - value) {
-        return data_loss_error(what + " is not a readable DICOM file: its meta header declares more bytes than it has "
+        return data_loss_error(what +
+                               " is not a readable DICOM file: its meta header declares more bytes than it has "
                                "(damaged or cut short)");
       }
       if (u16(b, p + 2) == 0x0010) syntax = b.substr(value, length);
@@ -130,8 +131,8 @@ Status check_part10_lengths(const std::string& b, const std::string& what) {
     if (syntax == "1.2.840.10008.1.2.2" || syntax == "1.2.840.10008.1.2.1.99") return ok_status();
     return check_lengths(b, p, syntax != "1.2.840.10008.1.2", what);
   }
-  const bool explicit_vr = b.size() >= 6 && std::isupper(static_cast<unsigned char>(b[4])) &&
-                           std::isupper(static_cast<unsigned char>(b[5]));
+  const bool explicit_vr =
+      b.size() >= 6 && std::isupper(static_cast<unsigned char>(b[4])) && std::isupper(static_cast<unsigned char>(b[5]));
   return check_lengths(b, 0, explicit_vr, what);
 }
 

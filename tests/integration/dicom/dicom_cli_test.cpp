@@ -39,22 +39,27 @@ TEST_P(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   const std::string sample = std::string(POSEWARP_SOURCE_DIR) + "/data/totalsegmentator_example";
   const std::string pose = std::string(POSEWARP_SOURCE_DIR) + "/data/poses/sample_hip_flexion.json";
   const fs::path log = dir / "log.txt";
-  ASSERT_EQ(
-      run({POSEWARP_CLI, "dicom", "export", "--ct", sample + "/ct.nii.gz", "--labels", sample + "/seg_total.nii.gz",
-           "--patient-name", "Sample^Phantom", "--patient-id", "PW-7", "--ct-format", ct_format, "--seg-format",
-           seg_format, "-o", (dir / "study").string()},
-          log),
-      0)
+  ASSERT_EQ(run({POSEWARP_CLI, "dicom", "export", "--ct", sample + "/ct.nii.gz", "--labels",
+                 sample + "/seg_total.nii.gz", "--patient-name", "Sample^Phantom", "--patient-id", "PW-7",
+                 "--ct-format", ct_format, "--seg-format", seg_format, "-o", (dir / "study").string()},
+                log),
+            0)
       << text(log);
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "rig", "build", "--labels", (dir / "study/seg.dcm").string(), "--ct",
                  (dir / "study/ct").string(), "-o", (dir / "sample.rig").string()},
                 log),
             0)
       << text(log);
-  ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", (dir / "sample.rig").string(), "--pose", pose, "--dicom-out",
-                 (dir / "posed").string(), "--dicom-source", (dir / "study/ct").string(), "--uid-root",
-                 "1.2.826.0.1.3680043.10.42", "--labels-out", (dir / "labels.nii.gz").string(), "--ct-out",
-                 (dir / "ct.nii.gz").string(), "--ct-format", ct_format, "--seg-format", seg_format},
+  ASSERT_EQ(run({POSEWARP_CLI,     "-q",
+                 "pose",           (dir / "sample.rig").string(),
+                 "--pose",         pose,
+                 "--dicom-out",    (dir / "posed").string(),
+                 "--dicom-source", (dir / "study/ct").string(),
+                 "--uid-root",     "1.2.826.0.1.3680043.10.42",
+                 "--labels-out",   (dir / "labels.nii.gz").string(),
+                 "--ct-out",       (dir / "ct.nii.gz").string(),
+                 "--ct-format",    ct_format,
+                 "--seg-format",   seg_format},
                 log),
             0)
       << text(log);
@@ -117,8 +122,9 @@ TEST_P(DicomCli, TheSampleIsPosedFromDicomToDicom) {
   EXPECT_GT(labelled, 5000);
   // Readers that are not posewarp's see the same voxels (tests/dicom/read_independently.py, in the project's venv).
   const fs::path venv_path = dir / "venv.txt";
-  ASSERT_EQ(std::system((std::string(POSEWARP_SOURCE_DIR) + "/scripts/python-env > '" + venv_path.string() + "'").c_str()),
-            0);
+  ASSERT_EQ(
+      std::system((std::string(POSEWARP_SOURCE_DIR) + "/scripts/python-env > '" + venv_path.string() + "'").c_str()),
+      0);
   const std::string venv = text(venv_path).substr(0, text(venv_path).find('\n'));
   const int independent =
       run({"/usr/bin/env", "PATH=" + venv + "/bin:/usr/bin:/bin", venv + "/bin/python",

@@ -122,13 +122,12 @@ TEST(OrthancTrigger, AStudyWithASegIsRepositionedOnTheServerAndStoredBackOnce) {
     Result<std::vector<std::string>> ct_files = client.retrieve_series(study_uid, derived_ct, (dir / "ct").string());
     Result<std::vector<std::string>> seg_files = client.retrieve_series(study_uid, derived_seg, (dir / "seg").string());
     ASSERT_TRUE(ct_files.ok() && seg_files.ok() && ct_files->size() == 1 && seg_files->size() == 1);
-    Result<api::DicomStudy> posed = api::read_dicom_study((dir / "ct").string(), seg_files->front(),
-                                                          *api::preset_by_name("totalsegmentator"));
+    Result<api::DicomStudy> posed =
+        api::read_dicom_study((dir / "ct").string(), seg_files->front(), *api::preset_by_name("totalsegmentator"));
     ASSERT_TRUE(posed.ok()) << posed.status().to_string();
     EXPECT_EQ(posed->ct.info.sop_class_uid, "1.2.840.10008.5.1.4.1.1.2.1");
     EXPECT_EQ(posed->ct.info.frame_numbers.size(), static_cast<size_t>(posed->ct.ct.geometry().size[2]));
-    EXPECT_NE(text(seg_files->front()).find("1.2.840.10008.5.1.4.1.1.66.7"), std::string::npos)
-        << "a label map SEG";
+    EXPECT_NE(text(seg_files->front()).find("1.2.840.10008.5.1.4.1.1.66.7"), std::string::npos) << "a label map SEG";
     EXPECT_GT(posed->segments.size(), 20u);
     // The rig was built on the server.
     EXPECT_EQ(testing_support::run({POSEWARP_CLI, "-q", "rig", "list", "--server", server.address()}, dir / "list.txt"),

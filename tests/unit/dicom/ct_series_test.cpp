@@ -15,9 +15,9 @@
 #include <functional>
 #include <set>
 
+#include "made_up_source.h"
 #include "posewarp/dicom/ct_series.h"
 #include "posewarp/dicom/segmentation.h"
-#include "made_up_source.h"
 #include "posewarp/io/volume_io.h"
 
 namespace posewarp::dicom {

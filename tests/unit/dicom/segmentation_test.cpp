@@ -170,15 +170,15 @@ TEST_P(DicomSegFormats, DciodvfyFindsNoErrorsWhereItKnowsTheObject) {
   fs::remove_all(dir);
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    AllFormats, DicomSegFormats,
-    ::testing::Values(std::pair{CtFormat::kSeries, SegFormat::kBinary}, std::pair{CtFormat::kSeries, SegFormat::kLabelMap},
-                      std::pair{CtFormat::kEnhanced, SegFormat::kBinary},
-                      std::pair{CtFormat::kEnhanced, SegFormat::kLabelMap}),
-    [](const ::testing::TestParamInfo<std::pair<CtFormat, SegFormat>>& param_info) {
-      return std::string(param_info.param.first == CtFormat::kSeries ? "Series" : "EnhancedCt") +
-             (param_info.param.second == SegFormat::kBinary ? "BinarySeg" : "LabelMapSeg");
-    });
+INSTANTIATE_TEST_SUITE_P(AllFormats, DicomSegFormats,
+                         ::testing::Values(std::pair{CtFormat::kSeries, SegFormat::kBinary},
+                                           std::pair{CtFormat::kSeries, SegFormat::kLabelMap},
+                                           std::pair{CtFormat::kEnhanced, SegFormat::kBinary},
+                                           std::pair{CtFormat::kEnhanced, SegFormat::kLabelMap}),
+                         [](const ::testing::TestParamInfo<std::pair<CtFormat, SegFormat>>& param_info) {
+                           return std::string(param_info.param.first == CtFormat::kSeries ? "Series" : "EnhancedCt") +
+                                  (param_info.param.second == SegFormat::kBinary ? "BinarySeg" : "LabelMapSeg");
+                         });
 
 TEST(DicomSeg, SegsOfAnotherGridOrNotSegsAreRefused) {
   for (const SegFormat format : {SegFormat::kBinary, SegFormat::kLabelMap}) {

@@ -16,8 +16,8 @@ namespace posewarp::api {
 using posewarp::CtFormat;
 using posewarp::CtSeries;
 using posewarp::DerivedSeriesOptions;
-using posewarp::SegFormat;
 using posewarp::DicomSegment;
+using posewarp::SegFormat;
 using posewarp::SeriesInfo;
 
 // True when `path` is a regular file that starts as a DICOM Part 10 file (a 128-byte preamble, then "DICM").
