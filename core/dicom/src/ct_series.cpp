@@ -44,12 +44,6 @@ double norm(const Vec& a) {
   return std::sqrt(dot(a, a));
 }
 
-std::string text(DcmItem& item, const DcmTagKey& tag) {
-  OFString value;
-  if (item.findAndGetOFStringArray(tag, value).bad()) return {};
-  return value.c_str();
-}
-
 bool numbers(DcmItem& item, const DcmTagKey& tag, double* out, int count) {
   for (int i = 0; i < count; ++i) {
     Float64 value = 0;
@@ -78,14 +72,14 @@ Result<Slice> parse(const std::string& bytes, int index) {
   slice.index = index;
   POSEWARP_ASSIGN_OR_RETURN(slice.file, parse_part10(bytes, name));
   DcmDataset& d = *slice.file->getDataset();
-  slice.series_uid = text(d, DCM_SeriesInstanceUID);
+  slice.series_uid = text_of(d, DCM_SeriesInstanceUID);
   if (slice.series_uid.empty()) return invalid_argument_error(name + " has no SeriesInstanceUID");
   return slice;
 }
 
 // An image of the CT: modality CT, 16-bit greyscale pixels (decoded here where compressed); its rows and columns.
 Status check_ct_pixels(DcmDataset& d, const std::string& name, int* rows_out, int* columns_out) {
-  const std::string modality = text(d, DCM_Modality);
+  const std::string modality = text_of(d, DCM_Modality);
   if (modality != "CT") {
     return invalid_argument_error(name + " has modality '" + modality + "'; posewarp reads CT series here");
   }
@@ -272,32 +266,32 @@ Status read_pixels(const std::vector<Slice>& slices, const std::string& uid, CtS
           representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
       out_slice[i] = static_cast<float>(stored * slices[k].slope + slices[k].intercept);
     }
-    out->info.sop_instance_uids.push_back(text(d, DCM_SOPInstanceUID));
+    out->info.sop_instance_uids.push_back(text_of(d, DCM_SOPInstanceUID));
   }
   return ok_status();
 }
 
 // Patient, study and series attributes of series `uid` from its instance `d` (not the instances' UIDs).
 void read_series_info(DcmDataset& d, const std::string& uid, SeriesInfo* info) {
-  info->specific_character_set = text(d, DCM_SpecificCharacterSet);
-  info->patient_name = text(d, DCM_PatientName);
-  info->patient_id = text(d, DCM_PatientID);
-  info->patient_birth_date = text(d, DCM_PatientBirthDate);
-  info->patient_sex = text(d, DCM_PatientSex);
-  info->study_instance_uid = text(d, DCM_StudyInstanceUID);
-  info->study_date = text(d, DCM_StudyDate);
-  info->study_time = text(d, DCM_StudyTime);
-  info->study_id = text(d, DCM_StudyID);
-  info->accession_number = text(d, DCM_AccessionNumber);
-  info->referring_physician_name = text(d, DCM_ReferringPhysicianName);
-  info->study_description = text(d, DCM_StudyDescription);
+  info->specific_character_set = text_of(d, DCM_SpecificCharacterSet);
+  info->patient_name = text_of(d, DCM_PatientName);
+  info->patient_id = text_of(d, DCM_PatientID);
+  info->patient_birth_date = text_of(d, DCM_PatientBirthDate);
+  info->patient_sex = text_of(d, DCM_PatientSex);
+  info->study_instance_uid = text_of(d, DCM_StudyInstanceUID);
+  info->study_date = text_of(d, DCM_StudyDate);
+  info->study_time = text_of(d, DCM_StudyTime);
+  info->study_id = text_of(d, DCM_StudyID);
+  info->accession_number = text_of(d, DCM_AccessionNumber);
+  info->referring_physician_name = text_of(d, DCM_ReferringPhysicianName);
+  info->study_description = text_of(d, DCM_StudyDescription);
   info->series_instance_uid = uid;
-  info->series_number = text(d, DCM_SeriesNumber);
-  info->series_description = text(d, DCM_SeriesDescription);
-  info->modality = text(d, DCM_Modality);
-  info->patient_position = text(d, DCM_PatientPosition);
-  info->frame_of_reference_uid = text(d, DCM_FrameOfReferenceUID);
-  info->sop_class_uid = text(d, DCM_SOPClassUID);
+  info->series_number = text_of(d, DCM_SeriesNumber);
+  info->series_description = text_of(d, DCM_SeriesDescription);
+  info->modality = text_of(d, DCM_Modality);
+  info->patient_position = text_of(d, DCM_PatientPosition);
+  info->frame_of_reference_uid = text_of(d, DCM_FrameOfReferenceUID);
+  info->sop_class_uid = text_of(d, DCM_SOPClassUID);
 }
 
 // A multi-frame CT image (an Enhanced CT) as the volume of its frames: each frame placed by its functional groups,
@@ -348,7 +342,7 @@ Result<CtSeries> read_multiframe_ct(Slice& image, const std::string& uid) {
     out.info.frame_numbers.push_back(frames[k].index + 1);
   }
   read_series_info(d, uid, &out.info);
-  out.info.sop_instance_uids = {text(d, DCM_SOPInstanceUID)};
+  out.info.sop_instance_uids = {text_of(d, DCM_SOPInstanceUID)};
   return out;
 }
 
@@ -371,7 +365,7 @@ SliceAxes slice_axes(const ImageGeometry& g) {
   axes.row = {g.direction[0], g.direction[3], g.direction[6]};
   axes.column = {g.direction[1], g.direction[4], g.direction[7]};
   axes.slice_axis = {g.direction[2], g.direction[5], g.direction[8]};
-  axes.reverse = dot(cross(axes.row, axes.column), axes.slice_axis) < 0;
+  axes.reverse = written_in_reverse(g);
   return axes;
 }
 
@@ -438,6 +432,17 @@ void put_series_attributes(DcmDataset& d, const SeriesInfo& info, const DerivedS
   for (const auto& [tag, value] : attributes) put(d, tag, value);
 }
 
+void put_hu_pixel_module(DcmItem& d, const ImageGeometry& g) {
+  d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
+  put(d, DCM_PhotometricInterpretation, "MONOCHROME2");
+  d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
+  d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
+  d.putAndInsertUint16(DCM_BitsAllocated, 16);
+  d.putAndInsertUint16(DCM_BitsStored, 16);
+  d.putAndInsertUint16(DCM_HighBit, 15);
+  d.putAndInsertUint16(DCM_PixelRepresentation, 1);
+}
+
 int64_t hu_samples(const IntensityVolume& ct, int64_t k, int16_t* out) {
   const ImageGeometry& g = ct.geometry();
   const size_t per_slice = static_cast<size_t>(g.size[0] * g.size[1]);
@@ -500,14 +505,7 @@ void put_slice_geometry(DcmDataset& d, const ImageGeometry& g, const SliceAxes& 
 // Slice `k` of `ct` as int16 HU pixels, rescale 1 and 0; the number of values clipped to fit int16.
 int64_t put_ct_pixels(DcmDataset& d, const IntensityVolume& ct, int64_t k) {
   const ImageGeometry& g = ct.geometry();
-  d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
-  put(d, DCM_PhotometricInterpretation, "MONOCHROME2");
-  d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
-  d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
-  d.putAndInsertUint16(DCM_BitsAllocated, 16);
-  d.putAndInsertUint16(DCM_BitsStored, 16);
-  d.putAndInsertUint16(DCM_HighBit, 15);
-  d.putAndInsertUint16(DCM_PixelRepresentation, 1);
+  put_hu_pixel_module(d, g);
   put(d, DCM_RescaleIntercept, "0");
   put(d, DCM_RescaleSlope, "1");
   put(d, DCM_RescaleType, "HU");

@@ -37,6 +37,8 @@ Result<SeriesInfo> derived_series_info(const SeriesInfo& source, const DerivedSe
 // The instance's identity (SOP class: `info`'s), the source's patient and study, and the new series.
 void put_series_attributes(DcmDataset& d, const SeriesInfo& info, const DerivedSeriesOptions& options,
                            const DerivedInstance& instance);
+// Image Pixel of int16 HU samples: one sample, MONOCHROME2, `g`'s rows and columns, 16 bits signed.
+void put_hu_pixel_module(DcmItem& d, const ImageGeometry& g);
 // Slice `k` of `ct` as int16 HU, rounded half away from zero; the number of values clipped to fit.
 int64_t hu_samples(const IntensityVolume& ct, int64_t k, int16_t* out);
 

@@ -13,14 +13,6 @@
 namespace posewarp::dicom {
 namespace {
 
-void put_code(DcmItem& parent, const DcmTagKey& sequence, const DicomCode& code) {
-  DcmItem* item = nullptr;
-  if (parent.findOrCreateSequenceItem(sequence, item, 0).bad()) return;
-  put(*item, DCM_CodeValue, code.value);
-  put(*item, DCM_CodingSchemeDesignator, code.scheme);
-  put(*item, DCM_CodeMeaning, code.meaning);
-}
-
 // A functional group macro (a sequence of one item) in `groups`, made.
 DcmItem* macro(DcmItem& groups, const DcmTagKey& tag) {
   DcmItem* item = nullptr;
@@ -42,7 +34,6 @@ void put_image_modules(DcmDataset& d, const ImageGeometry& g) {
       {DCM_ManufacturerModelName, "posewarp"},
       {DCM_DeviceSerialNumber, "0"},
       {DCM_SoftwareVersions, "1"},
-      {DCM_PhotometricInterpretation, "MONOCHROME2"},
       {DCM_NumberOfFrames, std::to_string(g.size[2])},
   };
   for (const auto& [tag, value] : attributes) put(d, tag, value);
@@ -51,13 +42,7 @@ void put_image_modules(DcmDataset& d, const ImageGeometry& g) {
     d.findAndDeleteElement(tag);
   }
   d.insertEmptyElement(DCM_AcquisitionContextSequence);
-  d.putAndInsertUint16(DCM_SamplesPerPixel, 1);
-  d.putAndInsertUint16(DCM_Rows, static_cast<Uint16>(g.size[1]));
-  d.putAndInsertUint16(DCM_Columns, static_cast<Uint16>(g.size[0]));
-  d.putAndInsertUint16(DCM_BitsAllocated, 16);
-  d.putAndInsertUint16(DCM_BitsStored, 16);
-  d.putAndInsertUint16(DCM_HighBit, 15);
-  d.putAndInsertUint16(DCM_PixelRepresentation, 1);
+  put_hu_pixel_module(d, g);
 }
 
 // What every frame shares: geometry, anatomy, rescale to HU, a soft-tissue window, the frame type, and the source

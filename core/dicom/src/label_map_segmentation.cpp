@@ -14,26 +14,6 @@
 namespace posewarp::dicom {
 namespace {
 
-std::string text(DcmItem& item, const DcmTagKey& tag) {
-  OFString value;
-  if (item.findAndGetOFStringArray(tag, value).bad()) return {};
-  return value.c_str();
-}
-
-void put_code(DcmItem& parent, const DcmTagKey& sequence, const Code& code) {
-  DcmItem* item = nullptr;
-  if (parent.findOrCreateSequenceItem(sequence, item, 0).bad()) return;
-  put(*item, DCM_CodeValue, code.value);
-  put(*item, DCM_CodingSchemeDesignator, code.scheme);
-  put(*item, DCM_CodeMeaning, code.meaning);
-}
-
-Code code_of(DcmItem& parent, const DcmTagKey& sequence) {
-  DcmItem* item = nullptr;
-  if (parent.findAndGetSequenceItem(sequence, item, 0).bad()) return {};
-  return {text(*item, DCM_CodeValue), text(*item, DCM_CodingSchemeDesignator), text(*item, DCM_CodeMeaning)};
-}
-
 // Patient, study, frame of reference and equipment: the CT's; series and instance: the SEG's (`info`).
 void put_identity(DcmDataset& d, const SeriesInfo& ct, const SeriesInfo& info, const DerivedSeriesOptions& options) {
   if (!ct.specific_character_set.empty()) put(d, DCM_SpecificCharacterSet, ct.specific_character_set);
@@ -115,11 +95,7 @@ int put_pixel_description(DcmDataset& d, const ImageGeometry& g, int max_number)
 // label values, as `bits`-bit samples.
 Status put_frames(DcmDataset& d, const LabelVolume& labels, const SeriesInfo& ct, int bits) {
   const ImageGeometry& g = labels.geometry();
-  const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
-  const Vec axis{g.direction[2], g.direction[5], g.direction[8]};
-  const Vec normal{row[1] * column[2] - row[2] * column[1], row[2] * column[0] - row[0] * column[2],
-                   row[0] * column[1] - row[1] * column[0]};
-  const bool reverse = normal[0] * axis[0] + normal[1] * axis[1] + normal[2] * axis[2] < 0;  // as the CT was written
+  const bool reverse = written_in_reverse(g);  // as the CT was written
   const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
   const size_t frames = static_cast<size_t>(g.size[2]);
   // The per-frame items appended one after another (indexing a DCMTK sequence walks its list).
@@ -224,10 +200,10 @@ Result<std::string> encode_label_map_segmentation(const LabelVolume& labels, con
 
 Result<Segmentation> read_label_map_segmentation(DcmDataset& d, const ImageGeometry& grid) {
   Segmentation out;
-  out.series_instance_uid = text(d, DCM_SeriesInstanceUID);
+  out.series_instance_uid = text_of(d, DCM_SeriesInstanceUID);
   DcmItem* referenced = nullptr;
   if (d.findAndGetSequenceItem(DCM_ReferencedSeriesSequence, referenced, 0).good()) {
-    out.referenced_series_uid = text(*referenced, DCM_SeriesInstanceUID);
+    out.referenced_series_uid = text_of(*referenced, DCM_SeriesInstanceUID);
   }
   // Segments by number; a segment numbered 0 (a described background) stays 0.
   std::map<int, bool> numbers;
@@ -243,10 +219,10 @@ Result<Segmentation> read_label_map_segmentation(DcmDataset& d, const ImageGeome
       if (number == 0) continue;
       Segment s;
       s.number = number;
-      s.label = text(*item, DCM_SegmentLabel);
-      s.description = text(*item, DCM_SegmentDescription);
-      s.category = code_of(*item, DCM_SegmentedPropertyCategoryCodeSequence);
-      s.type = code_of(*item, DCM_SegmentedPropertyTypeCodeSequence);
+      s.label = text_of(*item, DCM_SegmentLabel);
+      s.description = text_of(*item, DCM_SegmentDescription);
+      s.category = code_in(*item, DCM_SegmentedPropertyCategoryCodeSequence);
+      s.type = code_in(*item, DCM_SegmentedPropertyTypeCodeSequence);
       out.segments.push_back(s);
     }
   }

@@ -35,7 +35,18 @@ bool numbers(DcmItem* item, const DcmTagKey& tag, double* out, int count) {
   return true;
 }
 
-// A code sequence's one item: value, scheme, meaning.
+}  // namespace
+
+void put(DcmItem& d, const DcmTagKey& tag, const std::string& value) {
+  d.putAndInsertString(tag, value.c_str());
+}
+
+std::string text_of(DcmItem& d, const DcmTagKey& tag) {
+  OFString value;
+  if (d.findAndGetOFStringArray(tag, value).bad()) return {};
+  return value.c_str();
+}
+
 void put_code(DcmItem& parent, const DcmTagKey& sequence, const DicomCode& code) {
   DcmItem* item = nullptr;
   if (parent.findOrCreateSequenceItem(sequence, item, 0).bad()) return;
@@ -44,10 +55,18 @@ void put_code(DcmItem& parent, const DcmTagKey& sequence, const DicomCode& code)
   put(*item, DCM_CodeMeaning, code.meaning);
 }
 
-}  // namespace
+DicomCode code_in(DcmItem& parent, const DcmTagKey& sequence) {
+  DcmItem* item = nullptr;
+  if (parent.findAndGetSequenceItem(sequence, item, 0).bad()) return {};
+  return {text_of(*item, DCM_CodeValue), text_of(*item, DCM_CodingSchemeDesignator), text_of(*item, DCM_CodeMeaning)};
+}
 
-void put(DcmItem& d, const DcmTagKey& tag, const std::string& value) {
-  d.putAndInsertString(tag, value.c_str());
+bool written_in_reverse(const ImageGeometry& g) {
+  const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
+  const Vec axis{g.direction[2], g.direction[5], g.direction[8]};
+  const Vec normal{row[1] * column[2] - row[2] * column[1], row[2] * column[0] - row[0] * column[2],
+                   row[0] * column[1] - row[1] * column[0]};
+  return normal[0] * axis[0] + normal[1] * axis[1] + normal[2] * axis[2] < 0;
 }
 
 std::string decimal(double value) {

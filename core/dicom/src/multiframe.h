@@ -17,8 +17,12 @@ namespace posewarp::dicom {
 
 using Vec = std::array<double, 3>;
 
-// A string attribute, inserted or replaced.
+// A string attribute, inserted or replaced; an attribute's value as text (empty when missing).
 void put(DcmItem& d, const DcmTagKey& tag, const std::string& value);
+std::string text_of(DcmItem& d, const DcmTagKey& tag);
+// A code sequence of one item (value, scheme, meaning) into `parent`; the code a sequence holds (empty if none).
+void put_code(DcmItem& parent, const DcmTagKey& sequence, const DicomCode& code);
+DicomCode code_in(DcmItem& parent, const DcmTagKey& sequence);
 // A number as a DICOM decimal string (at most 16 characters).
 std::string decimal(double value);
 // Now in UTC, as `format` (strftime) writes it: "%Y%m%d" a DICOM date, "%H%M%S" a time.
@@ -29,6 +33,9 @@ std::string utc_now(const char* format);
 DcmItem* shared_groups(DcmItem& d);
 DcmItem* frame_groups(DcmItem& d, size_t f);
 
+// Whether `g`'s slices go out in reverse order: DICOM's slice normal is row x column, and a left-handed grid's slice
+// axis points the other way.
+bool written_in_reverse(const ImageGeometry& g);
 // Slice `k` of `g` in the patient: where its first pixel lies.
 Vec slice_position(const ImageGeometry& g, int64_t k);
 // Pixel Measures and Plane Orientation (Patient) of `g`'s slices, into `groups` (the shared ones).

@@ -348,11 +348,8 @@ std::unique_ptr<FGDerivationImage> derivation_from(const SeriesInfo& ct, size_t 
 Status add_frames(DcmSegmentation& seg, const LabelVolume& labels, const SeriesInfo& ct,
                   const SegmentNumbers& number_of) {
   const ImageGeometry& g = labels.geometry();
-  const Vec row{g.direction[0], g.direction[3], g.direction[6]}, column{g.direction[1], g.direction[4], g.direction[7]};
   const Vec axis{g.direction[2], g.direction[5], g.direction[8]};
-  const Vec normal{row[1] * column[2] - row[2] * column[1], row[2] * column[0] - row[0] * column[2],
-                   row[0] * column[1] - row[1] * column[0]};
-  const bool reverse = normal[0] * axis[0] + normal[1] * axis[1] + normal[2] * axis[2] < 0;  // as the CT was written
+  const bool reverse = written_in_reverse(g);  // as the CT was written
   const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
   std::vector<Uint8> pixels(per_frame);
   FGSegmentation identification;

@@ -21,6 +21,7 @@
 #include <memory>
 
 #include "posewarp/dicom/segmentation.h"
+#include "dataset_edit.h"
 #include "made_up_source.h"
 #include "posewarp/io/volume_io.h"
 
@@ -212,25 +213,11 @@ TEST(DicomSeg, ALabelMapPixelOfNoSegmentIsDataLoss) {
   DerivedSeriesOptions options;
   options.seg_format = SegFormat::kLabelMap;
   const Written w = sample_seg({}, options);
-  DcmFileFormat file;
-  DcmInputBufferStream in;
-  in.setBuffer(w.seg.data(), static_cast<offile_off_t>(w.seg.size()));
-  in.setEos();
-  file.transferInit();
-  ASSERT_TRUE(file.read(in).good());
-  file.transferEnd();
-  DcmSequenceOfItems* segments = nullptr;
-  ASSERT_TRUE(file.getDataset()->findAndGetSequence(DCM_SegmentSequence, segments).good());
-  delete segments->remove(0UL);  // the first segment, label 1 (spleen)
-  std::string bytes(w.seg.size() + 4096, '\0');
-  DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-  file.transferInit();
-  ASSERT_TRUE(file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr).good());
-  file.transferEnd();
-  void* buffer = nullptr;
-  offile_off_t used = 0;
-  out.flushBuffer(buffer, used);
-  bytes.resize(static_cast<size_t>(used));
+  const std::string bytes = edited(w.seg, [](DcmDataset& d) {
+    DcmSequenceOfItems* segments = nullptr;
+    ASSERT_TRUE(d.findAndGetSequence(DCM_SegmentSequence, segments).good());
+    delete segments->remove(0UL);  // the first segment, label 1 (spleen)
+  });
   Result<Segmentation> read = read_segmentation(bytes, w.ct.ct.geometry());
   ASSERT_FALSE(read.ok());
   EXPECT_EQ(read.status().code(), StatusCode::kDataLoss);
@@ -283,15 +270,7 @@ TEST(DicomSeg, AFractionalSegIsThresholdedAtOneHalfWithAWarning) {
   DcmFileFormat file;
   const OFCondition wrote = seg->writeDataset(*file.getDataset());
   ASSERT_TRUE(wrote.good()) << wrote.text();
-  std::string bytes(1 << 20, '\0');
-  DcmOutputBufferStream out(bytes.data(), static_cast<offile_off_t>(bytes.size()));
-  file.transferInit();
-  ASSERT_TRUE(file.write(out, EXS_LittleEndianExplicit, EET_ExplicitLength, nullptr).good());
-  file.transferEnd();
-  void* buffer = nullptr;
-  offile_off_t used = 0;
-  out.flushBuffer(buffer, used);
-  bytes.resize(static_cast<size_t>(used));
+  const std::string bytes = part10_bytes(file, 1 << 20);
 
   ImageGeometry grid;
   grid.size = {4, 4, 2};
