@@ -20,9 +20,9 @@
 #include <fstream>
 #include <memory>
 
-#include "posewarp/dicom/segmentation.h"
 #include "dataset_edit.h"
 #include "made_up_source.h"
+#include "posewarp/dicom/segmentation.h"
 #include "posewarp/io/volume_io.h"
 
 namespace posewarp::dicom {
