@@ -7,7 +7,6 @@
 #include <dcmtk/dcmjpeg/djdecode.h>
 #include <dcmtk/dcmjpls/djdecode.h>
 
-#include <cctype>
 #include <cstdio>
 #include <mutex>
 #include <vector>
@@ -106,6 +105,13 @@ Status check_lengths(const std::string& b, size_t p, bool explicit_vr, const std
   return ok_status();
 }
 
+// Whether the element at `p` is in explicit VR: its tag followed by a VR that DICOM defines (DCMTK's own guess).
+bool names_a_vr(const std::string& b, size_t p) {
+  if (b.size() < p + 6) return false;
+  const char vr[3] = {b[p + 4], b[p + 5], '\0'};
+  return DcmVR(vr).isStandard();
+}
+
 // The lengths of a Part 10 file's meta header (explicit little endian) and of its dataset where it is little endian
 // and not deflated (what DICOM stores in practice; DCMTK alone reads the rest). Bytes without the "DICM" preamble are
 // a bare dataset, explicit when its first element names a VR.
@@ -129,11 +135,10 @@ Status check_part10_lengths(const std::string& b, const std::string& what) {
     }
     while (!syntax.empty() && (syntax.back() == '\0' || syntax.back() == ' ')) syntax.pop_back();
     if (syntax == "1.2.840.10008.1.2.2" || syntax == "1.2.840.10008.1.2.1.99") return ok_status();
-    return check_lengths(b, p, syntax != "1.2.840.10008.1.2", what);
+    // Without a transfer syntax DCMTK guesses the encoding from the first element, as for a bare dataset.
+    return check_lengths(b, p, syntax.empty() ? names_a_vr(b, p) : syntax != "1.2.840.10008.1.2", what);
   }
-  const bool explicit_vr =
-      b.size() >= 6 && std::isupper(static_cast<unsigned char>(b[4])) && std::isupper(static_cast<unsigned char>(b[5]));
-  return check_lengths(b, 0, explicit_vr, what);
+  return check_lengths(b, 0, names_a_vr(b, 0), what);
 }
 
 }  // namespace
