@@ -62,6 +62,7 @@ void add_phantom_commands(CLI::App& app);
 void add_label_commands(CLI::App& app);
 void add_rig_commands(CLI::App& app);
 void add_pose_commands(CLI::App& app);
+void add_match_command(CLI::App& app);
 void add_dicom_commands(CLI::App& app);
 void add_batch_command(CLI::App& app);
 void add_health_command(CLI::App& app);

@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
   cli::add_label_commands(app);
   cli::add_rig_commands(app);
   cli::add_pose_commands(app);
+  cli::add_match_command(app);
   cli::add_dicom_commands(app);
   cli::add_batch_command(app);
   cli::add_health_command(app);

@@ -1,0 +1,86 @@
+// posewarp match: the pose that brings a rig's bones onto the bones of another scan (api::match_posture), written
+// as a pose file any pose command takes, with a table of the residual per bone and an optional JSON report.
+#include <cstdio>
+
+#include "cli_support.h"
+#include "posewarp/api/match.h"
+#include "posewarp/api/rig_file.h"
+
+namespace posewarp::cli {
+namespace {
+
+struct MatchCommandOptions {
+  std::string rig_path, target_labels, preset, label_map_path, pose_out, report_out;
+  bool free_hinges = false;
+};
+
+int run_match(const MatchCommandOptions& o) {
+  if (Status s = refuse_overwriting_inputs({o.pose_out, o.report_out}, {o.rig_path, o.target_labels, o.label_map_path});
+      !s.ok()) {
+    return report(s);
+  }
+  if (Status s = check_output_files({o.pose_out, o.report_out}); !s.ok()) return report(s);
+  Result<api::Rig> rig = api::load_rig(o.rig_path);
+  if (!rig.ok()) return report(rig.status());
+  // The target's names: its own map or preset, else the rig's (the same values).
+  api::LabelMap map = rig->label_map;
+  if (!o.label_map_path.empty() || !o.preset.empty()) {
+    Result<api::LabelMap> given = load_label_map(o.label_map_path, o.label_map_path.empty() ? o.preset : "");
+    if (!given.ok()) return report(given.status());
+    map = std::move(*given);
+  }
+  Result<LabelVolume> target = api::read_label_volume(o.target_labels, read_options());
+  if (!target.ok()) return report(target.status());
+  api::MatchOptions options;
+  options.constrain_hinges = !o.free_hinges;
+  Result<api::PostureMatch> match = api::match_posture(*rig, *target, map, options);
+  if (!match.ok()) return report(match.status());
+  if (Status s = api::write_file_atomically(o.pose_out, api::pose_to_json(match->match.pose), "pose"); !s.ok()) {
+    return report(s);
+  }
+  if (!o.report_out.empty()) {
+    if (Status s = api::write_file_atomically(o.report_out, api::posture_match_to_json(*match), "match report");
+        !s.ok()) {
+      return report(s);
+    }
+  }
+  char line[256];
+  say("segment               joint                   flexion abduction rotation   mean mm  max mm   Dice");
+  for (const api::SegmentMatch& s : match->match.segments) {
+    if (!s.matched) {
+      say(s.segment + ": skipped, " + s.skipped);
+      continue;
+    }
+    std::snprintf(line, sizeof line, "%-21s %-22s %8.1f %9.1f %8.1f %9.2f %7.2f %6.3f", s.segment.c_str(),
+                  s.joint.empty() ? "(root)" : s.joint.c_str(), s.angles_deg.x(), s.angles_deg.y(), s.angles_deg.z(),
+                  s.mean_distance_mm, s.max_distance_mm, s.dice);
+    say(line);
+  }
+  for (const std::string& label : match->unnamed_labels) say("note: the target's label map has no '" + label + "'");
+  std::snprintf(line, sizeof line, "wrote %s (%.2f s)", o.pose_out.c_str(), match->seconds);
+  say(line);
+  return 0;
+}
+
+}  // namespace
+
+void add_match_command(CLI::App& app) {
+  auto o = std::make_shared<MatchCommandOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "match",
+      "Find the pose that brings the rig's bones onto the same bones in another scan's labels (per-bone rigid "
+      "alignment from the root outwards: the root moves and turns, every other bone turns about its joint, a hinge "
+      "about its axis), and write it as a pose file");
+  cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build)")->required();
+  cmd->add_option("--target-labels", o->target_labels, "The other scan's label volume")->required();
+  cmd->add_option("--preset", o->preset, "Built-in label map naming the target's labels (default: the rig's map)");
+  cmd->add_option("--label-map", o->label_map_path, "A label map of one's own naming the target's labels");
+  cmd->add_option("-o,--pose-out", o->pose_out, "The pose found (pose JSON: anatomical angles per joint)")->required();
+  cmd->add_option("--report", o->report_out, "Residual per bone (surface distance, Dice) and the root's motion, JSON");
+  cmd->add_flag("--free-hinges", o->free_hinges, "Let hinges (knee, elbow, ankle) turn every way, not only flex");
+  cmd->callback([o] {
+    if (int code = run_match(*o); code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
+}  // namespace posewarp::cli

@@ -1,0 +1,39 @@
+// A posture match as data: how a rig's pose was fitted to another scan's bones (pose/match.h computes it, the api
+// and the CLI report it).
+#pragma once
+
+#include <Eigen/Core>
+
+#include <string>
+#include <vector>
+
+#include "posewarp/common/pose.h"
+
+namespace posewarp {
+
+struct MatchOptions {
+  int max_iterations = 60;       // ICP iterations per segment
+  int max_points = 3000;         // surface voxels of a segment that take part (evenly subsampled)
+  bool constrain_hinges = true;  // a hinge turns about its flexion axis only
+};
+
+// How one bone segment was matched.
+struct SegmentMatch {
+  std::string segment;
+  std::string joint;  // the joint it turns about ("" for the root)
+  bool matched = false;
+  double volume_ml = 0.0;  // the segment's bone in the rig
+  std::string skipped;     // why not (the segment is missing from the rig's or the target's labels)
+  Eigen::Vector3d angles_deg = Eigen::Vector3d::Zero();  // the joint's flexion, abduction, internal rotation
+  // After the match: the distance of the segment's surface voxels to the target bone's (mean and largest), and the
+  // Dice overlap of the moved segment with the target bone on the target's grid.
+  double mean_distance_mm = 0.0, max_distance_mm = 0.0, dice = 0.0;
+  int iterations = 0;
+};
+
+struct MatchResult {
+  Pose pose;
+  std::vector<SegmentMatch> segments;  // the skeleton's segment order
+};
+
+}  // namespace posewarp

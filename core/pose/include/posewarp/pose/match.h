@@ -1,0 +1,38 @@
+// Matching a posture: the pose that brings each bone segment of a rig onto the same bone in another scan's labels.
+// From the root outwards, each segment's surface voxels are aligned rigidly with the target bone's (ICP with
+// nearest neighbours on a grid, pairs beyond three times the median distance left out): the root by a rotation and
+// a translation, every other segment by a rotation about its joint's centre alone (its parent is placed already, so
+// a child cannot drift off its joint), a hinge about its flexion axis alone. The pose gives each matched joint its
+// anatomical angles.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <string>
+#include <vector>
+
+#include "posewarp/common/posture_match.h"
+#include "posewarp/common/result.h"
+#include "posewarp/common/volume.h"
+#include "posewarp/pose/pose.h"
+#include "posewarp/rig/skeleton.h"
+
+namespace posewarp::pose {
+
+using posewarp::MatchOptions;
+using posewarp::MatchResult;
+using posewarp::SegmentMatch;
+
+// The pose of `skeleton` (built on `rest`) that matches `target`: `target_labels[k]` are the target's label values
+// of segment k (empty where the target lacks that bone; the segment then stays at rest relative to its parent and
+// is reported as skipped). INVALID_ARGUMENT when the root segment is missing from either side or `target_labels`
+// does not have one entry per segment.
+Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolume& rest, const LabelVolume& target,
+                                  const std::vector<std::vector<Label>>& target_labels,
+                                  const MatchOptions& options = {});
+
+// Anatomical angles (flexion, abduction, internal rotation, degrees) of a joint rotation in LPS about its centre:
+// the inverse of rig::joint_rotation_from_angles (intrinsic x, y, z; abduction within [-90, 90]).
+Eigen::Vector3d anatomical_angles_deg(const rig::Joint& joint, const Eigen::Matrix3d& rotation_lps);
+
+}  // namespace posewarp::pose
