@@ -278,6 +278,24 @@ RigidTransform initial_turn(const Bone& rest, const Bone& target, const RigidTra
   return RigidTransform::about(rotation, f.centre);
 }
 
+// `f(segment, place in LPS mm)` for every voxel of `volume` whose segment was matched.
+template <typename F>
+void each_bone_voxel(const LabelVolume& volume, const SegmentOf& segment_of, const std::vector<SegmentMatch>& matches,
+                     F f) {
+  const ImageGeometry& g = volume.geometry();
+  const Label* v = volume.data();
+  for (int64_t k = 0; k < g.size[2]; ++k) {
+    for (int64_t j = 0; j < g.size[1]; ++j) {
+      for (int64_t i = 0; i < g.size[0]; ++i) {
+        const int s = segment_of(v[i + g.size[0] * (j + g.size[1] * k)]);
+        if (s < 0 || !matches[static_cast<size_t>(s)].matched) continue;
+        const Vec3 x = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+        f(s, Vector3d(x[0], x[1], x[2]));
+      }
+    }
+  }
+}
+
 // The segments' Dice overlap with the target bones on the target's grid: a target bone voxel is in the moved segment
 // when its place moved back to rest is a voxel of that segment; the moved segment's size is its rest voxels that
 // land on the target's grid, scaled by the voxels' volumes.
@@ -287,40 +305,20 @@ void dice(const LabelVolume& rest, const SegmentOf& rest_segment, const LabelVol
   const ImageGeometry &t = target.geometry(), &r = rest.geometry();
   std::vector<RigidTransform> back(placed.size());
   for (size_t s = 0; s < placed.size(); ++s) back[s] = placed[s].inverse();
-  std::vector<int64_t> both(placed.size(), 0);
-  const Label* v = target.data();
-  for (int64_t k = 0; k < t.size[2]; ++k) {
-    for (int64_t j = 0; j < t.size[1]; ++j) {
-      for (int64_t i = 0; i < t.size[0]; ++i) {
-        const int s = target_segment(v[i + t.size[0] * (j + t.size[1] * k)]);
-        if (s < 0 || !out[static_cast<size_t>(s)].matched) continue;
-        const Vec3 x = t.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
-        const Vector3d at = back[static_cast<size_t>(s)].apply(Vector3d(x[0], x[1], x[2]));
-        const Vec3 index = r.physical_to_index({at.x(), at.y(), at.z()});
-        const int64_t ri = std::lround(index[0]), rj = std::lround(index[1]), rk = std::lround(index[2]);
-        if (ri < 0 || rj < 0 || rk < 0 || ri >= r.size[0] || rj >= r.size[1] || rk >= r.size[2]) continue;
-        both[static_cast<size_t>(s)] += rest_segment(rest.at(ri, rj, rk)) == s;
-      }
-    }
-  }
+  std::vector<int64_t> both(placed.size(), 0), on_grid(placed.size(), 0);
+  // A target bone voxel moved back to rest: a voxel of its segment there?
+  each_bone_voxel(target, target_segment, out, [&](int s, const Vector3d& x) {
+    const Vector3d at = back[static_cast<size_t>(s)].apply(x);
+    const Vec3 index = r.physical_to_index({at.x(), at.y(), at.z()});
+    const int64_t ri = std::lround(index[0]), rj = std::lround(index[1]), rk = std::lround(index[2]);
+    if (ri < 0 || rj < 0 || rk < 0 || ri >= r.size[0] || rj >= r.size[1] || rk >= r.size[2]) return;
+    both[static_cast<size_t>(s)] += rest_segment(rest.at(ri, rj, rk)) == s;
+  });
   // The moved segment counts where it lands on the target's grid (a bone the target's field of view cuts is
   // compared within that field).
-  std::vector<int64_t> on_grid(placed.size(), 0);
-  const Label* w = rest.data();
-  for (int64_t k = 0; k < r.size[2]; ++k) {
-    for (int64_t j = 0; j < r.size[1]; ++j) {
-      for (int64_t i = 0; i < r.size[0]; ++i) {
-        const int s = rest_segment(w[i + r.size[0] * (j + r.size[1] * k)]);
-        if (s < 0 || !out[static_cast<size_t>(s)].matched) continue;
-        const Vec3 x = r.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
-        const Vector3d at = placed[static_cast<size_t>(s)].apply(Vector3d(x[0], x[1], x[2]));
-        const Vec3 index = t.physical_to_index({at.x(), at.y(), at.z()});
-        bool inside = true;
-        for (size_t a = 0; a < 3; ++a) inside &= index[a] > -0.5 && index[a] < static_cast<double>(t.size[a]) - 0.5;
-        on_grid[static_cast<size_t>(s)] += inside;
-      }
-    }
-  }
+  each_bone_voxel(rest, rest_segment, out, [&](int s, const Vector3d& x) {
+    on_grid[static_cast<size_t>(s)] += in_view(t, placed[static_cast<size_t>(s)].apply(x));
+  });
   const double scale = (r.spacing[0] * r.spacing[1] * r.spacing[2]) / (t.spacing[0] * t.spacing[1] * t.spacing[2]);
   for (size_t s = 0; s < placed.size(); ++s) {
     if (!out[s].matched) continue;
