@@ -3,6 +3,7 @@
 #include <cstdio>
 
 #include "cli_support.h"
+#include "posewarp/api/dicom.h"
 #include "posewarp/api/match.h"
 #include "posewarp/api/rig_file.h"
 
@@ -10,12 +11,13 @@ namespace posewarp::cli {
 namespace {
 
 struct MatchCommandOptions {
-  std::string rig_path, target_labels, preset, label_map_path, pose_out, report_out;
+  std::string rig_path, target_labels, target_ct, preset, label_map_path, pose_out, report_out;
   bool free_hinges = false;
 };
 
 int run_match(const MatchCommandOptions& o) {
-  if (Status s = refuse_overwriting_inputs({o.pose_out, o.report_out}, {o.rig_path, o.target_labels, o.label_map_path});
+  if (Status s = refuse_overwriting_inputs({o.pose_out, o.report_out},
+                                           {o.rig_path, o.target_labels, o.label_map_path, o.target_ct});
       !s.ok()) {
     return report(s);
   }
@@ -29,11 +31,27 @@ int run_match(const MatchCommandOptions& o) {
     if (!given.ok()) return report(given.status());
     map = std::move(*given);
   }
-  Result<LabelVolume> target = api::read_label_volume(o.target_labels, read_options());
-  if (!target.ok()) return report(target.status());
+  // A DICOM SEG lies on the CT series it was made on; its segments' names relabel the map.
+  LabelVolume target;
+  if (api::is_dicom_file(o.target_labels)) {
+    if (o.target_ct.empty()) {
+      return report(invalid_argument_error("'" + o.target_labels +
+                                           "' is a DICOM file: give --target-ct DIR, the CT series the segmentation "
+                                           "was made on"));
+    }
+    Result<api::DicomStudy> study = api::read_dicom_study(o.target_ct, o.target_labels, map);
+    if (!study.ok()) return report(study.status());
+    for (const std::string& w : study->warnings) say("warning: " + w);
+    target = std::move(study->labels);
+    map = std::move(study->label_map);
+  } else {
+    Result<LabelVolume> read = api::read_label_volume(o.target_labels, read_options());
+    if (!read.ok()) return report(read.status());
+    target = std::move(*read);
+  }
   api::MatchOptions options;
   options.constrain_hinges = !o.free_hinges;
-  Result<api::PostureMatch> match = api::match_posture(*rig, *target, map, options);
+  Result<api::PostureMatch> match = api::match_posture(*rig, target, map, options);
   if (!match.ok()) return report(match.status());
   if (Status s = api::write_file_atomically(o.pose_out, api::pose_to_json(match->match.pose), "pose"); !s.ok()) {
     return report(s);
@@ -72,7 +90,10 @@ void add_match_command(CLI::App& app) {
       "alignment from the root outwards: the root moves and turns, every other bone turns about its joint, a hinge "
       "about its axis), and write it as a pose file");
   cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build)")->required();
-  cmd->add_option("--target-labels", o->target_labels, "The other scan's label volume")->required();
+  cmd->add_option("--target-labels", o->target_labels,
+                  "The other scan's labels: a label volume (NIfTI, NRRD, ...) or a DICOM SEG (binary or label map)")
+      ->required();
+  cmd->add_option("--target-ct", o->target_ct, "With a DICOM SEG: the directory of the CT series it was made on");
   cmd->add_option("--preset", o->preset, "Built-in label map naming the target's labels (default: the rig's map)");
   cmd->add_option("--label-map", o->label_map_path, "A label map of one's own naming the target's labels");
   cmd->add_option("-o,--pose-out", o->pose_out, "The pose found (pose JSON: anatomical angles per joint)")->required();

@@ -34,7 +34,7 @@ TEST(MatchCli, FindsTheAnglesOfAPoseOfTheSampleFromItsLabels) {
     "joints": {"hip_left": {"angles_deg": {"flexion": 25, "abduction": 10}},
                "hip_right": {"angles_deg": {"flexion": -10, "abduction": 12}}}})";
   ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", (dir / "sample.rig").string(), "--pose", (dir / "truth.json").string(),
-                 "--labels-out", (dir / "target.nii.gz").string()},
+                 "--labels-out", (dir / "target.nii.gz").string(), "--ct-out", (dir / "target_ct.nii.gz").string()},
                 log),
             0)
       << text(log);
@@ -75,6 +75,27 @@ TEST(MatchCli, FindsTheAnglesOfAPoseOfTheSampleFromItsLabels) {
                 log),
             0)
       << text(log);
+  // The same target as DICOM (a CT series and a label map SEG on it, as a PACS holds it): the same angles.
+  ASSERT_EQ(run({POSEWARP_CLI, "-q", "dicom", "export", "--ct", (dir / "target_ct.nii.gz").string(), "--labels",
+                 (dir / "target.nii.gz").string(), "--seg-format", "labelmap", "-o", (dir / "dicom").string()},
+                log),
+            0)
+      << text(log);
+  ASSERT_EQ(run({POSEWARP_CLI, "match", (dir / "sample.rig").string(), "--target-labels",
+                 (dir / "dicom/seg.dcm").string(), "--target-ct", (dir / "dicom/ct").string(), "-o",
+                 (dir / "from_dicom.json").string()},
+                log),
+            0)
+      << text(log);
+  const nlohmann::json from_dicom = nlohmann::json::parse(text(dir / "from_dicom.json"));
+  EXPECT_NEAR(from_dicom["joints"]["hip_left"]["angles_deg"]["flexion"].get<double>(), 25.0, 2.0);
+  EXPECT_NEAR(from_dicom["joints"]["hip_right"]["angles_deg"]["abduction"].get<double>(), 12.0, 2.0);
+  EXPECT_EQ(run({POSEWARP_CLI, "match", (dir / "sample.rig").string(), "--target-labels",
+                 (dir / "dicom/seg.dcm").string(), "-o", (dir / "z.json").string()},
+                log) >>
+                8,
+            2);
+  EXPECT_NE(text(log).find("give --target-ct DIR"), std::string::npos) << text(log);
   // A target without the root's bone is refused by name; a target that is no label volume too.
   std::ofstream(dir / "no_sacrum.json") << R"({"format": "posewarp.label_map", "version": 1, "name": "no sacrum",
     "labels": [{"name": "background", "role": "background", "value": 0},
