@@ -300,6 +300,18 @@ TEST_F(Catalogue, LabelsAndCtSwapped) {
   fs::remove(at("ct16.nii.gz"));
 }
 
+// posewarp match: a target that is no volume, a target map that is no JSON, a pose written onto the rig, a SEG
+// without its CT: each refused by name before any work, no input touched.
+TEST_F(Catalogue, Match) {
+  const std::vector<std::string> target{"match", at("bar.rig"), "--target-labels", "{}", "-o", at("out/found.json")};
+  check({"target.nii.gz", "not a volume at all", target, kBadInput, "target.nii.gz"});
+  check({"target_map.json", "{\"format\": ", {"match", at("bar.rig"), "--target-labels", at("labels.nii.gz"),
+          "--label-map", "{}", "-o", at("out/found.json")}, kBadInput, "target_map.json"});
+  expect_refused(posewarp({"match", at("bar.rig"), "--target-labels", at("labels.nii.gz"), "-o", at("bar.rig")}),
+                 kBadInput, "the output '" + at("bar.rig") + "' is the input", "");
+  check({"seg.dcm", std::string(128, '\0') + "DICM", target, kBadInput, "give --target-ct DIR"});
+}
+
 TEST_F(Catalogue, AnimationsAndBvh) {
   const std::vector<std::string> animate{"animate", at("bar.rig"), "--animation", "{}", "--out-dir", at("out")};
   check({"frames_not_list.json", R"({"format": "posewarp.animation", "version": 1, "frames": 7})", animate, kBadInput,
