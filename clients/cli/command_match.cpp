@@ -5,6 +5,7 @@
 #include "cli_support.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/match.h"
+#include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 
 namespace posewarp::cli {
@@ -12,16 +13,17 @@ namespace {
 
 struct MatchCommandOptions {
   std::string rig_path, target_labels, target_ct, preset, label_map_path, pose_out, report_out;
+  std::string labels_out, ct_out;  // the rig posed by the pose found, on the target's grid
   bool free_hinges = false;
 };
 
 int run_match(const MatchCommandOptions& o) {
-  if (Status s = refuse_overwriting_inputs({o.pose_out, o.report_out},
-                                           {o.rig_path, o.target_labels, o.label_map_path, o.target_ct});
+  const std::vector<std::string> outputs{o.pose_out, o.report_out, o.labels_out, o.ct_out};
+  if (Status s = refuse_overwriting_inputs(outputs, {o.rig_path, o.target_labels, o.label_map_path, o.target_ct});
       !s.ok()) {
     return report(s);
   }
-  if (Status s = check_output_files({o.pose_out, o.report_out}); !s.ok()) return report(s);
+  if (Status s = check_output_files(outputs); !s.ok()) return report(s);
   Result<api::Rig> rig = api::load_rig(o.rig_path);
   if (!rig.ok()) return report(rig.status());
   // The target's names: its own map or preset, else the rig's (the same values).
@@ -77,6 +79,30 @@ int run_match(const MatchCommandOptions& o) {
   for (const std::string& label : match->unnamed_labels) say("note: the target's label map has no '" + label + "'");
   std::snprintf(line, sizeof line, "wrote %s (%.2f s)", o.pose_out.c_str(), match->seconds);
   say(line);
+  if (o.labels_out.empty() && o.ct_out.empty()) return 0;
+  // The rig posed by what was found, on the target's grid: voxel for voxel comparable with the target scan.
+  const bool has_ct = rig->ct.has_value();
+  if (!o.ct_out.empty() && !has_ct) {
+    return report(failed_precondition_error("the rig holds no CT (it was built from labels alone): leave out --ct-out"));
+  }
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(*rig));
+  if (!engine.ok()) return report(engine.status());
+  api::PoseRequest request;
+  request.pose = match->match.pose;
+  request.grid = api::GridPolicy::kGiven;
+  request.given_grid = target.geometry();
+  request.want_labels = !o.labels_out.empty();
+  request.want_ct = !o.ct_out.empty();
+  Result<api::PoseResult> posed = engine->pose(request, progress_bar());
+  if (!posed.ok()) return report(posed.status());
+  if (posed->labels) {
+    if (Status s = api::write_volume(*posed->labels, o.labels_out); !s.ok()) return report(s);
+    say("wrote " + o.labels_out);
+  }
+  if (posed->ct) {
+    if (Status s = api::write_volume(*posed->ct, o.ct_out); !s.ok()) return report(s);
+    say("wrote " + o.ct_out);
+  }
   return 0;
 }
 
@@ -98,6 +124,8 @@ void add_match_command(CLI::App& app) {
   cmd->add_option("--label-map", o->label_map_path, "A label map of one's own naming the target's labels");
   cmd->add_option("-o,--pose-out", o->pose_out, "The pose found (pose JSON: anatomical angles per joint)")->required();
   cmd->add_option("--report", o->report_out, "Residual per bone (surface distance, Dice) and the root's motion, JSON");
+  cmd->add_option("--labels-out", o->labels_out, "The rig's labels posed by the pose found, on the target's grid");
+  cmd->add_option("--ct-out", o->ct_out, "The rig's CT posed by the pose found, on the target's grid");
   cmd->add_flag("--free-hinges", o->free_hinges, "Let hinges (knee, elbow, ankle) turn every way, not only flex");
   cmd->callback([o] {
     if (int code = run_match(*o); code != 0) throw CLI::RuntimeError(code);

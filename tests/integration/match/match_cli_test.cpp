@@ -1,6 +1,7 @@
 // posewarp match as a user runs it, on the real sample: a rig built from it, the sample posed with known angles at
 // both hips and a known root motion (labels only, on the sample's grid), and the match finding those angles and
-// that motion back from the posed labels alone, with each bone of more than 5 ml on its target (Dice at least 0.9).
+// that motion back from the posed labels alone, with each bone of more than 5 ml on its target (Dice at least 0.9),
+// and the rig posed by what was found on the target's grid holding the target's labels.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -10,6 +11,7 @@
 #include <fstream>
 
 #include "../support/logged_run.h"
+#include "posewarp/api/files.h"
 
 namespace posewarp {
 namespace {
