@@ -52,6 +52,18 @@ Result<PostureMatch> match_posture(const Rig& rig, const LabelVolume& target, co
   return out;
 }
 
+std::vector<std::string> standard_postures() {
+  return pose::standard_postures();
+}
+
+Result<Pose> standard_posture(const Rig& rig, const std::string& name) {
+  POSEWARP_ASSIGN_OR_RETURN(Pose p, pose::standard_posture(rig.skeleton, name));
+  for (JointRotation& j : p.joints) {
+    if (j.angles_deg) *j.angles_deg = j.angles_deg->unaryExpr([](double v) { return std::round(v * 100.0) / 100.0; });
+  }
+  return p;
+}
+
 std::string posture_match_to_json(const PostureMatch& m) {
   using Json = nlohmann::ordered_json;
   Json segments = Json::array();

@@ -441,4 +441,48 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
   return result;
 }
 
+std::vector<std::string> standard_postures() {
+  return {"limbs-straight"};
+}
+
+Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name) {
+  if (name != "limbs-straight") {
+    return invalid_argument_error("there is no standard posture '" + name + "'; the standard postures are: limbs-straight");
+  }
+  // The joints whose children are limbs, by the joint names rigs use ("shoulder_left", "knee_right", ...).
+  const auto is_limb_joint = [](const std::string& joint) {
+    for (const char* prefix : {"shoulder", "elbow", "hip", "knee"}) {
+      if (joint.rfind(prefix, 0) == 0) return true;
+    }
+    return false;
+  };
+  const Vector3d down(0.0, 0.0, -1.0);
+  Pose pose;
+  pose.name = name;
+  std::vector<Matrix3d> turned(skeleton.segments.size(), Matrix3d::Identity());  // each segment's rotation
+  for (const rig::Joint& joint : skeleton.joints) {
+    if (joint.parent < 0 || joint.child < 0) continue;
+    const Matrix3d& parent = turned[static_cast<size_t>(joint.parent)];
+    Matrix3d own = Matrix3d::Identity();
+    const Vector3d from = skeleton.segments[static_cast<size_t>(joint.child)].centroid_mm - joint.centre_mm;
+    if (is_limb_joint(joint.name) && from.norm() > 1e-6) {
+      // In the parent's rest frame, where the joint's own turn acts.
+      const Vector3d to = parent.transpose() * down;
+      own = joint.kind == JointKind::kHinge ? best_turn_about(joint.frame.col(0), {from}, {to})
+                                            : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
+      JointRotation rotation;
+      rotation.joint = joint.name;
+      rotation.rotation = Eigen::Quaterniond(joint.frame.transpose() * own * joint.frame).normalized();
+      rotation.angles_deg = anatomical_angles_deg(joint, own);
+      pose.joints.push_back(rotation);
+    }
+    turned[static_cast<size_t>(joint.child)] = parent * own;
+  }
+  if (pose.joints.empty()) {
+    return invalid_argument_error("the rig has no shoulder, elbow, hip or knee joint: posture '" + name +
+                                  "' turns nothing");
+  }
+  return pose;
+}
+
 }  // namespace posewarp::pose

@@ -310,6 +310,11 @@ TEST_F(Catalogue, Match) {
   expect_refused(posewarp({"match", at("bar.rig"), "--target-labels", at("labels.nii.gz"), "-o", at("bar.rig")}),
                  kBadInput, "the output '" + at("bar.rig") + "' is the input", "");
   check({"seg.dcm", std::string(128, '\0') + "DICM", target, kBadInput, "give --target-ct DIR"});
+  expect_refused(posewarp({"match", at("bar.rig"), "-o", at("found.json")}), kBadInput, "--target-labels",
+                 "--standard NAME");
+  expect_refused(posewarp({"match", at("bar.rig"), "--standard", "t-pose", "-o", at("found.json")}), kBadInput,
+                 "'t-pose'", "limbs-straight");
+  EXPECT_FALSE(fs::exists(at("found.json")));
 }
 
 TEST_F(Catalogue, AnimationsAndBvh) {

@@ -98,6 +98,14 @@ TEST(MatchCli, FindsTheAnglesOfAPoseOfTheSampleFromItsLabels) {
                 8,
             2);
   EXPECT_NE(text(log).find("give --target-ct DIR"), std::string::npos) << text(log);
+  // A standard posture needs no target: the sample's legs straightened (its hips are its limbs' joints).
+  ASSERT_EQ(run({POSEWARP_CLI, "match", (dir / "sample.rig").string(), "--standard", "limbs-straight", "-o",
+                 (dir / "straight.json").string()},
+                log),
+            0)
+      << text(log);
+  const nlohmann::json straight = nlohmann::json::parse(text(dir / "straight.json"));
+  EXPECT_TRUE(straight["joints"].contains("hip_left") && straight["joints"].contains("hip_right")) << straight.dump();
   // A target without the root's bone is refused by name; a target that is no label volume too.
   std::ofstream(dir / "no_sacrum.json") << R"({"format": "posewarp.label_map", "version": 1, "name": "no sacrum",
     "labels": [{"name": "background", "role": "background", "value": 0},

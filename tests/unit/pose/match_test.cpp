@@ -140,5 +140,49 @@ TEST(MatchPosture, AnatomicalAnglesInvertTheJointRotation) {
   }
 }
 
+// A leg bent forward (thigh 30 degrees, shin 70 degrees from straight down, in the sagittal plane) comes out straight:
+// the thigh through its ball joint, the shin through its hinge; a skeleton without limbs and an unknown posture are
+// refused.
+TEST(StandardPosture, LimbsStraightTurnsABentLegStraightDown) {
+  rig::Skeleton skeleton;
+  const auto tilted = [](double degrees, double length) {
+    const double r = degrees * M_PI / 180.0;
+    return Vector3d(0.0, -length * std::sin(r), -length * std::cos(r));  // forward is LPS -y
+  };
+  const Vector3d hip(100.0, 0.0, -50.0), knee = hip + tilted(30.0, 400.0);
+  for (const char* name : {"pelvis", "femur_left", "tibia_left"}) {
+    rig::Segment segment;
+    segment.name = name;
+    skeleton.segments.push_back(segment);
+  }
+  skeleton.segments[1].centroid_mm = hip + tilted(30.0, 200.0);
+  skeleton.segments[2].centroid_mm = knee + tilted(70.0, 180.0);
+  rig::Joint hip_joint;
+  hip_joint.name = "hip_left";
+  hip_joint.parent = 0, hip_joint.child = 1, hip_joint.centre_mm = hip;
+  hip_joint.kind = JointKind::kBall;
+  rig::Joint knee_joint;
+  knee_joint.name = "knee_left";
+  knee_joint.parent = 1, knee_joint.child = 2, knee_joint.centre_mm = knee;
+  knee_joint.kind = JointKind::kHinge;  // its flexion axis: the frame's x, LPS x (mediolateral)
+  skeleton.joints = {hip_joint, knee_joint};
+  Result<Pose> pose = standard_posture(skeleton, "limbs-straight");
+  ASSERT_TRUE(pose.ok()) << pose.status().to_string();
+  ASSERT_EQ(pose->joints.size(), 2u);
+  Result<std::vector<RigidTransform>> t = forward_kinematics(skeleton, *pose);
+  ASSERT_TRUE(t.ok()) << t.status().to_string();
+  const Vector3d knee_now = (*t)[1].apply(knee);
+  const Vector3d thigh = ((*t)[1].apply(skeleton.segments[1].centroid_mm) - hip).normalized();
+  const Vector3d shin = ((*t)[2].apply(skeleton.segments[2].centroid_mm) - knee_now).normalized();
+  EXPECT_NEAR(thigh.z(), -1.0, 1e-9) << thigh.transpose();
+  EXPECT_NEAR(shin.z(), -1.0, 1e-9) << shin.transpose();
+  EXPECT_NEAR(std::abs(pose->joints[1].angles_deg->x()), 40.0, 1e-6);  // the shin's bend beyond the thigh's
+  EXPECT_FALSE(standard_posture(skeleton, "t-pose").ok());
+  rig::Skeleton spine = testing::chain_skeleton();
+  Result<Pose> nothing = standard_posture(spine, "limbs-straight");
+  ASSERT_FALSE(nothing.ok());
+  EXPECT_NE(nothing.status().message().find("no shoulder, elbow, hip or knee"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace posewarp::pose
