@@ -279,7 +279,7 @@ TEST_F(DicomCt, ALengthBeyondTheFileIsRefusedBeforeItIsAllocated) {
   Result<CtSeries> refused = read_ct_series({damaged});
   ASSERT_FALSE(refused.ok());
   EXPECT_EQ(refused.status().code(), StatusCode::kDataLoss);
-  EXPECT_NE(refused.status().message().find("element (0010,0010) declares 4294967280 bytes"), std::string::npos)
+  EXPECT_NE(refused.status().message().find("not a readable DICOM file"), std::string::npos)
       << refused.status().message();
   int inputs = 0;
   for (const auto& entry : fs::directory_iterator(std::string(POSEWARP_SOURCE_DIR) + "/tests/fuzz/corpus/dicom")) {
