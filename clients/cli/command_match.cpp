@@ -123,6 +123,11 @@ int run_match(const MatchCommandOptions& o) {
                   s.mean_distance_mm, s.max_distance_mm, s.dice);
     say(line);
   }
+  for (const api::SegmentMatch& s : match->match.segments) {
+    if (!s.beyond_range.empty()) {
+      say("note: " + s.joint + ": " + s.beyond_range + ", beyond the range measured on the rig's study");
+    }
+  }
   for (const std::string& label : match->unnamed_labels) say("note: the target's label map has no '" + label + "'");
   std::snprintf(line, sizeof line, "wrote %s (%.2f s)", o.pose_out.c_str(), match->seconds);
   say(line);

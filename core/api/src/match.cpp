@@ -78,6 +78,7 @@ std::string posture_match_to_json(const PostureMatch& m) {
       row["max_distance_mm"] = s.max_distance_mm;
       row["dice"] = s.dice;
       row["iterations"] = s.iterations;
+      if (!s.beyond_range.empty()) row["beyond_range"] = s.beyond_range;
     } else {
       row["skipped"] = s.skipped;
     }

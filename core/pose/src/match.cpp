@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <unordered_map>
 
@@ -327,6 +328,24 @@ void dice(const LabelVolume& rest, const SegmentOf& rest_segment, const LabelVol
   }
 }
 
+// The motions whose found angle lies past the joint's measured range, in words ("" when none). The ranges are measured
+// in 5-degree steps (api::RangeParams): an angle counts as past only beyond the step after the last one that fitted.
+std::string beyond_range(const rig::Joint& joint, const Vector3d& angles_deg) {
+  constexpr double kStepDeg = 5.0;
+  std::string out;
+  for (const MotionRange& range : joint.ranges) {
+    const double angle = range.motion == "flexion" ? angles_deg.x() : range.motion == "abduction" ? angles_deg.y() : 0;
+    const bool below = angle < -range.negative_deg - kStepDeg, above = angle > range.positive_deg + kStepDeg;
+    if (!below && !above) continue;
+    char words[160];
+    std::snprintf(words, sizeof words, "%s%s %.1f past %.0f%s", out.empty() ? "" : ", ", range.motion.c_str(), angle,
+                  below ? -range.negative_deg : range.positive_deg,
+                  (below ? range.negative_stopped : range.positive_stopped) ? " (bones meet)" : "");
+    out += words;
+  }
+  return out;
+}
+
 }  // namespace
 
 Eigen::Vector3d anatomical_angles_deg(const rig::Joint& joint, const Eigen::Matrix3d& rotation_lps) {
@@ -431,6 +450,7 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
     placed[child] = parent * own;
     if (!m.matched) continue;
     m.angles_deg = anatomical_angles_deg(joint, own.rotation);
+    m.beyond_range = beyond_range(joint, m.angles_deg);
     JointRotation rotation;
     rotation.joint = joint.name;
     rotation.rotation = Eigen::Quaterniond(joint.frame.transpose() * own.rotation * joint.frame).normalized();

@@ -71,7 +71,9 @@ rig::Skeleton labelled_chain() {
 }
 
 TEST(MatchPosture, FindsTheRootMotionAndTheJointAnglesOfAPoseBack) {
-  const rig::Skeleton skeleton = labelled_chain();
+  rig::Skeleton skeleton = labelled_chain();
+  // "lower" measured on its study to flex 10 back and 20 forward before its bones meet: the 35 found is past it.
+  skeleton.joints[0].ranges = {{"flexion", 10.0, 20.0, true, true}, {"abduction", 30.0, 30.0, false, false}};
   const LabelVolume rest = rest_bones();
   Pose truth;
   truth.root.rotation =
@@ -94,6 +96,10 @@ TEST(MatchPosture, FindsTheRootMotionAndTheJointAnglesOfAPoseBack) {
   EXPECT_NEAR(lower.z(), 15.0, 2.0);
   EXPECT_NEAR(upper.x(), 50.0, 2.0);
   EXPECT_EQ(upper.y(), 0.0);  // a hinge
+  EXPECT_NE(match->segments[1].beyond_range.find("flexion 35."), std::string::npos) << match->segments[1].beyond_range;
+  EXPECT_NE(match->segments[1].beyond_range.find("past 20 (bones meet)"), std::string::npos);
+  EXPECT_EQ(match->segments[1].beyond_range.find("abduction"), std::string::npos);  // -20 lies within 30 either way
+  EXPECT_TRUE(match->segments[2].beyond_range.empty());  // "upper" has no measured range
   EXPECT_NEAR(upper.z(), 0.0, 1e-9);
   for (const SegmentMatch& s : match->segments) {
     std::printf("%-7s angles %7.2f %7.2f %7.2f  mean %.2f mm  max %.2f mm  Dice %.3f  %d iterations\n",

@@ -29,6 +29,11 @@ struct SegmentMatch {
   // Dice overlap of the moved segment with the target bone on the target's grid.
   double mean_distance_mm = 0.0, max_distance_mm = 0.0, dice = 0.0;
   int iterations = 0;
+  // Where the angles found go past the joint's range of motion measured on the rig's own study (where the bones
+  // beyond it meet another bone, the other joints at rest; by more than its 5-degree step): e.g. "flexion 82.0 past
+  // 70 (bones meet)". Empty when within, or when the rig has no ranges. Reported, not enforced: those ranges are
+  // narrower than anatomy's.
+  std::string beyond_range;
 };
 
 struct MatchResult {
