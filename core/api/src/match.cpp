@@ -12,6 +12,20 @@
 #include "posewarp/pose/match.h"
 
 namespace posewarp::api {
+namespace {
+
+double to_hundredth(double v) {
+  return std::round(v * 100.0) / 100.0;
+}
+
+// A pose's joint angles to a hundredth of a degree: what a fit cannot tell apart is written alike.
+void round_angles(Pose& pose) {
+  for (JointRotation& j : pose.joints) {
+    if (j.angles_deg) *j.angles_deg = j.angles_deg->unaryExpr(&to_hundredth);
+  }
+}
+
+}  // namespace
 
 Result<PostureMatch> match_posture(const Rig& rig, const LabelVolume& target, const LabelMap& target_map,
                                    const MatchOptions& options) {
@@ -37,30 +51,21 @@ Result<PostureMatch> match_posture(const Rig& rig, const LabelVolume& target, co
   out.match.pose.name = "matched";
   // Angles to a hundredth of a degree, the root's motion dropped below that (and below a hundredth of a mm): what
   // the fit cannot tell from rest is written as rest.
-  const auto round = [](double v) { return std::round(v * 100.0) / 100.0; };
-  for (JointRotation& j : out.match.pose.joints) {
-    if (j.angles_deg) *j.angles_deg = j.angles_deg->unaryExpr(round);
-  }
-  for (SegmentMatch& s : out.match.segments) s.angles_deg = s.angles_deg.unaryExpr(round);
+  round_angles(out.match.pose);
+  for (SegmentMatch& s : out.match.segments) s.angles_deg = s.angles_deg.unaryExpr(&to_hundredth);
   RigidTransform& root = out.match.pose.root;
   if (Eigen::AngleAxisd(root.rotation).angle() < 1e-4 && root.translation.norm() < 1e-2) {
     root = RigidTransform::identity();
   } else {
-    root.translation = root.translation.unaryExpr(round);
+    root.translation = root.translation.unaryExpr(&to_hundredth);
   }
   out.seconds = clock.seconds();
   return out;
 }
 
-std::vector<std::string> standard_postures() {
-  return pose::standard_postures();
-}
-
 Result<Pose> standard_posture(const Rig& rig, const std::string& name) {
   POSEWARP_ASSIGN_OR_RETURN(Pose p, pose::standard_posture(rig.skeleton, name));
-  for (JointRotation& j : p.joints) {
-    if (j.angles_deg) *j.angles_deg = j.angles_deg->unaryExpr([](double v) { return std::round(v * 100.0) / 100.0; });
-  }
+  round_angles(p);
   return p;
 }
 

@@ -10,7 +10,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstring>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
@@ -44,13 +43,13 @@ double norm(const Vec& a) {
   return std::sqrt(dot(a, a));
 }
 
-bool numbers(DcmItem& item, const DcmTagKey& tag, double* out, int count) {
-  for (int i = 0; i < count; ++i) {
-    Float64 value = 0;
-    if (item.findAndGetFloat64(tag, value, static_cast<unsigned long>(i)).bad() || !std::isfinite(value)) return false;
-    out[i] = value;
+// `count` stored samples (signed when `representation` is 1) rescaled into HU.
+void rescale(const Uint16* words, Uint16 representation, double slope, double intercept, size_t count, float* out) {
+  for (size_t i = 0; i < count; ++i) {
+    const double stored =
+        representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
+    out[i] = static_cast<float>(stored * slope + intercept);
   }
-  return true;
 }
 
 // One parsed instance with what the volume needs from it.
@@ -117,9 +116,9 @@ Status check_slice(Slice& slice) {
   const std::string name = "instance " + std::to_string(slice.index + 1) + " of series " + slice.series_uid;
   DcmDataset& d = *slice.file->getDataset();
   double orientation[6];
-  if (!numbers(d, DCM_ImageOrientationPatient, orientation, 6) ||
-      !numbers(d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
-      !numbers(d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
+  if (!numbers(&d, DCM_ImageOrientationPatient, orientation, 6) ||
+      !numbers(&d, DCM_ImagePositionPatient, slice.position.data(), 3) ||
+      !numbers(&d, DCM_PixelSpacing, slice.pixel_spacing, 2)) {
     return invalid_argument_error(name +
                                   " lacks ImageOrientationPatient, ImagePositionPatient or PixelSpacing: "
                                   "its place in the patient is unknown");
@@ -260,12 +259,7 @@ Status read_pixels(const std::vector<Slice>& slices, const std::string& uid, CtS
       return data_loss_error("instance " + std::to_string(slices[k].index + 1) + " of series " + uid +
                              " has less pixel data than its rows x columns");
     }
-    float* out_slice = out->ct.data() + k * per_slice;
-    for (size_t i = 0; i < per_slice; ++i) {
-      const double stored =
-          representation == 1 ? static_cast<double>(static_cast<int16_t>(words[i])) : static_cast<double>(words[i]);
-      out_slice[i] = static_cast<float>(stored * slices[k].slope + slices[k].intercept);
-    }
+    rescale(words, representation, slices[k].slope, slices[k].intercept, per_slice, out->ct.data() + k * per_slice);
     out->info.sop_instance_uids.push_back(text_of(d, DCM_SOPInstanceUID));
   }
   return ok_status();
@@ -332,13 +326,8 @@ Result<CtSeries> read_multiframe_ct(Slice& image, const std::string& uid) {
   out.ct = IntensityVolume(g);
   out.ct.set_source_type(PixelType::kInt16);
   for (size_t k = 0; k < frames.size(); ++k) {
-    const Uint16* frame = words + static_cast<size_t>(frames[k].index) * per_frame;
-    float* out_slice = out.ct.data() + k * per_frame;
-    for (size_t i = 0; i < per_frame; ++i) {
-      const double stored =
-          representation == 1 ? static_cast<double>(static_cast<int16_t>(frame[i])) : static_cast<double>(frame[i]);
-      out_slice[i] = static_cast<float>(stored * frames[k].slope + frames[k].intercept);
-    }
+    rescale(words + static_cast<size_t>(frames[k].index) * per_frame, representation, frames[k].slope,
+            frames[k].intercept, per_frame, out.ct.data() + k * per_frame);
     out.info.frame_numbers.push_back(frames[k].index + 1);
   }
   read_series_info(d, uid, &out.info);
@@ -515,9 +504,8 @@ int64_t put_ct_pixels(DcmDataset& d, const IntensityVolume& ct, int64_t k) {
   std::vector<int16_t> samples(per_slice);
   const int64_t clipped = hu_samples(ct, k, samples.data());
   // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
-  std::vector<Uint16> words(per_slice);
-  std::memcpy(words.data(), samples.data(), per_slice * sizeof(Uint16));
-  d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(per_slice));
+  d.putAndInsertUint16Array(DCM_PixelData, reinterpret_cast<const Uint16*>(samples.data()),
+                            static_cast<unsigned long>(per_slice));
   return clipped;
 }
 

@@ -5,8 +5,6 @@
 #include <dcmtk/dcmdata/dcsequen.h>
 #include <dcmtk/dcmdata/dcuid.h>
 
-#include <cstring>
-
 #include "derived_ct.h"
 #include "part10.h"
 
@@ -110,10 +108,8 @@ Status put_frames(DcmDataset& d, const IntensityVolume& ct) {
   }
   if (d.insert(per_frame_groups, OFTrue).bad()) return internal_error("cannot add the Enhanced CT's frames");
   // Pixel data is OW: the signed samples' 16-bit words (PixelRepresentation 1 says how to read them).
-  std::vector<Uint16> words(samples.size());
-  std::memcpy(words.data(), samples.data(), samples.size() * sizeof(Uint16));
-  const OFCondition ok =
-      d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(words.size()));
+  const OFCondition ok = d.putAndInsertUint16Array(DCM_PixelData, reinterpret_cast<const Uint16*>(samples.data()),
+                                                   static_cast<unsigned long>(samples.size()));
   if (ok.bad()) return internal_error(std::string("cannot add the Enhanced CT's pixels: ") + ok.text());
   return ok_status();
 }

@@ -5,8 +5,6 @@
 #include <dcmtk/dcmdata/dcsequen.h>
 
 #include <algorithm>
-#include <cstring>
-#include <map>
 
 #include "multiframe.h"
 #include "part10.h"
@@ -99,8 +97,9 @@ Status put_frames(DcmDataset& d, const LabelVolume& labels, const SeriesInfo& ct
   const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
   const size_t frames = static_cast<size_t>(g.size[2]);
   // The per-frame items appended one after another (indexing a DCMTK sequence walks its list).
-  DcmSequenceOfItems* per_frame_groups = new DcmSequenceOfItems(DCM_PerFrameFunctionalGroupsSequence);
-  std::vector<Uint8> bytes(per_frame * frames * static_cast<size_t>(bits / 8));
+  auto* per_frame_groups = new DcmSequenceOfItems(DCM_PerFrameFunctionalGroupsSequence);
+  std::vector<Uint8> bytes(bits == 8 ? per_frame * frames : 0);
+  std::vector<Uint16> words(bits == 16 ? per_frame * frames : 0);
   for (size_t n = 0; n < frames; ++n) {
     const int64_t k = reverse ? g.size[2] - 1 - static_cast<int64_t>(n) : static_cast<int64_t>(n);
     auto* frame = new DcmItem();
@@ -108,27 +107,28 @@ Status put_frames(DcmDataset& d, const LabelVolume& labels, const SeriesInfo& ct
     put_frame_place(*frame, g, k, static_cast<uint32_t>(n + 1));
     put_derivation(*frame, {source_slice(ct, n)}, {"113076", "DCM", "Segmentation"}, "posewarp posed labels");
     const Label* slice = labels.data() + static_cast<size_t>(k) * per_frame;
-    if (bits == 8) {
-      Uint8* out = bytes.data() + n * per_frame;
-      for (size_t i = 0; i < per_frame; ++i) out[i] = static_cast<Uint8>(slice[i]);
-    } else {
-      std::vector<Uint16> words(per_frame);
-      for (size_t i = 0; i < per_frame; ++i) words[i] = static_cast<Uint16>(slice[i]);
-      std::memcpy(bytes.data() + n * per_frame * 2, words.data(), per_frame * 2);
+    for (size_t i = 0; i < per_frame; ++i) {
+      if (bits == 8) {
+        bytes[n * per_frame + i] = static_cast<Uint8>(slice[i]);
+      } else {
+        words[n * per_frame + i] = static_cast<Uint16>(slice[i]);
+      }
     }
   }
-  if (d.insert(per_frame_groups, OFTrue).bad()) return internal_error("cannot add the label map's frames");
+  if (d.insert(per_frame_groups, OFTrue).bad()) {
+    delete per_frame_groups;
+    return internal_error("cannot add the label map's frames");
+  }
   const OFCondition ok =
       bits == 8 ? d.putAndInsertUint8Array(DCM_PixelData, bytes.data(), static_cast<unsigned long>(bytes.size()))
-                : d.putAndInsertUint16Array(DCM_PixelData, reinterpret_cast<const Uint16*>(bytes.data()),
-                                            static_cast<unsigned long>(bytes.size() / 2));
+                : d.putAndInsertUint16Array(DCM_PixelData, words.data(), static_cast<unsigned long>(words.size()));
   if (ok.bad()) return internal_error(std::string("cannot add the label map's pixels: ") + ok.text());
   return ok_status();
 }
 
-// Each frame's pixels onto its slice of `labels`; a number that no segment has is an error.
+// Each frame's pixels onto its slice of `labels`; a number that no segment has (`described`, by number) is an error.
 Status read_frames(DcmDataset& d, const std::vector<FramePlane>& planes, const ImageGeometry& grid,
-                   const std::map<int, bool>& numbers, LabelVolume* labels) {
+                   const std::vector<bool>& described, LabelVolume* labels) {
   Uint16 rows = 0, columns = 0, bits = 0, representation = 0, samples = 1;
   d.findAndGetUint16(DCM_Rows, rows);
   d.findAndGetUint16(DCM_Columns, columns);
@@ -164,11 +164,11 @@ Status read_frames(DcmDataset& d, const std::vector<FramePlane>& planes, const I
     Label* slice = labels->data() + k * per_frame;
     for (size_t i = 0; i < per_frame; ++i) {
       const int v = bits == 8 ? bytes[f * per_frame + i] : words[f * per_frame + i];
-      if (v != 0 && !numbers.count(v)) {
+      if (v != 0 && !described[static_cast<size_t>(v)]) {
         return data_loss_error(name + " holds the value " + std::to_string(v) +
                                ", which no segment of the label map has");
       }
-      slice[i] = numbers.count(v) && numbers.at(v) ? v : 0;
+      slice[i] = v;
     }
   }
   return ok_status();
@@ -206,7 +206,7 @@ Result<Segmentation> read_label_map_segmentation(DcmDataset& d, const ImageGeome
     out.referenced_series_uid = text_of(*referenced, DCM_SeriesInstanceUID);
   }
   // Segments by number; a segment numbered 0 (a described background) stays 0.
-  std::map<int, bool> numbers;
+  std::vector<bool> described(size_t{1} << 16, false);
   DcmSequenceOfItems* sequence = nullptr;
   if (d.findAndGetSequence(DCM_SegmentSequence, sequence).good() && sequence != nullptr) {
     for (unsigned long i = 0; i < sequence->card(); ++i) {
@@ -215,8 +215,8 @@ Result<Segmentation> read_label_map_segmentation(DcmDataset& d, const ImageGeome
       if (item->findAndGetUint16(DCM_SegmentNumber, number).bad()) {
         return invalid_argument_error("segment " + std::to_string(i + 1) + " of the label map has no number");
       }
-      numbers[number] = number != 0;
       if (number == 0) continue;
+      described[number] = true;
       Segment s;
       s.number = number;
       s.label = text_of(*item, DCM_SegmentLabel);
@@ -231,7 +231,7 @@ Result<Segmentation> read_label_map_segmentation(DcmDataset& d, const ImageGeome
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<FramePlane> planes, read_frame_planes(d, "the label map segmentation"));
   out.labels = LabelVolume(grid, 0);
   out.labels.set_source_type(PixelType::kUInt16);
-  POSEWARP_RETURN_IF_ERROR(read_frames(d, planes, grid, numbers, &out.labels));
+  POSEWARP_RETURN_IF_ERROR(read_frames(d, planes, grid, described, &out.labels));
   return out;
 }
 

@@ -3,6 +3,7 @@
 
 #include <dcmtk/dcmdata/dcdeftag.h>
 #include <dcmtk/dcmdata/dcsequen.h>
+#include <dcmtk/dcmdata/dcuid.h>
 
 #include <cmath>
 #include <cstdio>
@@ -25,6 +26,13 @@ DcmItem* macro_of(DcmItem* frame, DcmItem* shared, const DcmTagKey& tag) {
   return found != nullptr ? found : first_item(shared, tag);
 }
 
+// The SOP class a series' images are referenced by: theirs, or CT Image Storage where it gives none.
+std::string sop_class_of(const SeriesInfo& series) {
+  return series.sop_class_uid.empty() ? UID_CTImageStorage : series.sop_class_uid;
+}
+
+}  // namespace
+
 bool numbers(DcmItem* item, const DcmTagKey& tag, double* out, int count) {
   if (item == nullptr) return false;
   for (int i = 0; i < count; ++i) {
@@ -34,8 +42,6 @@ bool numbers(DcmItem* item, const DcmTagKey& tag, double* out, int count) {
   }
   return true;
 }
-
-}  // namespace
 
 void put(DcmItem& d, const DcmTagKey& tag, const std::string& value) {
   d.putAndInsertString(tag, value.c_str());
@@ -153,7 +159,7 @@ void put_position_dimension(DcmItem& d, const std::string& organization_uid) {
 
 SourceImage source_slice(const SeriesInfo& series, size_t index) {
   SourceImage source;
-  source.sop_class_uid = series.sop_class_uid.empty() ? "1.2.840.10008.5.1.4.1.1.2" : series.sop_class_uid;
+  source.sop_class_uid = sop_class_of(series);
   if (series.frame_numbers.empty()) {
     source.sop_instance_uid = series.sop_instance_uids.at(index);
   } else {
@@ -183,7 +189,7 @@ void put_derivation(DcmItem& groups, const std::vector<SourceImage>& sources, co
 
 void put_referenced_series(DcmItem& d, const SeriesInfo& series) {
   if (series.sop_instance_uids.empty()) return;
-  const std::string sop_class = series.sop_class_uid.empty() ? "1.2.840.10008.5.1.4.1.1.2" : series.sop_class_uid;
+  const std::string sop_class = sop_class_of(series);
   DcmItem* series_item = nullptr;
   if (d.findOrCreateSequenceItem(DCM_ReferencedSeriesSequence, series_item, 0).bad()) return;
   put(*series_item, DCM_SeriesInstanceUID, series.series_instance_uid);

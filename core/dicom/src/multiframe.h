@@ -17,6 +17,8 @@ namespace posewarp::dicom {
 
 using Vec = std::array<double, 3>;
 
+// `count` finite numbers of attribute `tag` of `item` into `out`; false when `item` is null or they are not there.
+bool numbers(DcmItem* item, const DcmTagKey& tag, double* out, int count);
 // A string attribute, inserted or replaced; an attribute's value as text (empty when missing).
 void put(DcmItem& d, const DcmTagKey& tag, const std::string& value);
 std::string text_of(DcmItem& d, const DcmTagKey& tag);

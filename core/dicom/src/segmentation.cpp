@@ -348,7 +348,6 @@ std::unique_ptr<FGDerivationImage> derivation_from(const SeriesInfo& ct, size_t 
 Status add_frames(DcmSegmentation& seg, const LabelVolume& labels, const SeriesInfo& ct,
                   const SegmentNumbers& number_of) {
   const ImageGeometry& g = labels.geometry();
-  const Vec axis{g.direction[2], g.direction[5], g.direction[8]};
   const bool reverse = written_in_reverse(g);  // as the CT was written
   const size_t per_frame = static_cast<size_t>(g.size[0] * g.size[1]);
   std::vector<Uint8> pixels(per_frame);
@@ -361,10 +360,9 @@ Status add_frames(DcmSegmentation& seg, const LabelVolume& labels, const SeriesI
     for (const int64_t k : slices_of[value]) {
       const Label* slice = labels.data() + static_cast<size_t>(k) * per_frame;
       for (size_t i = 0; i < per_frame; ++i) pixels[i] = slice[i] == value ? 1 : 0;
-      const double offset = static_cast<double>(k) * g.spacing[2];
-      position.setImagePositionPatient(format("%.6f", g.origin[0] + offset * axis[0]).c_str(),
-                                       format("%.6f", g.origin[1] + offset * axis[1]).c_str(),
-                                       format("%.6f", g.origin[2] + offset * axis[2]).c_str());
+      const Vec at = slice_position(g, k);
+      position.setImagePositionPatient(format("%.6f", at[0]).c_str(), format("%.6f", at[1]).c_str(),
+                                       format("%.6f", at[2]).c_str());
       identification.setReferencedSegmentNumber(number);
       content_fg.setDimensionIndexValues(number, 0);
       content_fg.setDimensionIndexValues(static_cast<Uint32>((reverse ? g.size[2] - 1 - k : k) + 1), 1);

@@ -443,10 +443,9 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
     f.hinge = options.constrain_hinges && joint.kind == JointKind::kHinge;
     f.axis = joint.frame.col(0);
     const RigidTransform& parent = placed[static_cast<size_t>(joint.parent)];
+    // (A bone missing from either side is skipped before its start is used.)
     const RigidTransform own =
-        rest_bones[child].voxels > 0 && target_bones[child].voxels > 0
-            ? match_segment(child, parent, f, initial_turn(rest_bones[child], target_bones[child], parent, f))
-            : match_segment(child, parent, f, RigidTransform::identity());
+        match_segment(child, parent, f, initial_turn(rest_bones[child], target_bones[child], parent, f));
     placed[child] = parent * own;
     if (!m.matched) continue;
     m.angles_deg = anatomical_angles_deg(joint, own.rotation);
@@ -459,10 +458,6 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
   }
   dice(rest, rest_segment, target, target_segment, placed, target_bones, result.segments);
   return result;
-}
-
-std::vector<std::string> standard_postures() {
-  return {"limbs-straight"};
 }
 
 Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name) {

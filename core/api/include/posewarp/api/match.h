@@ -30,9 +30,8 @@ struct PostureMatch {
 Result<PostureMatch> match_posture(const Rig& rig, const LabelVolume& target, const LabelMap& target_map,
                                    const MatchOptions& options = {});
 
-// A named standard posture of the rig (pose/match.h: standard_postures(), e.g. "limbs-straight": arms along the
-// body, legs straight), so that bodies scanned in other postures can be compared in one.
-std::vector<std::string> standard_postures();
+// A named standard posture of the rig (pose/match.h; "limbs-straight": arms along the body, legs straight), so that
+// bodies scanned in other postures can be compared in one.
 Result<Pose> standard_posture(const Rig& rig, const std::string& name);
 
 // The report: each segment's joint, anatomical angles, residual (mean and largest surface distance, Dice) and

@@ -34,9 +34,8 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
 // Named standard postures: `limbs-straight` turns each limb (the children of the shoulders, elbows, hips and knees)
 // to point straight down the body (LPS -z, the scan's head-to-foot axis), arms along the body and legs straight; a
 // hinge turns about its axis only. A limb's direction is its joint's centre to its bone's centroid.
-std::vector<std::string> standard_postures();
-// The pose of `skeleton` in the standard posture `name`; INVALID_ARGUMENT for a name not among standard_postures(),
-// or a skeleton with none of the limbs that posture turns.
+// The pose of `skeleton` in the standard posture `name`; INVALID_ARGUMENT for another name (the message lists the
+// postures), or a skeleton with none of the limbs that posture turns.
 Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name);
 
 // Anatomical angles (flexion, abduction, internal rotation, degrees) of a joint rotation in LPS about its centre:
