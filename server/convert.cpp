@@ -198,4 +198,52 @@ Result<IntensityVolume> intensity_from_raw(std::string_view bytes, PixelType typ
   return volume;
 }
 
+namespace {
+
+void put_quaternion(const Eigen::Quaterniond& q, v1::Quaternion* message) {
+  message->set_w(q.w());
+  message->set_x(q.x());
+  message->set_y(q.y());
+  message->set_z(q.z());
+}
+
+void put_angles(const Eigen::Vector3d& degrees, v1::AnatomicalAngles* message) {
+  message->set_flexion_deg(degrees.x());
+  message->set_abduction_deg(degrees.y());
+  message->set_rotation_deg(degrees.z());
+}
+
+}  // namespace
+
+void put_pose(const api::Pose& pose, v1::Pose* message) {
+  message->set_name(pose.name);
+  v1::RootMotion* root = message->mutable_root();
+  for (int a = 0; a < 3; ++a) root->add_translation_mm(pose.root.translation[a]);
+  put_quaternion(Eigen::Quaterniond(pose.root.rotation).normalized(), root->mutable_rotation()->mutable_quaternion());
+  for (const JointRotation& j : pose.joints) {
+    v1::JointRotation* joint = message->add_joints();
+    joint->set_joint(j.joint);
+    if (j.angles_deg) {
+      put_angles(*j.angles_deg, joint->mutable_angles());
+    } else {
+      put_quaternion(j.rotation, joint->mutable_quaternion());
+    }
+  }
+}
+
+void put_segment_match(const api::SegmentMatch& match, v1::SegmentMatch* message) {
+  message->set_segment(match.segment);
+  message->set_joint(match.joint);
+  message->set_matched(match.matched);
+  message->set_skipped(match.skipped);
+  message->set_volume_ml(match.volume_ml);
+  if (match.matched && !match.joint.empty()) put_angles(match.angles_deg, message->mutable_angles());
+  message->set_mean_distance_mm(match.mean_distance_mm);
+  message->set_max_distance_mm(match.max_distance_mm);
+  message->set_dice(match.dice);
+  message->set_iterations(match.iterations);
+  message->set_beyond_range(match.beyond_range);
+  message->set_held_at_range(match.held_at_range);
+}
+
 }  // namespace posewarp::server

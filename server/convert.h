@@ -4,6 +4,7 @@
 #include <string>
 
 #include "posewarp/api/files.h"
+#include "posewarp/api/match.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/v1/posewarp.pb.h"
 #include "requests.h"
@@ -24,6 +25,9 @@ void put_rig_row(const RigRecord& record, v1::Rig* message);
 void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton);
 void put_surface(const SurfaceMesh& mesh, bool with_vertices, v1::Surface* message);
 void put_report(const QualityReport& report, v1::QualityReport* message);
+// A pose as the typed message: anatomical angles where the pose has them, else the joint's quaternion.
+void put_pose(const api::Pose& pose, v1::Pose* message);
+void put_segment_match(const api::SegmentMatch& match, v1::SegmentMatch* message);
 
 // Operations between the index's rows and the wire.
 v1::Operation operation_from(const OperationRecord& record);

@@ -387,4 +387,23 @@ Status check_build_request(const v1::BuildRigRequest& request) {
   return ok_status();
 }
 
+Status check_match_request(const v1::MatchPostureRequest& request) {
+  if (!api::is_hex_id(request.rig_id()))
+    return invalid_argument_error("rig_id is 64 lowercase hex digits (from BuildRig)");
+  if (request.target_labels_volume_id().empty() == request.standard().empty()) {
+    return invalid_argument_error(
+        "give either target_labels_volume_id (the other scan's labels, uploaded) or standard (a standard posture's "
+        "name)");
+  }
+  if (!request.target_labels_volume_id().empty() && !api::is_hex_id(request.target_labels_volume_id())) {
+    return invalid_argument_error("target_labels_volume_id is 64 lowercase hex digits (the id UploadVolume answered)");
+  }
+  if (request.standard().size() > 64) return invalid_argument_error("standard is longer than 64 characters");
+  if (!request.preset().empty() && !request.label_map_json().empty()) {
+    return invalid_argument_error("give preset or label_map_json, not both");
+  }
+  if (request.preset().size() > 64) return invalid_argument_error("preset is longer than 64 characters");
+  return check_json_size(request.label_map_json(), "label_map_json");
+}
+
 }  // namespace posewarp::server

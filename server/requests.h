@@ -65,6 +65,8 @@ Result<CheckedPose> check_pose_request(const v1::PoseRequest& request);
 // A preview update's pose and method (its rig id is checked where the engine is looked up).
 Result<api::Pose> check_preview_request(const v1::PreviewRequest& request);
 Status check_build_request(const v1::BuildRigRequest& request);
+// A match's rig id, its target volume's id or a standard posture (one of the two), and the target's names.
+Status check_match_request(const v1::MatchPostureRequest& request);
 
 // The extension a stored upload of `format` gets, or nullptr for a format that is not a file.
 const char* extension_of(v1::FileFormat format);

@@ -91,6 +91,9 @@ class PosewarpService final : public v1::Posewarp::Service {
                     grpc::ServerWriter<v1::PoseResponse>* writer) override;
   // rpc/preview.cpp
   grpc::Status Preview(grpc::ServerContext* context, PreviewStream* stream) override;
+  // rpc/match.cpp
+  grpc::Status MatchPosture(grpc::ServerContext* context, const v1::MatchPostureRequest* request,
+                            v1::MatchPostureResponse* response) override;
 
   // Refuses new work, cancels queued and running builds (marked CANCELLED) and waits for the build workers; poses
   // in flight finish.

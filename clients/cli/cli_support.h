@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "posewarp/api/files.h"
+#include "posewarp/api/pose_engine.h"
 #include "posewarp/api/support.h"
 
 namespace posewarp::cli {
@@ -51,6 +52,14 @@ ProgressHooks progress_bar();
 
 // Prints to stdout unless --quiet.
 void say(const std::string& line);
+
+// "<stem>_forward<ext>" beside a field path (keeps .nii.gz together).
+std::string forward_field_path(const std::string& path);
+// The files of a pose, local or answered by the server (report_json: the report as written; `source`: the forward
+// field's grid); each empty path is skipped.
+Status write_outputs(const api::PoseResult& result, const std::string& report_json, const std::string& labels_out,
+                     const std::string& ct_out, const std::string& field_out, const std::string& report_out,
+                     const ImageGeometry& source);
 
 // A joint's range of motion as `rig info` prints it, from its JSON entry (`range_deg`, `range_stopped_by_bone`, as
 // local and remote `rig info --json` write them); empty when the entry has none.

@@ -56,16 +56,6 @@ std::string fixed(double value, int digits) {
   return out.str();
 }
 
-// "<stem>_forward<ext>" beside a field path (keeps .nii.gz together).
-std::string forward_field_path(const std::string& path) {
-  for (const std::string ext : {".nii.gz", ".nii", ".nrrd", ".mha"}) {
-    if (path.size() > ext.size() && path.compare(path.size() - ext.size(), ext.size(), ext) == 0) {
-      return path.substr(0, path.size() - ext.size()) + "_forward" + ext;
-    }
-  }
-  return path + "_forward";
-}
-
 Result<api::PoseRequest> make_request(const OutputOptions& o) {
   api::PoseRequest request;
   POSEWARP_ASSIGN_OR_RETURN(request.method, api::method_from_name(o.method));
@@ -98,31 +88,6 @@ Status write_surfaces(const api::PoseResult& result, const std::string& dir, con
     POSEWARP_RETURN_IF_ERROR(api::write_surface(s, (fs::path(dir) / (s.name + "." + format)).string()));
   }
   say("wrote " + std::to_string(result.surfaces.size()) + " surfaces to " + dir);
-  return ok_status();
-}
-
-// The files of a pose, local or answered by the server (report_json: the report as written).
-Status write_outputs(const api::PoseResult& result, const std::string& report_json, const std::string& labels_out,
-                     const std::string& ct_out, const std::string& field_out, const std::string& report_out,
-                     const ImageGeometry& source) {
-  if (!labels_out.empty() && result.labels) {
-    POSEWARP_RETURN_IF_ERROR(api::write_volume(*result.labels, labels_out));
-    say("wrote " + labels_out);
-  }
-  if (!ct_out.empty() && result.ct) {
-    POSEWARP_RETURN_IF_ERROR(api::write_volume(*result.ct, ct_out));
-    say("wrote " + ct_out);
-  }
-  if (!field_out.empty()) {
-    POSEWARP_RETURN_IF_ERROR(api::write_displacement_field(result.inverse_field, result.output_grid, field_out));
-    const std::string forward = forward_field_path(field_out);
-    POSEWARP_RETURN_IF_ERROR(api::write_displacement_field(result.forward_field, source, forward));
-    say("wrote " + field_out + " (inverse, output grid) and " + forward + " (forward, input grid)");
-  }
-  if (!report_out.empty()) {
-    POSEWARP_RETURN_IF_ERROR(api::write_file_atomically(report_out, report_json, "report"));
-    say("wrote " + report_out);
-  }
   return ok_status();
 }
 

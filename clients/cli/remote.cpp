@@ -229,6 +229,49 @@ int run_build_remote(const RemoteBuild& o) {
   return 0;
 }
 
+Result<RemoteMatch> match_remote(const Connection& connection, const RemoteMatchRequest& r) {
+  POSEWARP_RETURN_IF_ERROR(check_rig_id(r.rig_id));
+  POSEWARP_ASSIGN_OR_RETURN(const Remote stub, connect(connection));
+  v1::MatchPostureRequest request;
+  request.set_rig_id(r.rig_id);
+  if (r.target) {
+    POSEWARP_ASSIGN_OR_RETURN(*request.mutable_target_labels_volume_id(),
+                              upload(stub, *r.target, v1::VOLUME_KIND_LABELS));
+  }
+  request.set_standard(r.standard);
+  request.set_preset(r.preset);
+  request.set_label_map_json(r.label_map_json);
+  request.set_free_hinges(r.free_hinges);
+  request.set_beyond_range(r.beyond_range);
+  v1::MatchPostureResponse answer;
+  if (grpc::Status s = stub->unary(&v1::Posewarp::Stub::MatchPosture, request, &answer); !s.ok()) {
+    return status_of(s, connection.server);
+  }
+  RemoteMatch out;
+  POSEWARP_ASSIGN_OR_RETURN(out.match.match.pose, api::pose_from_json(answer.pose_json(), "the server's answer"));
+  for (const v1::SegmentMatch& m : answer.segments()) {
+    api::SegmentMatch s;
+    s.segment = m.segment();
+    s.joint = m.joint();
+    s.matched = m.matched();
+    s.skipped = m.skipped();
+    s.volume_ml = m.volume_ml();
+    s.angles_deg = {m.angles().flexion_deg(), m.angles().abduction_deg(), m.angles().rotation_deg()};
+    s.mean_distance_mm = m.mean_distance_mm();
+    s.max_distance_mm = m.max_distance_mm();
+    s.dice = m.dice();
+    s.iterations = m.iterations();
+    s.beyond_range = m.beyond_range();
+    s.held_at_range = m.held_at_range();
+    out.match.match.segments.push_back(std::move(s));
+  }
+  out.match.unnamed_labels.assign(answer.unnamed_labels().begin(), answer.unnamed_labels().end());
+  out.match.seconds = answer.seconds();
+  out.report_json = answer.report_json();
+  if (answer.has_target_grid()) out.target_grid = grid_of(answer.target_grid());
+  return out;
+}
+
 int run_list_remote(const Connection& connection) {
   Result<Remote> remote = connect(connection);
   if (!remote.ok()) return report(remote.status());

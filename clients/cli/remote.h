@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/api/match.h"
 #include "posewarp/api/pose_engine.h"
 
 namespace posewarp::cli {
@@ -80,6 +81,21 @@ class RemotePoser {
   std::unique_ptr<State> state_;
 };
 
+// What a match asks of the server (MatchPosture): the target's labels (uploaded first) or a standard posture.
+struct RemoteMatchRequest {
+  std::string rig_id;
+  std::optional<RemoteVolumeFile> target;
+  std::string standard, preset, label_map_json;
+  bool free_hinges = false, beyond_range = false;
+};
+
+// The server's answer in the api's types, so that the local command prints and writes it alike.
+struct RemoteMatch {
+  api::PostureMatch match;
+  std::string report_json;    // the match report as the server wrote it (empty for a standard posture)
+  ImageGeometry target_grid;  // the target's grid (a match)
+};
+
 // Uploads the volumes (the server keeps one copy of each), starts the build, shows its progress and prints the
 // rig id. Exit codes as the local commands.
 #ifdef POSEWARP_REMOTE
@@ -92,6 +108,8 @@ int run_list_remote(const Connection& connection);
 int run_info_remote(const Connection& connection, const std::string& rig_id, bool as_json);
 int run_delete_remote(const Connection& connection, const std::string& rig_id);
 int run_export_remote(const Connection& connection, const std::string& rig_id, const std::string& rig_out);
+// The target uploaded (when there is one), then MatchPosture.
+Result<RemoteMatch> match_remote(const Connection& connection, const RemoteMatchRequest& request);
 // The standard gRPC health check (grpc.health.v1.Health/Check): exit 0 when the server is serving, 1 otherwise.
 int run_health_remote(const Connection& connection, double timeout_s);
 #else
@@ -122,6 +140,9 @@ inline Result<api::Rig> RemotePoser::rig() const {
   return unimplemented_error("no remote mode");
 }
 inline int run_health_remote(const Connection&, double) { return remote_unavailable(); }
+inline Result<RemoteMatch> match_remote(const Connection&, const RemoteMatchRequest&) {
+  return failed_precondition_error("this posewarp was built without the gRPC client (POSEWARP_BUILD_SERVER=OFF)");
+}
 inline int run_list_remote(const Connection&) {
   return remote_unavailable();
 }

@@ -8,7 +8,7 @@
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace posewarp;
   if (size < 1) return 0;
-  const int kind = data[0] % 5;
+  const int kind = data[0] % 6;
   const void* bytes = data + 1;
   const int length = static_cast<int>(size - 1);
   server::RequestLimits limits;
@@ -33,9 +33,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       if (request.ParseFromArray(bytes, length)) (void)server::check_build_request(request);
       break;
     }
-    default: {
+    case 4: {
       v1::PreviewRequest request;
       if (request.ParseFromArray(bytes, length)) (void)server::check_preview_request(request);
+      break;
+    }
+    default: {
+      v1::MatchPostureRequest request;
+      if (request.ParseFromArray(bytes, length)) (void)server::check_match_request(request);
       break;
     }
   }

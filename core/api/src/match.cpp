@@ -84,6 +84,7 @@ std::string posture_match_to_json(const PostureMatch& m) {
       row["dice"] = s.dice;
       row["iterations"] = s.iterations;
       if (!s.beyond_range.empty()) row["beyond_range"] = s.beyond_range;
+      if (!s.held_at_range.empty()) row["held_at_range"] = s.held_at_range;
     } else {
       row["skipped"] = s.skipped;
     }

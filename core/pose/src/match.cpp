@@ -7,7 +7,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <initializer_list>
 #include <limits>
+#include <map>
+#include <optional>
 #include <unordered_map>
 
 #include "posewarp/rig/anatomical_frame.h"
@@ -165,13 +168,71 @@ Matrix3d best_turn_about(const Vector3d& axis, const Points& from, const Points&
   return Eigen::AngleAxisd(std::atan2(sine, cosine), axis).toRotationMatrix();
 }
 
-// How a segment may move: freely (the root), about a point (a ball or plane joint), about an axis through a point.
+// A joint's range in angles relative to the rig's rest (AnatomicalRange less the rest posture's own angles).
+struct Limits {
+  Vector3d min_deg, max_deg;
+};
+
+// How a segment may move: freely (the root), about a point (a ball or plane joint), about an axis through a point;
+// a joint with `limits` within them.
 struct Freedom {
   bool translate = false;
   Vector3d centre = Vector3d::Zero();
   bool hinge = false;
   Vector3d axis = Vector3d::UnitX();
+  const rig::Joint* joint = nullptr;
+  std::optional<Limits> limits;
 };
+
+double wrapped_deg(double degrees) {
+  const double d = std::remainder(degrees, 360.0);
+  return d <= -180.0 ? d + 360.0 : d;
+}
+
+// How far `angles` lie outside `limits`, summed over the motions.
+double excess(const Vector3d& angles, const Limits& limits) {
+  return (limits.min_deg - angles).cwiseMax(0.0).sum() + (angles - limits.max_deg).cwiseMax(0.0).sum();
+}
+
+// A joint's turn read as anatomical angles and kept within `limits`: of its two angle triples, (a, b, c) and
+// (a + 180, 180 - b, c + 180), the one nearer the limits, clamped into them; `held` names what was clamped.
+struct Limited {
+  Matrix3d rotation;
+  Vector3d angles_deg;
+  std::string held;
+};
+
+// Of a turn's two angle triples the one nearer `limits`.
+Vector3d nearer_angles_deg(const rig::Joint& joint, const Matrix3d& rotation, const Limits& limits) {
+  const Vector3d first = anatomical_angles_deg(joint, rotation);
+  const Vector3d second(wrapped_deg(first.x() + 180.0), wrapped_deg(180.0 - first.y()), wrapped_deg(first.z() + 180.0));
+  return excess(second, limits) < excess(first, limits) ? second : first;
+}
+
+// A turn's angles as people read them: for a limb joint the triple nearer its anatomical range.
+Vector3d readable_angles_deg(const rig::Joint& joint, const Matrix3d& rotation) {
+  const std::optional<AnatomicalRange> range = anatomical_range(joint.name);
+  return range ? nearer_angles_deg(joint, rotation, Limits{range->min_deg, range->max_deg})
+               : anatomical_angles_deg(joint, rotation);
+}
+
+Limited within_limits(const rig::Joint& joint, const Matrix3d& rotation, const Limits& limits) {
+  Limited out{rotation, nearer_angles_deg(joint, rotation, limits), ""};
+  const Vector3d clamped = out.angles_deg.cwiseMax(limits.min_deg).cwiseMin(limits.max_deg);
+  static constexpr const char* kMotions[] = {"flexion", "abduction", "rotation"};
+  for (int m = 0; m < 3; ++m) {
+    if (std::abs(clamped[m] - out.angles_deg[m]) < 1e-9) continue;
+    char words[96];
+    std::snprintf(words, sizeof words, "%s%s %.1f held at %.1f", out.held.empty() ? "" : ", ", kMotions[m],
+                  out.angles_deg[m], clamped[m]);
+    out.held += words;
+  }
+  if (!out.held.empty()) {
+    out.rotation = rig::joint_rotation_from_angles(joint, clamped.x(), clamped.y(), clamped.z());
+    out.angles_deg = clamped;
+  }
+  return out;
+}
 
 // A segment's points paired with the target bone's nearest points, those beyond three times the median distance
 // left out; the distances of all pairs in `distances`.
@@ -219,13 +280,24 @@ Pairs pair_up(const Points& points, const RigidTransform& placed, const TargetBo
   return pairs;
 }
 
-// ICP of `points` (rest) onto the target bone, moving only as `freedom` allows, after `parent` (the transform of the
-// segment's parent; identity for the root) and from `start` (the segment's own motion in its parent's rest frame).
-// Returns the segment's own motion; `iterations` receives how many it took.
-RigidTransform align(const Points& points, const RigidTransform& parent, RigidTransform start, const Freedom& freedom,
-                     const TargetBone& target, double floor_mm, int max_iterations, int* iterations) {
+// What aligning a segment found: its own motion (in its parent's rest frame), the ICP iterations it took, and for a
+// joint with limits its angles and what the limits held back in the last iteration.
+struct Aligned {
+  RigidTransform own;
+  int iterations = 0;
+  std::optional<Vector3d> angles_deg;
+  std::string held;
+};
+
+// ICP of `points` (rest) onto the target bone, moving only as `freedom` allows (each step's turn kept within the
+// joint's limits), after `parent` (the transform of the segment's parent; identity for the root) and from `start`
+// (the segment's own motion in its parent's rest frame).
+Aligned align(const Points& points, const RigidTransform& parent, RigidTransform start, const Freedom& freedom,
+              const TargetBone& target, double floor_mm, int max_iterations) {
   const RigidTransform back = parent.inverse();
-  RigidTransform own = start;
+  Aligned out;
+  RigidTransform& own = out.own;
+  own = start;
   int n = 0;
   for (; n < max_iterations; ++n) {
     const Pairs pairs = pair_up(points, parent * own, target, floor_mm);
@@ -255,6 +327,12 @@ RigidTransform align(const Points& points, const RigidTransform& parent, RigidTr
         for (size_t m = 0; m < to.size(); ++m) h += from_c[m] * to_c[m].transpose();
         rotation = kabsch(h);
       }
+      if (freedom.limits) {
+        Limited limited = within_limits(*freedom.joint, rotation, *freedom.limits);
+        rotation = limited.rotation;
+        out.angles_deg = limited.angles_deg;
+        out.held = std::move(limited.held);
+      }
       next = RigidTransform::about(rotation, freedom.centre);
     }
     const double turn = Eigen::AngleAxisd(next.rotation * own.rotation.transpose()).angle();
@@ -265,8 +343,8 @@ RigidTransform align(const Points& points, const RigidTransform& parent, RigidTr
       break;
     }
   }
-  *iterations = n;
-  return own;
+  out.iterations = n;
+  return out;
 }
 
 // The start of a child's match: the turn about its joint that takes the direction to its rest centroid onto the
@@ -348,6 +426,30 @@ std::string beyond_range(const rig::Joint& joint, const Vector3d& angles_deg) {
 
 }  // namespace
 
+std::optional<AnatomicalRange> anatomical_range(const std::string& joint) {
+  // flexion, abduction, internal rotation: min and max. Flexion and abduction are positive as the pose files have
+  // them (flexion forward at shoulder and hip, bending at elbow and knee; abduction away from the midline); where a
+  // sign differs between sides or rigs (the wrist's deviation, the ankle's flexion) the range is the wider side's
+  // both ways.
+  struct Row {
+    const char* name;
+    double min[3], max[3];
+  };
+  static constexpr Row kRanges[] = {
+      {"shoulder", {-60, -50, -90}, {180, 180, 90}}, {"elbow", {-10, -20, -90}, {150, 20, 90}},
+      {"wrist", {-80, -35, -30}, {80, 35, 30}},      {"hip", {-30, -30, -45}, {125, 50, 45}},
+      {"knee", {-10, -15, -40}, {150, 15, 40}},      {"ankle", {-50, -35, -30}, {50, 35, 30}},
+  };
+  const std::string first = joint.substr(0, joint.find('_'));
+  for (const Row& row : kRanges) {
+    if (first == row.name) {
+      return AnatomicalRange{Vector3d(row.min[0], row.min[1], row.min[2]),
+                             Vector3d(row.max[0], row.max[1], row.max[2])};
+    }
+  }
+  return std::nullopt;
+}
+
 Eigen::Vector3d anatomical_angles_deg(const rig::Joint& joint, const Eigen::Matrix3d& rotation_lps) {
   // R = Rx(a) Ry(b) Rz(s c): R(0,2) = sin b, R(1,2) = -sin a cos b, R(2,2) = cos a cos b, R(0,1) = -cos b sin(s c),
   // R(0,0) = cos b cos(s c).
@@ -406,8 +508,15 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
     }
     const NearestGrid grid(target_bones[s].surface, cell);
     const TargetBone bone{grid, target_bones[s].surface, tg};
-    const RigidTransform own =
-        align(rest_bones[s].surface, parent, start, freedom, bone, floor_mm, options.max_iterations, &m.iterations);
+    Aligned aligned = align(rest_bones[s].surface, parent, start, freedom, bone, floor_mm, options.max_iterations);
+    const RigidTransform& own = aligned.own;
+    m.iterations = aligned.iterations;
+    if (freedom.limits) {
+      // (A match that stopped before its first step reads its start within the limits.)
+      m.angles_deg = aligned.angles_deg ? *aligned.angles_deg
+                                        : within_limits(*freedom.joint, own.rotation, *freedom.limits).angles_deg;
+      m.held_at_range = std::move(aligned.held);
+    }
     // The residual: every surface point of the moved segment within the target's view against the target bone.
     double sum = 0;
     int64_t paired = 0;
@@ -432,6 +541,14 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
   const Vector3d c = skeleton.segments[root].centroid_mm;
   result.pose.root.rotation = placed[root].rotation;
   result.pose.root.translation = placed[root].rotation * c + placed[root].translation - c;
+  // The rest posture's own angles at the limb joints (the turn that straightens them, limbs-straight), taken off
+  // their anatomical ranges: a scan is rarely in the anatomical position.
+  std::map<std::string, Vector3d> straightening;
+  if (options.anatomical_ranges) {
+    if (Result<Pose> straight = standard_posture(skeleton, "limbs-straight"); straight.ok()) {
+      for (const JointRotation& j : straight->joints) straightening[j.joint] = *j.angles_deg;
+    }
+  }
   // Every joint in order, parents before children: its child turns about the joint's centre.
   for (const rig::Joint& joint : skeleton.joints) {
     if (joint.parent < 0 || joint.child < 0 || static_cast<size_t>(joint.child) >= count) continue;
@@ -442,13 +559,19 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
     f.centre = joint.centre_mm;
     f.hinge = options.constrain_hinges && joint.kind == JointKind::kHinge;
     f.axis = joint.frame.col(0);
+    f.joint = &joint;
+    if (const std::optional<AnatomicalRange> range = anatomical_range(joint.name); range && options.anatomical_ranges) {
+      const auto it = straightening.find(joint.name);
+      const Vector3d offset = it == straightening.end() ? Vector3d::Zero() : it->second;
+      f.limits = Limits{range->min_deg + offset, range->max_deg + offset};
+    }
     const RigidTransform& parent = placed[static_cast<size_t>(joint.parent)];
     // (A bone missing from either side is skipped before its start is used.)
     const RigidTransform own =
         match_segment(child, parent, f, initial_turn(rest_bones[child], target_bones[child], parent, f));
     placed[child] = parent * own;
     if (!m.matched) continue;
-    m.angles_deg = anatomical_angles_deg(joint, own.rotation);
+    if (!f.limits) m.angles_deg = readable_angles_deg(joint, own.rotation);
     m.beyond_range = beyond_range(joint, m.angles_deg);
     JointRotation rotation;
     rotation.joint = joint.name;
@@ -461,17 +584,21 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
 }
 
 Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name) {
-  if (name != "limbs-straight") {
-    return invalid_argument_error("there is no standard posture '" + name + "'; the standard postures are: limbs-straight");
+  const bool arms_up = name == "arms-up";
+  if (name != "limbs-straight" && name != "supine-arms-down" && !arms_up) {
+    return invalid_argument_error("there is no standard posture '" + name +
+                                  "'; the standard postures are: limbs-straight (or supine-arms-down), arms-up");
   }
   // The joints whose children are limbs, by the joint names rigs use ("shoulder_left", "knee_right", ...).
-  const auto is_limb_joint = [](const std::string& joint) {
-    for (const char* prefix : {"shoulder", "elbow", "hip", "knee"}) {
+  const auto starts = [](const std::string& joint, std::initializer_list<const char*> prefixes) {
+    for (const char* prefix : prefixes) {
       if (joint.rfind(prefix, 0) == 0) return true;
     }
     return false;
   };
-  const Vector3d down(0.0, 0.0, -1.0);
+  const Vector3d down(0.0, 0.0, -1.0), up(0.0, 0.0, 1.0);
+  const Vector3d middle =
+      skeleton.root >= 0 ? skeleton.segments[static_cast<size_t>(skeleton.root)].centroid_mm : Vector3d::Zero();
   Pose pose;
   pose.name = name;
   std::vector<Matrix3d> turned(skeleton.segments.size(), Matrix3d::Identity());  // each segment's rotation
@@ -480,15 +607,24 @@ Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& 
     const Matrix3d& parent = turned[static_cast<size_t>(joint.parent)];
     Matrix3d own = Matrix3d::Identity();
     const Vector3d from = skeleton.segments[static_cast<size_t>(joint.child)].centroid_mm - joint.centre_mm;
-    if (is_limb_joint(joint.name) && from.norm() > 1e-6) {
+    if (starts(joint.name, {"shoulder", "elbow", "hip", "knee"}) && from.norm() > 1e-6) {
+      const bool arm = starts(joint.name, {"shoulder", "elbow"});
       // In the parent's rest frame, where the joint's own turn acts.
-      const Vector3d to = parent.transpose() * down;
-      own = joint.kind == JointKind::kHinge ? best_turn_about(joint.frame.col(0), {from}, {to})
-                                            : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
+      const Vector3d to = parent.transpose() * (arms_up && arm ? up : down);
+      if (joint.kind == JointKind::kHinge) {
+        own = best_turn_about(joint.frame.col(0), {from}, {to});
+      } else {
+        // A ball joint turning the limb more than a right angle goes through the side (abducted), the way arms are
+        // raised over the head or brought down from it, not through whatever axis the shortest turn picks.
+        const Vector3d side = parent.transpose() * Vector3d(joint.centre_mm.x() >= middle.x() ? 1.0 : -1.0, 0, 0);
+        own = from.normalized().dot(to) < 0.0 ? Eigen::Quaterniond::FromTwoVectors(side, to).toRotationMatrix() *
+                                                    Eigen::Quaterniond::FromTwoVectors(from, side).toRotationMatrix()
+                                              : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
+      }
       JointRotation rotation;
       rotation.joint = joint.name;
       rotation.rotation = Eigen::Quaterniond(joint.frame.transpose() * own * joint.frame).normalized();
-      rotation.angles_deg = anatomical_angles_deg(joint, own);
+      rotation.angles_deg = readable_angles_deg(joint, own);
       pose.joints.push_back(rotation);
     }
     turned[static_cast<size_t>(joint.child)] = parent * own;

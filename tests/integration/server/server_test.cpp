@@ -391,6 +391,97 @@ TEST_F(Server, RemoteAndLocalCommandsWriteTheSameFiles) {
   EXPECT_EQ(run({POSEWARP_CLI, "rig", "list", "--server", "127.0.0.1:1", "--retries", "0"}) >> 8, 1);
 }
 
+// MatchPosture on the bar: a target posed locally (the middle joint bent 30 degrees, the root moved), uploaded and
+// matched on the server, gives the angle back with each bone on its target; the CLI's match through the server
+// writes the same pose, report and posed labels as the local match on the store's rig; mistakes get their codes.
+TEST_F(Server, AMatchOnTheServerFindsTheTargetsPoseAsTheLocalMatchDoes) {
+  const std::string rig_id = bar_rig_id();
+  ASSERT_TRUE(is_hex_id(rig_id));
+  const std::string server = "127.0.0.1:" + std::to_string(server_->port());
+  const fs::path at = dir_ / "match";
+  fs::create_directories(at);
+  const std::string rig_file = (dir_ / "store" / "rigs" / (rig_id + ".rig")).string();
+  std::ofstream(at / "truth.json") << R"({"format": "posewarp.pose", "version": 1, "name": "truth",
+    "root": {"translation_mm": [3, -2, 4]}, "joints": {"joint_2_3": {"angles_deg": {"flexion": 30}}}})";
+  ASSERT_EQ(run({POSEWARP_CLI, "-q", "pose", rig_file, "--pose", (at / "truth.json").string(), "--labels-out",
+                 (at / "target.nii.gz").string()}),
+            0);
+  v1::Volume target, ct;
+  ASSERT_TRUE(upload(at / "target.nii.gz", v1::VOLUME_KIND_LABELS, &target).ok());
+  v1::MatchPostureRequest request;
+  request.set_rig_id(rig_id);
+  request.set_target_labels_volume_id(target.id());
+  v1::MatchPostureResponse answer;
+  {
+    grpc::ClientContext context;
+    const grpc::Status status = stub_->MatchPosture(&context, request, &answer);
+    ASSERT_TRUE(status.ok()) << status.error_message();
+  }
+  bool found_joint = false;
+  for (const v1::SegmentMatch& s : answer.segments()) {
+    EXPECT_TRUE(s.matched()) << s.segment() << ": " << s.skipped();
+    if (s.volume_ml() > 5.0) {
+      EXPECT_GT(s.dice(), 0.9) << s.segment();
+    }
+    if (s.joint() == "joint_2_3") {
+      found_joint = true;
+      EXPECT_NEAR(s.angles().flexion_deg(), 30.0, 2.0);
+    }
+  }
+  EXPECT_TRUE(found_joint);
+  ASSERT_EQ(answer.pose().root().translation_mm_size(), 3);
+  EXPECT_NEAR(answer.pose().root().translation_mm(2), 4.0, 2.0);
+  EXPECT_NE(answer.pose_json().find("joint_2_3"), std::string::npos);
+  EXPECT_NE(answer.report_json().find("\"format\": \"posewarp.match\""), std::string::npos);
+  Result<api::VolumeHeader> grid = api::read_header((at / "target.nii.gz").string());
+  ASSERT_TRUE(grid.ok());
+  EXPECT_EQ(answer.target_grid().size(0), grid->geometry.size[0]);
+
+  // The CLI: through the server and in this process, the same files.
+  for (const std::string mode : {"remote", "local"}) {
+    fs::create_directories(at / mode);
+    std::vector<std::string> args{POSEWARP_CLI, "-q", "match"};
+    if (mode == "remote") {
+      args.insert(args.end(), {"--server", server, rig_id});
+    } else {
+      args.push_back(rig_file);
+    }
+    const fs::path out = at / mode;
+    args.insert(args.end(), {"--target-labels", (at / "target.nii.gz").string(), "-o", (out / "pose.json").string(),
+                             "--labels-out", (out / "labels.nii.gz").string()});
+    ASSERT_EQ(run(args), 0) << mode;
+  }
+  for (const std::string file : {"pose.json", "labels.nii.gz"}) {
+    ASSERT_TRUE(fs::exists(at / "local" / file)) << file;
+    EXPECT_EQ(file_text(at / "remote" / file), file_text(at / "local" / file)) << file;
+  }
+
+  // Mistakes: a target and a standard both, a CT as the target, a volume the store lacks, a posture nobody defined.
+  ASSERT_TRUE(upload(dir_ / "bar" / "ct.nii.gz", v1::VOLUME_KIND_INTENSITY, &ct).ok());
+  const auto refused = [&](v1::MatchPostureRequest bad) {
+    grpc::ClientContext context;
+    v1::MatchPostureResponse ignored;
+    return stub_->MatchPosture(&context, bad, &ignored);
+  };
+  v1::MatchPostureRequest both = request;
+  both.set_standard("limbs-straight");
+  EXPECT_EQ(refused(both).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  v1::MatchPostureRequest wrong_kind = request;
+  wrong_kind.set_target_labels_volume_id(ct.id());
+  const grpc::Status swapped = refused(wrong_kind);
+  EXPECT_EQ(swapped.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(swapped.error_message().find("VOLUME_KIND_INTENSITY"), std::string::npos) << swapped.error_message();
+  v1::MatchPostureRequest missing = request;
+  missing.set_target_labels_volume_id(std::string(64, 'a'));
+  EXPECT_EQ(refused(missing).error_code(), grpc::StatusCode::NOT_FOUND);
+  v1::MatchPostureRequest unknown;
+  unknown.set_rig_id(rig_id);
+  unknown.set_standard("t-pose");
+  const grpc::Status no_posture = refused(unknown);
+  EXPECT_EQ(no_posture.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(no_posture.error_message().find("arms-up"), std::string::npos) << no_posture.error_message();
+}
+
 // The preview stream flooded with 10,000 updates: the latest wins (the last update is answered, the skipped ones
 // are counted), the topology comes once, and the server keeps serving.
 TEST_F(Server, APreviewFloodedWithUpdatesAnswersTheLatest) {

@@ -17,17 +17,19 @@ namespace {
 using Eigen::Vector3d;
 
 // The rest labels: segment s (label s + 1) a 24 x 16 mm bar from z = 100 s + 12 to 100 s + 88 with a 10 mm knob on its
-// +x side and another on its +y side at different heights; 2 mm voxels.
-LabelVolume rest_bones() {
+// +x side and another on its +y side at different heights; 2 mm voxels. `hanging`: the same turned half a turn about
+// LPS x (hanging_chain's bones, pointing down as limbs do).
+LabelVolume rest_bones(bool hanging = false) {
   ImageGeometry g;
   g.size = {110, 110, 170};
   g.spacing = {2.0, 2.0, 2.0};
-  g.origin = {-110.0, -110.0, -20.0};
+  g.origin = {-110.0, -110.0, hanging ? -318.0 : -20.0};
   LabelVolume v(g, 0);
   for (int64_t k = 0; k < g.size[2]; ++k) {
     for (int64_t j = 0; j < g.size[1]; ++j) {
       for (int64_t i = 0; i < g.size[0]; ++i) {
-        const Vec3 p = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+        Vec3 p = g.index_to_physical({static_cast<double>(i), static_cast<double>(j), static_cast<double>(k)});
+        if (hanging) p = {p[0], -p[1], -p[2]};
         for (int s = 0; s < 3; ++s) {
           const double z = p[2] - 100.0 * s;
           const bool bar = std::abs(p[0]) <= 12 && std::abs(p[1]) <= 8 && z >= 12 && z <= 88;
@@ -68,6 +70,55 @@ rig::Skeleton labelled_chain() {
   for (size_t s = 0; s < 3; ++s) skeleton.segments[s].labels = {static_cast<Label>(s + 1)};
   skeleton.joints[1].kind = JointKind::kHinge;  // "upper" turns about its x axis (LPS y) only
   return skeleton;
+}
+
+// labelled_chain turned half a turn about LPS x, hanging down from its root as an arm does: a shoulder (ball) and an
+// elbow (hinge), whose names give them anatomical ranges.
+rig::Skeleton hanging_chain() {
+  rig::Skeleton skeleton = labelled_chain();
+  const Eigen::Matrix3d half = Eigen::AngleAxisd(M_PI, Vector3d::UnitX()).toRotationMatrix();
+  for (rig::Segment& s : skeleton.segments) s.centroid_mm = half * s.centroid_mm;
+  for (rig::Joint& j : skeleton.joints) j.centre_mm = half * j.centre_mm, j.frame = half * j.frame;
+  skeleton.joints[0].name = "shoulder_left";
+  skeleton.joints[1].name = "elbow_left";
+  return skeleton;
+}
+
+// An elbow bent backwards 40 degrees (past anatomy's 10) is held at 10 and the hold is named; asked to go beyond
+// anatomy, the match finds the 40. The shoulder, within its range, is found either way.
+TEST(MatchPosture, KeepsALimbJointWithinItsAnatomicalRangeUnlessAsked) {
+  const rig::Skeleton skeleton = hanging_chain();
+  const LabelVolume rest = rest_bones(true);
+  Pose truth;
+  truth.joints = {anatomical_rotation("shoulder_left", 30.0, 20.0, 0.0), anatomical_rotation("elbow_left", -40.0)};
+  Result<std::vector<RigidTransform>> transforms = forward_kinematics(skeleton, truth);
+  ASSERT_TRUE(transforms.ok()) << transforms.status().to_string();
+  const LabelVolume target = drawn(rest, *transforms);
+  for (const bool ranges : {true, false}) {
+    MatchOptions options;
+    options.anatomical_ranges = ranges;
+    Result<MatchResult> match = match_posture(skeleton, rest, target, {{1}, {2}, {3}}, options);
+    ASSERT_TRUE(match.ok()) << match.status().to_string();
+    ASSERT_EQ(match->pose.joints.size(), 2u);
+    const Vector3d shoulder = *match->pose.joints[0].angles_deg, elbow = *match->pose.joints[1].angles_deg;
+    EXPECT_NEAR(shoulder.x(), 30.0, 2.0);
+    EXPECT_NEAR(shoulder.y(), 20.0, 2.0);
+    EXPECT_TRUE(match->segments[1].held_at_range.empty()) << match->segments[1].held_at_range;
+    if (ranges) {
+      EXPECT_NEAR(elbow.x(), -10.0, 1e-6);
+      EXPECT_NE(match->segments[2].held_at_range.find("flexion -"), std::string::npos);
+      EXPECT_NE(match->segments[2].held_at_range.find("held at -10.0"), std::string::npos)
+          << match->segments[2].held_at_range;
+      EXPECT_LT(match->segments[2].dice, 0.9);  // the target's forearm is where anatomy does not reach
+    } else {
+      EXPECT_NEAR(elbow.x(), -40.0, 2.0);
+      EXPECT_TRUE(match->segments[2].held_at_range.empty());
+      EXPECT_GT(match->segments[2].dice, 0.9);
+    }
+  }
+  EXPECT_FALSE(anatomical_range("patellofemoral_left").has_value());
+  ASSERT_TRUE(anatomical_range("knee_right").has_value());
+  EXPECT_EQ(anatomical_range("knee_right")->max_deg.x(), 150.0);
 }
 
 TEST(MatchPosture, FindsTheRootMotionAndTheJointAnglesOfAPoseBack) {
@@ -184,10 +235,49 @@ TEST(StandardPosture, LimbsStraightTurnsABentLegStraightDown) {
   EXPECT_NEAR(shin.z(), -1.0, 1e-9) << shin.transpose();
   EXPECT_NEAR(std::abs(pose->joints[1].angles_deg->x()), 40.0, 1e-6);  // the shin's bend beyond the thigh's
   EXPECT_FALSE(standard_posture(skeleton, "t-pose").ok());
+  Result<Pose> same = standard_posture(skeleton, "supine-arms-down");
+  ASSERT_TRUE(same.ok());
+  EXPECT_NEAR(*same->joints[1].angles_deg->data(), *pose->joints[1].angles_deg->data(), 1e-12);
   rig::Skeleton spine = testing::chain_skeleton();
   Result<Pose> nothing = standard_posture(spine, "limbs-straight");
   ASSERT_FALSE(nothing.ok());
   EXPECT_NE(nothing.status().message().find("no shoulder, elbow, hip or knee"), std::string::npos);
+}
+
+// An arm hanging at the side (a ball shoulder, a hinge elbow bent 30 degrees forward) raised straight over the head
+// through the side: the turn is about the front-to-back axis, read as abduction 180 (not flexion 180 and rotation 180);
+// the legs' posture is not asked for, so a skeleton without them is fine.
+TEST(StandardPosture, ArmsUpRaisesAnArmOverTheHeadThroughTheSide) {
+  rig::Skeleton skeleton;
+  for (const char* name : {"thorax", "humerus_left", "forearm_left"}) {
+    rig::Segment segment;
+    segment.name = name;
+    skeleton.segments.push_back(segment);
+  }
+  const Vector3d shoulder(180.0, 0.0, 0.0), elbow(180.0, 0.0, -300.0);
+  skeleton.segments[0].centroid_mm = Vector3d(0.0, 0.0, -200.0);
+  skeleton.segments[1].centroid_mm = Vector3d(180.0, 0.0, -150.0);
+  skeleton.segments[2].centroid_mm = elbow + Vector3d(0.0, -120.0 * std::sin(M_PI / 6), -120.0 * std::cos(M_PI / 6));
+  skeleton.root = 0;
+  rig::Joint s;
+  s.name = "shoulder_left", s.parent = 0, s.child = 1, s.centre_mm = shoulder, s.kind = JointKind::kBall;
+  rig::Joint e;
+  e.name = "elbow_left", e.parent = 1, e.child = 2, e.centre_mm = elbow, e.kind = JointKind::kHinge;
+  skeleton.joints = {s, e};
+  Result<Pose> pose = standard_posture(skeleton, "arms-up");
+  ASSERT_TRUE(pose.ok()) << pose.status().to_string();
+  ASSERT_EQ(pose->joints.size(), 2u);
+  Result<std::vector<RigidTransform>> t = forward_kinematics(skeleton, *pose);
+  ASSERT_TRUE(t.ok()) << t.status().to_string();
+  const Vector3d elbow_now = (*t)[1].apply(elbow);
+  EXPECT_NEAR(((*t)[1].apply(skeleton.segments[1].centroid_mm) - shoulder).normalized().z(), 1.0, 1e-9);
+  EXPECT_NEAR(((*t)[2].apply(skeleton.segments[2].centroid_mm) - elbow_now).normalized().z(), 1.0, 1e-9);
+  const Eigen::AngleAxisd turn((*t)[1].rotation);
+  EXPECT_NEAR(std::abs(turn.axis().y()), 1.0, 1e-9);  // through the side
+  const Vector3d angles = *pose->joints[0].angles_deg;
+  EXPECT_NEAR(std::abs(angles.y()), 180.0, 1e-6) << angles.transpose();
+  EXPECT_NEAR(angles.x(), 0.0, 1e-6);
+  EXPECT_NEAR(angles.z(), 0.0, 1e-6);
 }
 
 }  // namespace

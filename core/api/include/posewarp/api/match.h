@@ -30,12 +30,14 @@ struct PostureMatch {
 Result<PostureMatch> match_posture(const Rig& rig, const LabelVolume& target, const LabelMap& target_map,
                                    const MatchOptions& options = {});
 
-// A named standard posture of the rig (pose/match.h; "limbs-straight": arms along the body, legs straight), so that
-// bodies scanned in other postures can be compared in one.
+// A named standard posture of the rig (pose/match.h: "limbs-straight" or "supine-arms-down": arms along the body,
+// legs straight; "arms-up": arms straight over the head), so that bodies scanned in other postures can be compared in
+// one.
 Result<Pose> standard_posture(const Rig& rig, const std::string& name);
 
 // The report: each segment's joint, anatomical angles, residual (mean and largest surface distance, Dice) and
-// iterations, or why it was skipped; the root's motion; the labels the target's map lacks; the time.
+// iterations, or why it was skipped; where an anatomical range held a joint back; the root's motion; the labels the
+// target's map lacks; the time.
 std::string posture_match_to_json(const PostureMatch& match);
 
 }  // namespace posewarp::api

@@ -15,6 +15,9 @@ struct MatchOptions {
   int max_iterations = 60;       // ICP iterations per segment
   int max_points = 3000;         // surface voxels of a segment that take part (evenly subsampled)
   bool constrain_hinges = true;  // a hinge turns about its flexion axis only
+  // The limbs' joints (shoulders, elbows, wrists, hips, knees, ankles) turn within anatomy's ranges of motion
+  // (pose/match.h); false lets them turn any way the target's bones ask.
+  bool anatomical_ranges = true;
 };
 
 // How one bone segment was matched.
@@ -34,6 +37,9 @@ struct SegmentMatch {
   // 70 (bones meet)". Empty when within, or when the rig has no ranges. Reported, not enforced: those ranges are
   // narrower than anatomy's.
   std::string beyond_range;
+  // Where the joint's anatomical range held the bone back from where the target's bone lies: e.g. "flexion 171.3
+  // held at 150.0". Empty when the fit lies within the range (or ranges were not asked for).
+  std::string held_at_range;
 };
 
 struct MatchResult {

@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -23,6 +24,18 @@ using posewarp::MatchOptions;
 using posewarp::MatchResult;
 using posewarp::SegmentMatch;
 
+// A limb joint's range of motion in anatomical angles (degrees: flexion, abduction, internal rotation) from the
+// anatomical position: normal adult values (AAOS), rounded outward. With MatchOptions::anatomical_ranges a match keeps
+// each limb joint within it: the rest posture's own angles (from limbs-straight: a rest scan is rarely in the
+// anatomical position) are taken off, each fitted turn is read in whichever of its two angle triples lies nearer the
+// range (an arm raised 170 degrees is abduction 170, not flexion 180, abduction 10, rotation 180) and clamped into it.
+struct AnatomicalRange {
+  Eigen::Vector3d min_deg, max_deg;
+};
+// By the joint name's first word: shoulder, elbow, wrist, hip, knee, ankle; nullopt for the others (spine, girdle,
+// patella, jaw), which a match leaves unconstrained.
+std::optional<AnatomicalRange> anatomical_range(const std::string& joint);
+
 // The pose of `skeleton` (built on `rest`) that matches `target`: `target_labels[k]` are the target's label values
 // of segment k (empty where the target lacks that bone; the segment then stays at rest relative to its parent and
 // is reported as skipped). INVALID_ARGUMENT when the root segment is missing from either side or `target_labels`
@@ -31,9 +44,11 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
                                   const std::vector<std::vector<Label>>& target_labels,
                                   const MatchOptions& options = {});
 
-// Named standard postures: `limbs-straight` turns each limb (the children of the shoulders, elbows, hips and knees)
-// to point straight down the body (LPS -z, the scan's head-to-foot axis), arms along the body and legs straight; a
-// hinge turns about its axis only. A limb's direction is its joint's centre to its bone's centroid.
+// Named standard postures. `limbs-straight` (also `supine-arms-down`) turns each limb (the children of the shoulders,
+// elbows, hips and knees) to point straight down the body (LPS -z, the scan's head-to-foot axis), arms along the body
+// and legs straight; `arms-up` raises the arms straight over the head instead (through the side: abducted), as chest
+// and abdomen CT is scanned, legs straight. A hinge turns about its axis only. A limb's direction is its joint's
+// centre to its bone's centroid.
 // The pose of `skeleton` in the standard posture `name`; INVALID_ARGUMENT for another name (the message lists the
 // postures), or a skeleton with none of the limbs that posture turns.
 Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name);
