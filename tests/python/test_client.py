@@ -143,6 +143,29 @@ def _bar_rig(work, client):
         return client.build_rig(labels, ct, label_map=json.load(f), name="bar")
 
 
+def test_a_match_finds_a_pose_of_the_bar_back_and_poses_onto_the_targets_grid(study):
+    work, client = study
+    rig = _bar_rig(work, client)
+    truth = {"format": "posewarp.pose", "version": 1, "name": "truth",
+             "joints": {"joint_2_3": {"angles_deg": {"flexion": 25}}}}
+    target = client.pose(rig, truth, ct=False)
+    match = client.match(rig, (target.labels, target.affine))
+    joint = next(s for s in match.segments if s["joint"] == "joint_2_3")
+    assert abs(joint["angles"][0] - 25) < 2, joint
+    assert all(s["matched"] and (s["volume_ml"] <= 5 or s["dice"] > 0.9) for s in match.segments), match.segments
+    assert match.report["format"] == "posewarp.match"
+    assert abs(match.pose["joints"]["joint_2_3"]["angles_deg"]["flexion"] - 25) < 2
+    posed = client.pose(rig, match.pose, ct=False, grid=match.target_grid)
+    assert posed.labels.shape == target.labels.shape
+    np.testing.assert_allclose(posed.affine, target.affine, atol=1e-4)
+    assert np.mean(posed.labels[target.labels > 0] == target.labels[target.labels > 0]) > 0.95
+    with pytest.raises(ValueError):
+        client.match(rig)  # neither a target nor a standard posture
+    with pytest.raises(InvalidArgumentError) as no_limbs:
+        client.match(rig, standard="limbs-straight")  # the bar has no limbs
+    assert "no shoulder, elbow, hip or knee" in str(no_limbs.value)
+
+
 def test_label_runs_decode_and_a_malformed_chunk_is_data_loss():
     def runs(*pairs, value="<i2"):
         return np.array(list(pairs), dtype=[("value", value), ("count", "<u4")]).tobytes()

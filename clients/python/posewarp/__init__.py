@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 import pkgutil
+import re
 import time
 from typing import Any, Callable, Dict, Iterator, List, Mapping, NamedTuple, Optional, Sequence, Tuple, Union
 
@@ -33,7 +34,7 @@ from posewarp.v1 import posewarp_pb2 as pb  # noqa: E402
 from posewarp.v1 import posewarp_pb2_grpc as rpc  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["Client", "PoseResult", "Surface", "make_pose", "PosewarpError", "InvalidArgumentError", "NotFoundError",
+__all__ = ["Client", "PoseResult", "MatchResult", "Surface", "make_pose", "PosewarpError", "InvalidArgumentError", "NotFoundError",
            "FailedPreconditionError", "ResourceExhaustedError", "UnavailableError", "DeadlineExceededError",
            "PermissionDeniedError", "UnauthenticatedError", "DataLossError"]
 
@@ -140,6 +141,24 @@ class PoseResult:
         image = nibabel.Nifti1Image(array, self.affine)
         image.header.set_xyzt_units("mm")
         return image
+
+
+class MatchResult(NamedTuple):
+    """A posture matched (Client.match).
+
+    pose: the pose found as the CLI's pose JSON (a dict; pose() takes it). segments: per bone a dict with segment,
+    joint ("" for the root), matched, skipped (why not), volume_ml, angles ((flexion, abduction, rotation) degrees),
+    mean_distance_mm and max_distance_mm (its surface to the target bone's), dice (with the target bone),
+    iterations, beyond_range (past the range measured on the rig's study) and held_at_range (held back by the joint's
+    anatomical range). report: the match report (posewarp.match) as a dict. unnamed_labels: the rig's labels the
+    target's map does not name. target_grid: the target's grid; pose(..., grid=result.target_grid) poses onto it, to
+    compare voxel by voxel. A standard posture has only pose."""
+    pose: Dict[str, Any]
+    segments: List[Dict[str, Any]]
+    report: Dict[str, Any]
+    unnamed_labels: List[str]
+    seconds: float
+    target_grid: Any
 
 
 def _joint_rotation(joint: str, angles: Any) -> Tuple[str, Any]:
@@ -373,8 +392,42 @@ class Client:
                  "abduction_axis": list(j.abduction_axis), "rotation_axis": list(j.rotation_axis),
                  "ranges": {r.motion: (r.negative_deg, r.positive_deg) for r in j.ranges}} for j in rig.joints]
 
+    def match(self, rig_id: str, target: Union[str, PathLike, Volume, None] = None, *, standard: str = "",
+              preset: str = "", label_map: Any = None, free_hinges: bool = False,
+              beyond_range: bool = False) -> MatchResult:
+        """The pose that brings the rig's bones onto the same bones in another scan's labels, or a standard posture.
+
+        target: the other scan's labels: an uploaded volume's id, a label file, or (array, affine) (uploaded first);
+        or standard: "limbs-straight" (or "supine-arms-down"), "arms-up". The target's labels are found by name:
+        preset (a label map the server knows) or label_map (a dict or JSON text) names them; neither: the rig's own
+        map (the same values). free_hinges lets knees, elbows and ankles turn every way; beyond_range lets the limbs'
+        joints turn past anatomy's range of motion. Raises a PosewarpError as every call does (InvalidArgumentError
+        when the target lacks the root's bone, names nothing, or the posture is unknown)."""
+        if (target is None) == (not standard):
+            raise ValueError("match takes a target (labels of another scan) or standard=NAME, one of the two")
+        target_id = ""
+        if target is not None:
+            if isinstance(target, str) and re.fullmatch(r"[0-9a-f]{64}", target):
+                target_id = target
+            else:
+                target_id = self.upload(target, kind="labels")
+        request = pb.MatchPostureRequest(rig_id=rig_id, target_labels_volume_id=target_id, standard=standard,
+                                         preset=preset, label_map_json=_json_text(label_map),
+                                         free_hinges=free_hinges, beyond_range=beyond_range)
+        answer = self._call(self._stub.MatchPosture, request)
+        segments = [{"segment": s.segment, "joint": s.joint, "matched": s.matched, "skipped": s.skipped,
+                     "volume_ml": s.volume_ml,
+                     "angles": (s.angles.flexion_deg, s.angles.abduction_deg, s.angles.rotation_deg),
+                     "mean_distance_mm": s.mean_distance_mm, "max_distance_mm": s.max_distance_mm, "dice": s.dice,
+                     "iterations": s.iterations, "beyond_range": s.beyond_range, "held_at_range": s.held_at_range}
+                    for s in answer.segments]
+        return MatchResult(json.loads(answer.pose_json), segments,
+                           json.loads(answer.report_json) if answer.report_json else {},
+                           list(answer.unnamed_labels), answer.seconds,
+                           answer.target_grid if answer.HasField("target_grid") else None)
+
     def pose(self, rig_id: str, pose: Union[Mapping[str, Any], PathLike, None] = None, method: str = "cor",
-             grid: str = "input", labels: bool = True, ct: bool = True, surfaces: bool = False,
+             grid: Any = "input", labels: bool = True, ct: bool = True, surfaces: bool = False,
              samples: str = "stored", fields: bool = False,
              meshes: Optional[Mapping[str, Tuple[Sequence, Sequence]]] = None, fem_iterations: int = 0,
              fem_volume_weight: float = 0.0, label_runs: bool = True, *,
@@ -390,7 +443,7 @@ class Client:
         volume-preserving steady state: slower, folds less tissue at bent joints). With "fem", fem_iterations (1 to
         10000, default 100: more converges further and takes longer) and fem_volume_weight (how much more keeping
         volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default. grid: "input"
-        (the study's grid) or "grow" (grown to hold the posed body).
+        (the study's grid), "grow" (grown to hold the posed body), or another scan's grid (a match's target_grid).
 
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
         bytes); "computed" gives int32 labels and float32 CT as computed. fields: also the inverse (output grid) and
@@ -411,10 +464,13 @@ class Client:
             raise ValueError(f"method is one of {', '.join(_METHODS)}")
         if samples not in ("stored", "computed"):
             raise ValueError("samples is 'stored' or 'computed'")
-        if grid not in ("input", "grow"):
-            raise ValueError("grid is 'input' or 'grow'")
+        given = grid if isinstance(grid, pb.Grid) else None
+        if given is None and grid not in ("input", "grow"):
+            raise ValueError("grid is 'input', 'grow' or a grid (a match's target_grid)")
         request = pb.PoseRequest(rig_id=rig_id, method=_METHODS[method],
-                                 grid=pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
+                                 grid=pb.GRID_POLICY_GIVEN if given is not None else
+                                 pb.GRID_POLICY_GROW if grid == "grow" else pb.GRID_POLICY_INPUT,
+                                 given_grid=given,
                                  want_labels=labels, want_ct=ct, want_surfaces=surfaces or bool(meshes),
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
                                  want_fields=fields,
