@@ -12,14 +12,15 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-constexpr const char* kColumns[] = {"id",       "labels",    "ct",         "label_map", "preset",
-                                    "dicom_ct", "dicom_seg", "pacs_study", "ct_series", "seg_series",
-                                    "pose",     "animation", "method",     "out_dir",   "to_pacs"};
+constexpr const char* kColumns[] = {"id",        "labels",     "ct",        "label_map",  "preset", "dicom_ct",
+                                    "dicom_seg", "pacs_study", "ct_series", "seg_series", "pose",   "animation",
+                                    "match",     "standard",   "method",    "out_dir",    "to_pacs"};
 
 Status set_field(Row& row, const std::string& key, const std::string& value, const std::string& where) {
-  std::string* fields[] = {&row.id,       &row.labels,    &row.ct,         &row.label_map, &row.preset,
-                           &row.dicom_ct, &row.dicom_seg, &row.pacs_study, &row.ct_series, &row.seg_series,
-                           &row.pose,     &row.animation, &row.method,     &row.out_dir};
+  std::string* fields[] = {&row.id,        &row.labels,     &row.ct,        &row.label_map,
+                           &row.preset,    &row.dicom_ct,   &row.dicom_seg, &row.pacs_study,
+                           &row.ct_series, &row.seg_series, &row.pose,      &row.animation,
+                           &row.match,     &row.standard,   &row.method,    &row.out_dir};
   for (size_t i = 0; i < std::size(fields); ++i) {
     if (key == kColumns[i]) {
       // An empty value clears a default (a row of files in a manifest whose defaults name DICOM), except for the
@@ -32,10 +33,12 @@ Status set_field(Row& row, const std::string& key, const std::string& value, con
     row.to_pacs = value == "true" || value == "1" || value == "yes";
     return ok_status();
   }
-  return invalid_argument_error(where + ": unknown field '" + key +
-                                "'; a row has: id, labels, ct, label_map, preset, "
-                                "dicom_ct, dicom_seg, pacs_study, ct_series, seg_series, pose, animation, method, "
-                                "out_dir, to_pacs");
+  return invalid_argument_error(
+      where + ": unknown field '" + key +
+      "'; a row has: id, labels, ct, label_map, preset, "
+      "dicom_ct, dicom_seg, pacs_study, ct_series, seg_series, pose, animation, match, standard, "
+      "method, "
+      "out_dir, to_pacs");
 }
 
 // One CSV line's fields (double quotes around a field that holds commas; "" inside it is a quote).
@@ -60,8 +63,8 @@ std::vector<std::string> csv_fields(const std::string& line) {
 
 // Paths in a manifest are relative to the manifest's directory.
 void resolve(Row& row, const fs::path& base) {
-  for (std::string* path :
-       {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose, &row.animation, &row.out_dir}) {
+  for (std::string* path : {&row.labels, &row.ct, &row.label_map, &row.dicom_ct, &row.dicom_seg, &row.pose,
+                            &row.animation, &row.match, &row.out_dir}) {
     if (!path->empty() && fs::path(*path).is_relative()) *path = (base / *path).lexically_normal().string();
     while (path->size() > 1 && path->back() == '/') path->pop_back();
   }
@@ -83,7 +86,11 @@ Status check_row(const Row& row, const std::string& where) {
   }
   if (!row.dicom_seg.empty() && row.dicom_ct.empty())
     return invalid_argument_error(where + ": dicom_seg needs dicom_ct");
-  if (row.pose.empty() == row.animation.empty()) return invalid_argument_error(where + ": give a pose or an animation");
+  if ((!row.pose.empty()) + (!row.animation.empty()) + (!row.match.empty()) + (!row.standard.empty()) != 1) {
+    return invalid_argument_error(where +
+                                  ": give one of pose, animation, match (another scan's labels to match) or standard "
+                                  "(a standard posture)");
+  }
   if (row.method != "cor" && row.method != "dqs" && row.method != "lbs" && row.method != "fem") {
     return invalid_argument_error(where + ": method must be cor, dqs, lbs or fem, not '" + row.method + "'");
   }
@@ -174,6 +181,12 @@ std::string study_content_key(const Row& row) {
 }
 
 std::string pose_hash(const Row& row) {
+  if (!row.standard.empty()) return "standard " + row.standard;
+  if (!row.match.empty()) {
+    std::error_code ec;
+    return "match " + row.match + " " + std::to_string(fs::file_size(row.match, ec)) + "@" +
+           std::to_string(fs::last_write_time(row.match, ec).time_since_epoch().count());
+  }
   const std::string& file = row.pose.empty() ? row.animation : row.pose;
   Result<std::string> text = api::read_text_input(file, "pose");
   return text.ok() ? api::sha256_hex(*text) : file;

@@ -23,6 +23,7 @@
 #include "pacs_options.h"
 #include "posewarp/api/dicom.h"
 #include "posewarp/api/files.h"
+#include "posewarp/api/match.h"
 #include "posewarp/api/pacs.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
@@ -53,6 +54,7 @@ struct Study {
   std::unique_ptr<api::PoseEngine> engine;
   std::mutex posing;
   std::optional<RemotePoser> remote;     // with --server: the study's rig there (the server runs poses side by side)
+  std::string rig_id;                    // ... and its id
   api::LabelMap label_map;            // the rig's, naming the segments of a SEG
   std::optional<api::SeriesInfo> dicom;  // the source CT series, for derived series
   double fetch_s = 0, rig_s = 0;
@@ -291,6 +293,7 @@ class Batch {
     POSEWARP_ASSIGN_OR_RETURN(const std::string rig_id, build_rig_remote(o_.server, inputs));
     POSEWARP_ASSIGN_OR_RETURN(RemotePoser poser, RemotePoser::open(o_.server, rig_id));
     study->remote = std::move(poser);
+    study->rig_id = rig_id;
     study->rig_s = rig_start.seconds();
     return study;
   }
@@ -404,7 +407,13 @@ class Batch {
       if (charged_.insert(row.study_key()).second) result.fetch_s = s.fetch_s, result.rig_s = s.rig_s;
     }
     std::vector<Pose> poses;
-    if (!row.pose.empty()) {
+    std::optional<Matched> matched;
+    if (!row.match.empty() || !row.standard.empty()) {
+      Result<Matched> m = match(s, row);
+      if (!m.ok()) return result.error = m.status().to_string(), result;
+      poses.push_back(m->pose);
+      matched = std::move(m).value();
+    } else if (!row.pose.empty()) {
       Result<Pose> p = api::read_pose(row.pose);
       if (!p.ok()) return result.error = p.status().to_string(), result;
       poses.push_back(*p);
@@ -413,12 +422,21 @@ class Batch {
       if (!a.ok()) return result.error = a.status().to_string(), result;
       poses = a->frames;
     }
-    const std::string pose_name = fs::path(row.pose.empty() ? row.animation : row.pose).stem().string();
+    const std::string pose_name = !row.standard.empty() ? row.standard
+                                  : !row.match.empty()
+                                      ? "match " + fs::path(row.match).stem().stem().string()
+                                      : fs::path(row.pose.empty() ? row.animation : row.pose).stem().string();
     for (size_t f = 0; f < poses.size(); ++f) {
       const std::string frame = poses.size() == 1 ? "" : "frame_" + std::to_string(f);
       api::PoseRequest request;
       request.pose = poses[f];
       request.want_labels = request.want_ct = true;
+      // A match's result lies on the target's grid, voxel for voxel comparable with it (a DICOM study's stays on
+      // its own, where its derived series belong).
+      if (matched && matched->grid && !s.dicom) {
+        request.grid = api::GridPolicy::kGiven;
+        request.given_grid = *matched->grid;
+      }
       Result<api::Method> method = api::method_from_name(row.method);
       request.method = *method;
       const Stopwatch pose_start;
@@ -436,7 +454,9 @@ class Batch {
       }
       if (!row.out_dir.empty()) {
         const fs::path out = frame.empty() ? fs::path(row.out_dir) : fs::path(row.out_dir) / frame;
-        if (Status w = write_directory(out, *posed, dicom); !w.ok()) return result.error = w.to_string(), result;
+        if (Status w = write_directory(out, *posed, dicom, matched ? &*matched : nullptr); !w.ok()) {
+          return result.error = w.to_string(), result;
+        }
         result.outputs.push_back(out.string());
       }
       result.encode_s += encode_start.seconds();
@@ -451,6 +471,42 @@ class Batch {
     result.status = "done";
     record(row, key, result);
     return result;
+  }
+
+  // A match row's pose: found against the target (its report and the target's grid with it) or a standard posture.
+  struct Matched {
+    Pose pose;
+    std::string report_json;  // posewarp.match; empty for a standard posture
+    std::optional<ImageGeometry> grid;
+  };
+
+  Result<Matched> match(Study& s, const Row& row) {
+    Matched m;
+    if (s.remote) {
+      RemoteMatchRequest request;
+      request.rig_id = s.rig_id;
+      request.standard = row.standard;
+      if (!row.match.empty()) {
+        POSEWARP_ASSIGN_OR_RETURN(std::string bytes, api::read_text_input(row.match, "volume", int64_t{8} << 30));
+        request.target = RemoteVolumeFile{row.match, std::move(bytes)};  // named as the rig's labels are
+      }
+      POSEWARP_ASSIGN_OR_RETURN(RemoteMatch answer, match_remote(o_.server, request));
+      m.pose = std::move(answer.match.match.pose);
+      m.report_json = std::move(answer.report_json);
+      if (!row.match.empty()) m.grid = answer.target_grid;
+      return m;
+    }
+    const api::Rig& rig = s.engine->rig();
+    if (!row.standard.empty()) {
+      POSEWARP_ASSIGN_OR_RETURN(m.pose, api::standard_posture(rig, row.standard));
+      return m;
+    }
+    POSEWARP_ASSIGN_OR_RETURN(const LabelVolume target, api::read_label_volume(row.match, read_options()));
+    POSEWARP_ASSIGN_OR_RETURN(const api::PostureMatch found, api::match_posture(rig, target, rig.label_map));
+    m.pose = found.match.pose;
+    m.report_json = api::posture_match_to_json(found);
+    m.grid = target.geometry();
+    return m;
   }
 
   // A pose's volumes and its report as report.json holds it, from this process's engine or from the server.
@@ -493,8 +549,8 @@ class Batch {
 
   // A partial directory filled, then put in place as OUT (AtomicDirectory): a row killed midway leaves no OUT that
   // looks finished.
-  static Status write_directory(const fs::path& out, const Posed& posed,
-                                const std::optional<api::DicomOutputs>& dicom) {
+  static Status write_directory(const fs::path& out, const Posed& posed, const std::optional<api::DicomOutputs>& dicom,
+                                const Matched* matched) {
     // An earlier result of this row (a rerun) is replaced; a directory holding anything else is not touched.
     std::error_code ec;
     fs::create_directories(out.parent_path(), ec);
@@ -514,6 +570,14 @@ class Batch {
         api::write_file_atomically((partial / "report.json").string(), posed.report_json, "report"));
     if (dicom) {
       POSEWARP_RETURN_IF_ERROR(api::write_dicom_outputs(*dicom, (partial / "dicom").string()));
+    }
+    if (matched) {  // the pose found (a pose file like any other), and how it fits the target
+      POSEWARP_RETURN_IF_ERROR(
+          api::write_file_atomically((partial / "pose.json").string(), api::pose_to_json(matched->pose), "pose"));
+      if (!matched->report_json.empty()) {
+        POSEWARP_RETURN_IF_ERROR(
+            api::write_file_atomically((partial / "match.json").string(), matched->report_json, "match report"));
+      }
     }
     return directory.commit();
   }
@@ -620,7 +684,9 @@ void add_batch_command(CLI::App& app) {
       "batch",
       "Pose many studies: the rows of a manifest (JSON or CSV: id, labels, ct, label_map, preset | dicom_ct, dicom_seg "
       "| "
-      "pacs_study, ct_series, seg_series; pose | animation; method; out_dir; to_pacs), or one row per study a PACS "
+      "pacs_study, ct_series, seg_series; pose | animation | match (another scan's labels: the pose that matches "
+      "them, posed on their grid) | standard (a standard posture); method; out_dir; to_pacs), or one row per study a "
+      "PACS "
       "query "
       "finds. Rows run in parallel (--jobs); each study's rig is built once and cached; a state file makes a rerun "
       "skip finished rows; a summary (JSON and CSV) gives each row's status, outputs and quality figures. With "

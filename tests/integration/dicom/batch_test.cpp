@@ -55,6 +55,10 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
        {{{"id", "cor"}, {"pose", poses_ + "/sample_hip_flexion.json"}, {"out_dir", "out/cor"}},
         {{"id", "dqs"}, {"pose", poses_ + "/sample_hip_flexion.json"}, {"method", "dqs"}, {"out_dir", "out/dqs"}},
         {{"id", "wrong-joint"}, {"pose", poses_ + "/knee_bent.json"}, {"out_dir", "out/wrong"}},
+        // The pose that matches another scan's labels (here the study's own: the pose found is rest), and a
+        // standard posture.
+        {{"id", "match"}, {"match", sample_ + "/seg_total.nii.gz"}, {"out_dir", "out/match"}},
+        {{"id", "straight"}, {"standard", "limbs-straight"}, {"out_dir", "out/straight"}},
         {{"id", "from-dicom"},
          {"labels", ""},
          {"ct", ""},
@@ -71,7 +75,7 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
   for (size_t at = said.find("building the rig"); at != std::string::npos; at = said.find("building the rig", at + 1))
     ++builds;
   EXPECT_EQ(builds, 2u) << said;
-  EXPECT_NE(said.find("3 done, 1 failed"), std::string::npos) << said;
+  EXPECT_NE(said.find("5 done, 1 failed"), std::string::npos) << said;
   // The summary: each row's status, outputs and figures; the study's rig paid for once.
   const nlohmann::json summary = nlohmann::json::parse(text(dir_ / "batch.summary.json"));
   std::map<std::string, nlohmann::json> by_id;
@@ -84,7 +88,7 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
   EXPECT_TRUE(by_id["cor"]["report"].contains("inverted_tets"));
   const double rig_cor = by_id["cor"]["seconds"]["rig"], rig_dqs = by_id["dqs"]["seconds"]["rig"];
   EXPECT_TRUE((rig_cor > 0) != (rig_dqs > 0)) << "one of the two rows of the study builds its rig";
-  EXPECT_EQ(lines_of(dir_ / "batch.summary.csv"), 5u);
+  EXPECT_EQ(lines_of(dir_ / "batch.summary.csv"), 7u);
   EXPECT_EQ(std::distance(fs::directory_iterator(dir_ / "batch.rigs"), fs::directory_iterator()), 2);  // two studies
   // The outputs: volumes and a report per row; the DICOM row also a derived series and SEG of its study.
   for (const char* out : {"out/cor", "out/dqs", "out/dicom"}) {
@@ -92,16 +96,28 @@ TEST_F(Batch, RowsRunInParallelAFailureIsRecordedAndARerunSkipsWhatIsDone) {
       EXPECT_TRUE(fs::exists(dir_ / out / file)) << out << "/" << file;
   }
   EXPECT_FALSE(fs::exists(dir_ / "out/wrong"));
+  // A match row writes the pose found and its match report beside the volumes, on the target's grid; a standard
+  // posture's row the pose.
+  const nlohmann::json found = nlohmann::json::parse(text(dir_ / "out/match/pose.json"));
+  EXPECT_NEAR(found["joints"]["hip_left"]["angles_deg"]["flexion"].get<double>(), 0.0, 1.0) << found.dump();
+  const nlohmann::json fit = nlohmann::json::parse(text(dir_ / "out/match/match.json"));
+  EXPECT_EQ(fit["format"], "posewarp.match");
+  Result<api::VolumeHeader> posed = api::read_header((dir_ / "out/match/labels.nii.gz").string());
+  Result<api::VolumeHeader> target = api::read_header(sample_ + "/seg_total.nii.gz");
+  ASSERT_TRUE(posed.ok() && target.ok());
+  EXPECT_EQ(posed->geometry.size, target->geometry.size);
+  EXPECT_TRUE(nlohmann::json::parse(text(dir_ / "out/straight/pose.json"))["joints"].contains("hip_right"));
+  EXPECT_FALSE(fs::exists(dir_ / "out/straight/match.json"));
   Result<api::CtSeries> derived = api::read_ct_directory((dir_ / "out/dicom/dicom/ct").string());
   Result<api::CtSeries> source = api::read_ct_directory((dir_ / "study/ct").string());
   ASSERT_TRUE(derived.ok() && source.ok()) << derived.status().to_string();
   EXPECT_EQ(derived->info.study_instance_uid, source->info.study_instance_uid);
   EXPECT_TRUE(fs::exists(dir_ / "out/dicom/dicom/seg.dcm"));
-  // A rerun skips the three finished rows and tries the failed one again.
-  EXPECT_EQ(lines_of(dir_ / "batch.state.jsonl"), 3u);
+  // A rerun skips the five finished rows and tries the failed one again.
+  EXPECT_EQ(lines_of(dir_ / "batch.state.jsonl"), 5u);
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "batch.json").string()}, log) >> 8, 1);
-  EXPECT_NE(text(log).find("3 done before (skipped)"), std::string::npos) << text(log);
-  EXPECT_EQ(lines_of(dir_ / "batch.state.jsonl"), 3u);
+  EXPECT_NE(text(log).find("5 done before (skipped)"), std::string::npos) << text(log);
+  EXPECT_EQ(lines_of(dir_ / "batch.state.jsonl"), 5u);
   // The skipped rows' outputs are those the run that did them recorded.
   const nlohmann::json rerun = nlohmann::json::parse(text(dir_ / "batch.summary.json"));
   for (const auto& row : rerun["rows"]) {
@@ -161,6 +177,10 @@ TEST_F(Batch, BadManifestsAreRefusedBeforeAnyWork) {
       << R"({"rows": [{"labels": "a.nii.gz", "dicom_ct": "d", "dicom_seg": "s.dcm", "pose": "p.json", "out_dir": "o"}]})";
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "two.json").string()}, log) >> 8, 2);
   EXPECT_NE(text(log).find("give one input"), std::string::npos) << text(log);
+  std::ofstream(dir_ / "both.json")
+      << R"({"rows": [{"labels": "a.nii.gz", "pose": "p.json", "match": "b.nii.gz", "out_dir": "o"}]})";
+  EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "both.json").string()}, log) >> 8, 2);
+  EXPECT_NE(text(log).find("give one of pose, animation, match"), std::string::npos) << text(log);
   std::ofstream(dir_ / "field.csv") << "id,labels,colour\nx,a.nii.gz,red\n";
   EXPECT_EQ(run({POSEWARP_CLI, "batch", (dir_ / "field.csv").string()}, log) >> 8, 2);
   EXPECT_NE(text(log).find("unknown field 'colour'"), std::string::npos) << text(log);

@@ -74,7 +74,12 @@ TEST(BatchThroughServer, StudiesAreRiggedOnTheServerAndPosedThereAsLocally) {
                                    {"labels", sample + "/seg_total.nii.gz"},
                                    {"ct", sample + "/ct.nii.gz"},
                                    {"pose", pose},
-                                   {"out_dir", "out/files-cor"}}}}};
+                                   {"out_dir", "out/files-cor"}},
+                                  {{"id", "files-match"},
+                                   {"labels", sample + "/seg_total.nii.gz"},
+                                   {"ct", sample + "/ct.nii.gz"},
+                                   {"match", sample + "/seg_total.nii.gz"},
+                                   {"out_dir", "out/files-match"}}}}};
   std::ofstream(dir / "batch.json") << manifest.dump(2);
 
   testing_server::ServerProcess server(dir / "store");
@@ -85,7 +90,7 @@ TEST(BatchThroughServer, StudiesAreRiggedOnTheServerAndPosedThereAsLocally) {
             0)
       << text(log) << server.log();
   const std::string said = text(log);
-  EXPECT_NE(said.find("3 done, 0 failed"), std::string::npos) << said;
+  EXPECT_NE(said.find("4 done, 0 failed"), std::string::npos) << said;
   EXPECT_FALSE(fs::exists(dir / "batch.rigs")) << "the server keeps the rigs, not the batch";
 
   // Two studies, two rigs on the server: the DICOM study's (named by its series) and the files'.
@@ -118,6 +123,24 @@ TEST(BatchThroughServer, StudiesAreRiggedOnTheServerAndPosedThereAsLocally) {
     const nlohmann::json report = nlohmann::json::parse(text(dir / "out" / row / "report.json"), nullptr, false);
     EXPECT_EQ(report.value("format", ""), "posewarp.quality_report");
   }
+  // The match row: matched on the server (MatchPosture) and posed there onto the target's grid, as the local match
+  // on the server's rig poses it.
+  {
+    const fs::path local = dir / "local" / "files-match";
+    fs::create_directories(local);
+    ASSERT_EQ(
+        testing_support::run(
+            {POSEWARP_CLI, "-q", "match", (dir / "store" / "rigs" / (rigs.at("seg_total.nii.gz") + ".rig")).string(),
+             "--target-labels", sample + "/seg_total.nii.gz", "-o", (local / "pose.json").string(), "--labels-out",
+             (local / "labels.nii.gz").string(), "--ct-out", (local / "ct.nii.gz").string()},
+            log),
+        0)
+        << text(log);
+    expect_same_voxels(dir / "out/files-match/labels.nii.gz", local / "labels.nii.gz", read_labels);
+    expect_same_voxels(dir / "out/files-match/ct.nii.gz", local / "ct.nii.gz", read_ct);
+    EXPECT_EQ(text(dir / "out/files-match/pose.json"), text(local / "pose.json"));
+    EXPECT_TRUE(fs::exists(dir / "out/files-match/match.json"));
+  }
   // The summary carries the server's report figures.
   const nlohmann::json summary = nlohmann::json::parse(text(dir / "batch.summary.json"));
   for (const auto& row : summary["rows"]) {
@@ -141,7 +164,7 @@ TEST(BatchThroughServer, StudiesAreRiggedOnTheServerAndPosedThereAsLocally) {
   EXPECT_NE(again.find("seg_total.nii.gz is on the server already"), std::string::npos) << again;
   EXPECT_EQ(again.find("uploaded "), std::string::npos) << again;
   EXPECT_EQ(rigs_on(address, dir / "list.txt").size(), 2u);
-  EXPECT_EQ(lines_of(dir / "batch.state.jsonl"), 3u);
+  EXPECT_EQ(lines_of(dir / "batch.state.jsonl"), 4u);
 
   // pose --server --dicom-out files the derived series in --dicom-source's study: a series of another grid (the bar
   // phantom's) is refused before anything is posed or written.
