@@ -1,8 +1,10 @@
 // Posture matching measured: a rig posed by known poses (the engine, labels only), each matched back from the posed
 // labels alone (api::match_posture). Per pose: each moved joint's angle error (the angle of the rotation between the
 // true and the found turn), the largest error over the joints left at rest, the root's position and turn errors,
-// the smallest Dice of the bones over 5 ml, and the match's time.
-// Usage: posewarp_bench_match --rig RIG --pose POSE.json [--pose ...] [--grid input|grow (grow)]
+// the smallest Dice of the bones over 5 ml, and the match's time. With --target-rig the targets are posed from
+// another rig of the same skeleton (e.g. `posewarp phantom body --skin-offset 15 --fat 25`: the same bones under
+// other soft tissue, built on its own grid), so that the match meets soft tissue other than its own.
+// Usage: posewarp_bench_match --rig RIG --pose POSE.json [--pose ...] [--grid input|grow (grow)] [--target-rig RIG]
 //   e.g. the body phantom of the README: --rig body20/body.rig --pose multi.json
 #include <Eigen/Geometry>
 
@@ -36,13 +38,26 @@ double degrees_between(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
   return Eigen::AngleAxisd(a.transpose() * b).angle() * 180.0 / M_PI;
 }
 
-int run(const std::string& rig_path, const std::vector<std::string>& poses, api::GridPolicy grid) {
+int run(const std::string& rig_path, const std::vector<std::string>& poses, api::GridPolicy grid,
+        const std::string& target_rig_path) {
   const Stopwatch load;
   Result<api::Rig> rig = api::load_rig(rig_path);
   if (!rig.ok()) return std::fprintf(stderr, "posewarp_bench_match: %s\n", rig.status().to_string().c_str()), 1;
   const Skeleton skeleton = rig->skeleton;
   const LabelMap map = rig->label_map;
-  Result<api::PoseEngine> engine = api::PoseEngine::create(*rig);
+  // The targets' rig: this one, or another of the same skeleton.
+  Result<api::Rig> target_rig = target_rig_path.empty() ? rig : api::load_rig(target_rig_path);
+  if (!target_rig.ok()) {
+    return std::fprintf(stderr, "posewarp_bench_match: %s\n", target_rig.status().to_string().c_str()), 1;
+  }
+  const Skeleton target_skeleton = target_rig->skeleton;
+  if (!target_rig_path.empty()) {
+    std::printf("targets posed from %s (%lld x %lld x %lld voxels)\n", target_rig_path.c_str(),
+                static_cast<long long>(target_rig->labels.geometry().size[0]),
+                static_cast<long long>(target_rig->labels.geometry().size[1]),
+                static_cast<long long>(target_rig->labels.geometry().size[2]));
+  }
+  Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(target_rig).value());
   if (!engine.ok()) return std::fprintf(stderr, "posewarp_bench_match: %s\n", engine.status().to_string().c_str()), 1;
   std::printf("rig %s: %zu joints, %lld x %lld x %lld voxels (opened in %.2f s)\n", rig_path.c_str(),
               skeleton.joints.size(), static_cast<long long>(rig->labels.geometry().size[0]),
@@ -63,7 +78,8 @@ int run(const std::string& rig_path, const std::vector<std::string>& poses, api:
     }
     Result<api::PostureMatch> match = api::match_posture(*rig, *posed->labels, map);
     if (!match.ok()) return std::fprintf(stderr, "posewarp_bench_match: %s\n", match.status().to_string().c_str()), 1;
-    const std::vector<Eigen::Matrix3d> want = joint_turns(skeleton, *truth), got = joint_turns(skeleton, match->match.pose);
+    const std::vector<Eigen::Matrix3d> want = joint_turns(target_skeleton, *truth),
+                                       got = joint_turns(skeleton, match->match.pose);
     std::printf("\n%s (%s grid): match %.2f s\n", path.c_str(), grid == api::GridPolicy::kGrow ? "grown" : "input",
                 match->seconds);
     double worst_rest = 0;
@@ -100,12 +116,14 @@ int run(const std::string& rig_path, const std::vector<std::string>& poses, api:
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string rig;
+  std::string rig, target_rig;
   std::vector<std::string> poses;
   api::GridPolicy grid = api::GridPolicy::kGrow;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--rig") && i + 1 < argc) {
       rig = argv[++i];
+    } else if (!std::strcmp(argv[i], "--target-rig") && i + 1 < argc) {
+      target_rig = argv[++i];
     } else if (!std::strcmp(argv[i], "--pose") && i + 1 < argc) {
       poses.push_back(argv[++i]);
     } else if (!std::strcmp(argv[i], "--grid") && i + 1 < argc) {
@@ -116,8 +134,10 @@ int main(int argc, char** argv) {
     }
   }
   if (rig.empty() || poses.empty()) {
-    std::fprintf(stderr, "usage: %s --rig RIG --pose POSE.json [--pose ...] [--grid input|grow (grow)]\n", argv[0]);
+    std::fprintf(stderr,
+                 "usage: %s --rig RIG --pose POSE.json [--pose ...] [--grid input|grow (grow)] [--target-rig RIG]\n",
+                 argv[0]);
     return 2;
   }
-  return run(rig, poses, grid);
+  return run(rig, poses, grid, target_rig);
 }

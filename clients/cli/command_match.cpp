@@ -109,7 +109,8 @@ void print_match(const api::PostureMatch& match, const std::string& pose_out) {
   for (const api::SegmentMatch& s : match.match.segments) {
     if (!s.held_at_range.empty()) {
       say("note: " + s.joint + ": " + s.held_at_range +
-          ", the end of its anatomical range (--beyond-range lets it follow the target)");
+          ", the end of its range (anatomy's: --beyond-range lets it follow the target; a hinge's 5 degrees off its "
+          "axis: --free-hinges)");
     }
     if (!s.beyond_range.empty()) {
       say("note: " + s.joint + ": " + s.beyond_range + ", beyond the range measured on the rig's study");
@@ -261,7 +262,8 @@ void add_match_command(CLI::App& app) {
       "match",
       "Find the pose that brings the rig's bones onto the same bones in another scan's labels (per-bone rigid "
       "alignment from the root outwards: the root moves and turns, every other bone turns about its joint, a hinge "
-      "about its axis, the limbs' joints within anatomy's ranges of motion), and write it as a pose file; or write "
+      "about its axis give or take 5 degrees, the limbs' joints within anatomy's ranges of motion), and write it as a "
+      "pose file; or write "
       "a standard posture of the rig");
   cmd->add_option("rig", o->rig_path, "Rig file (posewarp rig build), or with --server a rig id")->required();
   cmd->add_option("--target-labels", o->target_labels,
@@ -284,7 +286,9 @@ void add_match_command(CLI::App& app) {
                   "pose --report writes it");
   cmd->add_option("--method", o->method, "How the tissue moves in that pose: cor, dqs, lbs or fem")
       ->capture_default_str();
-  cmd->add_flag("--free-hinges", o->free_hinges, "Let hinges (knee, elbow, ankle) turn every way, not only flex");
+  cmd->add_flag("--free-hinges", o->free_hinges,
+                "Let hinges (knee, elbow, ankle) turn every way (by default each turns about its axis give or take 5 "
+                "degrees, what fitting the axis on a scan leaves open)");
   cmd->add_flag("--beyond-range", o->beyond_range,
                 "Let the limbs' joints (shoulder, elbow, wrist, hip, knee, ankle) turn past anatomy's range of motion "
                 "(by default each is held within it, counted from the rig's own rest posture, and the table notes "

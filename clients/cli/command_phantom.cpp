@@ -119,6 +119,12 @@ void add_phantom_body(CLI::App* group) {
   cmd->add_option("--joint-gap", options->body.joint_gap_mm, "Soft gap at each joint, mm (0 = 1.2 voxel diagonals)")
       ->capture_default_str();
   cmd->add_option("--seed", options->body.seed, "CT noise seed")->capture_default_str();
+  cmd->add_option("--fat", options->body.fat_mm, "Subcutaneous fat thickness, mm")->capture_default_str();
+  cmd->add_option("--skin-offset", options->body.skin_offset_mm,
+                  "Skin grown outwards by this much, mm (0..100): a heavier body on the same skeleton (the grid grows "
+                  "with it: --margin M with offset 0 gives the grid of --margin M-O with offset O, bone voxels alike)")
+      ->capture_default_str();
+  cmd->add_option("--margin", options->body.margin_mm, "Air around the body, mm")->capture_default_str();
   cmd->add_option("--format", options->extension, "Volume file extension")->check(CLI::IsMember(kExtensions));
   cmd->callback([options] {
     api::BodyParams& body = options->body;

@@ -14,8 +14,9 @@
 namespace posewarp::api {
 namespace {
 
+// (+ 0.0: what rounds to nothing is written 0, not -0.)
 double to_hundredth(double v) {
-  return std::round(v * 100.0) / 100.0;
+  return std::round(v * 100.0) / 100.0 + 0.0;
 }
 
 // A pose's joint angles to a hundredth of a degree: what a fit cannot tell apart is written alike.

@@ -480,7 +480,8 @@ std::vector<JointTruth> body_joints(const BodyLayout& m) {
 
 ImageGeometry grid_of(const BodyParams& p) {
   const BodyLayout layout{p.height_mm / 1700.0, gap_of(p)};
-  return detail::grid_for(skin_shapes(layout), p.spacing_mm, p.direction, p.margin_mm);
+  return detail::grid_for(skin_shapes(layout), p.spacing_mm, p.direction,
+                          p.margin_mm + p.skin_offset_mm * p.height_mm / 1700.0);
 }
 
 }  // namespace
@@ -493,8 +494,14 @@ Status validate(const BodyParams& p) {
   if (p.height_mm < 200.0 || p.height_mm > 3000.0) {
     return invalid_argument_error("body height_mm must lie in 200..3000 (got " + std::to_string(p.height_mm) + ")");
   }
-  if (!(p.joint_gap_mm >= 0.0) || !(p.fat_mm >= 0.0) || !(p.margin_mm >= 0.0) || !(p.noise_hu >= 0.0)) {
-    return invalid_argument_error("body joint_gap_mm, fat_mm, margin_mm and noise_hu must not be negative");
+  if (!(p.joint_gap_mm >= 0.0) || !(p.fat_mm >= 0.0) || !(p.margin_mm >= 0.0) || !(p.noise_hu >= 0.0) ||
+      !(p.skin_offset_mm >= 0.0)) {
+    return invalid_argument_error(
+        "body joint_gap_mm, fat_mm, skin_offset_mm, margin_mm and noise_hu must not be negative");
+  }
+  if (p.skin_offset_mm > 100.0) {
+    return invalid_argument_error("body skin_offset_mm must be at most 100 (got " + std::to_string(p.skin_offset_mm) +
+                                  ")");
   }
   const double f = p.height_mm / 1700.0;
   const double coarsest = std::max({p.spacing_mm[0], p.spacing_mm[1], p.spacing_mm[2]});
@@ -547,7 +554,7 @@ Result<Phantom> make_body(const BodyParams& p) {
 
   // Later paints win: skin with its fat shell, shoulder girdle and thorax, liver, spine and skull, pelvis, legs,
   // arms (each joint's carved space before the bone that moves in it).
-  detail::paint_body(labels, skin_shapes(m), L::kSoft, L::kFat, p.fat_mm * f);
+  detail::paint_body(labels, skin_shapes(m), L::kSoft, L::kFat, p.fat_mm * f, p.skin_offset_mm * f);
   paint_thorax(labels, m);
   detail::paint(labels, detail::ellipsoid(m.p(-65, -10, 1135), m.p(60, 55, 55)), L::kLiver);
   paint_axial(labels, m);

@@ -334,7 +334,7 @@ void repaint(LabelVolume& labels, const Shape& shape, Label from, Label to) {
 }
 
 void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner_label, Label shell_label,
-                double shell_mm) {
+                double shell_mm, double grow_mm) {
   Vec3 lo{kInf, kInf, kInf};
   Vec3 hi{-kInf, -kInf, -kInf};
   std::vector<std::pair<Vec3, Vec3>> shape_bounds(body.size());
@@ -342,7 +342,10 @@ void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner
     Vec3& slo = shape_bounds[s].first;
     Vec3& shi = shape_bounds[s].second;
     body[s].bounds(slo, shi);
-    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
+    for (int a = 0; a < 3; ++a) {
+      slo[a] -= grow_mm, shi[a] += grow_mm;
+      lo[a] = std::min(lo[a], slo[a]), hi[a] = std::max(hi[a], shi[a]);
+    }
   }
   Index3 first{};
   Index3 last{};
@@ -358,7 +361,7 @@ void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner
       if (p[0] < slo[0] || p[1] < slo[1] || p[2] < slo[2] || p[0] > shi[0] || p[1] > shi[1] || p[2] > shi[2]) {
         continue;
       }
-      d = std::min(d, body[s].sdf(p));
+      d = std::min(d, body[s].sdf(p) - grow_mm);
     }
     if (d <= 0.0) out[offset] = d > -shell_mm ? shell_label : inner_label;
   });

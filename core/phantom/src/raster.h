@@ -75,9 +75,10 @@ void paint(LabelVolume& labels, const Shape& shape, Label label);
 // Sets the voxels inside `shape` that hold `from` to `to` (hollows or carves one bone without touching others).
 void repaint(LabelVolume& labels, const Shape& shape, Label from, Label to);
 
-// Paints the union of `body`: voxels within `shell_mm` of its surface get `shell_label`, deeper ones `inner_label`.
+// Paints the union of `body`, grown outwards by `grow_mm`: voxels within `shell_mm` of its surface get `shell_label`,
+// deeper ones `inner_label`.
 void paint_body(LabelVolume& labels, const std::vector<Shape>& body, Label inner_label, Label shell_label,
-                double shell_mm);
+                double shell_mm, double grow_mm = 0.0);
 
 // A CT on the labels' grid: `hu_of(label)` plus deterministic noise of amplitude `noise_hu`.
 IntensityVolume synthesize_ct(const LabelVolume& labels, const std::vector<std::pair<Label, float>>& hu_table,

@@ -23,6 +23,8 @@ using Eigen::Vector3d;
 using Points = std::vector<Vector3d>;
 
 constexpr double kDegrees = 180.0 / M_PI;
+// A limb bone whose centroid lies nearer its joint than this is a stump the scan cut off.
+constexpr double kStumpMm = 50.0;
 
 // Each label value's segment (-1: none), for the one pass over a volume.
 class SegmentOf {
@@ -174,11 +176,12 @@ struct Limits {
 };
 
 // How a segment may move: freely (the root), about a point (a ball or plane joint), about an axis through a point;
-// a joint with `limits` within them.
+// a joint with `limits` within them. A hinge's match starts with the turn about its axis.
 struct Freedom {
   bool translate = false;
   Vector3d centre = Vector3d::Zero();
   bool hinge = false;
+  bool start_about_axis = false;
   Vector3d axis = Vector3d::UnitX();
   const rig::Joint* joint = nullptr;
   std::optional<Limits> limits;
@@ -352,8 +355,9 @@ Aligned align(const Points& points, const RigidTransform& parent, RigidTransform
 RigidTransform initial_turn(const Bone& rest, const Bone& target, const RigidTransform& parent, const Freedom& f) {
   const Vector3d from = rest.centroid - f.centre, to = parent.inverse().apply(target.centroid) - f.centre;
   if (from.norm() < 5.0 || to.norm() < 5.0) return RigidTransform::identity();
-  const Matrix3d rotation =
-      f.hinge ? best_turn_about(f.axis, {from}, {to}) : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
+  const Matrix3d rotation = f.hinge || f.start_about_axis
+                                ? best_turn_about(f.axis, {from}, {to})
+                                : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
   return RigidTransform::about(rotation, f.centre);
 }
 
@@ -557,13 +561,27 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
     m.joint = joint.name;
     Freedom f;
     f.centre = joint.centre_mm;
-    f.hinge = options.constrain_hinges && joint.kind == JointKind::kHinge;
     f.axis = joint.frame.col(0);
     f.joint = &joint;
+    f.start_about_axis = joint.kind == JointKind::kHinge;
     if (const std::optional<AnatomicalRange> range = anatomical_range(joint.name); range && options.anatomical_ranges) {
       const auto it = straightening.find(joint.name);
       const Vector3d offset = it == straightening.end() ? Vector3d::Zero() : it->second;
       f.limits = Limits{range->min_deg + offset, range->max_deg + offset};
+    }
+    if (joint.kind == JointKind::kHinge && options.constrain_hinges) {
+      const double slack = std::max(0.0, options.hinge_slack_deg);
+      if (slack == 0.0) {
+        f.hinge = true;  // about the axis alone, in closed form
+      } else {
+        // Within the slack off the axis (and within anatomy's range where it is narrower).
+        Limits hinge{Vector3d(-180.0, -slack, -slack), Vector3d(180.0, slack, slack)};
+        if (f.limits) {
+          hinge.min_deg = hinge.min_deg.cwiseMax(f.limits->min_deg);
+          hinge.max_deg = hinge.max_deg.cwiseMin(f.limits->max_deg).cwiseMax(hinge.min_deg);
+        }
+        f.limits = hinge;
+      }
     }
     const RigidTransform& parent = placed[static_cast<size_t>(joint.parent)];
     // (A bone missing from either side is skipped before its start is used.)
@@ -606,9 +624,19 @@ Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& 
     if (joint.parent < 0 || joint.child < 0) continue;
     const Matrix3d& parent = turned[static_cast<size_t>(joint.parent)];
     Matrix3d own = Matrix3d::Identity();
-    const Vector3d from = skeleton.segments[static_cast<size_t>(joint.child)].centroid_mm - joint.centre_mm;
-    if (starts(joint.name, {"shoulder", "elbow", "hip", "knee"}) && from.norm() > 1e-6) {
+    // The limb's direction: its frame's long axis, into the child (a child bone the scan cuts off has a frame that
+    // hangs down, where a centroid would point along the stump).
+    const Vector3d into = skeleton.segments[static_cast<size_t>(joint.child)].centroid_mm - joint.centre_mm;
+    const Vector3d from = joint.frame.col(2).dot(into) < 0.0 ? Vector3d(-joint.frame.col(2)) : joint.frame.col(2);
+    if (starts(joint.name, {"shoulder", "elbow", "hip", "knee"}) && into.norm() > 1e-6) {
       const bool arm = starts(joint.name, {"shoulder", "elbow"});
+      if (into.norm() < kStumpMm) {
+        // A bone the scan cuts off near its joint (a femoral head at the edge of an abdominal CT) says nothing of
+        // where the limb points: left as it is.
+        pose.joints.push_back(anatomical_rotation(joint.name, 0.0));
+        turned[static_cast<size_t>(joint.child)] = parent;
+        continue;
+      }
       // In the parent's rest frame, where the joint's own turn acts.
       const Vector3d to = parent.transpose() * (arms_up && arm ? up : down);
       if (joint.kind == JointKind::kHinge) {

@@ -572,6 +572,44 @@ TEST(BodyPhantom, IsDeterministicAndTheSeedOnlyChangesTheNoise) {
   EXPECT_NE(c->ct.voxels(), a->ct.voxels());
 }
 
+// A heavier body on the same skeleton (the skin 15 mm further out, 25 mm of fat): its grid grows to hold it, every
+// joint stays where it was, the bones keep their volume (to the resampling of thin bones on the moved grid), and
+// the soft tissue grows.
+TEST(BodyPhantom, AHeavierBodyKeepsItsSkeletonUnderMoreSoftTissue) {
+  BodyParams params;
+  params.spacing_mm = {6.0, 6.0, 10.0};
+  BodyParams heavier = params;
+  heavier.skin_offset_mm = 15.0;
+  heavier.fat_mm = 25.0;
+  Result<Phantom> a = make_body(params);
+  Result<Phantom> b = make_body(heavier);
+  ASSERT_TRUE(a.ok() && b.ok()) << b.status().to_string();
+  EXPECT_GT(b->labels.geometry().voxel_count(), a->labels.geometry().voxel_count());
+  ASSERT_EQ(a->joints.size(), b->joints.size());
+  for (size_t j = 0; j < a->joints.size(); ++j) {
+    for (int axis = 0; axis < 3; ++axis) EXPECT_EQ(a->joints[j].centre_mm[axis], b->joints[j].centre_mm[axis]);
+  }
+  const auto volumes = [](const Phantom& p) {
+    std::map<Label, double> ml;
+    const Vec3& s = p.labels.geometry().spacing;
+    for (const Label l : p.labels.voxels()) ml[l] += s[0] * s[1] * s[2] / 1000.0;
+    return ml;
+  };
+  const std::map<Label, double> before = volumes(*a), after = volumes(*b);
+  double soft_before = 0, soft_after = 0, bone_before = 0, bone_after = 0;
+  for (const LabelEntry& e : a->label_map.entries()) {
+    if (e.value == 0) continue;
+    const double was = before.count(e.value) ? before.at(e.value) : 0.0;
+    const double is = after.count(e.value) ? after.at(e.value) : 0.0;
+    (e.role == LabelRole::kBone ? bone_before : soft_before) += was;
+    (e.role == LabelRole::kBone ? bone_after : soft_after) += is;
+  }
+  EXPECT_NEAR(bone_after, bone_before, 0.03 * bone_before);
+  EXPECT_GT(soft_after, 1.25 * soft_before);
+  heavier.skin_offset_mm = 150.0;
+  EXPECT_EQ(make_body(heavier).status().code(), StatusCode::kInvalidArgument);
+}
+
 TEST(BodyPhantom, SpacingForAVoxelBudgetKeepsTheAnisotropy) {
   BodyParams params;
   for (const int64_t target : {int64_t{4'000'000}, int64_t{18'000'000}}) {

@@ -146,12 +146,12 @@ TEST(MatchPosture, FindsTheRootMotionAndTheJointAnglesOfAPoseBack) {
   EXPECT_NEAR(lower.y(), -20.0, 2.0);
   EXPECT_NEAR(lower.z(), 15.0, 2.0);
   EXPECT_NEAR(upper.x(), 50.0, 2.0);
-  EXPECT_EQ(upper.y(), 0.0);  // a hinge
+  EXPECT_NEAR(upper.y(), 0.0, 1.0);  // a hinge, within its slack
   EXPECT_NE(match->segments[1].beyond_range.find("flexion 35."), std::string::npos) << match->segments[1].beyond_range;
   EXPECT_NE(match->segments[1].beyond_range.find("past 20 (bones meet)"), std::string::npos);
   EXPECT_EQ(match->segments[1].beyond_range.find("abduction"), std::string::npos);  // -20 lies within 30 either way
   EXPECT_TRUE(match->segments[2].beyond_range.empty());  // "upper" has no measured range
-  EXPECT_NEAR(upper.z(), 0.0, 1e-9);
+  EXPECT_NEAR(upper.z(), 0.0, 1.0);
   for (const SegmentMatch& s : match->segments) {
     std::printf("%-7s angles %7.2f %7.2f %7.2f  mean %.2f mm  max %.2f mm  Dice %.3f  %d iterations\n",
                 s.segment.c_str(), s.angles_deg.x(), s.angles_deg.y(), s.angles_deg.z(), s.mean_distance_mm,
@@ -197,6 +197,15 @@ TEST(MatchPosture, AnatomicalAnglesInvertTheJointRotation) {
   }
 }
 
+// A joint frame whose long axis (z) runs from the joint into its child's centroid, x along LPS x (mediolateral).
+Eigen::Matrix3d frame_along(const Vector3d& from_centre_to_child) {
+  Eigen::Matrix3d frame;
+  frame.col(2) = from_centre_to_child.normalized();
+  frame.col(1) = frame.col(2).cross(Vector3d::UnitX()).normalized();
+  frame.col(0) = frame.col(1).cross(frame.col(2));
+  return frame;
+}
+
 // A leg bent forward (thigh 30 degrees, shin 70 degrees from straight down, in the sagittal plane) comes out straight:
 // the thigh through its ball joint, the shin through its hinge; a skeleton without limbs and an unknown posture are
 // refused.
@@ -218,10 +227,12 @@ TEST(StandardPosture, LimbsStraightTurnsABentLegStraightDown) {
   hip_joint.name = "hip_left";
   hip_joint.parent = 0, hip_joint.child = 1, hip_joint.centre_mm = hip;
   hip_joint.kind = JointKind::kBall;
+  hip_joint.frame = frame_along(skeleton.segments[1].centroid_mm - hip);
   rig::Joint knee_joint;
   knee_joint.name = "knee_left";
   knee_joint.parent = 1, knee_joint.child = 2, knee_joint.centre_mm = knee;
   knee_joint.kind = JointKind::kHinge;  // its flexion axis: the frame's x, LPS x (mediolateral)
+  knee_joint.frame = frame_along(skeleton.segments[2].centroid_mm - knee);
   skeleton.joints = {hip_joint, knee_joint};
   Result<Pose> pose = standard_posture(skeleton, "limbs-straight");
   ASSERT_TRUE(pose.ok()) << pose.status().to_string();
@@ -261,8 +272,10 @@ TEST(StandardPosture, ArmsUpRaisesAnArmOverTheHeadThroughTheSide) {
   skeleton.root = 0;
   rig::Joint s;
   s.name = "shoulder_left", s.parent = 0, s.child = 1, s.centre_mm = shoulder, s.kind = JointKind::kBall;
+  s.frame = frame_along(skeleton.segments[1].centroid_mm - shoulder);
   rig::Joint e;
   e.name = "elbow_left", e.parent = 1, e.child = 2, e.centre_mm = elbow, e.kind = JointKind::kHinge;
+  e.frame = frame_along(skeleton.segments[2].centroid_mm - elbow);
   skeleton.joints = {s, e};
   Result<Pose> pose = standard_posture(skeleton, "arms-up");
   ASSERT_TRUE(pose.ok()) << pose.status().to_string();

@@ -94,6 +94,9 @@ struct BodyPhantomParams {
   double height_mm = 1700.0;  // standing height; every length scales with it
   double joint_gap_mm = 0.0;  // soft gap at every joint; 0 = 1.2 voxel diagonals (a soft voxel in every direction)
   double fat_mm = 10.0;       // subcutaneous fat thickness at 1700 mm height
+  // The skin grown outwards by this much at 1700 mm height (the fat shell with it): a heavier body on the same
+  // skeleton, whose soft tissue differs from the default's while every bone and joint stays where it is.
+  double skin_offset_mm = 0.0;
   double margin_mm = 12.0;    // air around the body
   double noise_hu = 5.0;      // amplitude of deterministic CT noise
   uint64_t seed = 1;

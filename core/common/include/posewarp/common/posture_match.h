@@ -14,7 +14,11 @@ namespace posewarp {
 struct MatchOptions {
   int max_iterations = 60;       // ICP iterations per segment
   int max_points = 3000;         // surface voxels of a segment that take part (evenly subsampled)
-  bool constrain_hinges = true;  // a hinge turns about its flexion axis only
+  // A hinge turns about its flexion axis, give or take `hinge_slack_deg` of abduction and rotation: an axis fitted
+  // on one scan is a few degrees off the true one, and a turn about it alone cannot follow a bone turned about the
+  // true axis (2.3 degrees off at a knee bent 60 degrees put the foot 18 mm away). false: hinges turn every way.
+  bool constrain_hinges = true;
+  double hinge_slack_deg = 5.0;
   // The limbs' joints (shoulders, elbows, wrists, hips, knees, ankles) turn within anatomy's ranges of motion
   // (pose/match.h); false lets them turn any way the target's bones ask.
   bool anatomical_ranges = true;
@@ -37,8 +41,8 @@ struct SegmentMatch {
   // 70 (bones meet)". Empty when within, or when the rig has no ranges. Reported, not enforced: those ranges are
   // narrower than anatomy's.
   std::string beyond_range;
-  // Where the joint's anatomical range held the bone back from where the target's bone lies: e.g. "flexion 171.3
-  // held at 150.0". Empty when the fit lies within the range (or ranges were not asked for).
+  // Where the joint's range (anatomy's, or a hinge's slack about its axis) held the bone back from where the target's
+  // bone lies: e.g. "flexion 171.3 held at 150.0". Empty when the fit lies within it.
   std::string held_at_range;
 };
 

@@ -2,7 +2,8 @@
 // From the root outwards, each segment's surface voxels are aligned rigidly with the target bone's (ICP with
 // nearest neighbours on a grid, pairs beyond three times the median distance left out): the root by a rotation and
 // a translation, every other segment by a rotation about its joint's centre alone (its parent is placed already, so
-// a child cannot drift off its joint), a hinge about its flexion axis alone. The pose gives each matched joint its
+// a child cannot drift off its joint), a hinge about its flexion axis give or take a few degrees (MatchOptions::
+// hinge_slack_deg). The pose gives each matched joint its
 // anatomical angles.
 #pragma once
 
@@ -47,8 +48,9 @@ Result<MatchResult> match_posture(const rig::Skeleton& skeleton, const LabelVolu
 // Named standard postures. `limbs-straight` (also `supine-arms-down`) turns each limb (the children of the shoulders,
 // elbows, hips and knees) to point straight down the body (LPS -z, the scan's head-to-foot axis), arms along the body
 // and legs straight; `arms-up` raises the arms straight over the head instead (through the side: abducted), as chest
-// and abdomen CT is scanned, legs straight. A hinge turns about its axis only. A limb's direction is its joint's
-// centre to its bone's centroid.
+// and abdomen CT is scanned, legs straight. A hinge turns about its axis only. A limb's direction is its joint frame's
+// long axis (into the child bone); a limb whose bone the scan cuts off near its joint (its centroid within 50 mm) is
+// left as it is.
 // The pose of `skeleton` in the standard posture `name`; INVALID_ARGUMENT for another name (the message lists the
 // postures), or a skeleton with none of the limbs that posture turns.
 Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& name);
