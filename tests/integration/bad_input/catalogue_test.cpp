@@ -301,7 +301,8 @@ TEST_F(Catalogue, LabelsAndCtSwapped) {
 }
 
 // posewarp match: a target that is no volume, a target map that is no JSON, a pose written onto the rig, a SEG
-// without its CT: each refused by name before any work, no input touched.
+// without its CT, an unknown method, a rig file given to --server: each refused by name before any work, no input
+// touched.
 TEST_F(Catalogue, Match) {
   const std::vector<std::string> target{"match", at("bar.rig"), "--target-labels", "{}", "-o", at("out/found.json")};
   check({"target.nii.gz", "not a volume at all", target, kBadInput, "target.nii.gz"});
@@ -313,7 +314,14 @@ TEST_F(Catalogue, Match) {
   expect_refused(posewarp({"match", at("bar.rig"), "-o", at("found.json")}), kBadInput, "--target-labels",
                  "--standard NAME");
   expect_refused(posewarp({"match", at("bar.rig"), "--standard", "t-pose", "-o", at("found.json")}), kBadInput,
-                 "'t-pose'", "limbs-straight");
+                 "'t-pose'", "arms-up");
+  // A method nobody has, and a rig path where the server wants a rig id: refused before any work or connection.
+  expect_refused(posewarp({"match", at("bar.rig"), "--target-labels", at("labels.nii.gz"), "--method", "warp", "-o",
+                           at("found.json")}),
+                 kBadInput, "warp", "");
+  expect_refused(posewarp({"match", at("bar.rig"), "--server", "127.0.0.1:1", "--retries", "0", "--target-labels",
+                           at("labels.nii.gz"), "-o", at("found.json")}),
+                 kBadInput, "rig id", "");
   EXPECT_FALSE(fs::exists(at("found.json")));
 }
 
