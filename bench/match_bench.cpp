@@ -8,6 +8,7 @@
 //   e.g. the body phantom of the README: --rig body20/body.rig --pose multi.json
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <string>
@@ -18,6 +19,7 @@
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/stopwatch.h"
+#include "posewarp/pose/forward_kinematics.h"
 #include "posewarp/pose/pose.h"
 
 namespace {
@@ -34,6 +36,28 @@ std::vector<Eigen::Matrix3d> joint_turns(const Skeleton& skeleton, const Pose& p
   return turns;
 }
 
+// Each segment's voxels in the rest labels (LPS mm), every `step`-th in scan order.
+std::vector<std::vector<Eigen::Vector3d>> segment_points(const Skeleton& skeleton, const LabelVolume& labels,
+                                                         int64_t step) {
+  std::vector<int> segment_of(1 << 16, -1);
+  for (size_t s = 0; s < skeleton.segments.size(); ++s) {
+    for (Label l : skeleton.segments[s].labels) {
+      if (l >= 0 && l < (1 << 16)) segment_of[static_cast<size_t>(l)] = static_cast<int>(s);
+    }
+  }
+  std::vector<std::vector<Eigen::Vector3d>> points(skeleton.segments.size());
+  const ImageGeometry& g = labels.geometry();
+  for (int64_t at = 0; at < labels.voxel_count(); at += step) {
+    const Label l = labels.data()[at];
+    if (l < 0 || l >= (1 << 16) || segment_of[static_cast<size_t>(l)] < 0) continue;
+    const Vec3 p =
+        g.index_to_physical({static_cast<double>(at % g.size[0]), static_cast<double>((at / g.size[0]) % g.size[1]),
+                             static_cast<double>(at / (g.size[0] * g.size[1]))});
+    points[static_cast<size_t>(segment_of[static_cast<size_t>(l)])].emplace_back(p[0], p[1], p[2]);
+  }
+  return points;
+}
+
 double degrees_between(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
   return Eigen::AngleAxisd(a.transpose() * b).angle() * 180.0 / M_PI;
 }
@@ -45,6 +69,9 @@ int run(const std::string& rig_path, const std::vector<std::string>& poses, api:
   if (!rig.ok()) return std::fprintf(stderr, "posewarp_bench_match: %s\n", rig.status().to_string().c_str()), 1;
   const Skeleton skeleton = rig->skeleton;
   const LabelMap map = rig->label_map;
+  const std::vector<std::vector<Eigen::Vector3d>> bone_points = segment_points(skeleton, rig->labels, 7);
+  const double voxel_mm = std::max(
+      {rig->labels.geometry().spacing[0], rig->labels.geometry().spacing[1], rig->labels.geometry().spacing[2]});
   // The targets' rig: this one, or another of the same skeleton.
   Result<api::Rig> target_rig = target_rig_path.empty() ? rig : api::load_rig(target_rig_path);
   if (!target_rig.ok()) {
@@ -99,6 +126,22 @@ int run(const std::string& rig_path, const std::vector<std::string>& poses, api:
     // The root's centroid goes to c + t (forward_kinematics).
     std::printf("  root: centroid placed within %.2f mm, turn within %.2f deg\n", (a.translation - b.translation).norm(),
                 degrees_between(a.rotation, b.rotation));
+    // Where each bone lands: its rest voxels (every 7th) placed by the true and by the found pose, the largest
+    // distance between the two (the "bone positions within a voxel").
+    Result<std::vector<RigidTransform>> placed_true = pose::forward_kinematics(target_skeleton, *truth);
+    Result<std::vector<RigidTransform>> placed_found = pose::forward_kinematics(skeleton, match->match.pose);
+    if (placed_true.ok() && placed_found.ok()) {
+      double worst = 0;
+      std::string worst_segment;
+      for (size_t k = 0; k < bone_points.size(); ++k) {
+        for (const Eigen::Vector3d& p : bone_points[k]) {
+          const double d = ((*placed_true)[k].apply(p) - (*placed_found)[k].apply(p)).norm();
+          if (d > worst) worst = d, worst_segment = skeleton.segments[k].name;
+        }
+      }
+      std::printf("  bone positions: every voxel within %.2f mm of its true place (worst %s; voxels up to %.2f mm)\n",
+                  worst, worst_segment.c_str(), voxel_mm);
+    }
     double smallest = 1.0;
     std::string smallest_segment;
     int skipped = 0;
