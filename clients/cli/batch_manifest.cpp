@@ -70,6 +70,13 @@ void resolve(Row& row, const fs::path& base) {
   }
 }
 
+// A file's size and modification time, which change when it is written again.
+std::string file_stamp(const std::string& file) {
+  std::error_code ec;
+  return std::to_string(fs::file_size(file, ec)) + "@" +
+         std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
+}
+
 }  // namespace
 
 std::string csv_field(const std::string& value) {
@@ -174,19 +181,14 @@ std::string study_content_key(const Row& row) {
   }
   for (const std::string& file : files) {
     if (file.empty() || !fs::is_regular_file(file, ec)) continue;
-    key[file] = std::to_string(fs::file_size(file, ec)) + "@" +
-                std::to_string(fs::last_write_time(file, ec).time_since_epoch().count());
+    key[file] = file_stamp(file);
   }
   return api::sha256_hex(key.dump());
 }
 
 std::string pose_hash(const Row& row) {
   if (!row.standard.empty()) return "standard " + row.standard;
-  if (!row.match.empty()) {
-    std::error_code ec;
-    return "match " + row.match + " " + std::to_string(fs::file_size(row.match, ec)) + "@" +
-           std::to_string(fs::last_write_time(row.match, ec).time_since_epoch().count());
-  }
+  if (!row.match.empty()) return "match " + row.match + " " + file_stamp(row.match);
   const std::string& file = row.pose.empty() ? row.animation : row.pose;
   Result<std::string> text = api::read_text_input(file, "pose");
   return text.ok() ? api::sha256_hex(*text) : file;

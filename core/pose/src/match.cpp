@@ -197,15 +197,14 @@ double excess(const Vector3d& angles, const Limits& limits) {
   return (limits.min_deg - angles).cwiseMax(0.0).sum() + (angles - limits.max_deg).cwiseMax(0.0).sum();
 }
 
-// A joint's turn read as anatomical angles and kept within `limits`: of its two angle triples, (a, b, c) and
-// (a + 180, 180 - b, c + 180), the one nearer the limits, clamped into them; `held` names what was clamped.
+// A joint's turn kept within limits, its angles, and what was clamped.
 struct Limited {
   Matrix3d rotation;
   Vector3d angles_deg;
   std::string held;
 };
 
-// Of a turn's two angle triples the one nearer `limits`.
+// Of a turn's two angle triples, (a, b, c) and (a + 180, 180 - b, c + 180), the one nearer `limits`.
 Vector3d nearer_angles_deg(const rig::Joint& joint, const Matrix3d& rotation, const Limits& limits) {
   const Vector3d first = anatomical_angles_deg(joint, rotation);
   const Vector3d second(wrapped_deg(first.x() + 180.0), wrapped_deg(180.0 - first.y()), wrapped_deg(first.z() + 180.0));
@@ -219,6 +218,8 @@ Vector3d readable_angles_deg(const rig::Joint& joint, const Matrix3d& rotation) 
                : anatomical_angles_deg(joint, rotation);
 }
 
+// A joint's turn read as anatomical angles (the triple nearer the limits) and clamped into them; `held` names what
+// was clamped, as "flexion 171.3 held at 150.0".
 Limited within_limits(const rig::Joint& joint, const Matrix3d& rotation, const Limits& limits) {
   Limited out{rotation, nearer_angles_deg(joint, rotation, limits), ""};
   const Vector3d clamped = out.angles_deg.cwiseMax(limits.min_deg).cwiseMin(limits.max_deg);
@@ -355,8 +356,7 @@ Aligned align(const Points& points, const RigidTransform& parent, RigidTransform
 RigidTransform initial_turn(const Bone& rest, const Bone& target, const RigidTransform& parent, const Freedom& f) {
   const Vector3d from = rest.centroid - f.centre, to = parent.inverse().apply(target.centroid) - f.centre;
   if (from.norm() < 5.0 || to.norm() < 5.0) return RigidTransform::identity();
-  const Matrix3d rotation = f.hinge || f.start_about_axis
-                                ? best_turn_about(f.axis, {from}, {to})
+  const Matrix3d rotation = f.start_about_axis ? best_turn_about(f.axis, {from}, {to})
                                 : Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
   return RigidTransform::about(rotation, f.centre);
 }
@@ -630,16 +630,12 @@ Result<Pose> standard_posture(const rig::Skeleton& skeleton, const std::string& 
     const Vector3d from = joint.frame.col(2).dot(into) < 0.0 ? Vector3d(-joint.frame.col(2)) : joint.frame.col(2);
     if (starts(joint.name, {"shoulder", "elbow", "hip", "knee"}) && into.norm() > 1e-6) {
       const bool arm = starts(joint.name, {"shoulder", "elbow"});
+      // In the parent's rest frame, where the joint's own turn acts.
+      const Vector3d to = parent.transpose() * (arms_up && arm ? up : down);
       if (into.norm() < kStumpMm) {
         // A bone the scan cuts off near its joint (a femoral head at the edge of an abdominal CT) says nothing of
         // where the limb points: left as it is.
-        pose.joints.push_back(anatomical_rotation(joint.name, 0.0));
-        turned[static_cast<size_t>(joint.child)] = parent;
-        continue;
-      }
-      // In the parent's rest frame, where the joint's own turn acts.
-      const Vector3d to = parent.transpose() * (arms_up && arm ? up : down);
-      if (joint.kind == JointKind::kHinge) {
+      } else if (joint.kind == JointKind::kHinge) {
         own = best_turn_about(joint.frame.col(0), {from}, {to});
       } else {
         // A ball joint turning the limb more than a right angle goes through the side (abducted), the way arms are
