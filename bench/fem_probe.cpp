@@ -126,10 +126,12 @@ int main(int argc, char** argv) {
       std::getline(in, w, ':');
       std::getline(in, it, ':');
       std::getline(in, warm_name, ':');
-      std::string margin;
+      std::string margin, untangle;
       std::getline(in, margin, ':');
+      std::getline(in, untangle, ':');
       custom.emplace();
       if (!margin.empty()) custom->margin_mm = std::stod(margin);
+      if (!untangle.empty()) custom->untangle = untangle != "0";
       custom->volume_weight = std::stod(w);
       custom->max_iterations = std::stoi(it);
     }
@@ -180,6 +182,13 @@ int main(int argc, char** argv) {
       std::printf("%s: %lld free vertices, %lld tets, %d iterations, last step %.3f mm, %d restarts, factor %.2f s, iterations %.2f s, all %.2f s\n", method_name.c_str(), static_cast<long long>(stats.free_vertices), static_cast<long long>(stats.tets), stats.iterations,
                   stats.last_step_mm, stats.restarts, stats.factor_seconds, stats.iterate_seconds,
                   std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+      if (custom && custom->untangle) {
+        std::printf(
+            "  untangled: inverted tets with a free corner %lld -> %lld (%s), %lld vertices, %d iterations, %.2f s\n",
+            static_cast<long long>(stats.inverted_before_untangle), static_cast<long long>(stats.inverted),
+            stats.untangle_undone ? "undone" : "kept", static_cast<long long>(stats.untangle_vertices),
+            stats.untangle_iterations, stats.untangle_seconds);
+      }
     }
     for (const pose::JointRotation& moved : pose->joints) {
       const rig::Joint* joint = nullptr;
@@ -266,6 +275,7 @@ int main(int argc, char** argv) {
     fem::FemParams params;
     params.max_iterations = 5;
     params.continue_from_last = true;
+    params.untangle = false;
     params.margin_mm = 0.0;
     for (int k = 1; k <= 9; ++k) {
       const skinning::SegmentTransforms segments = segments_of(engine->rig().skeleton, slider_step(*pose, k));

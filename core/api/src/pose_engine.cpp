@@ -222,6 +222,7 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
     params.max_iterations = max_iterations;
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
+    params.untangle = false;  // a slider's steps within the preview's budget; the pose turns the folds back
   }
   return fem::solve({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, warm, &p.fem.cache}, params, hooks);
 }

@@ -319,7 +319,7 @@ Eigen::MatrixXd constant_rhs(const SolveSystem& sys, const Eigen::MatrixXd& warm
   return constant;
 }
 
-using Positions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;  // one row per solve vertex, mm
+using internal::Positions;
 
 // Where the iteration starts: the warm start; a preview goes on from where the last solve on these free vertices
 // ended, its correction of the warm start carried to this pose's warm start.
@@ -563,6 +563,18 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
     if (st.last_step_mm <= params.tolerance_mm) break;
   }
   st.iterate_seconds = iterate_start.seconds();
+  if (params.untangle) {  // the tets the steady state left inverted, turned back
+    const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume, sys.corner_start, sys.corners};
+    POSEWARP_ASSIGN_OR_RETURN(
+        const internal::UntangleStats untangled,
+        internal::untangle(packed, nf, x_solve, internal::UntangleParams{}, [&] { return progress.check_cancel(); }));
+    st.inverted_before_untangle = untangled.inverted_before;
+    st.inverted = untangled.inverted_after;
+    st.untangle_undone = untangled.undone;
+    st.untangle_vertices = untangled.vertices;
+    st.untangle_iterations = untangled.iterations;
+    st.untangle_seconds = untangled.seconds;
+  }
   keep_solution(in, x_solve, sys, posed);
   if (in.cache) in.cache->put(std::move(system));
   progress.finish();

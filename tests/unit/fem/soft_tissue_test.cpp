@@ -213,6 +213,40 @@ TEST_F(SoftTissue, TheCoRotationalFemConvergesButKeepsLessVolumeThanTheProjectiv
   EXPECT_EQ(solve_corotational(inputs, bad, {}).status().code(), StatusCode::kInvalidArgument);
 }
 
+// Bent 150 degrees and stopped after one iteration, the steady state leaves the inside of the bend folded; the
+// untangling that ends a pose turns those tets back, moves no bone vertex, and leaves the tissue's volume no further
+// from rest. A preview's settings (untangle off) keep the folds.
+TEST_F(SoftTissue, TurnsBackTheTetsTheSteadyStateLeavesFolded) {
+  const skinning::SegmentTransforms transforms = bend(150.0);
+  const Eigen::MatrixXd warm = skinning::lbs(limb_.mesh.vertices, limb_.weights, transforms);
+  const SolveInputs inputs{limb_.mesh, frames_, topology_, limb_.weights, transforms, warm};
+  FemParams params;
+  params.max_iterations = 1;
+  params.untangle = false;
+  FemStats folded_stats, stats;
+  const Eigen::MatrixXd folded = solve(inputs, params, {}, &folded_stats).value();
+  params.untangle = true;
+  const Eigen::MatrixXd untangled = solve(inputs, params, {}, &stats).value();
+  const SoftFigures before = soft_figures(limb_, frames_, folded), after = soft_figures(limb_, frames_, untangled);
+  std::cout << "150 degrees, 1 iteration: soft volume " << before.volume_change << " (" << before.inverted
+            << " inverted), untangled " << after.volume_change << " (" << after.inverted << " inverted); "
+            << stats.untangle_vertices << " vertices, " << stats.untangle_iterations << " iterations\n";
+  EXPECT_EQ(folded_stats.inverted_before_untangle, 0);  // not asked: not counted
+  EXPECT_GT(before.inverted, 10);
+  EXPECT_EQ(stats.inverted_before_untangle, before.inverted);  // every soft tet here has a free corner
+  EXPECT_EQ(stats.inverted, after.inverted);
+  EXPECT_FALSE(stats.untangle_undone);
+  EXPECT_EQ(after.inverted, 0);
+  EXPECT_LE(std::abs(after.volume_change), std::abs(before.volume_change));
+  EXPECT_GT(stats.untangle_vertices, 0);
+  EXPECT_LT(stats.untangle_vertices, stats.free_vertices);  // only the tissue around the folds
+  for (Eigen::Index v = 0; v < warm.rows(); ++v) {
+    if (topology_.bone[static_cast<size_t>(v)]) {
+      ASSERT_EQ(untangled.row(v), warm.row(v)) << v;
+    }
+  }
+}
+
 TEST_F(SoftTissue, LeavesARigidMotionAsItIs) {
   skinning::SegmentTransforms transforms = bend(0.0);
   const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();

@@ -40,6 +40,9 @@ struct FemParams {
   // carried to this pose's), when a cache holds it: a slider's previews go on converging from call to call. A pose
   // leaves it off, so that its result depends on its request alone.
   bool continue_from_last = false;
+  // Turn back the tets the steady state leaves inverted (where bending folds a band of tissue that has no room):
+  // the free vertices around them minimise a foldover-free energy with everything else held. A preview leaves it off.
+  bool untangle = true;
 };
 
 // INVALID_ARGUMENT naming the parameter when one is out of range.
@@ -56,6 +59,14 @@ struct FemStats {
   double iterate_seconds = 0.0;
   bool reused_system = false;  // the cache held the factored system for these free vertices
   bool continued = false;      // started from the last solve's end (continue_from_last)
+  // Inverted soft tets (det F <= 0) with a free corner before and after untangling, and those whose corners are all
+  // held (bone vertices of two bones: the joint's gap), which no solve can turn back.
+  int64_t inverted_before_untangle = 0;
+  int64_t inverted = 0;
+  bool untangle_undone = false;  // untangling folded more tissue than it turned back, and was undone
+  int64_t untangle_vertices = 0;
+  int untangle_iterations = 0;
+  double untangle_seconds = 0.0;
 };
 
 // What does not depend on the pose, computed once per rig.

@@ -1,0 +1,335 @@
+// Turning back the soft tets a solve left inverted (see internal.h): a foldover-free energy after Garanzha et al.
+// 2021 on the free vertices around them, minimised by L-BFGS while its regulariser shrinks.
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <functional>
+#include <limits>
+#include <vector>
+
+#include "internal.h"
+#include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
+
+namespace posewarp::fem::internal {
+namespace {
+
+// The regularised determinant: (D + sqrt(eps^2 + D^2)) / 2, positive for every D, D itself as eps goes to 0 where D
+// is positive; written without cancellation where D is negative.
+double chi(double d, double eps) {
+  const double root = std::sqrt(eps * eps + d * d);
+  return d >= 0.0 ? 0.5 * (d + root) : 0.5 * eps * eps / (root - d);
+}
+
+// The untangled region: its vertices (free solve vertices, numbered 0..n-1 here), its tets with each corner's
+// region number or -1 - (solve vertex) for a held corner, and each region vertex's (tet, corner) pairs.
+struct Region {
+  std::vector<int32_t> vertices;                // region vertex -> solve vertex
+  std::vector<int32_t> slots;                   // region tet -> packed tet
+  std::vector<std::array<int32_t, 4>> corners;  // region tet -> region vertex, or -1 - solve vertex when held
+  std::vector<uint8_t> mostly_held;             // region tet -> three or more corners held
+  std::vector<int64_t> vertex_start;            // n + 1
+  std::vector<std::pair<int32_t, int32_t>> vertex_tets;
+};
+
+// A tet with three corners held leaves its fourth one side of a fixed triangle, which the tets around it may
+// forbid: such a tet keeps a floor under its regulariser (it pushes, but cannot hold the others' eps up).
+constexpr int kMostHeld = 3;
+constexpr double kHeldEps = 0.1;
+// The regulariser's schedule: the worst tet's regularised det starts at kFirstMu and falls by at least kLeastCut a
+// round of kInner L-BFGS steps; kPureBarrier once every tet is positive (the energy then keeps them so).
+constexpr double kFirstMu = 0.1;
+constexpr double kLeastCut = 0.3;
+constexpr double kPureBarrier = 1e-10;
+constexpr double kFlatEps = 1e-3;
+constexpr int kInner = 40;
+// Rounds in which the worst det gains less than kProgress before the minimisation stops.
+constexpr double kProgress = 1e-3;
+constexpr int kStalledRounds = 5;
+
+Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::vector<int32_t>& seeds, int rings) {
+  Region r;
+  std::vector<int32_t> local(static_cast<size_t>(free_count), -1);
+  std::vector<int32_t> frontier;
+  for (const int32_t v : seeds) {
+    if (local[static_cast<size_t>(v)] < 0) {
+      local[static_cast<size_t>(v)] = static_cast<int32_t>(r.vertices.size());
+      r.vertices.push_back(v);
+      frontier.push_back(v);
+    }
+  }
+  for (int ring = 0; ring < rings; ++ring) {
+    std::vector<int32_t> next;
+    for (const int32_t v : frontier) {
+      for (int64_t e = tets.vertex_start[static_cast<size_t>(v)]; e < tets.vertex_start[static_cast<size_t>(v) + 1];
+           ++e) {
+        for (const int32_t w : tets.corners[static_cast<size_t>(tets.vertex_tets[static_cast<size_t>(e)].first)]) {
+          if (w < free_count && local[static_cast<size_t>(w)] < 0) {
+            local[static_cast<size_t>(w)] = static_cast<int32_t>(r.vertices.size());
+            r.vertices.push_back(w);
+            next.push_back(w);
+          }
+        }
+      }
+    }
+    frontier = std::move(next);
+  }
+  std::vector<int32_t> slot_index(tets.corners.size(), -1);
+  r.vertex_start.assign(r.vertices.size() + 1, 0);
+  for (size_t i = 0; i < r.vertices.size(); ++i) {
+    const int32_t v = r.vertices[i];
+    for (int64_t e = tets.vertex_start[static_cast<size_t>(v)]; e < tets.vertex_start[static_cast<size_t>(v) + 1];
+         ++e) {
+      const auto [slot, c] = tets.vertex_tets[static_cast<size_t>(e)];
+      if (slot_index[static_cast<size_t>(slot)] < 0) {
+        slot_index[static_cast<size_t>(slot)] = static_cast<int32_t>(r.slots.size());
+        r.slots.push_back(slot);
+        std::array<int32_t, 4> corner{};
+        for (int k = 0; k < 4; ++k) {
+          const int32_t w = tets.corners[static_cast<size_t>(slot)][static_cast<size_t>(k)];
+          corner[static_cast<size_t>(k)] =
+              w < free_count && local[static_cast<size_t>(w)] >= 0 ? local[static_cast<size_t>(w)] : -1 - w;
+        }
+        r.corners.push_back(corner);
+        int held = 0;
+        for (const int32_t k : corner) held += k < 0;
+        r.mostly_held.push_back(held >= kMostHeld ? 1 : 0);
+      }
+      r.vertex_tets.emplace_back(slot_index[static_cast<size_t>(slot)], c);
+    }
+    r.vertex_start[i + 1] = static_cast<int64_t>(r.vertex_tets.size());
+  }
+  return r;
+}
+
+// The energy of the region's tets at positions z (3 per region vertex), its gradient, and the smallest det F of a
+// tet with two or more free corners. With cofactor C = dD/dF and chi' = chi / sqrt(eps^2 + D^2):
+//   d/dF |F|^2 / chi^(2/3) = 2 F / chi^(2/3) - 2/3 |F|^2 chi' / chi^(5/3) C
+//   d/dF ((D - 1)^2 + (D^2 + 1) / chi) = (2 (D - 1) + 2 D / chi - (D^2 + 1) chi' / chi^2) C
+class Energy {
+ public:
+  Energy(const PackedTets& tets, const Region& region, const Positions& x, double volume_share)
+      : tets_(tets),
+        region_(region),
+        x_(x),
+        theta_(volume_share),
+        energy_(region.slots.size()),
+        det_(region.slots.size()),
+        corner_gradient_(region.slots.size()) {}
+
+  double operator()(const Eigen::VectorXd& z, double eps, Eigen::VectorXd* gradient) {
+    const auto count = static_cast<int64_t>(region_.slots.size());
+    parallel_for(0, count, 1024, [&](int64_t t0, int64_t t1) {
+      for (int64_t t = t0; t < t1; ++t) evaluate(z, eps, t, gradient != nullptr);
+    });
+    double total = 0.0;
+    for (const double e : energy_) total += e;
+    if (gradient) {
+      gradient->resize(z.size());
+      parallel_for(0, static_cast<int64_t>(region_.vertices.size()), 2048, [&](int64_t i0, int64_t i1) {
+        for (int64_t i = i0; i < i1; ++i) {
+          Eigen::Vector3d g = Eigen::Vector3d::Zero();
+          for (int64_t e = region_.vertex_start[static_cast<size_t>(i)];
+               e < region_.vertex_start[static_cast<size_t>(i) + 1]; ++e) {
+            const auto [t, c] = region_.vertex_tets[static_cast<size_t>(e)];
+            g += corner_gradient_[static_cast<size_t>(t)].col(c);
+          }
+          gradient->segment<3>(3 * i) = g;
+        }
+      });
+    }
+    return total;
+  }
+
+  double min_det() const { return det_.empty() ? 1.0 : *std::min_element(det_.begin(), det_.end()); }
+
+ private:
+  void evaluate(const Eigen::VectorXd& z, double eps, int64_t t, bool with_gradient) {
+    const auto slot = static_cast<size_t>(region_.slots[static_cast<size_t>(t)]);
+    Eigen::Matrix<double, 3, 4> corner;
+    for (int c = 0; c < 4; ++c) {
+      const int32_t k = region_.corners[static_cast<size_t>(t)][static_cast<size_t>(c)];
+      corner.col(c) = k >= 0 ? Eigen::Vector3d(z.segment<3>(3 * k)) : Eigen::Vector3d(x_.row(-1 - k).transpose());
+    }
+    const Eigen::Matrix3d f = corner * tets_.gradients[slot].transpose();
+    const Eigen::Matrix3d cofactor =
+        (Eigen::Matrix3d() << f.col(1).cross(f.col(2)), f.col(2).cross(f.col(0)), f.col(0).cross(f.col(1))).finished();
+    const double d = f.col(0).dot(cofactor.col(0));
+    const double e = region_.mostly_held[static_cast<size_t>(t)] ? std::max(eps, kHeldEps) : eps;
+    const double c = chi(d, e);
+    const double c_prime = c / std::sqrt(e * e + d * d);  // d chi / d D
+    const double trace = f.squaredNorm();
+    const double c23 = std::cbrt(c * c);
+    const double volume = tets_.volume[slot];
+    det_[static_cast<size_t>(t)] =
+        region_.mostly_held[static_cast<size_t>(t)] ? std::numeric_limits<double>::infinity() : d;
+    energy_[static_cast<size_t>(t)] =
+        volume * ((1.0 - theta_) * trace / c23 + theta_ * ((d - 1.0) * (d - 1.0) + (d * d + 1.0) / c));
+    if (!with_gradient) return;
+    const Eigen::Matrix3d de_df =
+        volume * ((1.0 - theta_) * (2.0 / c23 * f - (2.0 / 3.0) * trace / (c23 * c) * c_prime * cofactor) +
+                  theta_ * (2.0 * (d - 1.0) + 2.0 * d / c - (d * d + 1.0) * c_prime / (c * c)) * cofactor);
+    corner_gradient_[static_cast<size_t>(t)] = de_df * tets_.gradients[slot];
+  }
+
+  const PackedTets& tets_;
+  const Region& region_;
+  const Positions& x_;
+  double theta_;
+  std::vector<double> energy_, det_;
+  std::vector<Eigen::Matrix<double, 3, 4>> corner_gradient_;
+};
+
+// L-BFGS (Nocedal and Wright, algorithm 7.4) with a backtracking Armijo line search, at most `iterations` steps at
+// this eps; returns the steps taken.
+int minimise(Energy& energy, Eigen::VectorXd& z, double eps, int iterations, double& value) {
+  constexpr int kMemory = 8;
+  std::deque<Eigen::VectorXd> s_list, y_list;
+  std::deque<double> rho_list;
+  Eigen::VectorXd g;
+  value = energy(z, eps, &g);
+  int steps = 0;
+  for (; steps < iterations; ++steps) {
+    Eigen::VectorXd q = -g;
+    std::vector<double> alpha(s_list.size());
+    for (int i = static_cast<int>(s_list.size()) - 1; i >= 0; --i) {
+      alpha[static_cast<size_t>(i)] = rho_list[static_cast<size_t>(i)] * s_list[static_cast<size_t>(i)].dot(q);
+      q -= alpha[static_cast<size_t>(i)] * y_list[static_cast<size_t>(i)];
+    }
+    if (!s_list.empty()) {
+      q *= s_list.back().dot(y_list.back()) / y_list.back().squaredNorm();
+    } else {
+      q *= 1.0 / std::max(1.0, g.lpNorm<Eigen::Infinity>());  // a first step of at most 1 mm
+    }
+    for (size_t i = 0; i < s_list.size(); ++i) {
+      const double beta = rho_list[i] * y_list[i].dot(q);
+      q += (alpha[i] - beta) * s_list[i];
+    }
+    double slope = g.dot(q);
+    if (slope >= 0.0) {  // not a descent direction: forget the history and go down the gradient
+      s_list.clear(), y_list.clear(), rho_list.clear();
+      q = -g / std::max(1.0, g.lpNorm<Eigen::Infinity>());
+      slope = g.dot(q);
+    }
+    double step = 1.0;
+    Eigen::VectorXd trial, trial_g;
+    double trial_value = value;
+    bool accepted = false;
+    for (int k = 0; k < 30; ++k, step *= 0.5) {
+      trial = z + step * q;
+      trial_value = energy(trial, eps, &trial_g);
+      if (std::isfinite(trial_value) && trial_value <= value + 1e-4 * step * slope) {
+        accepted = true;
+        break;
+      }
+    }
+    if (!accepted) break;
+    Eigen::VectorXd s = trial - z, y = trial_g - g;
+    const double sy = s.dot(y);
+    if (sy > 1e-12 * s.norm() * y.norm()) {
+      s_list.push_back(std::move(s)), y_list.push_back(std::move(y)), rho_list.push_back(1.0 / sy);
+      if (static_cast<int>(s_list.size()) > kMemory) s_list.pop_front(), y_list.pop_front(), rho_list.pop_front();
+    }
+    const double change = value - trial_value;
+    z = std::move(trial), g = std::move(trial_g), value = trial_value;
+    if (change <= 1e-9 * std::abs(value)) {
+      ++steps;
+      break;
+    }
+  }
+  return steps;
+}
+
+double det_of(const PackedTets& tets, const Positions& x, size_t slot) {
+  Eigen::Matrix<double, 3, 4> corner;
+  for (int c = 0; c < 4; ++c) corner.col(c) = x.row(tets.corners[slot][static_cast<size_t>(c)]).transpose();
+  return (corner * tets.gradients[slot].transpose()).determinant();
+}
+
+// The solve's inverted tets with a free corner: how many, their rest volume, and their free corners.
+struct Folds {
+  int64_t inverted = 0;
+  double volume = 0.0;
+  std::vector<int32_t> free_corners;
+};
+
+Folds folds(const PackedTets& tets, Eigen::Index free_count, const Positions& x) {
+  Folds f;
+  for (size_t s = 0; s < tets.corners.size(); ++s) {
+    if (det_of(tets, x, s) > 0.0) continue;
+    const size_t before = f.free_corners.size();
+    for (const int32_t v : tets.corners[s]) {
+      if (v < free_count) f.free_corners.push_back(v);
+    }
+    if (f.free_corners.size() == before) continue;
+    ++f.inverted;
+    f.volume += tets.volume[s];
+  }
+  return f;
+}
+
+}  // namespace
+
+Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, Positions& x,
+                               const UntangleParams& params, const std::function<Status()>& cancel) {
+  const Stopwatch clock;
+  UntangleStats st;
+  const Folds start = folds(tets, free_count, x);
+  st.inverted_before = st.inverted_after = start.inverted;
+  if (start.inverted == 0) {
+    st.seconds = clock.seconds();
+    return st;
+  }
+  const Region region = grow_region(tets, free_count, start.free_corners, params.rings);
+  st.vertices = static_cast<int64_t>(region.vertices.size());
+  st.tets = static_cast<int64_t>(region.slots.size());
+  Eigen::VectorXd z(3 * static_cast<Eigen::Index>(region.vertices.size()));
+  for (size_t i = 0; i < region.vertices.size(); ++i) {
+    z.segment<3>(3 * static_cast<Eigen::Index>(i)) = x.row(region.vertices[i]).transpose();
+  }
+  const Eigen::VectorXd z_start = z;
+
+  Energy energy(tets, region, x, params.volume_share);
+  energy(z, 1.0, nullptr);
+  double min_det = energy.min_det();
+  // eps such that the worst tet's regularised det is mu; each round lowers mu by how much the last round's
+  // minimisation lowered the energy (at least kLeastCut), so eps shrinks as fast as the tets follow.
+  auto eps_for = [](double mu, double d) { return d < mu ? 2.0 * std::sqrt(mu * (mu - d)) : kPureBarrier; };
+  double eps = eps_for(kFirstMu, min_det);
+  double best_det = min_det;
+  int stalled = 0;
+  while (st.iterations < params.max_iterations) {
+    const double before = energy(z, eps, nullptr);
+    double after = before;
+    st.iterations += minimise(energy, z, eps, std::min(kInner, params.max_iterations - st.iterations), after);
+    min_det = energy.min_det();
+    POSEWARP_RETURN_IF_ERROR(cancel());
+    const double cut = 1.0 - after / before;
+    if (min_det > 0.0 && eps <= kPureBarrier && cut < 1e-4) break;  // foldover-free and settled
+    // A tet the others pin flat approaches det 0 from below without crossing; one pinned inverted stops improving.
+    // Either way what is left inverted stays, and further rounds only cost time.
+    if (eps < kFlatEps) break;
+    stalled = min_det > best_det + kProgress ? 0 : stalled + 1;
+    best_det = std::max(best_det, min_det);
+    if (stalled >= kStalledRounds) break;
+    eps = eps_for((1.0 - std::max(cut, kLeastCut)) * chi(min_det, eps), min_det);
+  }
+  for (size_t i = 0; i < region.vertices.size(); ++i) {
+    x.row(region.vertices[i]) = z.segment<3>(3 * static_cast<Eigen::Index>(i)).transpose();
+  }
+  const Folds end = folds(tets, free_count, x);
+  if (end.volume > start.volume) {  // more tissue folded than before: keep the solve's own result
+    for (size_t i = 0; i < region.vertices.size(); ++i) {
+      x.row(region.vertices[i]) = z_start.segment<3>(3 * static_cast<Eigen::Index>(i)).transpose();
+    }
+    st.undone = true;
+  } else {
+    st.inverted_after = end.inverted;
+  }
+  st.seconds = clock.seconds();
+  return st;
+}
+
+}  // namespace posewarp::fem::internal
