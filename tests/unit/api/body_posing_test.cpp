@@ -156,8 +156,9 @@ TEST(BodyPosing, HingesFlexWithoutBoneOverlapAndCorKeepsLocalVolume) {
 }
 
 // The soft tissue's steady state (fem) where the body phantom shows skinning's failures: knee and elbow at 90, the
-// forearm against the upper arm at elbow 120: bones as CoR puts them, much less folded tissue around the joint (the
-// crease itself still folds: contact between the tissue of thigh and calf is not modelled). The arm lifted 30
+// forearm against the upper arm at elbow 120: bones as CoR puts them, less than half CoR's folded tissue around the
+// joint (the untangling turns back what the steady state folds but for tets held by bone at every corner, and
+// contact between the tissue of thigh and calf is not modelled). The arm lifted 30
 // degrees from the trunk it rests against: fem keeps the tissue's volume and leaves nothing folded.
 TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
   struct Case {
@@ -192,7 +193,7 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
         EXPECT_LT(std::abs(fr->volume_change), 0.02);
         EXPECT_LT(fr->folded_fraction, 0.01);
       } else {
-        EXPECT_LT(fr->folded_fraction, 0.8 * cr->folded_fraction) << radius;
+        EXPECT_LT(fr->folded_fraction, 0.5 * cr->folded_fraction) << radius;  // 0.19-0.41 with the untangling
         if (radius == 100.0) {
           EXPECT_LT(std::abs(fr->volume_change), 0.10);
         }
