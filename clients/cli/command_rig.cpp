@@ -319,6 +319,10 @@ void add_rig_build(CLI::App* group) {
   cmd->add_option("--joint-radius", p.mesh.joint_radius_mm, "Reach of --joint-size around each joint centre, mm")
       ->check(CLI::Range(0.0, 1000.0))
       ->capture_default_str();
+  cmd->add_flag("!--keep-bone-gaps", p.mesh.split_bone_gaps,
+                "Leave the tet edges between two bones (a joint's gap) whole, as rigs built before 2026-11-28 did; by "
+                "default each is split at its midpoint, so that the fem method can move the gap's tissue instead of "
+                "folding it where the bones hold every corner");
   cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
       ->capture_default_str();
   cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");

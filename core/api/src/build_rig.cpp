@@ -204,10 +204,12 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     if (regions) {
       stats["skin_contacts"]["tets_torn"] = rig::tear_skin_contacts(rig.mesh, rig.skeleton, *regions, grid);
     }
+    const int64_t gap_edges_split = params.mesh.split_bone_gaps ? mesh::split_bone_gaps(rig.mesh) : 0;
     POSEWARP_RETURN_IF_ERROR(mesh::check_mesh_health(rig.mesh, classes, names, &health));
     stats["mesh"] = {{"vertices", rig.mesh.vertex_count()},
                      {"tets", rig.mesh.tet_count()},
                      {"bone_tets_relabelled_soft", bridging},
+                     {"bone_gap_edges_split", gap_edges_split},
                      {"downsample_factor", health.downsample_factor},
                      {"tets_per_class", health.tets_per_class},
                      {"max_bone_volume_error", health.max_bone_volume_error},

@@ -159,6 +159,79 @@ int64_t separate_bone_segments(TetMesh& mesh) {
   return relabelled;
 }
 
+int64_t split_bone_gaps(TetMesh& mesh) {
+  const int segments = mesh.segment_count;
+  const int64_t n = mesh.vertex_count();
+  if (segments < 2) return 0;
+  // Each vertex's bone segments, as a bit set (segments beyond 64 share bits: a conservative "in common").
+  std::vector<uint64_t> bones(static_cast<size_t>(n), 0);
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    const int k = mesh.tet_class(t) - kFirstBoneClass;
+    if (k < 0 || k >= segments) continue;
+    for (int c = 0; c < 4; ++c) bones[static_cast<size_t>(mesh.tets(t, c))] |= uint64_t{1} << (k % 64);
+  }
+  std::vector<std::array<int32_t, 4>> tets(static_cast<size_t>(mesh.tet_count()));
+  std::vector<int> classes(static_cast<size_t>(mesh.tet_count()));
+  std::vector<std::vector<int32_t>> vertex_tets(static_cast<size_t>(n));
+  std::vector<std::pair<int32_t, int32_t>> gap_edges;
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    for (int c = 0; c < 4; ++c) {
+      tets[static_cast<size_t>(t)][static_cast<size_t>(c)] = mesh.tets(t, c);
+      vertex_tets[static_cast<size_t>(mesh.tets(t, c))].push_back(static_cast<int32_t>(t));
+    }
+    classes[static_cast<size_t>(t)] = mesh.tet_class(t);
+    for (int a = 0; a < 4; ++a) {
+      for (int b = a + 1; b < 4; ++b) {
+        const int32_t u = mesh.tets(t, a), w = mesh.tets(t, b);
+        const uint64_t bu = bones[static_cast<size_t>(u)], bw = bones[static_cast<size_t>(w)];
+        if (bu != 0 && bw != 0 && (bu & bw) == 0) gap_edges.emplace_back(std::min(u, w), std::max(u, w));
+      }
+    }
+  }
+  std::sort(gap_edges.begin(), gap_edges.end());
+  gap_edges.erase(std::unique(gap_edges.begin(), gap_edges.end()), gap_edges.end());
+  std::vector<Eigen::Vector3d> added;
+  for (const auto& [u, w] : gap_edges) {
+    const auto m = static_cast<int32_t>(n + static_cast<int64_t>(added.size()));
+    added.emplace_back(0.5 * (mesh.vertices.row(u) + mesh.vertices.row(w)).transpose());
+    vertex_tets.emplace_back();
+    // Every tet holding u and w now (earlier splits may have made more of them): one half keeps u, the other w.
+    std::vector<int32_t> holding;
+    for (const int32_t t : vertex_tets[static_cast<size_t>(u)]) {
+      const auto& corner = tets[static_cast<size_t>(t)];
+      if (std::find(corner.begin(), corner.end(), w) != corner.end()) holding.push_back(t);
+    }
+    for (const int32_t t : holding) {
+      const auto half = static_cast<int32_t>(tets.size());
+      std::array<int32_t, 4> other = tets[static_cast<size_t>(t)];
+      for (int32_t& v : tets[static_cast<size_t>(t)]) v = v == w ? m : v;  // t keeps u
+      for (int32_t& v : other) v = v == u ? m : v;                         // the new half keeps w
+      tets.push_back(other);
+      classes.push_back(classes[static_cast<size_t>(t)]);
+      for (const int32_t v : other) {
+        if (v == w) {
+          std::replace(vertex_tets[static_cast<size_t>(w)].begin(), vertex_tets[static_cast<size_t>(w)].end(), t, half);
+        } else if (v == m) {
+          vertex_tets[static_cast<size_t>(m)].push_back(t);
+          vertex_tets[static_cast<size_t>(m)].push_back(half);
+        } else {
+          vertex_tets[static_cast<size_t>(v)].push_back(half);
+        }
+      }
+    }
+  }
+  if (added.empty()) return 0;
+  mesh.vertices.conservativeResize(n + static_cast<Eigen::Index>(added.size()), 3);
+  for (size_t i = 0; i < added.size(); ++i) mesh.vertices.row(n + static_cast<Eigen::Index>(i)) = added[i].transpose();
+  mesh.tets.resize(static_cast<Eigen::Index>(tets.size()), 4);
+  mesh.tet_class.resize(static_cast<Eigen::Index>(tets.size()));
+  for (size_t t = 0; t < tets.size(); ++t) {
+    for (int c = 0; c < 4; ++c) mesh.tets(static_cast<Eigen::Index>(t), c) = tets[t][static_cast<size_t>(c)];
+    mesh.tet_class(static_cast<Eigen::Index>(t)) = classes[t];
+  }
+  return static_cast<int64_t>(added.size());
+}
+
 Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const std::vector<std::string>& segment_names,
                          MeshHealth* health) {
   MeshHealth local;

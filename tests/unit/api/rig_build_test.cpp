@@ -174,6 +174,38 @@ TEST(BuildRig, JointCellSizeRefinesTheMeshAroundTheSkeletonsJoints) {
   EXPECT_EQ(build_rig(bar_inputs(), params, {}).status().code(), StatusCode::kInvalidArgument);
 }
 
+// The gap between two bones is split by default (no soft tet of the rig keeps an edge between two bones' vertices);
+// --keep-bone-gaps leaves the mesher's tets there, and gives another id.
+TEST(BuildRig, SplitsTheEdgesBetweenTwoBonesUnlessAskedToKeepThem) {
+  auto bridging = [](const Rig& rig) {
+    std::vector<int> bone(static_cast<size_t>(rig.mesh.vertex_count()), -1);
+    for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+      if (rig.mesh.tet_class(t) < kFirstBoneClass) continue;
+      for (int c = 0; c < 4; ++c) bone[static_cast<size_t>(rig.mesh.tets(t, c))] = rig.mesh.tet_class(t);
+    }
+    int64_t edges = 0;
+    for (int64_t t = 0; t < rig.mesh.tet_count(); ++t) {
+      if (rig.mesh.tet_class(t) != kSoftTissueClass) continue;
+      for (int a = 0; a < 4; ++a)
+        for (int b = a + 1; b < 4; ++b) {
+          const int ba = bone[static_cast<size_t>(rig.mesh.tets(t, a))],
+                    bb = bone[static_cast<size_t>(rig.mesh.tets(t, b))];
+          edges += ba >= 0 && bb >= 0 && ba != bb;
+        }
+    }
+    return edges;
+  };
+  const Rig& split = shared_bar_rig();
+  EXPECT_EQ(bridging(split), 0);
+  EXPECT_GT(nlohmann::json::parse(split.provenance.stats_json)["mesh"]["bone_gap_edges_split"].get<int64_t>(), 0);
+  BuildParams params = small_bar_params();
+  params.mesh.split_bone_gaps = false;
+  Result<Rig> kept = build_rig(bar_inputs(), params, {});
+  ASSERT_TRUE(kept.ok()) << kept.status().to_string();
+  EXPECT_GT(bridging(*kept), 0);
+  EXPECT_NE(kept->id(), split.id());
+}
+
 TEST(BuildRig, TheIdIsDerivedFromEveryInput) {
   const Rig& rig = shared_bar_rig();
   EXPECT_TRUE(is_hex_id(rig.id()));

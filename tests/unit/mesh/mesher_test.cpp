@@ -263,5 +263,85 @@ TEST(MeshParamsCheck, RejectsSizesThatCannotWork) {
   EXPECT_EQ(validate(params).code(), StatusCode::kInvalidArgument);
 }
 
+// A column of Kuhn-subdivided cubes: bone segment 0 below, bone segment 1 above, one layer of soft cells between them,
+// so that every soft tet of the gap has its corners on the two bones. Split, no soft tet keeps an edge between them,
+// and the mesh keeps its volume, its bone tets and positive orientation.
+TEST(SplitBoneGaps, LeavesNoSoftTetWithAnEdgeBetweenTwoBones) {
+  constexpr int kN = 3, kLayers = 5;  // 3 x 3 cells per layer; layers 0-1 bone 0, 2 soft, 3-4 bone 1
+  auto id = [](int i, int j, int k) { return (k * (kN + 1) + j) * (kN + 1) + i; };
+  TetMesh mesh;
+  mesh.segment_count = 2;
+  mesh.vertices.resize((kN + 1) * (kN + 1) * (kLayers + 1), 3);
+  for (int k = 0; k <= kLayers; ++k)
+    for (int j = 0; j <= kN; ++j)
+      for (int i = 0; i <= kN; ++i) mesh.vertices.row(id(i, j, k)) << 4.0 * i, 4.0 * j, 4.0 * k;
+  const int paths[6][3] = {{0, 1, 2}, {0, 2, 1}, {1, 0, 2}, {1, 2, 0}, {2, 0, 1}, {2, 1, 0}};
+  std::vector<Eigen::Vector4i> tets;
+  std::vector<int> classes;
+  for (int k = 0; k < kLayers; ++k)
+    for (int j = 0; j < kN; ++j)
+      for (int i = 0; i < kN; ++i)
+        for (const auto& path : paths) {
+          int c[3] = {i, j, k};
+          Eigen::Vector4i tet;
+          tet(0) = id(c[0], c[1], c[2]);
+          for (int s = 0; s < 3; ++s) ++c[path[s]], tet(s + 1) = id(c[0], c[1], c[2]);
+          Eigen::Matrix3d e;
+          for (int s = 0; s < 3; ++s)
+            e.col(s) = (mesh.vertices.row(tet(s + 1)) - mesh.vertices.row(tet(0))).transpose();
+          if (e.determinant() < 0) std::swap(tet(2), tet(3));
+          tets.push_back(tet);
+          classes.push_back(k < 2 ? kFirstBoneClass : k > 2 ? kFirstBoneClass + 1 : kSoftTissueClass);
+        }
+  mesh.tets.resize(static_cast<Eigen::Index>(tets.size()), 4);
+  mesh.tet_class.resize(static_cast<Eigen::Index>(tets.size()));
+  for (size_t t = 0; t < tets.size(); ++t) {
+    mesh.tets.row(static_cast<Eigen::Index>(t)) = tets[t].transpose();
+    mesh.tet_class(static_cast<Eigen::Index>(t)) = classes[t];
+  }
+  struct Figures {
+    int64_t bridging_edges = 0, bone_tets = 0, soft_tets = 0;
+    double volume = 0.0, smallest = 1e300;
+  };
+  auto figures = [](const TetMesh& m) {
+    std::vector<int> bone(static_cast<size_t>(m.vertex_count()), -1);
+    Figures f;
+    for (int64_t t = 0; t < m.tet_count(); ++t) {
+      if (m.tet_class(t) >= kFirstBoneClass) {
+        ++f.bone_tets;
+        for (int c = 0; c < 4; ++c) bone[static_cast<size_t>(m.tets(t, c))] = m.tet_class(t) - kFirstBoneClass;
+      }
+    }
+    for (int64_t t = 0; t < m.tet_count(); ++t) {
+      Eigen::Matrix3d e;
+      for (int s = 0; s < 3; ++s)
+        e.col(s) = (m.vertices.row(m.tets(t, s + 1)) - m.vertices.row(m.tets(t, 0))).transpose();
+      f.volume += e.determinant() / 6.0;
+      f.smallest = std::min(f.smallest, e.determinant() / 6.0);
+      if (m.tet_class(t) != kSoftTissueClass) continue;
+      ++f.soft_tets;
+      for (int a = 0; a < 4; ++a)
+        for (int b = a + 1; b < 4; ++b) {
+          const int ba = bone[static_cast<size_t>(m.tets(t, a))], bb = bone[static_cast<size_t>(m.tets(t, b))];
+          f.bridging_edges += ba >= 0 && bb >= 0 && ba != bb;
+        }
+    }
+    return f;
+  };
+  const Figures before = figures(mesh);
+  const int64_t rest_vertices = mesh.vertex_count();
+  const int64_t split = split_bone_gaps(mesh);
+  const Figures after = figures(mesh);
+  EXPECT_GT(before.bridging_edges, 0);
+  EXPECT_EQ(after.bridging_edges, 0);
+  EXPECT_EQ(mesh.vertex_count(), rest_vertices + split);  // one new vertex per edge split
+  EXPECT_EQ(split, 16 + 24 + 9);  // the gap's 16 vertical edges, its 24 vertical faces' and 9 cells' diagonals
+  EXPECT_EQ(after.bone_tets, before.bone_tets);
+  EXPECT_GT(after.soft_tets, before.soft_tets);
+  EXPECT_NEAR(after.volume, before.volume, 1e-9 * before.volume);
+  EXPECT_GT(after.smallest, 0.0);
+  EXPECT_EQ(split_bone_gaps(mesh), 0);  // nothing left to split
+}
+
 }  // namespace
 }  // namespace posewarp::mesh

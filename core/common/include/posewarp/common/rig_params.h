@@ -70,6 +70,9 @@ struct MeshParams {
   // 0 = off (the default).
   double joint_cell_size_mm = 0.0;
   double joint_radius_mm = 60.0;
+  // Split every edge between two bone segments' vertices at its midpoint (mesh::split_bone_gaps): the tissue in the
+  // gap between two bones gets vertices that a solve can move, where otherwise bones hold every corner of its tets.
+  bool split_bone_gaps = true;
   // The joint centres (LPS mm) the rig build fills from its skeleton (every joint not declared a plane joint, such
   // as the spine's) when joint_cell_size_mm is set: derived from the labels, so not part of the parameters' JSON.
   std::vector<std::array<double, 3>> joint_centres_lps;

@@ -61,6 +61,14 @@ Index3 downsample_factor_for(const ImageGeometry& geometry, int64_t budget);
 // tets relabelled.
 int64_t separate_bone_segments(TetMesh& mesh);
 
+// Splits every edge whose two vertices belong to bone tets of two different segments (and to no segment in common)
+// at its midpoint: each tet holding such an edge becomes two, the new vertex in soft tissue only, so that no soft
+// tet keeps corners on two bones across an edge. Such tets fill the gap between two bones (a joint's articular
+// space), where bones fix every corner and a bent joint folds them whatever moves the tissue; after the split a
+// solve can move their middle. Orientation and classes are kept; returns the number of edges split. Run after
+// separate_bone_segments (whose bone tets have no such edge).
+int64_t split_bone_gaps(TetMesh& mesh);
+
 // Checks a finished mesh against its class volume: fills `health` and fails (FAILED_PRECONDITION, naming the
 // segments) when a bone segment got no tets, rather than dropping a bone silently.
 Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const std::vector<std::string>& segment_names,
