@@ -52,7 +52,8 @@ struct PackedTets {
 // eps). The first term keeps shape; the second keeps volume, a barrier where D nears 0 and the square of the change
 // elsewhere, so that tissue pressed on one side and stretched on the other keeps its mean volume (the paper's
 // (D^2 + 1) / D alone is symmetric in log D and made bent tissue grow). Tets whose corners are all held stay as they
-// are. The result is undone when more tissue ends folded than before. `cancel` is checked every round.
+// are. The positions that folded the least tissue are kept; when none folded less than the solve's own, those stay.
+// `cancel` is checked every round.
 struct UntangleParams {
   int rings = 3;
   double volume_share = 0.9;  // theta: keeping volume counts nine times keeping shape
@@ -60,8 +61,8 @@ struct UntangleParams {
 };
 struct UntangleStats {
   int64_t inverted_before = 0, inverted_after = 0;  // tets with a free corner and det F <= 0
-  bool undone = false;                              // it folded more than it turned back, and was undone
-  int64_t vertices = 0, tets = 0;                   // the untangled region
+  bool undone = false;                              // no round folded less tissue: the solve's result stays
+  int64_t vertices = 0;                             // the untangled region's free vertices
   int iterations = 0;
   double seconds = 0.0;
 };

@@ -36,8 +36,9 @@ struct Region {
 
 // A tet with three corners held leaves its fourth one side of a fixed triangle, which the tets around it may
 // forbid: such a tet keeps a floor under its regulariser, a soft push rather than a wall, and its det does not set
-// the others' eps. (Measured on the body phantom's four bent joints: floors of 0.1, 0.3, 0.6 and 1 left 1.4-2.7%,
-// 1.4-2.0%, 1.2-2.0% and 1.2-2.0% of the tissue within 50 mm folded on a rig built with --joint-size 5.)
+// the others' eps. (posewarp_fem_probe on a --joint-size 5 rig of the body phantom, joints bent 90 degrees: floors
+// of 0.1, 0.3, 0.6 and 1 left 6.9, 5.9, 5.9 and 5.4% of the tissue within 50 mm of the hip folded and grew the knee's
+// by 7.7, 5.5, 4.1 and 2.7%; at 0.1 the shoulder's untangling folded more and was undone.)
 constexpr int kMostHeld = 3;
 constexpr double kHeldEps = 1.0;
 // The regulariser's schedule: the worst tet's regularised det starts at kFirstMu and falls by at least kLeastCut a
@@ -106,8 +107,8 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
   return r;
 }
 
-// The energy of the region's tets at positions z (3 per region vertex), its gradient, and the smallest det F of a
-// tet with two or more free corners. With cofactor C = dD/dF and chi' = chi / sqrt(eps^2 + D^2):
+// The energy of the region's tets at positions z (3 per region vertex), its gradient, and each tet's det F. With
+// cofactor C = dD/dF and chi' = chi / sqrt(eps^2 + D^2):
 //   d/dF |F|^2 / chi^(2/3) = 2 F / chi^(2/3) - 2/3 |F|^2 chi' / chi^(5/3) C
 //   d/dF ((D - 1)^2 + (D^2 + 1) / chi) = (2 (D - 1) + 2 D / chi - (D^2 + 1) chi' / chi^2) C
 class Energy {
@@ -119,7 +120,6 @@ class Energy {
         theta_(volume_share),
         energy_(region.slots.size()),
         det_(region.slots.size()),
-        signed_det_(region.slots.size()),
         corner_gradient_(region.slots.size()) {}
 
   double operator()(const Eigen::VectorXd& z, double eps, Eigen::VectorXd* gradient) {
@@ -146,13 +146,22 @@ class Energy {
     return total;
   }
 
-  double min_det() const { return det_.empty() ? 1.0 : *std::min_element(det_.begin(), det_.end()); }
+  // The smallest det F at the positions last evaluated of a tet with two or more free corners (infinite when every
+  // tet has three held; 1 for an empty region).
+  double min_det() const {
+    if (det_.empty()) return 1.0;
+    double least = std::numeric_limits<double>::infinity();
+    for (size_t t = 0; t < det_.size(); ++t) {
+      if (!region_.mostly_held[t]) least = std::min(least, det_[t]);
+    }
+    return least;
+  }
 
   // The rest volume of the region's tets folded (det F <= 0) at the positions last evaluated.
   double folded_volume() const {
     double folded = 0.0;
-    for (size_t t = 0; t < signed_det_.size(); ++t) {
-      if (signed_det_[t] <= 0.0) folded += tets_.volume[static_cast<size_t>(region_.slots[t])];
+    for (size_t t = 0; t < det_.size(); ++t) {
+      if (det_[t] <= 0.0) folded += tets_.volume[static_cast<size_t>(region_.slots[t])];
     }
     return folded;
   }
@@ -175,9 +184,7 @@ class Energy {
     const double trace = f.squaredNorm();
     const double c23 = std::cbrt(c * c);
     const double volume = tets_.volume[slot];
-    signed_det_[static_cast<size_t>(t)] = d;
-    det_[static_cast<size_t>(t)] =
-        region_.mostly_held[static_cast<size_t>(t)] ? std::numeric_limits<double>::infinity() : d;
+    det_[static_cast<size_t>(t)] = d;
     energy_[static_cast<size_t>(t)] =
         volume * ((1.0 - theta_) * trace / c23 + theta_ * ((d - 1.0) * (d - 1.0) + (d * d + 1.0) / c));
     if (!with_gradient) return;
@@ -191,18 +198,24 @@ class Energy {
   const Region& region_;
   const Positions& x_;
   double theta_;
-  std::vector<double> energy_, det_, signed_det_;
+  std::vector<double> energy_, det_;
   std::vector<Eigen::Matrix<double, 3, 4>> corner_gradient_;
 };
 
 // L-BFGS (Nocedal and Wright, algorithm 7.4) with a backtracking Armijo line search, at most `iterations` steps at
-// this eps; returns the steps taken.
-int minimise(Energy& energy, Eigen::VectorXd& z, double eps, int iterations, double& value) {
+// this eps: the energy where it started and where it ended, and the steps taken.
+struct Minimised {
+  double first = 0.0, last = 0.0;
+  int steps = 0;
+};
+
+Minimised minimise(Energy& energy, Eigen::VectorXd& z, double eps, int iterations) {
   constexpr int kMemory = 8;
   std::deque<Eigen::VectorXd> s_list, y_list;
   std::deque<double> rho_list;
   Eigen::VectorXd g;
-  value = energy(z, eps, &g);
+  double value = energy(z, eps, &g);
+  const double first = value;
   int steps = 0;
   for (; steps < iterations; ++steps) {
     Eigen::VectorXd q = -g;
@@ -252,7 +265,7 @@ int minimise(Energy& energy, Eigen::VectorXd& z, double eps, int iterations, dou
       break;
     }
   }
-  return steps;
+  return {first, value, steps};
 }
 
 double det_of(const PackedTets& tets, const Positions& x, size_t slot) {
@@ -297,7 +310,6 @@ Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, 
   }
   const Region region = grow_region(tets, free_count, start.free_corners, params.rings);
   st.vertices = static_cast<int64_t>(region.vertices.size());
-  st.tets = static_cast<int64_t>(region.slots.size());
   Eigen::VectorXd z(3 * static_cast<Eigen::Index>(region.vertices.size()));
   for (size_t i = 0; i < region.vertices.size(); ++i) {
     z.segment<3>(3 * static_cast<Eigen::Index>(i)) = x.row(region.vertices[i]).transpose();
@@ -318,14 +330,13 @@ Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, 
   double best_det = min_det;
   int stalled = 0;
   while (st.iterations < params.max_iterations) {
-    const double before = energy(z, eps, nullptr);
-    double after = before;
-    st.iterations += minimise(energy, z, eps, std::min(kInner, params.max_iterations - st.iterations), after);
+    const Minimised round = minimise(energy, z, eps, std::min(kInner, params.max_iterations - st.iterations));
+    st.iterations += round.steps;
     energy(z, eps, nullptr);  // the figures of z itself (the line search's last trial may have been refused)
     min_det = energy.min_det();
     if (const double folded = energy.folded_volume(); folded <= best_folded) best = z, best_folded = folded;
     POSEWARP_RETURN_IF_ERROR(cancel());
-    const double cut = 1.0 - after / before;
+    const double cut = 1.0 - round.last / round.first;
     if (min_det > 0.0 && eps <= kPureBarrier && cut < 1e-4) break;  // foldover-free and settled
     // A tet the others pin flat approaches det 0 from below without crossing; one pinned inverted stops improving.
     // Either way what is left inverted stays, and further rounds only cost time.

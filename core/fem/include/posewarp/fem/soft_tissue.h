@@ -59,11 +59,11 @@ struct FemStats {
   double iterate_seconds = 0.0;
   bool reused_system = false;  // the cache held the factored system for these free vertices
   bool continued = false;      // started from the last solve's end (continue_from_last)
-  // Inverted soft tets (det F <= 0) with a free corner before and after untangling, and those whose corners are all
-  // held (bone vertices of two bones: the joint's gap), which no solve can turn back.
+  // Inverted soft tets (det F <= 0) with a free corner before and after untangling (a tet whose corners are all
+  // bone vertices is not in the solve: no solve can turn it back).
   int64_t inverted_before_untangle = 0;
   int64_t inverted = 0;
-  bool untangle_undone = false;  // untangling folded more tissue than it turned back, and was undone
+  bool untangle_undone = false;  // no round of the untangling folded less tissue: the steady state's result stays
   int64_t untangle_vertices = 0;
   int untangle_iterations = 0;
   double untangle_seconds = 0.0;
