@@ -95,7 +95,8 @@ int main(int argc, char** argv) {
     for (int c = 0; c < 4; ++c) bones[static_cast<size_t>(mesh.tets(t, c))].insert(mesh.tet_class(t) - kFirstBoneClass);
   }
   for (const std::string& method_name : methods) {
-    // fem:WEIGHT:ITERATIONS:WARM solves here with those parameters from WARM's vertices (cor, dqs or lbs).
+    // fem:WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:CONTACT] solves here with those parameters from WARM's vertices (cor,
+    // dqs or lbs).
     std::optional<fem::FemParams> custom;
     std::optional<fem::CorotationalParams> corotational;
     std::string warm_name = method_name;
@@ -126,10 +127,12 @@ int main(int argc, char** argv) {
       std::getline(in, w, ':');
       std::getline(in, it, ':');
       std::getline(in, warm_name, ':');
-      std::string margin, untangle;
+      std::string margin, untangle, contact;
       std::getline(in, margin, ':');
       std::getline(in, untangle, ':');
+      std::getline(in, contact, ':');
       custom.emplace();
+      if (!contact.empty()) custom->contact = contact != "0";
       if (!margin.empty()) custom->margin_mm = std::stod(margin);
       if (!untangle.empty()) custom->untangle = untangle != "0";
       custom->volume_weight = std::stod(w);
@@ -188,6 +191,10 @@ int main(int argc, char** argv) {
             static_cast<long long>(stats.inverted_before_untangle), static_cast<long long>(stats.inverted),
             stats.untangle_undone ? "undone" : "kept", static_cast<long long>(stats.untangle_vertices),
             stats.untangle_iterations, stats.untangle_seconds);
+      }
+      if (custom && custom->contact) {
+        std::printf("  contact: %lld skin vertices pressed against the tissue facing them, look-ups %.2f s\n",
+                    static_cast<long long>(stats.contacts), stats.contact_seconds);
       }
     }
     for (const pose::JointRotation& moved : pose->joints) {
@@ -250,6 +257,15 @@ int main(int argc, char** argv) {
         all.folded += classes[static_cast<size_t>(k)].folded;
         all.folded_loss += classes[static_cast<size_t>(k)].folded_loss;
       }
+      const std::vector<fem::Penetration> inside =
+          fem::penetration(mesh, posed, topology.skin, joint->centre_mm, {kRadius, 100.0});
+      std::printf(
+          "%s %s, skin inside tissue / bone from elsewhere within 50 mm: %lld / %lld of %lld, within 100 mm: %lld / "
+          "%lld of %lld\n",
+          method_name.c_str(), joint->name.c_str(), static_cast<long long>(inside[0].inside_tissue),
+          static_cast<long long>(inside[0].inside_bone), static_cast<long long>(inside[0].skin_vertices),
+          static_cast<long long>(inside[1].inside_tissue), static_cast<long long>(inside[1].inside_bone),
+          static_cast<long long>(inside[1].skin_vertices));
       std::printf("%s %s, soft tets within %.0f mm of its centre:\n", method_name.c_str(), joint->name.c_str(), kRadius);
       print_row("all", all, total_rest);
       const char* names[7] = {"no bone corner",        "1 bone corner",       "2 bone corners", "3 bone corners",

@@ -536,6 +536,9 @@ void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
                   "With --method fem: how much more keeping volume counts than keeping shape (default 100, nearly "
                   "incompressible)")
       ->check(CLI::Range(1e-3, 1e6));
+  cmd->add_flag("--fem-contact", fem.contact,
+                "With --method fem: push the skin that bending drives into the tissue facing it (back of the knee, "
+                "forearm against the belly) back out of it; takes about half as long again");
 }
 
 void add_output_options(CLI::App* cmd, OutputOptions& o) {

@@ -75,6 +75,10 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     steady = client.pose(rig, POSE, method="fem", labels=False, ct=False)
     short = client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=1)
     assert steady.report["moved_joints"] and short.report["moved_joints"] != steady.report["moved_joints"]
+    # Contacts leave no more skin inside the tissue facing it than the solve without them.
+    pressed = client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_contact=True)
+    inside = lambda r: sum(m["skin_inside_tissue"] + m["skin_inside_bone"] for m in r.report["moved_joints"])
+    assert pressed.report["method"] == "fem" and inside(pressed) <= inside(steady)
     with pytest.raises(PosewarpError) as too_many:
         client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=20000)
     assert too_many.value.code == grpc.StatusCode.INVALID_ARGUMENT and "max_iterations" in str(too_many.value)

@@ -136,6 +136,7 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
   fem::FemParams params;
   if (options.max_iterations != 0) params.max_iterations = options.max_iterations;
   if (options.volume_weight != 0.0) params.volume_weight = options.volume_weight;
+  params.contact = options.contact;
   POSEWARP_RETURN_IF_ERROR(fem::validate(params));
   return params;
 }
@@ -223,6 +224,7 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
     params.untangle = false;  // a slider's steps within the preview's budget; the pose turns the folds back
+    params.contact = false;   // and pushes the skin out of the tissue facing it
   }
   return fem::solve({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, warm, &p.fem.cache}, params, hooks);
 }

@@ -7,6 +7,8 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <optional>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -59,6 +61,13 @@ struct UntangleParams {
   double volume_share = 0.9;  // theta: keeping volume counts nine times keeping shape
   int max_iterations = 1000;
 };
+// A free vertex kept on the outer side of a plane (a contact's face, as it was when the untangling began): the energy
+// weight * (offset - (x - point) . normal)^2 where that is positive.
+struct ContactPlane {
+  int32_t vertex = 0;  // solve vertex, free
+  Eigen::Vector3d point, normal;
+  double offset = 0.0, weight = 0.0;
+};
 struct UntangleStats {
   int64_t inverted_before = 0, inverted_after = 0;  // tets with a free corner and det F <= 0
   bool undone = false;                              // no round folded less tissue: the solve's result stays
@@ -66,8 +75,93 @@ struct UntangleStats {
   int iterations = 0;
   double seconds = 0.0;
 };
+// `contact_planes`, when given, is asked at each round's start for the planes that keep skin out of the tissue
+// facing it at the positions then (their energy is added to the tets'), so that turning a fold back does not push
+// skin through skin.
+using ContactLookUp = std::function<std::vector<ContactPlane>(const Positions&)>;
 Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, Positions& x,
-                               const UntangleParams& params, const std::function<Status()>& cancel);
+                               const UntangleParams& params, const ContactLookUp& contact_planes,
+                               const std::function<Status()>& cancel);
+
+// Items (points, or the boxes of tets and faces) on a uniform grid of cubic cells: which items a box may touch. An
+// item inserted with a box is in every cell the box touches, so a query may visit it more than once.
+class CellGrid {
+ public:
+  explicit CellGrid(double cell_mm) : cell_mm_(cell_mm) {}
+  void insert(int32_t item, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+    const Eigen::Array3i a = cell(lo), b = cell(hi);
+    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
+    for (int x = a.x(); x <= b.x(); ++x)
+      for (int y = a.y(); y <= b.y(); ++y)
+        for (int z = a.z(); z <= b.z(); ++z) cells_[key(Eigen::Array3i(x, y, z))].push_back(item);
+  }
+  // Calls visit(item) for each item in the cells a box touches.
+  template <typename Visit>
+  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
+    const Eigen::Array3i a = cell(lo), b = cell(hi);
+    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
+    for (int x = a.x(); x <= b.x(); ++x)
+      for (int y = a.y(); y <= b.y(); ++y)
+        for (int z = a.z(); z <= b.z(); ++z) {
+          const auto it = cells_.find(key(Eigen::Array3i(x, y, z)));
+          if (it == cells_.end()) continue;
+          for (const int32_t i : it->second) visit(i);
+        }
+  }
+
+ private:
+  static constexpr int kMostCells = 32;  // a box stretched over more cells per axis than this is left out
+  Eigen::Array3i cell(const Eigen::Vector3d& p) const { return (p.array() / cell_mm_).floor().cast<int>(); }
+  static int64_t key(const Eigen::Array3i& c) {
+    constexpr int64_t kMask = (int64_t{1} << 21) - 1;
+    return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
+  }
+  double cell_mm_;
+  std::unordered_map<int64_t, std::vector<int32_t>> cells_;
+};
+
+// The barycentric coordinates of p in the tet x[0..3], or nothing for a flat tet.
+std::optional<Eigen::Vector4d> barycentric(const std::array<Eigen::Vector3d, 4>& x, const Eigen::Vector3d& p);
+
+// Skin within this distance of a tet's corners at rest is the tet's own neighbourhood, not tissue from elsewhere.
+constexpr double kElsewhereMm = 15.0;
+
+// Skin pressed against the skin facing it, in the projective solve: collisions as a projection after the global step
+// (Bouaziz et al. 2014 section 5 handle them as constraints of the local step; a projection keeps the factored matrix
+// as it is). Every few iterations (`detect`) each free skin vertex inside a posed tet from elsewhere (none of whose
+// corners lies within kElsewhereMm of it at rest) is paired with the nearest skin face from elsewhere; after each
+// global step a paired vertex behind its face's plane is put back just outside it (`project`). The untangling keeps
+// the pairs as planes with a penalty (`planes`).
+class Contacts {
+ public:
+  // `solve_vertices`: the solve's mesh vertices, the free ones first; `contact`: the free skin vertices' solve
+  // numbers with their tets' stiffness (L_ii, for the planes' weights). Tets and faces that could meet them are found
+  // once, at the warm start.
+  Contacts(const SolveInputs& in, const std::vector<int32_t>& solve_vertices, const std::vector<int32_t>& contact,
+           const std::vector<double>& weight);
+  // Looks up which skin vertices are inside tissue from elsewhere at positions x and pairs each with the nearest
+  // skin face from elsewhere; returns how many were not paired before.
+  int64_t detect(const Positions& x);
+  void project(Positions& x) const;                            // each paired vertex behind its face put just outside it
+  int64_t pressed(const Positions& x) const;                   // vertices now pushed against a face
+  std::vector<ContactPlane> planes(const Positions& x) const;  // each paired vertex's face as a plane, at x
+  double seconds() const { return seconds_; }
+
+ private:
+  Eigen::Vector3d position(int32_t vertex, const Positions& x) const;
+  // The signed distance of x from pair k's face (posed), and its unit normal.
+  double face_distance(size_t k, const Positions& x, Eigen::Vector3d& normal) const;
+
+  const SolveInputs& in_;
+  std::vector<int32_t> local_;    // mesh vertex -> solve vertex, -1 outside the solve (held at the warm start)
+  std::vector<int32_t> contact_;  // solve vertex per contact vertex
+  std::vector<int32_t> vertex_;   // mesh vertex per contact vertex
+  std::vector<double> weight_;    // per contact vertex: its tets' stiffness
+  std::vector<int32_t> tets_;     // tets that may hold a contact vertex
+  std::vector<int32_t> faces_;    // skin faces (topology's) a contact vertex may meet
+  std::vector<int32_t> face_;     // per contact vertex: the face it is pushed against, or -1
+  double seconds_ = 0.0;
+};
 
 // Both solvers' frame: the parameters and inputs checked, the stats (the caller's, or a local) cleared, the clock
 // started and the vertices the solve moves found; none is the warm start itself (the rest pose, or only rigid

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <mutex>
@@ -10,53 +11,24 @@
 #include <unordered_map>
 #include <vector>
 
+#include "internal.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/fem/soft_tissue.h"
 
 namespace posewarp::fem {
-namespace {
+namespace internal {
 
-// Points on a uniform grid of 10 mm cells: which points a box may hold.
-class PointGrid {
- public:
-  PointGrid(const Eigen::MatrixXd& posed, const std::vector<int32_t>& points) {
-    for (size_t i = 0; i < points.size(); ++i) cells_[key(cell(posed.row(points[i]).transpose()))].push_back(static_cast<int32_t>(i));
-  }
-  // Calls visit(i) for each point i (an index into `points`) in the cells a box touches.
-  template <typename Visit>
-  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
-    constexpr int kMostCells = 32;  // a tet stretched over more cells per axis than this is left out
-    const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
-    for (int x = a.x(); x <= b.x(); ++x)
-      for (int y = a.y(); y <= b.y(); ++y)
-        for (int z = a.z(); z <= b.z(); ++z) {
-          const auto it = cells_.find(key(Eigen::Array3i(x, y, z)));
-          if (it == cells_.end()) continue;
-          for (const int32_t i : it->second) visit(i);
-        }
-  }
-
- private:
-  static constexpr double kCellMm = 10.0;
-  static Eigen::Array3i cell(const Eigen::Vector3d& p) { return (p.array() / kCellMm).floor().cast<int>(); }
-  static int64_t key(const Eigen::Array3i& c) {
-    constexpr int64_t kMask = (int64_t{1} << 21) - 1;
-    return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
-  }
-  std::unordered_map<int64_t, std::vector<int32_t>> cells_;
-};
-
-// The barycentric coordinates of p in the posed tet t, or nothing for a flat tet.
-std::optional<Eigen::Vector4d> barycentric(const TetMesh& mesh, const Eigen::MatrixXd& posed, int64_t t,
-                                           const Eigen::Vector3d& p) {
-  const Eigen::Vector3d x0 = posed.row(mesh.tets(t, 0)).transpose();
+std::optional<Eigen::Vector4d> barycentric(const std::array<Eigen::Vector3d, 4>& x, const Eigen::Vector3d& p) {
   Eigen::Matrix3d edges;
-  for (int c = 1; c < 4; ++c) edges.col(c - 1) = posed.row(mesh.tets(t, c)).transpose() - x0;
+  for (int c = 1; c < 4; ++c) edges.col(c - 1) = x[static_cast<size_t>(c)] - x[0];
   if (std::abs(edges.determinant()) < 1e-12) return std::nullopt;
-  const Eigen::Vector3d b = edges.inverse() * (p - x0);
+  const Eigen::Vector3d b = edges.inverse() * (p - x[0]);
   return Eigen::Vector4d(1.0 - b.sum(), b.x(), b.y(), b.z());
 }
+
+}  // namespace internal
+
+namespace {
 
 // The solid angle at corner a of a tet whose other corners are b, c, d (Van Oosterom and Strackee 1983).
 double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c, const Eigen::Vector3d& d) {
@@ -125,7 +97,11 @@ std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd&
   // a tet's length (kTetReach) of the centre at rest; each posed tet's box looks up the points it may hold.
   constexpr double kTetReach = 100.0;
   const double reach = radius + rest_distance_mm + kTetReach;
-  const PointGrid grid(posed, points);
+  internal::CellGrid grid(10.0);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d p = posed.row(points[i]).transpose();
+    grid.insert(static_cast<int32_t>(i), p, p);
+  }
   Eigen::Vector3d points_lo = posed.row(points[0]).transpose(), points_hi = points_lo;
   for (const int32_t v : points) {
     points_lo = points_lo.cwiseMin(posed.row(v).transpose());
@@ -143,6 +119,8 @@ std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd&
       }
       if ((hi.array() < points_lo.array()).any() || (lo.array() > points_hi.array()).any()) continue;
       const uint8_t kind = rest.tet_class(t) >= kFirstBoneClass ? 2 : 1;
+      std::array<Eigen::Vector3d, 4> corners;
+      for (int c = 0; c < 4; ++c) corners[static_cast<size_t>(c)] = posed.row(rest.tets(t, c)).transpose();
       grid.in_box(lo, hi, [&](int32_t i) {
         const int32_t v = points[static_cast<size_t>(i)];
         if (what[static_cast<size_t>(i)].load(std::memory_order_relaxed) >= kind) return;
@@ -150,7 +128,7 @@ std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd&
         for (int c = 0; c < 4; ++c) {
           if ((rest.vertices.row(rest.tets(t, c)).transpose() - x).squaredNorm() < rest_distance_mm * rest_distance_mm) return;
         }
-        const std::optional<Eigen::Vector4d> b = barycentric(rest, posed, t, posed.row(v).transpose());
+        const std::optional<Eigen::Vector4d> b = internal::barycentric(corners, posed.row(v).transpose());
         constexpr double kInside = 1e-9;
         if (!b || b->minCoeff() <= kInside) return;
         uint8_t seen = what[static_cast<size_t>(i)].load(std::memory_order_relaxed);

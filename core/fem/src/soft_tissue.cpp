@@ -174,7 +174,38 @@ Topology topology(const TetMesh& rest) {
   }
   topo.edges.reserve(static_cast<size_t>(topo.edge_start.back()));
   for (const std::vector<int32_t>& list : neighbours) topo.edges.insert(topo.edges.end(), list.begin(), list.end());
-
+  // The skin's faces: a tet face whose corners are all skin and that no other tet shares, turned to face out.
+  topo.skin = skin_vertices(rest);
+  for (int64_t t = 0; t < rest.tet_count(); ++t) {
+    for (int opposite = 0; opposite < 4; ++opposite) {
+      std::array<int32_t, 3> face{};
+      for (int c = 0, k = 0; c < 4; ++c) {
+        if (c != opposite) face[static_cast<size_t>(k++)] = rest.tets(t, c);
+      }
+      if (!topo.skin[static_cast<size_t>(face[0])] || !topo.skin[static_cast<size_t>(face[1])] ||
+          !topo.skin[static_cast<size_t>(face[2])]) {
+        continue;
+      }
+      bool shared = false;
+      for (int64_t e = topo.tet_start[static_cast<size_t>(face[0])];
+           e < topo.tet_start[static_cast<size_t>(face[0]) + 1] && !shared; ++e) {
+        const int32_t u = topo.tets[static_cast<size_t>(e)];
+        if (u == t) continue;
+        int common = 0;
+        for (int c = 0; c < 4; ++c) common += rest.tets(u, c) == face[1] || rest.tets(u, c) == face[2];
+        shared = common == 2;
+      }
+      if (shared) continue;
+      const Eigen::Vector3d a = rest.vertices.row(face[0]).transpose();
+      const Eigen::Vector3d out = a - rest.vertices.row(rest.tets(t, opposite)).transpose();
+      const Eigen::Vector3d ab = rest.vertices.row(face[1]).transpose() - a;
+      const Eigen::Vector3d ac = rest.vertices.row(face[2]).transpose() - a;
+      if (ab.cross(ac).dot(out) < 0.0) {
+        std::swap(face[1], face[2]);
+      }
+      topo.skin_faces.push_back(face);
+    }
+  }
   return topo;
 }
 
@@ -192,6 +223,8 @@ struct SolveSystem {
   std::vector<std::pair<int32_t, int32_t>> corners;    // (slot, corner)
   std::vector<std::tuple<int32_t, int32_t, double>> coupling;  // (free i, fixed solve vertex j, L_ij)
   double pull = 0.0;                                   // the faint pull toward the warm start on the diagonal
+  std::vector<int32_t> contact;                        // the free skin vertices (solve numbers)
+  std::vector<double> contact_stiffness;               // their tets' stiffness (L_ii), for the untangling's planes
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
   // Where the last solve on this system started (the warm start) and ended, free vertices only.
   Eigen::MatrixXd last_warm, last_solution;
@@ -265,6 +298,8 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
   std::vector<Eigen::Triplet<double>> triplets;
   triplets.reserve(slots * 16 + static_cast<size_t>(nf));
   double diagonal = 0.0;
+  Eigen::VectorXd own(nf);  // L_ii
+  own.setZero();
   for (size_t s = 0; s < slots; ++s) {
     const auto& corner = sys.slot_corners[s];
     for (int a = 0; a < 4; ++a) {
@@ -275,7 +310,10 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
         const double l = sys.slot_volume[s] * sys.gradients[s].col(a).dot(sys.gradients[s].col(b));
         if (ib < nf) {
           triplets.emplace_back(ia, ib, l);
-          if (ia == ib) diagonal += l;
+          if (ia == ib) {
+            diagonal += l;
+            own(ia) += l;
+          }
         } else {
           sys.coupling.emplace_back(ia, ib, l);
         }
@@ -285,6 +323,12 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
   // A faint pull towards the warm start keeps the system definite where a free piece touches nothing fixed.
   sys.pull = 1e-9 * diagonal / static_cast<double>(nf);
   for (Eigen::Index i = 0; i < nf; ++i) triplets.emplace_back(i, i, sys.pull);
+  // The free skin vertices, which contacts may push (Contacts), with their stiffness.
+  for (Eigen::Index i = 0; i < nf && !in.topology.skin.empty(); ++i) {
+    if (!in.topology.skin[static_cast<size_t>(sys.free_vertices[static_cast<size_t>(i)])]) continue;
+    sys.contact.push_back(static_cast<int32_t>(i));
+    sys.contact_stiffness.push_back(own(i));
+  }
   SparseMatrix matrix(nf, nf);
   matrix.setFromTriplets(triplets.begin(), triplets.end());
   sys.llt.compute(matrix);
@@ -531,7 +575,17 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
   AndersonHistory anderson;
   Eigen::MatrixXd current(nf, 3);
   current = x_solve.topRows(nf);
+  std::optional<internal::Contacts> contacts;
+  if (params.contact && !sys.contact.empty())
+    contacts.emplace(in, sys.solve_vertices, sys.contact, sys.contact_stiffness);
+  // Which skin is inside which tissue, looked up again every kLookUpEvery iterations and before the solve stops.
+  constexpr int kLookUpEvery = 5;
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
+    if (contacts && iteration % kLookUpEvery == 0) {
+      contacts->detect(x_solve);
+      anderson.restart();  // another contact set is another fixed point
+      anderson.accelerated = false;
+    }
     double e = local_step(sys, x_solve, params.volume_weight, local);
     if (anderson.accelerated && e > anderson.last_energy) {  // the combination raised the energy: the plain step
       current = anderson.plain;
@@ -558,22 +612,35 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
       anderson.accelerated = true;
     }
     x_solve.topRows(nf) = current;
+    if (contacts) {  // the skin inside tissue from elsewhere, put back outside the face it entered through
+      contacts->project(x_solve);
+      current = x_solve.topRows(nf);
+    }
     progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-    if (st.last_step_mm <= params.tolerance_mm) break;
+    if (st.last_step_mm <= params.tolerance_mm && (!contacts || contacts->detect(x_solve) == 0)) break;
   }
   st.iterate_seconds = iterate_start.seconds();
   if (params.untangle) {  // the tets the steady state left inverted, turned back
     const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume, sys.corner_start, sys.corners};
-    POSEWARP_ASSIGN_OR_RETURN(
-        const internal::UntangleStats untangled,
-        internal::untangle(packed, nf, x_solve, internal::UntangleParams{}, [&] { return progress.check_cancel(); }));
+    POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,
+                              internal::untangle(packed, nf, x_solve, internal::UntangleParams{},
+                                                 contacts ? internal::ContactLookUp([&](const Positions& x) {
+                                                   contacts->detect(x);
+                                                   return contacts->planes(x);
+                                                 })
+                                                          : internal::ContactLookUp{},
+                                                 [&] { return progress.check_cancel(); }));
     st.inverted_before_untangle = untangled.inverted_before;
     st.inverted = untangled.inverted_after;
     st.untangle_undone = untangled.undone;
     st.untangle_vertices = untangled.vertices;
     st.untangle_iterations = untangled.iterations;
     st.untangle_seconds = untangled.seconds;
+  }
+  if (contacts) {
+    st.contacts = contacts->pressed(x_solve);
+    st.contact_seconds = contacts->seconds();
   }
   keep_solution(in, x_solve, sys, posed);
   if (in.cache) in.cache->put(std::move(system));

@@ -120,7 +120,22 @@ class Energy {
         theta_(volume_share),
         energy_(region.slots.size()),
         det_(region.slots.size()),
-        corner_gradient_(region.slots.size()) {}
+        corner_gradient_(region.slots.size()),
+        local_(static_cast<size_t>(x.rows()), -1) {
+    for (size_t i = 0; i < region.vertices.size(); ++i)
+      local_[static_cast<size_t>(region.vertices[i])] = static_cast<int32_t>(i);
+  }
+
+  // The contact planes whose energy is added from now on: those of the region's vertices.
+  void set_planes(const std::vector<ContactPlane>& planes) {
+    planes_.clear();
+    for (const ContactPlane& plane : planes) {
+      const int32_t i = local_[static_cast<size_t>(plane.vertex)];
+      if (i < 0) continue;
+      planes_.push_back(plane);
+      planes_.back().vertex = i;
+    }
+  }
 
   double operator()(const Eigen::VectorXd& z, double eps, Eigen::VectorXd* gradient) {
     const auto count = static_cast<int64_t>(region_.slots.size());
@@ -142,6 +157,12 @@ class Energy {
           gradient->segment<3>(3 * i) = g;
         }
       });
+    }
+    for (const ContactPlane& plane : planes_) {
+      const double depth = plane.offset - (z.segment<3>(3 * plane.vertex) - plane.point).dot(plane.normal);
+      if (depth <= 0.0) continue;
+      total += plane.weight * depth * depth;
+      if (gradient) gradient->segment<3>(3 * plane.vertex) -= 2.0 * plane.weight * depth * plane.normal;
     }
     return total;
   }
@@ -200,6 +221,8 @@ class Energy {
   double theta_;
   std::vector<double> energy_, det_;
   std::vector<Eigen::Matrix<double, 3, 4>> corner_gradient_;
+  std::vector<int32_t> local_;        // solve vertex -> region vertex, -1 when held
+  std::vector<ContactPlane> planes_;  // vertex: region number
 };
 
 // L-BFGS (Nocedal and Wright, algorithm 7.4) with a backtracking Armijo line search, at most `iterations` steps at
@@ -299,7 +322,8 @@ Folds folds(const PackedTets& tets, Eigen::Index free_count, const Positions& x)
 }  // namespace
 
 Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, Positions& x,
-                               const UntangleParams& params, const std::function<Status()>& cancel) {
+                               const UntangleParams& params, const ContactLookUp& contact_planes,
+                               const std::function<Status()>& cancel) {
   const Stopwatch clock;
   UntangleStats st;
   const Folds start = folds(tets, free_count, x);
@@ -330,6 +354,12 @@ Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, 
   double best_det = min_det;
   int stalled = 0;
   while (st.iterations < params.max_iterations) {
+    if (contact_planes) {  // the skin the region's moves have brought into tissue from elsewhere, looked up again
+      for (size_t i = 0; i < region.vertices.size(); ++i) {
+        x.row(region.vertices[i]) = z.segment<3>(3 * static_cast<Eigen::Index>(i)).transpose();
+      }
+      energy.set_planes(contact_planes(x));
+    }
     const Minimised round = minimise(energy, z, eps, std::min(kInner, params.max_iterations - st.iterations));
     st.iterations += round.steps;
     energy(z, eps, nullptr);  // the figures of z itself (the line search's last trial may have been refused)

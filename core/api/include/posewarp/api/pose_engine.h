@@ -25,6 +25,7 @@ namespace posewarp::api {
 struct FemOptions {
   int max_iterations = 0;      // 1 to 10000; default 100
   double volume_weight = 0.0;  // how much more keeping volume counts than keeping shape, up to 1e6; default 100
+  bool contact = false;        // push skin out of the tissue facing it (fem::FemParams::contact)
 };
 
 struct PoseRequest {
