@@ -529,8 +529,8 @@ int run_animate(const AnimateOptions& o) {
 
 void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
   cmd->add_option("--fem-iterations", fem.max_iterations,
-                  "With --method fem: at most this many iterations of the soft tissue's solve (default 100; more "
-                  "converges further, each costs about 1% of the default's time)")
+                  "With --method fem: at most this many iterations of the soft tissue's solve (default 50, which the "
+                  "untangling that ends the solve completes; more converge further and take longer)")
       ->check(CLI::Range(1, 10000));
   cmd->add_option("--fem-volume-weight", fem.volume_weight,
                   "With --method fem: how much more keeping volume counts than keeping shape (default 100, nearly "

@@ -18,9 +18,11 @@ namespace {
 
 // The regularised determinant: (D + sqrt(eps^2 + D^2)) / 2, positive for every D, D itself as eps goes to 0 where D
 // is positive; written without cancellation where D is negative.
-double chi(double d, double eps) {
-  const double root = std::sqrt(eps * eps + d * d);
+double chi_of(double d, double eps, double root) {
   return d >= 0.0 ? 0.5 * (d + root) : 0.5 * eps * eps / (root - d);
+}
+double chi(double d, double eps) {
+  return chi_of(d, eps, std::sqrt(eps * eps + d * d));
 }
 
 // The untangled region: its vertices (free solve vertices, numbered 0..n-1 here), its tets with each corner's
@@ -200,8 +202,9 @@ class Energy {
         (Eigen::Matrix3d() << f.col(1).cross(f.col(2)), f.col(2).cross(f.col(0)), f.col(0).cross(f.col(1))).finished();
     const double d = f.col(0).dot(cofactor.col(0));
     const double e = region_.mostly_held[static_cast<size_t>(t)] ? std::max(eps, kHeldEps) : eps;
-    const double c = chi(d, e);
-    const double c_prime = c / std::sqrt(e * e + d * d);  // d chi / d D
+    const double root = std::sqrt(e * e + d * d);
+    const double c = chi_of(d, e, root);
+    const double c_prime = c / root;  // d chi / d D
     const double trace = f.squaredNorm();
     const double c23 = std::cbrt(c * c);
     const double volume = tets_.volume[slot];
