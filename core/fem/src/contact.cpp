@@ -19,12 +19,13 @@ namespace {
 // How far a contact vertex may come to tissue from elsewhere between the warm start and the solve's end: tets and
 // faces farther than this from every contact vertex at the warm start are not looked at.
 constexpr double kReachMm = 30.0;
-// Where a pushed vertex is put: this far outside the face it entered through.
+// Where a pushed vertex is put: this far outside the plane of the face it is paired with.
 constexpr double kOutsideMm = 0.2;
 // The untangling's planes weigh this many times the vertex's tets' stiffness (the diagonal of the solve's matrix):
 // at 1 the turned-back folds pushed skin back in, at 4 they leave it out.
 constexpr double kPlaneWeight = 4.0;
-// A pushed vertex keeps its face until it is this far outside it.
+// A vertex no longer inside tissue from elsewhere keeps its face while it is within this distance of the face's
+// plane (on either side); farther, it has slid past the face or come out, and is let go.
 constexpr double kReleaseMm = 2.0;
 // The nearest face from elsewhere is looked for within these half-widths in turn.
 constexpr std::array<double, 3> kSearchMm{10.0, 20.0, 40.0};
@@ -58,11 +59,14 @@ class Occupancy {
     if (points.empty()) return;
     lo_ = hi_ = points.front();
     for (const Eigen::Vector3d& p : points) {
+      if (!p.allFinite()) return;  // nothing is near a warm start that is not finite
       lo_ = lo_.cwiseMin(p);
       hi_ = hi_.cwiseMax(p);
     }
     lo_.array() -= reach_mm;
     hi_.array() += reach_mm;
+    constexpr double kMostCellsPerAxis = 4096.0;  // 41 m: a warm start spread wider is not a body
+    if ((((hi_ - lo_).array() / kCellMm) > kMostCellsPerAxis).any()) return;
     size_ = ((hi_ - lo_).array() / kCellMm).floor().cast<int>() + 1;
     cells_.assign(static_cast<size_t>(size_.prod()), 0);
     const int grow = static_cast<int>(std::ceil(reach_mm / kCellMm));
@@ -75,7 +79,9 @@ class Occupancy {
     }
   }
   bool near(const Eigen::Vector3d& p) const {
-    if (cells_.empty() || (p.array() < lo_.array()).any() || (p.array() > hi_.array()).any()) return false;
+    if (cells_.empty() || !p.allFinite() || (p.array() < lo_.array()).any() || (p.array() > hi_.array()).any()) {
+      return false;
+    }
     return cells_[index((((p - lo_).array() / kCellMm).floor().cast<int>()).min(size_ - 1))] != 0;
   }
 
@@ -184,7 +190,8 @@ int64_t Contacts::detect(const Positions& x) {
     }
   });
   // 2. Each vertex inside: the nearest skin face from elsewhere (the lowest of equally near ones). A vertex no longer
-  // inside keeps its face until it is kReleaseMm outside it, so that a push does not let go the moment it works.
+  // inside keeps its face while it is within kReleaseMm of the face's plane, so that a push does not let go the
+  // moment it works.
   CellGrid faces(10.0);
   for (size_t j = 0; j < faces_.size(); ++j) {
     const std::array<int32_t, 3>& face = in_.topology.skin_faces[static_cast<size_t>(faces_[j])];
@@ -228,6 +235,7 @@ int64_t Contacts::detect(const Positions& x) {
   });
   int64_t added = 0;
   for (size_t k = 0; k < n; ++k) added += next[k] >= 0 && face_[k] < 0;
+  changed_ = next != face_;
   face_ = std::move(next);
   seconds_ += start.seconds();
   return added;

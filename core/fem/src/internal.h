@@ -64,7 +64,7 @@ struct UntangleParams {
   double volume_share = 0.9;  // theta: keeping volume counts nine times keeping shape
   int max_iterations = 1000;
 };
-// A free vertex kept on the outer side of a plane (a contact's face, as it was when the untangling began): the energy
+// A free vertex kept on the outer side of a plane (a contact's face, as it was when the round began): the energy
 // weight * (offset - (x - point) . normal)^2 where that is positive.
 struct ContactPlane {
   int32_t vertex = 0;  // solve vertex, free
@@ -92,8 +92,9 @@ class CellGrid {
  public:
   explicit CellGrid(double cell_mm) : cell_mm_(cell_mm) {}
   void insert(int32_t item, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+    if (!in_range(lo) || !in_range(hi)) return;
     const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
+    if (((b - a) > kMostCells).any()) return;
     for (int x = a.x(); x <= b.x(); ++x)
       for (int y = a.y(); y <= b.y(); ++y)
         for (int z = a.z(); z <= b.z(); ++z) cells_[key(Eigen::Array3i(x, y, z))].push_back(item);
@@ -101,8 +102,9 @@ class CellGrid {
   // Calls visit(item) for each item in the cells a box touches.
   template <typename Visit>
   void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
+    if (!in_range(lo) || !in_range(hi)) return;
     const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (!lo.allFinite() || !hi.allFinite() || ((b - a) > kMostCells).any()) return;
+    if (((b - a) > kMostCells).any()) return;
     for (int x = a.x(); x <= b.x(); ++x)
       for (int y = a.y(); y <= b.y(); ++y)
         for (int z = a.z(); z <= b.z(); ++z) {
@@ -115,6 +117,10 @@ class CellGrid {
  private:
   static constexpr int kMostCells = 32;  // a box stretched over more cells per axis than this is left out
   Eigen::Array3i cell(const Eigen::Vector3d& p) const { return (p.array() / cell_mm_).floor().cast<int>(); }
+  // Finite and within the cells' 21-bit keys (a point beyond is no body's).
+  bool in_range(const Eigen::Vector3d& p) const {
+    return p.allFinite() && (p.array().abs() / cell_mm_ < double{1 << 20}).all();
+  }
   static int64_t key(const Eigen::Array3i& c) {
     constexpr int64_t kMask = (int64_t{1} << 21) - 1;
     return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
@@ -146,7 +152,8 @@ class Contacts {
   // skin face from elsewhere; returns how many were not paired before.
   int64_t detect(const Positions& x);
   void project(Positions& x) const;                            // each paired vertex behind its face put just outside it
-  int64_t pressed(const Positions& x) const;                   // vertices now pushed against a face
+  int64_t pressed(const Positions& x) const;  // paired vertices within kOutsideMm of their face's plane or behind it
+  bool changed() const { return changed_; }   // the last look-up paired other vertices or faces than the one before
   std::vector<ContactPlane> planes(const Positions& x) const;  // each paired vertex's face as a plane, at x
   double seconds() const { return seconds_; }
 
@@ -163,6 +170,7 @@ class Contacts {
   std::vector<int32_t> tets_;     // tets that may hold a contact vertex
   std::vector<int32_t> faces_;    // skin faces (topology's) a contact vertex may meet
   std::vector<int32_t> face_;     // per contact vertex: the face it is pushed against, or -1
+  bool changed_ = false;
   double seconds_ = 0.0;
 };
 

@@ -250,7 +250,7 @@ TEST_F(SoftTissue, TurnsBackTheTetsTheSteadyStateLeavesFolded) {
 // Bent 120 and 150 degrees, the inside of the bend brings the skin of the limb's lower half against its upper half's;
 // left free, the solve lets skin pass into the tissue facing it. With contacts (FemParams::contact) the skin is put
 // back out: the bones stay where they are and no tet is left inverted. Bent 90 degrees nothing meets, and the
-// contacts change the solve by no more than its tolerance.
+// contacts move no vertex by as much as 1 mm.
 TEST_F(SoftTissue, ContactsPushSkinOutOfTheTissueFacingIt) {
   const Eigen::Vector3d centre(kNx * kCell / 2, kNy * kCell / 2, (kSoftFrom + kSoftTo) / 2);
   const auto skin_inside = [&](const Eigen::MatrixXd& posed) {
@@ -262,15 +262,14 @@ TEST_F(SoftTissue, ContactsPushSkinOutOfTheTissueFacingIt) {
     const Eigen::MatrixXd warm = skinning::lbs(limb_.mesh.vertices, limb_.weights, transforms);
     const SolveInputs inputs{limb_.mesh, frames_, topology_, limb_.weights, transforms, warm};
     FemParams params;
-    FemStats free_stats, stats;
-    const Eigen::MatrixXd free_skin = solve(inputs, params, {}, &free_stats).value();
+    FemStats stats;
+    const Eigen::MatrixXd free_skin = solve(inputs, params, {}).value();
     params.contact = true;
     const Eigen::MatrixXd pressed = solve(inputs, params, {}, &stats).value();
     const SoftFigures without = soft_figures(limb_, frames_, free_skin), with = soft_figures(limb_, frames_, pressed);
     std::cout << degrees << " degrees: skin inside tissue from elsewhere " << skin_inside(free_skin) << " (soft volume "
               << without.volume_change << "), with contacts " << skin_inside(pressed) << " (" << with.volume_change
               << ", " << with.inverted << " inverted; " << stats.contacts << " pressed)\n";
-    EXPECT_EQ(free_stats.contacts, 0);
     EXPECT_EQ(with.inverted, 0);
     for (Eigen::Index v = 0; v < warm.rows(); ++v) {
       if (topology_.bone[static_cast<size_t>(v)]) {
@@ -293,7 +292,7 @@ TEST_F(SoftTissue, ContactsPushSkinOutOfTheTissueFacingIt) {
 // The skin's faces: the soft middle's four sides, two triangles per cell face, each turned out of the limb; the rows
 // that touch a bone block have a bone vertex, which is not skin.
 TEST_F(SoftTissue, TopologyFindsTheSkinFacesTurnedOut) {
-  EXPECT_EQ(topology_.skin_faces.size(), 4u * kNx * 6 * 2);  // 4 sides x 6 cells x 6 rows (of 8) x 2 triangles
+  EXPECT_EQ(topology_.skin_faces.size(), (2u * kNx + 2u * kNy) * 6 * 2);  // 4 sides x 6 rows (of 8) x 2 triangles
   const Eigen::Vector3d middle(kNx * kCell / 2, kNy * kCell / 2, 0.0);
   for (const std::array<int32_t, 3>& face : topology_.skin_faces) {
     const Eigen::Vector3d a = limb_.mesh.vertices.row(face[0]).transpose();

@@ -74,8 +74,8 @@ struct FemStats {
   int64_t untangle_vertices = 0;
   int untangle_iterations = 0;
   double untangle_seconds = 0.0;
-  // Free skin vertices pushed out of the tissue facing them when the solve ended, and the seconds spent finding
-  // which skin was inside which tissue.
+  // Free skin vertices pressed against the skin facing them when the solve ended (paired with a face from elsewhere
+  // and within 0.2 mm of its plane or behind it), and the seconds spent finding which skin was inside which tissue.
   int64_t contacts = 0;
   double contact_seconds = 0.0;
 };
