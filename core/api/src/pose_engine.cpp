@@ -95,7 +95,7 @@ struct FemState {
   std::once_flag once;
   fem::Topology topology;
   std::once_flag skin_once;
-  std::vector<uint8_t> skin;  // the report's skin vertices (fem::skin_vertices), made by the first pose that needs them
+  std::vector<uint8_t> skin;  // the mesh's skin vertices (skin_of), for the report and the topology
   fem::SolveCache cache;      // the last solve's factored system: a slider's next pose frees the same vertices
 };
 
@@ -212,12 +212,19 @@ Result<std::vector<RigidTransform>> kinematics(const Prepared& p, const Pose& po
   return transforms;
 }
 
+// The mesh's skin vertices (fem::skin_vertices), made by the first request that needs them: the report's
+// penetration count and the fem topology share them.
+const std::vector<uint8_t>& skin_of(const Prepared& p) {
+  std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(p.rig.mesh); });
+  return p.fem.skin;
+}
+
 // The soft tissue's steady state from skinned (CoR) vertices. With `max_iterations` (a preview's), at most that many,
 // going on from where the last solve on the same free vertices ended; 0: the solve's own, from the warm start.
 Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& warm,
                                     const skinning::SegmentTransforms& segments, const ProgressHooks& hooks,
                                     int max_iterations = 0, const FemOptions& options = {}) {
-  std::call_once(p.fem.once, [&] { p.fem.topology = fem::topology(p.rig.mesh); });
+  std::call_once(p.fem.once, [&] { p.fem.topology = fem::topology(p.rig.mesh, skin_of(p)); });
   POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
   if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
     params.max_iterations = max_iterations;
@@ -269,10 +276,9 @@ void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTra
   }
   const std::vector<double> radii{50.0, 100.0};
   qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
-  if (!moved_joints.empty()) std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(mesh); });
   for (size_t j = 0; j < moved_joints.size(); ++j) {
     const std::vector<fem::Penetration> inside =
-        fem::penetration(mesh, result.posed_vertices, p.fem.skin, moved_joints[j].second, radii);
+        fem::penetration(mesh, result.posed_vertices, skin_of(p), moved_joints[j].second, radii);
     for (size_t r = 0; r < radii.size(); ++r) {
       JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
       change.skin_vertices = inside[r].skin_vertices;

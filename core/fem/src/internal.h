@@ -57,9 +57,10 @@ struct PackedTets {
 // are. The positions that folded the least tissue are kept; when none folded less than the solve's own, those stay.
 // `cancel` is checked every round.
 struct UntangleParams {
-  // posewarp_fem_probe on scripts/body_check's rig (knee, elbow, hip 90, and the bench's knee 90 with shoulder
-  // abduction 90, 50 iterations before): 2 rings left the same folded share as 3 (within 0.1 point), the tissue's
-  // volume within 50 mm 0.4-1.9 points nearer rest, in 22-43% less time; 1 ring left up to 0.5 point more folded.
+  // posewarp_fem_probe with the rings set by a build switch not kept, on scripts/body_check's rig (knee, elbow, hip
+  // 90, and the bench's knee 90 with shoulder abduction 90, 50 iterations before): 2 rings left the same folded share
+  // as 3 (within 0.1 point), the tissue's volume within 50 mm 0.4-1.9 points nearer rest, in 22-43% less time; 1 ring
+  // left up to 0.5 point more folded.
   int rings = 2;
   double volume_share = 0.9;  // theta: keeping volume counts nine times keeping shape
   int max_iterations = 1000;

@@ -137,7 +137,7 @@ Status validate(const FemParams& params) {
   return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
 }
 
-Topology topology(const TetMesh& rest) {
+Topology topology(const TetMesh& rest, std::vector<uint8_t> skin) {
   Topology topo;
   const int64_t n = rest.vertex_count();
   std::vector<std::pair<int32_t, int32_t>> vertex_tet;
@@ -175,7 +175,7 @@ Topology topology(const TetMesh& rest) {
   topo.edges.reserve(static_cast<size_t>(topo.edge_start.back()));
   for (const std::vector<int32_t>& list : neighbours) topo.edges.insert(topo.edges.end(), list.begin(), list.end());
   // The skin's faces: a tet face whose corners are all skin and that no other tet shares, turned to face out.
-  topo.skin = skin_vertices(rest);
+  topo.skin = static_cast<int64_t>(skin.size()) == n ? std::move(skin) : skin_vertices(rest);
   for (int64_t t = 0; t < rest.tet_count(); ++t) {
     for (int opposite = 0; opposite < 4; ++opposite) {
       std::array<int32_t, 3> face{};

@@ -92,7 +92,8 @@ struct Topology {
   std::vector<std::array<int32_t, 3>> skin_faces;
 };
 
-Topology topology(const TetMesh& rest);
+// `skin`: skin_vertices(rest) when the caller has it already (else, or when it does not fit the mesh, made here).
+Topology topology(const TetMesh& rest, std::vector<uint8_t> skin = {});
 
 struct SolveSystem;  // the solve's packed tets and factored matrix for one set of free vertices
 
