@@ -410,6 +410,13 @@ void paint_arm(LabelVolume& labels, const BodyLayout& m, int s) {
   detail::paint(labels,
                 detail::box({elbow[0] - 28 * f, -8 * f, elbow[2]}, {elbow[0] + 28 * f, 8 * f, elbow[2] + 30 * f}),
                 humerus);
+  // The coronoid fossa: the hollow in front of the trochlea that takes the rim of the forearm's notch when the elbow
+  // bends (without it, shaft and epicondyles stand where the rim goes, and the bones overlap at 90 degrees whatever
+  // the joint centre). The posterior half joins trochlea and shaft.
+  Shape fossa =
+      detail::cylinder(sub(axis_a, Vec3{m.gap, 0, 0}), add(axis_b, Vec3{m.gap, 0, 0}), r_notch + 8 * f + m.gap);
+  fossa.clip_max[1] = elbow[1];
+  detail::repaint(labels, fossa, humerus, L::kSoft);
   detail::paint(labels, detail::cylinder(axis_a, axis_b, m.trochlea_radius()), humerus);
 }
 
