@@ -61,6 +61,8 @@ void put_skeleton(const api::Rig& rig, v1::Skeleton* skeleton) {
     joint->set_child(j.child);
     for (int a = 0; a < 3; ++a) joint->add_centre_mm(j.centre_mm[a]);
     joint->set_kind(j.kind);
+    joint->set_method(j.method);
+    joint->set_placed_because(j.placed_because);
     for (int a = 0; a < 3; ++a) {
       joint->add_flexion_axis(j.frame(a, 0));
       joint->add_abduction_axis(j.frame(a, 1));

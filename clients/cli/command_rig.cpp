@@ -125,22 +125,24 @@ int run_build(BuildOptions& options) {
 // One joint of `rig info --json`, with its range of motion.
 json joint_json(const api::JointInfo& joint, const std::vector<api::MotionRange>& ranges) {
   auto triple = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
-  json entry{{"name", joint.name},
-             {"parent", joint.parent},
-             {"child", joint.child},
-             {"centre_mm", triple(joint.centre_mm)},
-             {"method", joint.method},
-             {"kind", joint.kind},
-             {"side", joint.side},
-             {"declared", joint.declared},
-             {"contact_area_mm2", joint.contact_area_mm2},
-             // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
-             {"flexion_axis", triple(joint.frame.col(0))},
-             {"flexion_moves_child", joint.flexion_moves_child},
-             {"abduction_axis", triple(joint.frame.col(1))},
-             {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
-             {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
-             {"internal_rotation_sign", joint.internal_rotation_sign}};
+  json entry{
+      {"name", joint.name},
+      {"parent", joint.parent},
+      {"child", joint.child},
+      {"centre_mm", triple(joint.centre_mm)},
+      {"method", joint.method},
+      {"placed_because", joint.placed_because},
+      {"kind", joint.kind},
+      {"side", joint.side},
+      {"declared", joint.declared},
+      {"contact_area_mm2", joint.contact_area_mm2},
+      // Each axis is the one a positive angle turns the child about (right-hand rule, LPS).
+      {"flexion_axis", triple(joint.frame.col(0))},
+      {"flexion_moves_child", joint.flexion_moves_child},
+      {"abduction_axis", triple(joint.frame.col(1))},
+      {"internal_rotation_axis", triple(joint.internal_rotation_sign * joint.frame.col(2))},
+      {"frame", json::array({triple(joint.frame.col(0)), triple(joint.frame.col(1)), triple(joint.frame.col(2))})},
+      {"internal_rotation_sign", joint.internal_rotation_sign}};
   if (joint.method == "sphere-fit" || joint.method == "cylinder-fit") {
     entry["fit_radius_mm"] = joint.fit_radius_mm;
     entry["fit_rms_mm"] = joint.fit_rms_mm;
@@ -226,6 +228,7 @@ void print_info(const std::string& path, const api::Rig& rig, const json& doc, d
               << std::right << " (" << fixed(c[0], 1) << ", " << fixed(c[1], 1) << ", " << fixed(c[2], 1) << ") mm  "
               << joint["method"].get<std::string>() << ", " << joint["kind"].get<std::string>() << ", "
               << joint["side"].get<std::string>() << "\n"
+              << "      placed: " << joint["placed_because"].get<std::string>() << "\n"
               << "      flexion about " << axis_text(joint["flexion_axis"]) << " ("
               << joint["flexion_moves_child"].get<std::string>() << "), abduction about "
               << axis_text(joint["abduction_axis"]) << ", internal rotation about "

@@ -468,8 +468,13 @@ namespace {
 // A joint of GetRig as the local `rig info --json` writes it: its range as [negative, positive] degrees, and whether
 // bone stopped each way.
 nlohmann::json joint_json(const v1::Joint& j) {
-  nlohmann::json joint{
-      {"name", j.name()}, {"parent", j.parent()}, {"child", j.child()}, {"kind", j.kind()}, {"centre_mm", j.centre_mm()}};
+  nlohmann::json joint{{"name", j.name()},
+                       {"parent", j.parent()},
+                       {"child", j.child()},
+                       {"kind", j.kind()},
+                       {"centre_mm", j.centre_mm()},
+                       {"method", j.method()},
+                       {"placed_because", j.placed_because()}};
   for (const v1::MotionRange& m : j.ranges()) {
     joint["range_deg"][m.motion()] = {0.0 - m.negative_deg(), m.positive_deg()};
     joint["range_stopped_by_bone"][m.motion()] = {m.negative_stopped(), m.positive_stopped()};
@@ -514,6 +519,7 @@ int run_info_remote(const Connection& connection, const std::string& rig_id, boo
   for (const v1::Joint& j : rig.joints()) {
     std::printf("    %-24s %-6s %s -> %s at (%.1f, %.1f, %.1f) mm\n", j.name().c_str(), j.kind().c_str(),
                 j.parent().c_str(), j.child().c_str(), j.centre_mm(0), j.centre_mm(1), j.centre_mm(2));
+    if (!j.placed_because().empty()) std::printf("      placed: %s\n", j.placed_because().c_str());
     if (const std::string line = joint_range_line(joint_json(j)); !line.empty()) std::printf("%s\n", line.c_str());
   }
   for (const v1::StageTime& t : rig.stage_seconds()) std::printf("  %-10s %8.2f s\n", t.stage().c_str(), t.seconds());

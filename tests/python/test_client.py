@@ -118,6 +118,7 @@ def test_typed_joints_pose_as_the_json_pose_and_a_misspelt_joint_names_the_rigs(
     listed = {j["name"]: j for j in client.joints(rig)}
     assert {"joint_1_2", "joint_2_3"} <= set(listed)
     assert listed["joint_2_3"]["kind"] and len(listed["joint_2_3"]["flexion_axis"]) == 3
+    assert listed["joint_2_3"]["method"] and listed["joint_2_3"]["placed_because"]
     with pytest.raises(InvalidArgumentError) as misspelt:
         client.pose(rig, joints={"joint_2_33": {"flexion": 90}}, labels=False, ct=False)
     assert "joint_2_33" in misspelt.value.message and "joint_2_3" in misspelt.value.message

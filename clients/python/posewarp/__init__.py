@@ -384,11 +384,13 @@ class Client:
 
     def joints(self, rig_id: str) -> List[Dict[str, Any]]:
         """The rig's joints, to build a pose from: each a dict with name, parent and child (segments), kind ("ball",
-        "hinge" or "plane"), centre_mm, the flexion, abduction and rotation axes (unit vectors, LPS) and the ranges
-        measured at rig build ({motion: (negative_deg, positive_deg)}: how far it turns before its bones meet)."""
+        "hinge" or "plane"), centre_mm, method and placed_because (how the centre was found, and why there, in a
+        sentence), the flexion, abduction and rotation axes (unit vectors, LPS) and the ranges measured at rig build
+        ({motion: (negative_deg, positive_deg)}: how far it turns before its bones meet)."""
         rig = self._call(self._stub.GetRig, pb.GetRigRequest(rig_id=rig_id))
         return [{"name": j.name, "parent": j.parent, "child": j.child, "kind": j.kind,
-                 "centre_mm": list(j.centre_mm), "flexion_axis": list(j.flexion_axis),
+                 "centre_mm": list(j.centre_mm), "method": j.method, "placed_because": j.placed_because,
+                 "flexion_axis": list(j.flexion_axis),
                  "abduction_axis": list(j.abduction_axis), "rotation_axis": list(j.rotation_axis),
                  "ranges": {r.motion: (r.negative_deg, r.positive_deg) for r in j.ranges}} for j in rig.joints]
 

@@ -100,7 +100,12 @@ struct BodyLayout {
     const Vec3 u = hand_axis(s);  // (-s a, 0, -c)
     return {s * std::abs(u[2]), 0.0, -std::abs(u[0])};
   }
+  // The middle of the radiocarpal gap on the hand's axis.
   Vec3 wrist(int s) const { return sub(hand_centre(s), scale(hand_axis(s), 85 * f)); }
+  // The radiocarpal joint turns about the centre of the proximal carpal row's convex head (a ball), across the gap
+  // from the radius's cup.
+  double carpal_radius() const { return 11 * f; }
+  Vec3 carpal_centre(int s) const { return add(wrist(s), scale(hand_axis(s), gap / 2 + carpal_radius())); }
 
   // ---- joints ------------------------------------------------------------------------------------------------
   Vec3 hip(int s) const { return p(s * 88, 0, 900); }
@@ -380,7 +385,7 @@ void paint_arm(LabelVolume& labels, const BodyLayout& m, int s) {
   const Vec3 n = m.outward(s);
   const Vec3 y_axis{0, 1, 0};
   // Forearm: a notch (half-pipe under the trochlea, hollowed to leave the joint space), ulna and radius shafts,
-  // and a flat distal end facing the hand across the wrist gap.
+  // and a distal end whose cup (the radius's concave articular surface) faces the carpal head across the wrist gap.
   const double half = m.trochlea_half_length();
   const double r_notch = m.trochlea_radius() + m.gap;
   const Vec3 axis_a{elbow[0] - half, elbow[1], elbow[2]};
@@ -396,12 +401,20 @@ void paint_arm(LabelVolume& labels, const BodyLayout& m, int s) {
                 detail::cylinder({elbow[0] + s * 6 * f, -12 * f, elbow[2] - (r_notch + 6 * f)},
                                  add(distal, Vec3{0, -12 * f, 0}), 9 * f),
                 forearm);
-  detail::paint(labels, detail::oriented_box(distal, n, y_axis, {12 * f, 24 * f, 12 * f}), forearm);
-  // Hand: carpal block facing the forearm across the wrist gap, and a plate of metacarpals and fingers.
-  detail::paint(labels, detail::oriented_box(add(wrist, scale(u, m.gap / 2 + 12 * f)), n, y_axis, m.p(10, 20, 12)),
-                hand);
-  detail::paint(labels, detail::oriented_box(add(wrist, scale(u, m.gap / 2 + 70 * f)), n, y_axis, m.p(6, 32, 52)),
-                hand);
+  const Vec3 carpal = m.carpal_centre(s);
+  const double cup_in = m.carpal_radius() + m.gap;
+  const double cup_out = cup_in + 5 * f;
+  detail::paint(labels,
+                detail::oriented_box(sub(carpal, scale(u, cup_out + 10 * f)), n, y_axis, {12 * f, 24 * f, 10 * f}),
+                forearm);
+  detail::paint(labels, detail::spherical_cup(carpal, scale(u, -1.0), cup_in, cup_out, 50.0 * kPi / 180.0), forearm);
+  // Hand: the proximal carpal row's convex head facing the cup across the wrist gap, joined by a narrower neck to the
+  // carpal block (beyond the reach of a fit over the head, as the humeral and femoral necks are), and a plate of
+  // metacarpals and fingers.
+  detail::paint(labels, detail::sphere(carpal, m.carpal_radius()), hand);
+  detail::paint(labels, detail::capsule(carpal, add(carpal, scale(u, 18 * f)), 6 * f), hand);
+  detail::paint(labels, detail::oriented_box(add(carpal, scale(u, 30 * f)), n, y_axis, m.p(10, 20, 12)), hand);
+  detail::paint(labels, detail::oriented_box(add(carpal, scale(u, 70 * f)), n, y_axis, m.p(6, 32, 52)), hand);
   // Humerus: head in the glenoid, anatomical neck, shaft, epicondyles and the trochlea (the elbow's hinge).
   const Vec3 neck = add(sh, m.p(s * 18, 0, -28));
   detail::paint(labels, detail::sphere(sh, m.humeral_head_radius()), humerus);
@@ -472,7 +485,7 @@ std::vector<JointTruth> body_joints(const BodyLayout& m) {
           add(m.acromion_tip(s), Vec3{0, -(m.acromion_radius() + g / 2), 0}));
     joints.push_back({"shoulder_" + side, "scapula_" + side, "humerus_" + side, m.shoulder(s), "ball"});
     joints.push_back({"elbow_" + side, "humerus_" + side, "forearm_" + side, m.elbow(s), "hinge", left});
-    plane("wrist_" + side, "forearm_" + side, "hand_" + side, m.wrist(s));
+    joints.push_back({"wrist_" + side, "forearm_" + side, "hand_" + side, m.carpal_centre(s), "ball"});
   }
   for (int s : {+1, -1}) {
     const std::string side = side_name(s);

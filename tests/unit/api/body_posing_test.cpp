@@ -11,6 +11,7 @@
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/pose_engine.h"
 #include "posewarp/api/rig.h"
+#include "posewarp/api/rig_info.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/phantom/phantom.h"
 #include "posewarp/pose/pose.h"
@@ -238,6 +239,21 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
       })) << "no crease warning";
     }
   }
+}
+
+// rig info says why each joint is where it is: the fit and its radius for balls (wrists on the carpal head too) and
+// hinges, the declared kind for plane joints.
+TEST(BodyPosing, RigInfoSaysWhyEachJointIsWhereItIs) {
+  const SkeletonInfo info = describe_skeleton(body_rig().engine->rig());
+  std::map<std::string, std::string> why;
+  for (const JointInfo& joint : info.joints) why[joint.name] = joint.placed_because;
+  for (const char* ball : {"hip_left", "shoulder_right", "wrist_left", "wrist_right"}) {
+    EXPECT_EQ(why[ball].rfind("a sphere of radius", 0), 0u) << ball << ": " << why[ball];
+  }
+  for (const char* hinge : {"knee_left", "elbow_right", "ankle_left"}) {
+    EXPECT_EQ(why[hinge].rfind("a cylinder of radius", 0), 0u) << hinge << ": " << why[hinge];
+  }
+  EXPECT_EQ(why["L4_L5"].rfind("declared a plane joint", 0), 0u) << why["L4_L5"];
 }
 
 // Each joint's range on this study: flexion for hinges, flexion and abduction for balls and planes; the knee bends

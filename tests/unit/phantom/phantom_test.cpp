@@ -318,14 +318,15 @@ TEST_F(Body, PlaneJointCentresLieInSoftTissueBetweenParentAndChild) {
     const Vec3 to_child{child[0] - joint.centre_mm[0], child[1] - joint.centre_mm[1], child[2] - joint.centre_mm[2]};
     EXPECT_LT(dot3(to_parent, to_child), 0.0);
   }
-  EXPECT_EQ(planes, 16);
+  EXPECT_EQ(planes, 14);
 }
 
 TEST_F(Body, BallJointCentresAreTheCentresOfTheHeads) {
   const Phantom& p = body();
   const double diag = voxel_diagonal(p.labels.geometry());
-  const std::map<std::string, double> head_radius{
-      {"hip_left", 24.0}, {"hip_right", 24.0}, {"shoulder_left", 22.0}, {"shoulder_right", 22.0}};
+  const std::map<std::string, double> head_radius{{"hip_left", 24.0},      {"hip_right", 24.0},
+                                                  {"shoulder_left", 22.0}, {"shoulder_right", 22.0},
+                                                  {"wrist_left", 11.0},    {"wrist_right", 11.0}};
   int balls = 0;
   for (const JointTruth& joint : p.joints) {
     if (joint.kind != "ball") continue;
@@ -345,7 +346,7 @@ TEST_F(Body, BallJointCentresAreTheCentresOfTheHeads) {
     Vec3 socket{};
     EXPECT_TRUE(nearest_voxel_of(p, joint.parent_segment, joint.centre_mm, r + p.joint_gap_mm + diag, socket));
   }
-  EXPECT_EQ(balls, 4);
+  EXPECT_EQ(balls, 6);
 }
 
 TEST_F(Body, HingeAxesRunAlongTheirBoneCylinders) {

@@ -25,6 +25,9 @@ struct JointInfo {
   std::string parent, child;  // segment names
   Eigen::Vector3d centre_mm = Eigen::Vector3d::Zero();
   std::string method;  // how the centre was found: "contact-centroid", "sphere-fit", "cylinder-fit", "rig-spec", ...
+  // Why the centre is where it is, in a sentence: the fit and its figures, the rig spec, or why the joint turns about
+  // the middle of where its bones nearly touch (its declared kind, or why the declared kind's fit was refused).
+  std::string placed_because;
   std::string kind;    // "ball", "hinge", ... or "unspecified"
   std::string side;    // "left", "right" or "midline"
   bool declared = false;  // the label map or the rig spec declared it

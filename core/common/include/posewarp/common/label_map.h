@@ -37,7 +37,7 @@ enum class JointKind {
   kUnspecified,  // a sphere fit where a ball sits in a socket, else the contact centroid
   kBall,         // a head in a socket (hip, shoulder): the centre of a sphere fitted to the head
   kHinge,        // condyles or a trochlea (knee, elbow, ankle): the axis of a cylinder fitted to the convex side
-  kPlane,        // flat or irregular surfaces (spine, sacroiliac, wrist): the contact centroid
+  kPlane,        // flat or irregular surfaces (spine, sacroiliac, acromioclavicular): the contact centroid
 };
 
 // Which way positive flexion moves the child's far end from the rest pose, in the patient's axes. Hip, shoulder,

@@ -86,7 +86,8 @@ struct MannequinParams {
 //   ends across soft gaps;
 // - clavicles (sternoclavicular and acromioclavicular gaps), scapulae lying on the rib shell (touching it) with
 //   an acromion and a shallow glenoid cup (half-angle 35 degrees) holding the humeral head (r 22); elbow = hinge
-//   (trochlea, a transverse cylinder r 13, in the forearm's notch); wrist = flat ends across a gap to the hand.
+//   (trochlea, a transverse cylinder r 13, in the forearm's notch, a coronoid fossa in front of it); wrist = ball
+//   (the proximal carpal row's head, r 10, in the radius's cup).
 // Label values, names (TotalSegmentator-like) and segments are in the phantom's label map; the root is pelvis.
 struct BodyPhantomParams {
   // Voxel spacing along the index axes (i, j in-plane, k between slices), mm.
