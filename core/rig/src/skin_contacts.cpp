@@ -33,12 +33,14 @@ std::vector<Step> backward_steps(const ImageGeometry& g) {
   return steps;
 }
 
-// Two-pass chamfer: distance[v] = min over neighbours (distance + step) for voxels where `open(v)`; `carry` copies
-// what travels with the distance (the nearest segment).
-template <typename Open, typename Carry>
-void chamfer(const ImageGeometry& g, std::vector<float>& distance, const Open& open, const Carry& carry) {
+// Two-pass chamfer: distance[v] = min over neighbours w (distance + step) for voxels where `open(v)` and
+// `allow(v, w)`; `carry` copies what travels with the distance (the nearest segment). Whether any distance fell.
+template <typename Open, typename Allow, typename Carry>
+bool chamfer(const ImageGeometry& g, std::vector<float>& distance, const Open& open, const Allow& allow,
+             const Carry& carry) {
   const std::vector<Step> steps = backward_steps(g);
   const Index3 n = g.size;
+  bool changed = false;
   for (int pass = 0; pass < 2; ++pass) {
     const int sign = pass == 0 ? 1 : -1;
     for (int64_t kk = 0; kk < n[2]; ++kk) {
@@ -54,15 +56,17 @@ void chamfer(const ImageGeometry& g, std::vector<float>& distance, const Open& o
             if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) continue;
             const int64_t w = g.offset(x, y, z);
             const float through = distance[static_cast<size_t>(w)] + s.length;
-            if (through < distance[static_cast<size_t>(v)]) {
+            if (through < distance[static_cast<size_t>(v)] && allow(v, w)) {
               distance[static_cast<size_t>(v)] = through;
               carry(v, w);
+              changed = true;
             }
           }
         }
       }
     }
   }
+  return changed;
 }
 
 }  // namespace
@@ -100,28 +104,59 @@ Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& la
       }
     }
     auto inside = [&](int64_t v) { return body.data()[v] != 0; };
-    chamfer(g, to_bone, inside, [&](int64_t v, int64_t w) { regions.segment[static_cast<size_t>(v)] = regions.segment[static_cast<size_t>(w)]; });
-    chamfer(g, regions.depth_mm, inside, [](int64_t, int64_t) {});
+    auto always = [](int64_t, int64_t) { return true; };
+    chamfer(g, regions.depth_mm, inside, always, [](int64_t, int64_t) {});
     // A body touching the grid's edge: those voxels are at the skin too (the scan cut through the body there).
     for (int64_t v = 0; v < nv; ++v) {
       if (regions.depth_mm[static_cast<size_t>(v)] >= kFar) regions.depth_mm[static_cast<size_t>(v)] = 0.0f;
+    }
+    // A limb's tissue lies between its bones and its own skin: from the bone outwards it only gets nearer the skin.
+    // Where a limb rests against the trunk, its region would otherwise go on through the contact into the trunk and
+    // take whatever lies nearer the limb's bone than the trunk's (the flank of the liver, nearer the elbow than the
+    // ribs, moved with the forearm): a limb's region enters no voxel deeper below the skin than the bone voxel it
+    // comes from, give or take a voxel. Paths then bend, which one forward and one backward sweep do not follow:
+    // the sweeps repeat until nothing changes (at most kSweeps).
+    const std::vector<uint8_t> limb = limb_segments(skeleton);
+    std::vector<float> source_depth = regions.depth_mm;
+    const float slack = static_cast<float>(0.5 * std::max({g.spacing[0], g.spacing[1], g.spacing[2]}));
+    auto deeper_into_trunk = [&](int64_t v, int64_t w) {
+      const int16_t s = regions.segment[static_cast<size_t>(w)];
+      return s < 0 || !limb[static_cast<size_t>(s)] ||
+             regions.depth_mm[static_cast<size_t>(v)] <= source_depth[static_cast<size_t>(w)] + slack;
+    };
+    auto carry = [&](int64_t v, int64_t w) {
+      regions.segment[static_cast<size_t>(v)] = regions.segment[static_cast<size_t>(w)];
+      source_depth[static_cast<size_t>(v)] = source_depth[static_cast<size_t>(w)];
+    };
+    constexpr int kSweeps = 6;
+    for (int sweep = 0; sweep < kSweeps && chamfer(g, to_bone, inside, deeper_into_trunk, carry); ++sweep) {
     }
     return regions;
   });
 }
 
-std::vector<uint8_t> separated_segments(const Skeleton& skeleton) {
+namespace {
+
+// limb[s]: the limb-root joint above segment s (-1 in the trunk), and per limb root the trunk bones it hangs from.
+struct Limbs {
+  std::vector<int> limb;
+  std::vector<std::vector<int>> attached;
+};
+
+Limbs find_limbs(const Skeleton& skeleton) {
   const size_t n = skeleton.segments.size();
-  std::vector<uint8_t> separated(n * n, 0);
   bool any_ball = false;
   for (const Joint& joint : skeleton.joints) any_ball = any_ball || joint.kind == labels::JointKind::kBall;
   auto limb_root = [&](const Joint& joint) {
     const bool ball = any_ball ? joint.kind == labels::JointKind::kBall : joint.method == "sphere-fit";
     return ball && joint.side != BodySide::kMidline;
   };
-  // limb[s]: the limb-root joint above segment s (-1 in the trunk); joints come parents first.
-  std::vector<int> limb(n, -1);
-  std::vector<std::vector<int>> attached(skeleton.joints.size());  // per limb root: trunk bones it hangs from
+  // Joints come parents first.
+  Limbs limbs;
+  std::vector<int>& limb = limbs.limb;
+  std::vector<std::vector<int>>& attached = limbs.attached;
+  limb.assign(n, -1);
+  attached.resize(skeleton.joints.size());
   for (size_t j = 0; j < skeleton.joints.size(); ++j) {
     const Joint& joint = skeleton.joints[j];
     const int from_parent = limb[static_cast<size_t>(joint.parent)];
@@ -143,6 +178,24 @@ std::vector<uint8_t> separated_segments(const Skeleton& skeleton) {
       }
     }
   }
+  return limbs;
+}
+
+}  // namespace
+
+std::vector<uint8_t> limb_segments(const Skeleton& skeleton) {
+  const Limbs limbs = find_limbs(skeleton);
+  std::vector<uint8_t> in_limb(limbs.limb.size(), 0);
+  for (size_t s = 0; s < limbs.limb.size(); ++s) in_limb[s] = limbs.limb[s] >= 0;
+  return in_limb;
+}
+
+std::vector<uint8_t> separated_segments(const Skeleton& skeleton) {
+  const size_t n = skeleton.segments.size();
+  std::vector<uint8_t> separated(n * n, 0);
+  const Limbs limbs = find_limbs(skeleton);
+  const std::vector<int>& limb = limbs.limb;
+  const std::vector<std::vector<int>>& attached = limbs.attached;
   for (size_t a = 0; a < n; ++a) {
     for (size_t b = 0; b < n; ++b) {
       if (a == b) continue;

@@ -21,13 +21,19 @@ using posewarp::SkinContactParams;  // posewarp/common/rig_params.h
 Status validate(const SkinContactParams& params);
 
 // Per voxel of the labels' grid: the bone segment whose voxels are nearest through the body (-1 outside it) and the
-// depth below the skin (mm; 0 outside), both from 26-neighbour chamfer distances (within about 8%).
+// depth below the skin (mm; 0 outside), both from 26-neighbour chamfer distances (within about 8%). A limb's region
+// goes no deeper below the skin than the bone voxel it comes from (give or take a voxel and a half): a limb resting
+// against the trunk takes none of the trunk's tissue beyond the contact.
 struct BodyRegions {
   std::vector<int16_t> segment;
   std::vector<float> depth_mm;
 };
 
 Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& labels, const LabelVolume& body);
+
+// Per segment: 1 in a limb (below a ball joint whose child is on one side: hip, shoulder; without declared kinds, a
+// sphere-fitted joint), 0 in the trunk.
+std::vector<uint8_t> limb_segments(const Skeleton& skeleton);
 
 // separated[a * n + b]: regions a and b must not share soft tissue where they meet near the skin. A limb is the
 // subtree below a ball joint whose child is on one side (hip, shoulder; without declared kinds, a sphere-fitted
