@@ -120,7 +120,7 @@ Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& la
     const std::vector<uint8_t> limb = limb_segments(skeleton);
     std::vector<float> source_depth = regions.depth_mm;
     const float slack = static_cast<float>(0.5 * std::max({g.spacing[0], g.spacing[1], g.spacing[2]}));
-    auto deeper_into_trunk = [&](int64_t v, int64_t w) {
+    auto within_own_skin = [&](int64_t v, int64_t w) {
       const int16_t s = regions.segment[static_cast<size_t>(w)];
       return s < 0 || !limb[static_cast<size_t>(s)] ||
              regions.depth_mm[static_cast<size_t>(v)] <= source_depth[static_cast<size_t>(w)] + slack;
@@ -130,7 +130,7 @@ Result<BodyRegions> body_regions(const Skeleton& skeleton, const LabelVolume& la
       source_depth[static_cast<size_t>(v)] = source_depth[static_cast<size_t>(w)];
     };
     constexpr int kSweeps = 3;
-    for (int sweep = 0; sweep < kSweeps && chamfer(g, to_bone, inside, deeper_into_trunk, carry); ++sweep) {
+    for (int sweep = 0; sweep < kSweeps && chamfer(g, to_bone, inside, within_own_skin, carry); ++sweep) {
     }
     return regions;
   });

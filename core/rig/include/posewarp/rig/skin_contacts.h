@@ -22,7 +22,7 @@ Status validate(const SkinContactParams& params);
 
 // Per voxel of the labels' grid: the bone segment whose voxels are nearest through the body (-1 outside it) and the
 // depth below the skin (mm; 0 outside), both from 26-neighbour chamfer distances (within about 8%). A limb's region
-// goes no deeper below the skin than the bone voxel it comes from (give or take a voxel and a half): a limb resting
+// goes no deeper below the skin than the bone voxel it comes from (give or take half a voxel): a limb resting
 // against the trunk takes none of the trunk's tissue beyond the contact.
 struct BodyRegions {
   std::vector<int16_t> segment;
