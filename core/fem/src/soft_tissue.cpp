@@ -134,6 +134,10 @@ Status validate(const FemParams& params) {
   if (!(params.volume_weight >= 0.0 && params.volume_weight <= 1e6)) {
     return invalid_argument_error("fem volume_weight must be in [0, 1e6], got " + std::to_string(params.volume_weight));
   }
+  if (!(params.untangle_volume_weight >= 0.0 && params.untangle_volume_weight <= 1e6)) {
+    return invalid_argument_error("fem untangle_volume_weight must be in [0, 1e6], got " +
+                                  std::to_string(params.untangle_volume_weight));
+  }
   return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
 }
 
@@ -633,8 +637,10 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
   st.iterate_seconds = iterate_start.seconds();
   if (params.untangle) {  // the tets the steady state left inverted, turned back
     const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume, sys.corner_start, sys.corners};
+    internal::UntangleParams untangle_params;
+    untangle_params.piece_volume_weight = params.untangle_volume_weight;
     POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,
-                              internal::untangle(packed, nf, x_solve, internal::UntangleParams{},
+                              internal::untangle(packed, nf, x_solve, untangle_params,
                                                  contacts ? internal::ContactLookUp([&](const Positions& x) {
                                                    contacts->detect(x);
                                                    return contacts->planes(x);

@@ -46,6 +46,10 @@ struct FemParams {
   // Turn back the tets the steady state leaves inverted (where bending folds a band of tissue that has no room):
   // the free vertices around them minimise a foldover-free energy with everything else held. A preview leaves it off.
   bool untangle = true;
+  // The weight with which each connected piece of the untangled tissue keeps its volume as a whole while its folds
+  // turn back (0: only each tet's own volume term), so that the crease's skin bulges instead of sinking; see
+  // internal.h's UntangleParams for how it was measured.
+  double untangle_volume_weight = 100.0;
   // Push the skin that bending drives into the tissue facing it (the back of a bent knee into the calf, the forearm
   // into the belly) back out of it. Off by default: it halves to quarters the skin inside tissue on the body phantom
   // and moves the volume figures little, but adds half to the solve's time. A preview leaves it off.
