@@ -95,8 +95,8 @@ int main(int argc, char** argv) {
     for (int c = 0; c < 4; ++c) bones[static_cast<size_t>(mesh.tets(t, c))].insert(mesh.tet_class(t) - kFirstBoneClass);
   }
   for (const std::string& method_name : methods) {
-    // fem:WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:CONTACT] solves here with those parameters from WARM's vertices (cor,
-    // dqs or lbs).
+    // fem:WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:CONTACT:PIECES] solves here with those parameters from WARM's
+    // vertices (cor, dqs or lbs).
     std::optional<fem::FemParams> custom;
     std::optional<fem::CorotationalParams> corotational;
     std::string warm_name = method_name;
@@ -131,7 +131,10 @@ int main(int argc, char** argv) {
       std::getline(in, margin, ':');
       std::getline(in, untangle, ':');
       std::getline(in, contact, ':');
+      std::string pieces;  // the untangled pieces' volume weight (FemParams::untangle_volume_weight)
+      std::getline(in, pieces, ':');
       custom.emplace();
+      if (!pieces.empty()) custom->untangle_volume_weight = std::stod(pieces);
       if (!contact.empty()) custom->contact = contact != "0";
       if (!margin.empty()) custom->margin_mm = std::stod(margin);
       if (!untangle.empty()) custom->untangle = untangle != "0";
