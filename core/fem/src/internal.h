@@ -70,7 +70,7 @@ struct UntangleParams {
   int max_iterations = 1000;
   // posewarp_fem_probe on two scripts/body_check rigs at knee, elbow, shoulder and hip 90, soft tissue within 50 mm
   // (volume change, rig 1 / rig 2, without the term -> with it): knee -3.8 / -4.2% -> -2.8 / -1.3%, elbow -0.2 /
-  // -14.2% -> -1.3 / -7.4%, shoulder -8.3 / -7.7% -> -4.9 / -4.5%, hip -18.7 / -17.2% -> -17.0 / -14.4%, the folded
+  // -14.2% -> -1.3 / -7.4%, shoulder -8.3 / -7.7% -> -4.9 / -4.5%, hip -18.7 / -17.2% -> -16.9 / -14.4%, the folded
   // share the same within 0.2 point. One piece for the whole region at 1000 gave no more; a term per vertex star
   // instead (300 to 3000, rig 1) gave back as much at knee and shoulder but folded 0.5 to 4 points more.
   double piece_volume_weight = 0.0;  // FemParams::untangle_volume_weight (100)

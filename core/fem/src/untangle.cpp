@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "internal.h"
+#include "posewarp/common/disjoint_sets.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/stopwatch.h"
 
@@ -34,41 +35,42 @@ struct Region {
   std::vector<uint8_t> mostly_held;             // region tet -> three or more corners held
   std::vector<int64_t> vertex_start;            // n + 1
   std::vector<std::pair<int32_t, int32_t>> vertex_tets;
-  std::vector<int32_t> piece;  // region vertex -> its connected piece (through the region's tets)
+  // Connected pieces (vertices sharing a region tet): region tet -> its piece (-1 when every corner is held) and the
+  // rest volume its piece counts from it (a quarter of the tet per corner in the region).
+  std::vector<int32_t> tet_piece;
+  std::vector<double> piece_volume;
   int32_t pieces = 0;
 };
 
-// The root of vertex v in a union-find forest, halving the path on the way.
-int32_t root_of(std::vector<int32_t>& parent, int32_t v) {
-  while (parent[static_cast<size_t>(v)] != v) {
-    parent[static_cast<size_t>(v)] = parent[static_cast<size_t>(parent[static_cast<size_t>(v)])];
-    v = parent[static_cast<size_t>(v)];
-  }
-  return v;
-}
-
-// Numbers the region's connected pieces: vertices that share a region tet are in one piece.
-void find_pieces(Region& r) {
-  std::vector<int32_t> parent(r.vertices.size());
-  for (size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int32_t>(i);
+// Finds the region's connected pieces (Region::tet_piece, piece_volume, pieces).
+void find_pieces(const PackedTets& tets, Region& r) {
+  DisjointSets sets(static_cast<int64_t>(r.vertices.size()));
   for (const std::array<int32_t, 4>& corner : r.corners) {
     int32_t first = -1;
     for (const int32_t k : corner) {
       if (k < 0) continue;
       if (first < 0) {
-        first = root_of(parent, k);
+        first = k;
       } else {
-        parent[static_cast<size_t>(root_of(parent, k))] = first;
-        first = root_of(parent, first);
+        sets.unite(first, k);
       }
     }
   }
   std::vector<int32_t> number(r.vertices.size(), -1);
-  r.piece.resize(r.vertices.size());
-  for (size_t i = 0; i < r.vertices.size(); ++i) {
-    int32_t& n = number[static_cast<size_t>(root_of(parent, static_cast<int32_t>(i)))];
+  r.tet_piece.assign(r.corners.size(), -1);
+  r.piece_volume.assign(r.corners.size(), 0.0);
+  for (size_t t = 0; t < r.corners.size(); ++t) {
+    int32_t first = -1, count = 0;
+    for (const int32_t k : r.corners[t]) {
+      if (k < 0) continue;
+      if (first < 0) first = k;
+      ++count;
+    }
+    if (first < 0) continue;
+    int32_t& n = number[static_cast<size_t>(sets.find(first))];
     if (n < 0) n = r.pieces++;
-    r.piece[i] = n;
+    r.tet_piece[t] = n;
+    r.piece_volume[t] = 0.25 * count * tets.volume[static_cast<size_t>(r.slots[t])];
   }
 }
 
@@ -142,7 +144,7 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
     }
     r.vertex_start[i + 1] = static_cast<int64_t>(r.vertex_tets.size());
   }
-  find_pieces(r);
+  find_pieces(tets, r);
   return r;
 }
 
@@ -150,8 +152,8 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
 // cofactor C = dD/dF and chi' = chi / sqrt(eps^2 + D^2):
 //   d/dF |F|^2 / chi^(2/3) = 2 F / chi^(2/3) - 2/3 |F|^2 chi' / chi^(5/3) C
 //   d/dF ((D - 1)^2 + (D^2 + 1) / chi) = (2 (D - 1) + 2 D / chi - (D^2 + 1) chi' / chi^2) C
-// and the pieces' term, which reaches each tet through its det: d/dF w W_p (J_p - 1)^2 = 2 w (J_p - 1) V s C, with s
-// the share of the tet its piece counts.
+// and the pieces' term, which reaches each tet through its det: d/dF w W_p (J_p - 1)^2 = 2 w (J_p - 1) V s C, with V s
+// the rest volume its piece counts from the tet.
 class Energy {
  public:
   Energy(const PackedTets& tets, const Region& region, const Positions& x, double volume_share, double piece_weight)
@@ -163,8 +165,7 @@ class Energy {
         energy_(region.slots.size()),
         det_(region.slots.size()),
         corner_gradient_(region.slots.size()),
-        de_df_(region.slots.size()),
-        cofactor_(region.slots.size()),
+        det_gradient_(piece_weight > 0.0 ? region.slots.size() : 0),
         local_(static_cast<size_t>(x.rows()), -1),
         piece_rest_(static_cast<size_t>(region.pieces), 0.0),
         piece_posed_(static_cast<size_t>(region.pieces), 0.0),
@@ -172,9 +173,7 @@ class Energy {
     for (size_t i = 0; i < region.vertices.size(); ++i)
       local_[static_cast<size_t>(region.vertices[i])] = static_cast<int32_t>(i);
     for (size_t t = 0; t < region.slots.size(); ++t) {
-      const auto [piece, share] = piece_share(t);
-      if (piece >= 0)
-        piece_rest_[static_cast<size_t>(piece)] += share * tets.volume[static_cast<size_t>(region.slots[t])];
+      if (region.tet_piece[t] >= 0) piece_rest_[static_cast<size_t>(region.tet_piece[t])] += region.piece_volume[t];
     }
   }
 
@@ -196,11 +195,8 @@ class Energy {
     });
     double total = 0.0;
     for (const double e : energy_) total += e;
-    total += piece_energy();
+    if (piece_weight_ > 0.0) total += piece_energy(gradient != nullptr);
     if (gradient) {
-      parallel_for(0, count, 1024, [&](int64_t t0, int64_t t1) {
-        for (int64_t t = t0; t < t1; ++t) corner_gradient(t);
-      });
       gradient->resize(z.size());
       parallel_for(0, static_cast<int64_t>(region_.vertices.size()), 2048, [&](int64_t i0, int64_t i1) {
         for (int64_t i = i0; i < i1; ++i) {
@@ -266,33 +262,20 @@ class Energy {
     energy_[static_cast<size_t>(t)] =
         volume * ((1.0 - theta_) * trace / c23 + theta_ * ((d - 1.0) * (d - 1.0) + (d * d + 1.0) / c));
     if (!with_gradient) return;
-    de_df_[static_cast<size_t>(t)] =
+    const Eigen::Matrix3d de_df =
         volume * ((1.0 - theta_) * (2.0 / c23 * f - (2.0 / 3.0) * trace / (c23 * c) * c_prime * cofactor) +
                   theta_ * (2.0 * (d - 1.0) + 2.0 * d / c - (d * d + 1.0) * c_prime / (c * c)) * cofactor);
-    cofactor_[static_cast<size_t>(t)] = cofactor;
+    corner_gradient_[static_cast<size_t>(t)] = de_df * tets_.gradients[slot];
+    if (piece_weight_ > 0.0) det_gradient_[static_cast<size_t>(t)] = cofactor * tets_.gradients[slot];
   }
 
-  // Region tet t's piece and the share of its volume the piece counts (a quarter per corner in the region), or -1.
-  std::pair<int32_t, double> piece_share(size_t t) const {
-    int32_t piece = -1, corners = 0;
-    for (const int32_t k : region_.corners[t]) {
-      if (k < 0) continue;
-      piece = region_.piece[static_cast<size_t>(k)];
-      ++corners;
-    }
-    return {piece, 0.25 * corners};
-  }
-
-  // The pieces' term, piece_weight sum_p W_p (J_p - 1)^2, from the dets last evaluated; keeps each J_p - 1 for the
-  // gradient.
-  double piece_energy() {
-    if (piece_weight_ <= 0.0) return 0.0;
+  // The pieces' term, piece_weight sum_p W_p (J_p - 1)^2, from the dets last evaluated; with `gradient`, each tet's
+  // corner gradients gain its piece's pull on its det, 2 w (J_p - 1) V s dD/dx.
+  double piece_energy(bool gradient) {
     std::fill(piece_posed_.begin(), piece_posed_.end(), 0.0);
     for (size_t t = 0; t < region_.slots.size(); ++t) {
-      const auto [piece, share] = piece_share(t);
-      if (piece >= 0) {
-        piece_posed_[static_cast<size_t>(piece)] +=
-            share * tets_.volume[static_cast<size_t>(region_.slots[t])] * det_[t];
+      if (region_.tet_piece[t] >= 0) {
+        piece_posed_[static_cast<size_t>(region_.tet_piece[t])] += region_.piece_volume[t] * det_[t];
       }
     }
     double total = 0.0;
@@ -300,21 +283,15 @@ class Energy {
       piece_change_[p] = piece_rest_[p] > 0.0 ? piece_posed_[p] / piece_rest_[p] - 1.0 : 0.0;
       total += piece_weight_ * piece_rest_[p] * piece_change_[p] * piece_change_[p];
     }
-    return total;
-  }
-
-  // Tet t's gradient per corner: its own term's, plus its piece's pull on its det (dE/dD = 2 w (J_p - 1) V share).
-  void corner_gradient(int64_t t) {
-    const auto slot = static_cast<size_t>(region_.slots[static_cast<size_t>(t)]);
-    Eigen::Matrix3d de_df = de_df_[static_cast<size_t>(t)];
-    if (piece_weight_ > 0.0) {
-      const auto [piece, share] = piece_share(static_cast<size_t>(t));
-      if (piece >= 0) {
-        de_df += 2.0 * piece_weight_ * piece_change_[static_cast<size_t>(piece)] * share * tets_.volume[slot] *
-                 cofactor_[static_cast<size_t>(t)];
+    if (!gradient) return total;
+    parallel_for(0, static_cast<int64_t>(region_.slots.size()), 1024, [&](int64_t t0, int64_t t1) {
+      for (auto t = static_cast<size_t>(t0); t < static_cast<size_t>(t1); ++t) {
+        if (region_.tet_piece[t] < 0) continue;
+        corner_gradient_[t] += 2.0 * piece_weight_ * piece_change_[static_cast<size_t>(region_.tet_piece[t])] *
+                               region_.piece_volume[t] * det_gradient_[t];
       }
-    }
-    corner_gradient_[static_cast<size_t>(t)] = de_df * tets_.gradients[slot];
+    });
+    return total;
   }
 
   const PackedTets& tets_;
@@ -323,7 +300,7 @@ class Energy {
   double theta_, piece_weight_;
   std::vector<double> energy_, det_;
   std::vector<Eigen::Matrix<double, 3, 4>> corner_gradient_;
-  std::vector<Eigen::Matrix3d> de_df_, cofactor_;  // per region tet: its own term's dE/dF, and dD/dF
+  std::vector<Eigen::Matrix<double, 3, 4>> det_gradient_;  // per region tet, with the pieces' term: dD/dx per corner
   std::vector<int32_t> local_;        // solve vertex -> region vertex, -1 when held
   std::vector<double> piece_rest_, piece_posed_, piece_change_;  // per piece: W_p, its posed volume, J_p - 1
   std::vector<ContactPlane> planes_;  // vertex: region number

@@ -3,8 +3,8 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numeric>
 
+#include "posewarp/common/disjoint_sets.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/mesh/mesher.h"
 
@@ -280,29 +280,18 @@ Status check_mesh_health(const TetMesh& mesh, const LabelVolume& classes, const 
   }
   h.body_volume_error = voxel_body > 0.0 ? std::abs(mesh_body - voxel_body) / voxel_body : 0.0;
 
-  // Components through shared vertices (union-find).
-  std::vector<int64_t> parent(static_cast<size_t>(mesh.vertex_count()));
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&](int64_t v) {
-    while (parent[static_cast<size_t>(v)] != v) {
-      parent[static_cast<size_t>(v)] = parent[static_cast<size_t>(parent[static_cast<size_t>(v)])];
-      v = parent[static_cast<size_t>(v)];
-    }
-    return v;
-  };
+  // Components through shared vertices.
+  DisjointSets components(mesh.vertex_count());
   std::vector<uint8_t> used(static_cast<size_t>(mesh.vertex_count()), 0);
   for (int64_t t = 0; t < mesh.tet_count(); ++t) {
-    const int64_t root = find(mesh.tets(t, 0));
-    used[static_cast<size_t>(mesh.tets(t, 0))] = 1;
-    for (int corner = 1; corner < 4; ++corner) {
+    for (int corner = 0; corner < 4; ++corner) {
       used[static_cast<size_t>(mesh.tets(t, corner))] = 1;
-      const int64_t other = find(mesh.tets(t, corner));
-      if (other != root) parent[static_cast<size_t>(other)] = root;
+      components.unite(mesh.tets(t, 0), mesh.tets(t, corner));
     }
   }
   h.body_components = 0;
   for (int64_t v = 0; v < mesh.vertex_count(); ++v) {
-    if (used[static_cast<size_t>(v)] && find(v) == v) ++h.body_components;
+    if (used[static_cast<size_t>(v)] && components.find(v) == v) ++h.body_components;
   }
 
   for (int k = 0; k < mesh.segment_count; ++k) {

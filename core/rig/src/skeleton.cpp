@@ -4,39 +4,20 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
-#include <numeric>
 #include <queue>
 #include <set>
-#include <limits>
 #include <unordered_map>
 
 #include "posewarp/rig/skeleton.h"
 
 #include "joint_placement.h"
+#include "posewarp/common/disjoint_sets.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/rig/anatomical_frame.h"
 
 namespace posewarp::rig {
-namespace {
-
-struct DisjointSets {
-  std::vector<int> parent;
-  explicit DisjointSets(int n) : parent(static_cast<size_t>(n)) { std::iota(parent.begin(), parent.end(), 0); }
-  int find(int v) {
-    while (parent[static_cast<size_t>(v)] != v) v = parent[static_cast<size_t>(v)] = parent[static_cast<size_t>(parent[static_cast<size_t>(v)])];
-    return v;
-  }
-  bool unite(int a, int b) {
-    a = find(a);
-    b = find(b);
-    if (a == b) return false;
-    parent[static_cast<size_t>(b)] = a;
-    return true;
-  }
-};
-
-}  // namespace
 
 Status validate(const SkeletonParams& params) {
   if (params.contact_distance_mm < 0.0 || !std::isfinite(params.contact_distance_mm) ||
