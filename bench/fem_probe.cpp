@@ -94,6 +94,15 @@ int main(int argc, char** argv) {
     if (mesh.tet_class(t) < kFirstBoneClass) continue;
     for (int c = 0; c < 4; ++c) bones[static_cast<size_t>(mesh.tets(t, c))].insert(mesh.tet_class(t) - kFirstBoneClass);
   }
+  // The bone segments a vertex's tets touch (a free vertex between two bones touches both).
+  std::vector<std::set<int>> near_bones(static_cast<size_t>(mesh.vertex_count()));
+  for (int64_t t = 0; t < mesh.tet_count(); ++t) {
+    std::set<int> touched;
+    for (int c = 0; c < 4; ++c)
+      touched.insert(bones[static_cast<size_t>(mesh.tets(t, c))].begin(),
+                     bones[static_cast<size_t>(mesh.tets(t, c))].end());
+    for (int c = 0; c < 4; ++c) near_bones[static_cast<size_t>(mesh.tets(t, c))].insert(touched.begin(), touched.end());
+  }
   for (const std::string& method_name : methods) {
     // fem:WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:CONTACT:PIECES] solves here with those parameters from WARM's
     // vertices (cor, dqs or lbs).
@@ -208,7 +217,7 @@ int main(int argc, char** argv) {
       if (joint == nullptr) continue;
       constexpr double kRadius = 50.0;
       // [bone corners 0..4], and for 4: [5] one bone, [6] two or more bones.
-      std::array<ClassFigures, 7> classes{};
+      std::array<ClassFigures, 9> classes{};  // [7], [8]: 3 bone corners, the free corner near one bone / two or more
       std::array<ClassFigures, 4> sides{};  // tets with a free corner: [child side?][flexion side?]
       double total_rest = 0.0;
       for (int64_t t = 0; t < mesh.tet_count(); ++t) {
@@ -231,6 +240,13 @@ int main(int argc, char** argv) {
         const double rest_volume = rest_edges.determinant() / 6.0, det = posed_edges.determinant() / rest_edges.determinant();
         ClassFigures* into[2] = {&classes[static_cast<size_t>(bone_corners)], nullptr};
         if (bone_corners == 4) into[1] = &classes[segments.size() > 1 ? 6 : 5];
+        if (bone_corners == 3) {
+          for (int c = 0; c < 4; ++c) {
+            if (bones[static_cast<size_t>(mesh.tets(t, c))].empty()) {
+              into[1] = &classes[near_bones[static_cast<size_t>(mesh.tets(t, c))].size() > 1 ? 8 : 7];
+            }
+          }
+        }
         for (ClassFigures* c : into) {
           if (c == nullptr) continue;
           c->rest += rest_volume;
@@ -271,8 +287,9 @@ int main(int argc, char** argv) {
           static_cast<long long>(inside[1].skin_vertices));
       std::printf("%s %s, soft tets within %.0f mm of its centre:\n", method_name.c_str(), joint->name.c_str(), kRadius);
       print_row("all", all, total_rest);
-      const char* names[7] = {"no bone corner",        "1 bone corner",       "2 bone corners", "3 bone corners",
-                              "4 bone corners (fixed)", "  4, all on one bone", "  4, on two bones"};
+      const char* names[9] = {"no bone corner",    "1 bone corner",           "2 bone corners",
+                              "3 bone corners",    "4 bone corners (fixed)",  "  4, all on one bone",
+                              "  4, on two bones", "  3, free near one bone", "  3, free near two"};
       for (size_t k = 0; k < classes.size(); ++k) print_row(names[k], classes[k], total_rest);
       const char* side_names[4] = {"free, parent, other side", "free, parent, flexion side", "free, child, other side",
                                    "free, child, flexion side"};

@@ -94,8 +94,9 @@ Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   signed_svd(f, u, sigma, v);
-  const Eigen::Matrix3d rotation = u * v.transpose();
-  if (sigma(2) <= 0.0) return {rotation, (f - rotation).squaredNorm()};
+  // With F = U diag(sigma) V^T: R = U V^T, S = U diag(sigma + d) V^T, so |F - R|^2 = |sigma - 1|^2, |F - S|^2 = |d|^2
+  // and the blend is U diag(1 + w (sigma + d)) V^T / (1 + w).
+  if (sigma(2) <= 0.0) return {u * v.transpose(), (sigma.array() - 1.0).square().sum()};
   Eigen::Vector3d d = Eigen::Vector3d::Zero();
   for (int i = 0; i < 8; ++i) {
     const Eigen::Vector3d s = sigma + d;
@@ -106,9 +107,9 @@ Projection projection(const Eigen::Matrix3d& f, double volume_weight) {
     d = (grad.dot(d) - c) / norm * grad;
     if (std::abs(c) < 1e-10) break;
   }
-  const Eigen::Matrix3d volume = u * (sigma + d).asDiagonal() * v.transpose();
-  return {(rotation + volume_weight * volume) / (1.0 + volume_weight),
-          ((f - rotation).squaredNorm() + volume_weight * (f - volume).squaredNorm()) / (1.0 + volume_weight)};
+  const Eigen::Vector3d blend = (Eigen::Vector3d::Ones() + volume_weight * (sigma + d)) / (1.0 + volume_weight);
+  return {u * blend.asDiagonal() * v.transpose(),
+          ((sigma.array() - 1.0).square().sum() + volume_weight * d.squaredNorm()) / (1.0 + volume_weight)};
 }
 
 }  // namespace

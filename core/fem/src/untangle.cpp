@@ -153,13 +153,13 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
 //   d/dF |F|^2 / chi^(2/3) = 2 F / chi^(2/3) - 2/3 |F|^2 chi' / chi^(5/3) C
 //   d/dF ((D - 1)^2 + (D^2 + 1) / chi) = (2 (D - 1) + 2 D / chi - (D^2 + 1) chi' / chi^2) C
 // and the pieces' term, which reaches each tet through its det: d/dF w W_p (J_p - 1)^2 = 2 w (J_p - 1) V s C, with V s
-// the rest volume its piece counts from the tet.
+// the rest volume its piece counts from the tet. The held corners' positions are read from x once, here: they do
+// not move while the region does.
 class Energy {
  public:
   Energy(const PackedTets& tets, const Region& region, const Positions& x, double volume_share, double piece_weight)
       : tets_(tets),
         region_(region),
-        x_(x),
         theta_(volume_share),
         piece_weight_(piece_weight),
         energy_(region.slots.size()),
@@ -169,11 +169,28 @@ class Energy {
         local_(static_cast<size_t>(x.rows()), -1),
         piece_rest_(static_cast<size_t>(region.pieces), 0.0),
         piece_posed_(static_cast<size_t>(region.pieces), 0.0),
-        piece_change_(static_cast<size_t>(region.pieces), 0.0) {
+        piece_pull_(static_cast<size_t>(region.pieces), 0.0) {
     for (size_t i = 0; i < region.vertices.size(); ++i)
       local_[static_cast<size_t>(region.vertices[i])] = static_cast<int32_t>(i);
     for (size_t t = 0; t < region.slots.size(); ++t) {
       if (region.tet_piece[t] >= 0) piece_rest_[static_cast<size_t>(region.tet_piece[t])] += region.piece_volume[t];
+    }
+    // Each tet's data side by side, with what its held corners add to F (they do not move while the region does).
+    packed_.resize(region.slots.size());
+    for (size_t t = 0; t < region.slots.size(); ++t) {
+      const auto slot = static_cast<size_t>(region.slots[t]);
+      PackedTet& p = packed_[t];
+      p.volume = tets.volume[slot];
+      p.mostly_held = region.mostly_held[t] != 0;
+      Eigen::Matrix3d held = Eigen::Matrix3d::Zero();
+      for (int c = 0; c < 4; ++c) {
+        const int32_t k = region.corners[t][static_cast<size_t>(c)];
+        p.corner[static_cast<size_t>(c)] = k;
+        for (int j = 0; j < 3; ++j) p.gradient[c][j] = tets.gradients[slot](j, c);
+        if (k < 0) held.noalias() += x.row(-1 - k).transpose() * tets.gradients[slot].col(c).transpose();
+      }
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) p.held[i][j] = held(i, j);
     }
   }
 
@@ -195,9 +212,11 @@ class Energy {
     });
     double total = 0.0;
     for (const double e : energy_) total += e;
-    if (piece_weight_ > 0.0) total += piece_energy(gradient != nullptr);
+    if (piece_weight_ > 0.0) total += piece_energy();
     if (gradient) {
+      // Each vertex's tets' corner gradients, with their pieces' pull on their dets.
       gradient->resize(z.size());
+      const bool pieces = piece_weight_ > 0.0;
       parallel_for(0, static_cast<int64_t>(region_.vertices.size()), 2048, [&](int64_t i0, int64_t i1) {
         for (int64_t i = i0; i < i1; ++i) {
           Eigen::Vector3d g = Eigen::Vector3d::Zero();
@@ -205,6 +224,10 @@ class Energy {
                e < region_.vertex_start[static_cast<size_t>(i) + 1]; ++e) {
             const auto [t, c] = region_.vertex_tets[static_cast<size_t>(e)];
             g += corner_gradient_[static_cast<size_t>(t)].col(c);
+            if (pieces && region_.tet_piece[static_cast<size_t>(t)] >= 0) {
+              g += piece_pull_[static_cast<size_t>(region_.tet_piece[static_cast<size_t>(t)])] *
+                   region_.piece_volume[static_cast<size_t>(t)] * det_gradient_[static_cast<size_t>(t)].col(c);
+            }
           }
           gradient->segment<3>(3 * i) = g;
         }
@@ -240,38 +263,60 @@ class Energy {
   }
 
  private:
+  // Written on plain arrays: Eigen's fixed-size temporaries here went through the stack, half again slower.
   void evaluate(const Eigen::VectorXd& z, double eps, int64_t t, bool with_gradient) {
-    const auto slot = static_cast<size_t>(region_.slots[static_cast<size_t>(t)]);
-    Eigen::Matrix<double, 3, 4> corner;
+    const PackedTet& p = packed_[static_cast<size_t>(t)];
+    double f[3][3];  // f[i][j] = F(i, j) = sum_c x_c(i) g_c(j)
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) f[i][j] = p.held[i][j];
     for (int c = 0; c < 4; ++c) {
-      const int32_t k = region_.corners[static_cast<size_t>(t)][static_cast<size_t>(c)];
-      corner.col(c) = k >= 0 ? Eigen::Vector3d(z.segment<3>(3 * k)) : Eigen::Vector3d(x_.row(-1 - k).transpose());
+      const int32_t k = p.corner[static_cast<size_t>(c)];
+      if (k < 0) continue;
+      const double* x = z.data() + 3 * static_cast<Eigen::Index>(k);
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) f[i][j] += x[i] * p.gradient[c][j];
     }
-    const Eigen::Matrix3d f = corner * tets_.gradients[slot].transpose();
-    const Eigen::Matrix3d cofactor =
-        (Eigen::Matrix3d() << f.col(1).cross(f.col(2)), f.col(2).cross(f.col(0)), f.col(0).cross(f.col(1))).finished();
-    const double d = f.col(0).dot(cofactor.col(0));
-    const double e = region_.mostly_held[static_cast<size_t>(t)] ? std::max(eps, kHeldEps) : eps;
+    // The cofactor dD/dF: column j is the cross product of F's other two columns.
+    double m[3][3];
+    for (int j = 0; j < 3; ++j) {
+      const int a = (j + 1) % 3, b = (j + 2) % 3;
+      m[0][j] = f[1][a] * f[2][b] - f[2][a] * f[1][b];
+      m[1][j] = f[2][a] * f[0][b] - f[0][a] * f[2][b];
+      m[2][j] = f[0][a] * f[1][b] - f[1][a] * f[0][b];
+    }
+    const double d = f[0][0] * m[0][0] + f[1][0] * m[1][0] + f[2][0] * m[2][0];
+    const double e = p.mostly_held ? std::max(eps, kHeldEps) : eps;
     const double root = std::sqrt(e * e + d * d);
     const double c = chi_of(d, e, root);
     const double c_prime = c / root;  // d chi / d D
-    const double trace = f.squaredNorm();
+    double trace = 0.0;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) trace += f[i][j] * f[i][j];
     const double c23 = std::cbrt(c * c);
-    const double volume = tets_.volume[slot];
+    const double volume = p.volume;
     det_[static_cast<size_t>(t)] = d;
     energy_[static_cast<size_t>(t)] =
         volume * ((1.0 - theta_) * trace / c23 + theta_ * ((d - 1.0) * (d - 1.0) + (d * d + 1.0) / c));
     if (!with_gradient) return;
-    const Eigen::Matrix3d de_df =
-        volume * ((1.0 - theta_) * (2.0 / c23 * f - (2.0 / 3.0) * trace / (c23 * c) * c_prime * cofactor) +
-                  theta_ * (2.0 * (d - 1.0) + 2.0 * d / c - (d * d + 1.0) * c_prime / (c * c)) * cofactor);
-    corner_gradient_[static_cast<size_t>(t)] = de_df * tets_.gradients[slot];
-    if (piece_weight_ > 0.0) det_gradient_[static_cast<size_t>(t)] = cofactor * tets_.gradients[slot];
+    // dE/dF = a F + b cofactor; corner c's gradient is dE/dF g_c.
+    const double a = volume * (1.0 - theta_) * 2.0 / c23;
+    const double b = volume * (-(1.0 - theta_) * (2.0 / 3.0) * trace / (c23 * c) * c_prime +
+                               theta_ * (2.0 * (d - 1.0) + 2.0 * d / c - (d * d + 1.0) * c_prime / (c * c)));
+    Eigen::Matrix<double, 3, 4>& out = corner_gradient_[static_cast<size_t>(t)];
+    for (int k = 0; k < 4; ++k) {
+      const double* g = p.gradient[k];
+      for (int i = 0; i < 3; ++i) {
+        const double fg = f[i][0] * g[0] + f[i][1] * g[1] + f[i][2] * g[2];
+        const double mg = m[i][0] * g[0] + m[i][1] * g[1] + m[i][2] * g[2];
+        out(i, k) = a * fg + b * mg;
+        if (piece_weight_ > 0.0) det_gradient_[static_cast<size_t>(t)](i, k) = mg;
+      }
+    }
   }
 
-  // The pieces' term, piece_weight sum_p W_p (J_p - 1)^2, from the dets last evaluated; with `gradient`, each tet's
-  // corner gradients gain its piece's pull on its det, 2 w (J_p - 1) V s dD/dx.
-  double piece_energy(bool gradient) {
+  // The pieces' term, piece_weight sum_p W_p (J_p - 1)^2, from the dets last evaluated; each piece's pull on a det,
+  // 2 w (J_p - 1) (times the rest volume its piece counts from the tet, V s, in the gradient's gather).
+  double piece_energy() {
     std::fill(piece_posed_.begin(), piece_posed_.end(), 0.0);
     for (size_t t = 0; t < region_.slots.size(); ++t) {
       if (region_.tet_piece[t] >= 0) {
@@ -280,29 +325,32 @@ class Energy {
     }
     double total = 0.0;
     for (size_t p = 0; p < piece_rest_.size(); ++p) {
-      piece_change_[p] = piece_rest_[p] > 0.0 ? piece_posed_[p] / piece_rest_[p] - 1.0 : 0.0;
-      total += piece_weight_ * piece_rest_[p] * piece_change_[p] * piece_change_[p];
+      const double change = piece_rest_[p] > 0.0 ? piece_posed_[p] / piece_rest_[p] - 1.0 : 0.0;
+      total += piece_weight_ * piece_rest_[p] * change * change;
+      piece_pull_[p] = 2.0 * piece_weight_ * change;
     }
-    if (!gradient) return total;
-    parallel_for(0, static_cast<int64_t>(region_.slots.size()), 1024, [&](int64_t t0, int64_t t1) {
-      for (auto t = static_cast<size_t>(t0); t < static_cast<size_t>(t1); ++t) {
-        if (region_.tet_piece[t] < 0) continue;
-        corner_gradient_[t] += 2.0 * piece_weight_ * piece_change_[static_cast<size_t>(region_.tet_piece[t])] *
-                               region_.piece_volume[t] * det_gradient_[t];
-      }
-    });
     return total;
   }
 
+  // A region tet's gradient rows, rest volume, corners (region vertex, or < 0 when held) and its held corners' part
+  // of F.
+  struct PackedTet {
+    double gradient[4][3];  // per corner c, g_c
+    double held[3][3];      // F(i, j) from the held corners
+    double volume = 0.0;
+    std::array<int32_t, 4> corner{};
+    bool mostly_held = false;
+  };
+
   const PackedTets& tets_;
   const Region& region_;
-  const Positions& x_;
+  std::vector<PackedTet> packed_;
   double theta_, piece_weight_;
   std::vector<double> energy_, det_;
   std::vector<Eigen::Matrix<double, 3, 4>> corner_gradient_;
   std::vector<Eigen::Matrix<double, 3, 4>> det_gradient_;  // per region tet, with the pieces' term: dD/dx per corner
   std::vector<int32_t> local_;        // solve vertex -> region vertex, -1 when held
-  std::vector<double> piece_rest_, piece_posed_, piece_change_;  // per piece: W_p, its posed volume, J_p - 1
+  std::vector<double> piece_rest_, piece_posed_, piece_pull_;  // per piece: W_p, its posed volume, 2 w (J_p - 1)
   std::vector<ContactPlane> planes_;  // vertex: region number
 };
 
