@@ -220,11 +220,27 @@ int main(int argc, char** argv) {
       std::array<ClassFigures, 9> classes{};  // [7], [8]: 3 bone corners, the free corner near one bone / two or more
       std::array<ClassFigures, 4> sides{};  // tets with a free corner: [child side?][flexion side?]
       double total_rest = 0.0;
+      ClassFigures wider;  // within 100 mm
       for (int64_t t = 0; t < mesh.tet_count(); ++t) {
         if (mesh.tet_class(t) != kSoftTissueClass) continue;
         Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
         Eigen::Matrix3d rest_edges, posed_edges;
         for (int c = 0; c < 4; ++c) centroid += 0.25 * mesh.vertices.row(mesh.tets(t, c)).transpose();
+        if ((centroid - joint->centre_mm).norm() <= 100.0) {
+          for (int c = 1; c < 4; ++c) {
+            rest_edges.col(c - 1) =
+                (mesh.vertices.row(mesh.tets(t, c)) - mesh.vertices.row(mesh.tets(t, 0))).transpose();
+            posed_edges.col(c - 1) = (posed.row(mesh.tets(t, c)) - posed.row(mesh.tets(t, 0))).transpose();
+          }
+          const double rest_volume = rest_edges.determinant() / 6.0,
+                       det = posed_edges.determinant() / rest_edges.determinant();
+          wider.rest += rest_volume;
+          wider.posed += rest_volume * det;
+          if (det <= 0.0) {
+            wider.folded += rest_volume;
+            wider.folded_loss += rest_volume * (1.0 - det);
+          }
+        }
         if ((centroid - joint->centre_mm).norm() > kRadius) continue;
         int bone_corners = 0;
         std::set<int> segments;
@@ -287,6 +303,7 @@ int main(int argc, char** argv) {
           static_cast<long long>(inside[1].skin_vertices));
       std::printf("%s %s, soft tets within %.0f mm of its centre:\n", method_name.c_str(), joint->name.c_str(), kRadius);
       print_row("all", all, total_rest);
+      print_row("all within 100 mm", wider, wider.rest);
       const char* names[9] = {"no bone corner",    "1 bone corner",           "2 bone corners",
                               "3 bone corners",    "4 bone corners (fixed)",  "  4, all on one bone",
                               "  4, on two bones", "  3, free near one bone", "  3, free near two"};

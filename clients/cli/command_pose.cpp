@@ -529,7 +529,7 @@ int run_animate(const AnimateOptions& o) {
 
 void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
   cmd->add_option("--fem-iterations", fem.max_iterations,
-                  "With --method fem: at most this many iterations of the soft tissue's solve (default 50, which the "
+                  "With --method fem: at most this many iterations of the soft tissue's solve (default 20, which the "
                   "untangling that ends the solve completes; more converge further and take longer)")
       ->check(CLI::Range(1, 10000));
   cmd->add_option("--fem-volume-weight", fem.volume_weight,

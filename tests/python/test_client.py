@@ -73,7 +73,7 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     assert fem.report["method"] == "fem" and "fem" in fem.report["stage_seconds"]
     assert fem.labels.shape == posed.labels.shape
     assert set(np.unique(fem.labels)) <= set(np.unique(posed.labels)) | {0}
-    # The fem solve's options reach the server: 1 iteration moves less tissue than the default 50; out of range is
+    # The fem solve's options reach the server: 1 iteration moves less tissue than the default 20; out of range is
     # refused.
     steady = client.pose(rig, POSE, method="fem", labels=False, ct=False)
     short = client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=1)

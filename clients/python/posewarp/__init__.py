@@ -444,7 +444,7 @@ class Client:
 
         method: "cor" (centres of rotation, the default), "dqs", "lbs" or "fem" (CoR refined by the soft tissue's
         volume-preserving steady state: slower, folds less tissue at bent joints). With "fem", fem_iterations (1 to
-        10000, default 50: more converges further and takes longer) and fem_volume_weight (how much more keeping
+        10000, default 20: more converges further and takes longer) and fem_volume_weight (how much more keeping
         volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default; fem_contact=True
         pushes the skin that bending drives into the tissue facing it back out (slower by about half). grid: "input"
         (the study's grid), "grow" (grown to hold the posed body), or another scan's grid (a match's target_grid).

@@ -23,7 +23,7 @@ namespace posewarp::api {
 // The fem method's solve, for a request that trades time for how far it converges (the others ignore it). 0 takes
 // the engine's default.
 struct FemOptions {
-  int max_iterations = 0;      // 1 to 10000; default 50
+  int max_iterations = 0;      // 1 to 10000; default 20
   double volume_weight = 0.0;  // how much more keeping volume counts than keeping shape, up to 1e6; default 100
   bool contact = false;        // push skin out of the tissue facing it (fem::FemParams::contact)
 };
