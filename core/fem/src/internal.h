@@ -44,6 +44,8 @@ struct PackedTets {
   const std::vector<double>& volume;
   const std::vector<int64_t>& vertex_start;                     // free count + 1
   const std::vector<std::pair<int32_t, int32_t>>& vertex_tets;  // (tet, corner)
+  // Per solve vertex: the bone segment whose tets it is a corner of, -1 for a vertex of soft tets only.
+  const std::vector<int32_t>& bone_segment;
 };
 
 // Turns back the inverted soft tets the solve left (fem::FemStats names the figures). The free vertices within
@@ -58,8 +60,9 @@ struct PackedTets {
 // the region) and J_p their posed volume over it. Its border is held, so what it can give back it gives through its
 // free skin: where turning a fold back takes volume from the crease, the skin there bulges instead of sinking (a
 // term per tet alone drew the skin in: a mesh of linear tets cannot bend keeping every tet's volume). Tets whose
-// corners are all held stay as they are. The positions that folded the least tissue are kept; when none folded less
-// than the solve's own, those stay. `cancel` is checked every round.
+// corners are all held stay as they are; a tet with three held corners keeps a floor under its regulariser, higher
+// where its free corner lies in a joint's gap (beside two bones, PackedTets::bone_segment). The positions that folded
+// the least tissue are kept; when none folded less than the solve's own, those stay. `cancel` is checked every round.
 struct UntangleParams {
   // posewarp_fem_probe with the rings set by a build switch not kept, on scripts/body_check's rig (knee, elbow, hip
   // 90, and the bench's knee 90 with shoulder abduction 90, 50 iterations before): 2 rings left the same folded share

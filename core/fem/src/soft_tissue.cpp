@@ -637,7 +637,13 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
   }
   st.iterate_seconds = iterate_start.seconds();
   if (params.untangle) {  // the tets the steady state left inverted, turned back
-    const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume, sys.corner_start, sys.corners};
+    std::vector<int32_t> bone_segment(sys.solve_vertices.size(), -1);
+    for (size_t j = static_cast<size_t>(nf); j < sys.solve_vertices.size(); ++j) {
+      const int32_t v = sys.solve_vertices[j];
+      if (in.topology.bone[static_cast<size_t>(v)]) bone_segment[j] = in.weights.segment(v, 0);
+    }
+    const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume,
+                                      sys.corner_start, sys.corners,   bone_segment};
     internal::UntangleParams untangle_params;
     untangle_params.piece_volume_weight = params.untangle_volume_weight;
     POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,

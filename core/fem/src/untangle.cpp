@@ -50,6 +50,7 @@ struct Region {
   std::vector<int32_t> slots;                   // region tet -> packed tet
   std::vector<std::array<int32_t, 4>> corners;  // region tet -> region vertex, or -1 - solve vertex when held
   std::vector<uint8_t> mostly_held;             // region tet -> three or more corners held
+  std::vector<double> floor;                    // region tet -> the least eps of its regulariser (0: none)
   std::vector<int64_t> vertex_start;            // n + 1
   std::vector<std::pair<int32_t, int32_t>> vertex_tets;
   // Connected pieces (vertices sharing a region tet): region tet -> its piece (-1 when every corner is held) and the
@@ -93,11 +94,16 @@ void find_pieces(const PackedTets& tets, Region& r) {
 
 // A tet with three corners held leaves its fourth one side of a fixed triangle, which the tets around it may
 // forbid: such a tet keeps a floor under its regulariser, a soft push rather than a wall, and its det does not set
-// the others' eps. (posewarp_fem_probe on a --joint-size 5 rig of the body phantom, joints bent 90 degrees: floors
-// of 0.1, 0.3, 0.6 and 1 left 6.9, 5.9, 5.9 and 5.4% of the tissue within 50 mm of the hip folded and grew the knee's
-// by 7.7, 5.5, 4.1 and 2.7%; at 0.1 the shoulder's untangling folded more and was undone.)
+// the others' eps. Where its free corner also touches another bone's tets it sits in a joint's gap, which a bent
+// joint shears past any position of that corner (the two bone surfaces slide; only a cut along the gap would let
+// them): there the floor is 1, elsewhere 0.1. posewarp_fem_probe on four scripts/body_check rigs at 90 degrees,
+// tissue within 50 mm, 1 everywhere -> 0.1 off the gaps: knee -1.0 to -4.8% -> -0.4 to -4.0% (folded 2.3-3.6% ->
+// 2.3-3.5%), elbow -1.0 to -5.1% -> -0.5 to -3.1% (0.8-1.6% -> 0.8-1.1%), shoulder -3.4 to -5.2% -> -3.2 to -4.9%,
+// hip -14.6 to -17.2% -> -16.1 to -17.5% (folded 4.9-5.7% -> 4.4-5.3%). A floor of 0.1 for every such tet (stop 41,
+// a --joint-size 5 rig) folded more at the hip and undid the shoulder's untangling: the gaps' tets pulled the rest.
 constexpr int kMostHeld = 3;
-constexpr double kHeldEps = 1.0;
+constexpr double kHeldEps = 0.1;
+constexpr double kGapEps = 1.0;
 // The regulariser's schedule: the worst tet's regularised det starts at kFirstMu and falls by at least kLeastCut a
 // round of kInner L-BFGS steps; kPureBarrier once every tet is positive (the energy then keeps them so).
 constexpr double kFirstMu = 0.1;
@@ -161,6 +167,28 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
     }
     r.vertex_start[i + 1] = static_cast<int64_t>(r.vertex_tets.size());
   }
+  // Each region vertex whose tets have held corners on two bones (it lies in a joint's gap), then each mostly held
+  // tet's floor.
+  std::vector<uint8_t> in_gap(r.vertices.size(), 0);
+  for (size_t i = 0; i < r.vertices.size(); ++i) {
+    int32_t first = -1;
+    for (int64_t e = r.vertex_start[i]; e < r.vertex_start[i + 1] && !in_gap[i]; ++e) {
+      for (const int32_t k : r.corners[static_cast<size_t>(r.vertex_tets[static_cast<size_t>(e)].first)]) {
+        const int32_t segment = k < 0 ? tets.bone_segment[static_cast<size_t>(-1 - k)] : -1;
+        if (segment < 0) continue;
+        if (first < 0) first = segment;
+        if (segment != first) in_gap[i] = 1;
+      }
+    }
+  }
+  r.floor.assign(r.corners.size(), 0.0);
+  for (size_t t = 0; t < r.corners.size(); ++t) {
+    if (!r.mostly_held[t]) continue;
+    r.floor[t] = kHeldEps;
+    for (const int32_t k : r.corners[t]) {
+      if (k >= 0 && in_gap[static_cast<size_t>(k)]) r.floor[t] = kGapEps;
+    }
+  }
   find_pieces(tets, r);
   return r;
 }
@@ -199,6 +227,7 @@ class Energy {
       PackedTet& p = packed_[t];
       p.volume = tets.volume[slot];
       p.mostly_held = region.mostly_held[t] != 0;
+      p.floor = region.floor[t];
       Eigen::Matrix3d held = Eigen::Matrix3d::Zero();
       for (int c = 0; c < 4; ++c) {
         const int32_t k = region.corners[t][static_cast<size_t>(c)];
@@ -302,7 +331,7 @@ class Energy {
       m[2][j] = f[0][a] * f[1][b] - f[1][a] * f[0][b];
     }
     const double d = f[0][0] * m[0][0] + f[1][0] * m[1][0] + f[2][0] * m[2][0];
-    const double e = p.mostly_held ? std::max(eps, kHeldEps) : eps;
+    const double e = std::max(eps, p.floor);
     const double root = std::sqrt(e * e + d * d);
     const double c = chi_of(d, e, root);
     const double c_prime = c / root;  // d chi / d D
@@ -357,6 +386,7 @@ class Energy {
     double volume = 0.0;
     std::array<int32_t, 4> corner{};
     bool mostly_held = false;
+    double floor = 0.0;
   };
 
   const PackedTets& tets_;

@@ -171,10 +171,10 @@ TEST(BodyPosing, HingesFlexAndCorKeepsLocalVolume) {
 }
 
 // The soft tissue's steady state (fem) where the body phantom shows skinning's failures: knee and elbow at 90, the
-// forearm against the upper arm at elbow 120: bones as CoR puts them, less than half CoR's folded tissue around the
-// joint (the untangling turns back what the steady state folds but for tets held by bone at every corner, and
-// contact between the tissue of thigh and calf is not modelled). The arm lifted 30
-// degrees from the trunk it rests against: fem keeps the tissue's volume and leaves nothing folded.
+// forearm against the upper arm at elbow 120: bones as CoR puts them, the tissue within 50 mm within 5% of its
+// volume, less than half CoR's folded tissue around the joint (the untangling turns back what the steady state folds
+// but for tets held by bone at every corner, and contact between the tissue of thigh and calf is not modelled). The arm
+// lifted 30 degrees from the trunk it rests against: fem keeps the tissue's volume and leaves nothing folded.
 TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
   struct Case {
     std::string name;
@@ -211,6 +211,8 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
         EXPECT_LT(fr->folded_fraction, 0.5 * cr->folded_fraction) << radius;  // 0.19-0.41 with the untangling
         if (radius == 100.0) {
           EXPECT_LT(std::abs(fr->volume_change), 0.10);
+        } else {  // the issue's +-5% (CoR -7 to -14%); measured -0.6 to -1.9% (-1.1 to -2.4% before the gaps' floor)
+          EXPECT_LT(std::abs(fr->volume_change), 0.05);
         }
       }
     }
