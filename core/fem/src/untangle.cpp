@@ -96,10 +96,10 @@ void find_pieces(const PackedTets& tets, Region& r) {
 // forbid: such a tet keeps a floor under its regulariser, a soft push rather than a wall, and its det does not set
 // the others' eps. Where its free corner also touches another bone's tets it sits in a joint's gap, which a bent
 // joint shears past any position of that corner (the two bone surfaces slide; only a cut along the gap would let
-// them): there the floor is 1, elsewhere 0.1. posewarp_fem_probe on four scripts/body_check rigs at 90 degrees,
-// tissue within 50 mm, 1 everywhere -> 0.1 off the gaps: knee -1.0 to -4.8% -> -0.4 to -4.0% (folded 2.3-3.6% ->
-// 2.3-3.5%), elbow -1.0 to -5.1% -> -0.5 to -3.1% (0.8-1.6% -> 0.8-1.1%), shoulder -3.4 to -5.2% -> -3.2 to -4.9%,
-// hip -14.6 to -17.2% -> -16.1 to -17.5% (folded 4.9-5.7% -> 4.4-5.3%). A floor of 0.1 for every such tet (stop 41,
+// them): there the floor is 1, elsewhere 0.1. posewarp_fem_probe on eight scripts/body_check rigs at 90 degrees,
+// tissue within 50 mm, 1 everywhere -> 0.1 off the gaps: knee -1.0 to -5.9% -> -0.4 to -4.6% (better on all eight),
+// elbow -1.0 to -5.1% -> -0.5 to -3.8%, shoulder -2.2 to -5.2% -> -2.0 to -4.9%, hip -14.6 to -20.4% -> -15.4 to
+// -20.3% (worse by up to 1.5 points on six); folded 0.8-6.5% -> 0.8-6.9%. A floor of 0.1 for every such tet (stop 41,
 // a --joint-size 5 rig) folded more at the hip and undid the shoulder's untangling: the gaps' tets pulled the rest.
 constexpr int kMostHeld = 3;
 constexpr double kHeldEps = 0.1;
@@ -226,7 +226,6 @@ class Energy {
       const auto slot = static_cast<size_t>(region.slots[t]);
       PackedTet& p = packed_[t];
       p.volume = tets.volume[slot];
-      p.mostly_held = region.mostly_held[t] != 0;
       p.floor = region.floor[t];
       Eigen::Matrix3d held = Eigen::Matrix3d::Zero();
       for (int c = 0; c < 4; ++c) {
@@ -378,14 +377,13 @@ class Energy {
     return total;
   }
 
-  // A region tet's gradient rows, rest volume, corners (region vertex, or < 0 when held) and its held corners' part
-  // of F.
+  // A region tet's gradient rows, rest volume, corners (region vertex, or < 0 when held), its held corners' part of F
+  // and the floor under its regulariser.
   struct PackedTet {
     double gradient[4][3];  // per corner c, g_c
     double held[3][3];      // F(i, j) from the held corners
     double volume = 0.0;
     std::array<int32_t, 4> corner{};
-    bool mostly_held = false;
     double floor = 0.0;
   };
 
