@@ -31,6 +31,15 @@ namespace {
 
 struct ClassFigures {
   double rest = 0.0, posed = 0.0, folded = 0.0, folded_loss = 0.0;
+  // A tet of this rest volume posed with this det F.
+  void add(double rest_volume, double det) {
+    rest += rest_volume;
+    posed += rest_volume * det;
+    if (det <= 0.0) {
+      folded += rest_volume;
+      folded_loss += rest_volume * (1.0 - det);
+    }
+  }
 };
 
 void print_row(const char* name, const ClassFigures& c, double total_rest) {
@@ -226,21 +235,14 @@ int main(int argc, char** argv) {
         Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
         Eigen::Matrix3d rest_edges, posed_edges;
         for (int c = 0; c < 4; ++c) centroid += 0.25 * mesh.vertices.row(mesh.tets(t, c)).transpose();
-        if ((centroid - joint->centre_mm).norm() <= 100.0) {
-          for (int c = 1; c < 4; ++c) {
-            rest_edges.col(c - 1) =
-                (mesh.vertices.row(mesh.tets(t, c)) - mesh.vertices.row(mesh.tets(t, 0))).transpose();
-            posed_edges.col(c - 1) = (posed.row(mesh.tets(t, c)) - posed.row(mesh.tets(t, 0))).transpose();
-          }
-          const double rest_volume = rest_edges.determinant() / 6.0,
-                       det = posed_edges.determinant() / rest_edges.determinant();
-          wider.rest += rest_volume;
-          wider.posed += rest_volume * det;
-          if (det <= 0.0) {
-            wider.folded += rest_volume;
-            wider.folded_loss += rest_volume * (1.0 - det);
-          }
+        if ((centroid - joint->centre_mm).norm() > 100.0) continue;
+        for (int c = 1; c < 4; ++c) {
+          rest_edges.col(c - 1) = (mesh.vertices.row(mesh.tets(t, c)) - mesh.vertices.row(mesh.tets(t, 0))).transpose();
+          posed_edges.col(c - 1) = (posed.row(mesh.tets(t, c)) - posed.row(mesh.tets(t, 0))).transpose();
         }
+        const double rest_volume = rest_edges.determinant() / 6.0,
+                     det = posed_edges.determinant() / rest_edges.determinant();
+        wider.add(rest_volume, det);
         if ((centroid - joint->centre_mm).norm() > kRadius) continue;
         int bone_corners = 0;
         std::set<int> segments;
@@ -248,12 +250,7 @@ int main(int argc, char** argv) {
           const auto& b = bones[static_cast<size_t>(mesh.tets(t, c))];
           bone_corners += !b.empty();
           segments.insert(b.begin(), b.end());
-          if (c > 0) {
-            rest_edges.col(c - 1) = (mesh.vertices.row(mesh.tets(t, c)) - mesh.vertices.row(mesh.tets(t, 0))).transpose();
-            posed_edges.col(c - 1) = (posed.row(mesh.tets(t, c)) - posed.row(mesh.tets(t, 0))).transpose();
-          }
         }
-        const double rest_volume = rest_edges.determinant() / 6.0, det = posed_edges.determinant() / rest_edges.determinant();
         ClassFigures* into[2] = {&classes[static_cast<size_t>(bone_corners)], nullptr};
         if (bone_corners == 4) into[1] = &classes[segments.size() > 1 ? 6 : 5];
         if (bone_corners == 3) {
@@ -264,25 +261,13 @@ int main(int argc, char** argv) {
           }
         }
         for (ClassFigures* c : into) {
-          if (c == nullptr) continue;
-          c->rest += rest_volume;
-          c->posed += rest_volume * det;
-          if (det <= 0.0) {
-            c->folded += rest_volume;
-            c->folded_loss += rest_volume * (1.0 - det);
-          }
+          if (c != nullptr) c->add(rest_volume, det);
         }
         total_rest += rest_volume;
         if (bone_corners < 4) {
           // In the joint's frame: z along the child's long axis, and a flexion turns the child's far end toward -y.
           const Eigen::Vector3d local = joint->frame.transpose() * (centroid - joint->centre_mm);
-          ClassFigures& c = sides[static_cast<size_t>(2 * (local.z() > 0.0) + (local.y() < 0.0))];
-          c.rest += rest_volume;
-          c.posed += rest_volume * det;
-          if (det <= 0.0) {
-            c.folded += rest_volume;
-            c.folded_loss += rest_volume * (1.0 - det);
-          }
+          sides[static_cast<size_t>(2 * (local.z() > 0.0) + (local.y() < 0.0))].add(rest_volume, det);
         }
       }
       ClassFigures all;

@@ -230,6 +230,7 @@ struct SolveSystem {
   double pull = 0.0;                                   // the faint pull toward the warm start on the diagonal
   std::vector<int32_t> contact;                        // the free skin vertices (solve numbers)
   std::vector<double> contact_stiffness;               // their tets' stiffness (L_ii), for the untangling's planes
+  std::vector<int32_t> bone_segment;                   // solve vertex -> its bone's segment, -1 off bone
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
   // Where the last solve on this system started (the warm start) and ended, free vertices only.
   Eigen::MatrixXd last_warm, last_solution;
@@ -333,6 +334,12 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
     if (!in.topology.skin[static_cast<size_t>(sys.free_vertices[static_cast<size_t>(i)])]) continue;
     sys.contact.push_back(static_cast<int32_t>(i));
     sys.contact_stiffness.push_back(own(i));
+  }
+  // Which bone each fixed corner belongs to, for the untangling to tell a joint's gap (the free are never bone).
+  sys.bone_segment.assign(sys.solve_vertices.size(), -1);
+  for (size_t j = static_cast<size_t>(nf); j < sys.solve_vertices.size(); ++j) {
+    const int32_t v = sys.solve_vertices[j];
+    if (in.topology.bone[static_cast<size_t>(v)]) sys.bone_segment[j] = in.weights.segment(v, 0);
   }
   SparseMatrix matrix(nf, nf);
   matrix.setFromTriplets(triplets.begin(), triplets.end());
@@ -637,13 +644,8 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
   }
   st.iterate_seconds = iterate_start.seconds();
   if (params.untangle) {  // the tets the steady state left inverted, turned back
-    std::vector<int32_t> bone_segment(sys.solve_vertices.size(), -1);
-    for (size_t j = static_cast<size_t>(nf); j < sys.solve_vertices.size(); ++j) {
-      const int32_t v = sys.solve_vertices[j];
-      if (in.topology.bone[static_cast<size_t>(v)]) bone_segment[j] = in.weights.segment(v, 0);
-    }
     const internal::PackedTets packed{sys.slot_corners, sys.gradients, sys.slot_volume,
-                                      sys.corner_start, sys.corners,   bone_segment};
+                                      sys.corner_start, sys.corners,   sys.bone_segment};
     internal::UntangleParams untangle_params;
     untangle_params.piece_volume_weight = params.untangle_volume_weight;
     POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,

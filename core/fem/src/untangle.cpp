@@ -49,8 +49,9 @@ struct Region {
   std::vector<int32_t> vertices;                // region vertex -> solve vertex
   std::vector<int32_t> slots;                   // region tet -> packed tet
   std::vector<std::array<int32_t, 4>> corners;  // region tet -> region vertex, or -1 - solve vertex when held
-  std::vector<uint8_t> mostly_held;             // region tet -> three or more corners held
-  std::vector<double> floor;                    // region tet -> the least eps of its regulariser (0: none)
+  // Region tet -> the least eps of its regulariser: above 0 for a tet with three or more corners held (kHeldEps,
+  // kGapEps in a joint's gap), 0 for the others.
+  std::vector<double> floor;
   std::vector<int64_t> vertex_start;            // n + 1
   std::vector<std::pair<int32_t, int32_t>> vertex_tets;
   // Connected pieces (vertices sharing a region tet): region tet -> its piece (-1 when every corner is held) and the
@@ -161,14 +162,14 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
         r.corners.push_back(corner);
         int held = 0;
         for (const int32_t k : corner) held += k < 0;
-        r.mostly_held.push_back(held >= kMostHeld ? 1 : 0);
+        r.floor.push_back(held >= kMostHeld ? kHeldEps : 0.0);
       }
       r.vertex_tets.emplace_back(slot_index[static_cast<size_t>(slot)], c);
     }
     r.vertex_start[i + 1] = static_cast<int64_t>(r.vertex_tets.size());
   }
-  // Each region vertex whose tets have held corners on two bones (it lies in a joint's gap), then each mostly held
-  // tet's floor.
+  // Each region vertex whose tets have held corners on two bones (it lies in a joint's gap); a mostly held tet with
+  // such a corner gets the gap's floor.
   std::vector<uint8_t> in_gap(r.vertices.size(), 0);
   for (size_t i = 0; i < r.vertices.size(); ++i) {
     int32_t first = -1;
@@ -181,10 +182,8 @@ Region grow_region(const PackedTets& tets, Eigen::Index free_count, const std::v
       }
     }
   }
-  r.floor.assign(r.corners.size(), 0.0);
   for (size_t t = 0; t < r.corners.size(); ++t) {
-    if (!r.mostly_held[t]) continue;
-    r.floor[t] = kHeldEps;
+    if (r.floor[t] == 0.0) continue;
     for (const int32_t k : r.corners[t]) {
       if (k >= 0 && in_gap[static_cast<size_t>(k)]) r.floor[t] = kGapEps;
     }
@@ -293,7 +292,7 @@ class Energy {
     if (det_.empty()) return 1.0;
     double least = std::numeric_limits<double>::infinity();
     for (size_t t = 0; t < det_.size(); ++t) {
-      if (!region_.mostly_held[t]) least = std::min(least, det_[t]);
+      if (region_.floor[t] == 0.0) least = std::min(least, det_[t]);
     }
     return least;
   }
