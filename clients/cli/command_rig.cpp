@@ -326,6 +326,10 @@ void add_rig_build(CLI::App* group) {
                 "Leave the tet edges between two bones (a joint's gap) whole, as rigs built before 2026-11-28 did; by "
                 "default each is split at its midpoint, so that the fem method can move the gap's tissue instead of "
                 "folding it where the bones hold every corner");
+  cmd->add_flag("!--weld-joint-gaps", p.mesh.slide_joint_gaps,
+                "Leave each joint's gap whole, as rigs built before 2026-11-29 did; by default it is cut along its "
+                "middle (after the weights), so that the fem method slides its two sides past each other instead of "
+                "folding the tissue between them (cor, dqs and lbs move both sides alike)");
   cmd->add_option("--voxel-budget", p.mesh.voxel_budget, "Mesher grid voxels before downsampling")
       ->capture_default_str();
   cmd->add_flag("--sequential", o->sequential, "Sequential, seeded mesher: the same inputs give the same mesh");

@@ -13,6 +13,7 @@
 #include "posewarp/common/sha256.h"
 #include "posewarp/common/stopwatch.h"
 #include "posewarp/cor/rotation_centres.h"
+#include "posewarp/fem/soft_tissue.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/labels/label_map.h"
 #include "posewarp/labels/volume_kind.h"
@@ -247,6 +248,9 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
                     {"unsupported_vertices", cor_stats.unsupported_vertices},
                     {"clusters", cor_stats.clusters}};
     clock.lap("cor");
+    // The joints' gaps cut once every skinning input is made: the copies take their vertex's weights and centre.
+    stats["mesh"]["joint_gap_vertices_cut"] =
+        params.mesh.slide_joint_gaps ? fem::cut_joint_gaps(rig.mesh, rig.weights, rig.centres) : 0;
 
     // Surfaces at rest: every bone label, the skin (the body mask's boundary) and optionally every tissue label.
     std::vector<std::pair<Label, std::string>> wanted;

@@ -180,6 +180,7 @@ std::string params_to_json(const BuildParams& p) {
     doc["mesh"]["joint_radius_mm"] = p.mesh.joint_radius_mm;
   }
   doc["mesh"]["split_bone_gaps"] = p.mesh.split_bone_gaps;  // a rig whose mesh has the gaps split has a new id
+  doc["mesh"]["slide_joint_gaps"] = p.mesh.slide_joint_gaps;  // and one whose gaps are cut
   doc["weights"] = {{"max_influences", p.weights.max_influences},
                     {"prune_below", p.weights.prune_below},
                     {"islands", p.weights.islands == weights::IslandPolicy::kFail ? "fail" : "attach_nearest"},

@@ -6,6 +6,7 @@
 #include <array>
 #include <atomic>
 #include <cmath>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <unordered_map>
@@ -67,12 +68,29 @@ std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
       }
     }
   }
-  std::vector<uint8_t> skin(static_cast<size_t>(n), 0);
   constexpr double kFullSphere = 4.0 * M_PI;
+  std::vector<double> total(static_cast<size_t>(n), 0.0);
   for (int64_t v = 0; v < n; ++v) {
-    double total = 0.0;
-    for (const std::vector<double>& sum : angle) total += sum[static_cast<size_t>(v)];
-    skin[static_cast<size_t>(v)] = total > 0.0 && total < kFullSphere - 1e-6 && !bone[static_cast<size_t>(v)];
+    for (const std::vector<double>& sum : angle) total[static_cast<size_t>(v)] += sum[static_cast<size_t>(v)];
+  }
+  // The vertices a joint's gap cut (cut_joint_gaps) lie at one rest position: together their tets surround it.
+  struct PositionHash {
+    size_t operator()(const std::array<double, 3>& p) const {
+      return std::hash<double>()(p[0]) ^ (std::hash<double>()(p[1]) * 31) ^ (std::hash<double>()(p[2]) * 131);
+    }
+  };
+  std::unordered_map<std::array<double, 3>, double, PositionHash> at_position;
+  auto position = [&](int64_t v) {
+    return std::array<double, 3>{rest.vertices(v, 0), rest.vertices(v, 1), rest.vertices(v, 2)};
+  };
+  auto open = [&](double angle_sum) { return angle_sum > 0.0 && angle_sum < kFullSphere - 1e-6; };
+  for (int64_t v = 0; v < n; ++v) {
+    if (open(total[static_cast<size_t>(v)])) at_position[position(v)] += total[static_cast<size_t>(v)];
+  }
+  std::vector<uint8_t> skin(static_cast<size_t>(n), 0);
+  for (int64_t v = 0; v < n; ++v) {
+    skin[static_cast<size_t>(v)] =
+        open(total[static_cast<size_t>(v)]) && open(at_position[position(v)]) && !bone[static_cast<size_t>(v)];
   }
   return skin;
 }

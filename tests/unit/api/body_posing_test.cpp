@@ -209,9 +209,11 @@ TEST(BodyPosing, FemFoldsLessTissueThanCorAtBentJoints) {
         EXPECT_LT(fr->folded_fraction, 0.01);
       } else {
         EXPECT_LT(fr->folded_fraction, 0.5 * cr->folded_fraction) << radius;  // 0.19-0.41 with the untangling
+        // The 1% (CoR 9-15% within 50 mm): measured 0.16-0.24% within 50 mm, with the joints' gaps cut.
+        EXPECT_LT(fr->folded_fraction, 0.01) << radius;
         if (radius == 100.0) {
           EXPECT_LT(std::abs(fr->volume_change), 0.10);
-        } else {  // the issue's +-5% (CoR -7 to -14%); measured -0.6 to -1.9% (-1.1 to -2.4% before the gaps' floor)
+        } else {  // the issue's +-5% (CoR -7 to -14%); measured -0.8 to -2.5% (-0.6 to -1.9% with the gaps whole)
           EXPECT_LT(std::abs(fr->volume_change), 0.05);
         }
       }

@@ -2,8 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
+#include <array>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -12,6 +16,7 @@
 #include "posewarp/api/rig_file.h"
 #include "posewarp/common/sha256.h"
 #include "posewarp/rig/skeleton.h"
+#include "posewarp/skinning/skinning.h"
 #include "rig_test_support.h"
 
 namespace posewarp::api {
@@ -200,10 +205,54 @@ TEST(BuildRig, SplitsTheEdgesBetweenTwoBonesUnlessAskedToKeepThem) {
   EXPECT_GT(nlohmann::json::parse(split.provenance.stats_json)["mesh"]["bone_gap_edges_split"].get<int64_t>(), 0);
   BuildParams params = small_bar_params();
   params.mesh.split_bone_gaps = false;
+  params.mesh.slide_joint_gaps = false;
   Result<Rig> kept = build_rig(bar_inputs(), params, {});
   ASSERT_TRUE(kept.ok()) << kept.status().to_string();
   EXPECT_GT(bridging(*kept), 0);
   EXPECT_NE(kept->id(), split.id());
+  EXPECT_EQ(nlohmann::json::parse(kept->provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>(), 0);
+}
+
+// Each joint's gap is cut along its middle once the weights are made (fem::cut_joint_gaps): the copies take their
+// vertex's weights and centre, so every skinning method moves them with it, and nothing spans the gap after it even
+// where its edges were not split. --weld-joint-gaps leaves it whole and gives another id.
+TEST(BuildRig, CutsTheJointGapsUnlessAskedToWeldThem) {
+  const Rig& cut = shared_bar_rig();
+  const int64_t copies =
+      nlohmann::json::parse(cut.provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>();
+  EXPECT_GT(copies, 0);
+  const int64_t n = cut.mesh.vertex_count();
+  EXPECT_EQ(cut.weights.vertex_count(), n);
+  EXPECT_EQ(cut.centres.centre.rows(), n);
+  const std::vector<Eigen::MatrixXd> skinned = [&] {
+    skinning::SegmentTransforms t;
+    for (int s = 0; s < cut.weights.segment_count; ++s) {
+      t.rotation.push_back(Eigen::AngleAxisd(0.3 * s, Eigen::Vector3d::UnitX()).toRotationMatrix());
+      t.translation.push_back(Eigen::Vector3d(0.0, 2.0 * s, 0.0));
+    }
+    std::vector<Eigen::MatrixXd> out;
+    for (const skinning::Method m : {skinning::Method::kLbs, skinning::Method::kDqs, skinning::Method::kCor}) {
+      out.push_back(skinning::skin(m, cut.mesh.vertices, cut.weights, cut.centres, t).value());
+    }
+    return out;
+  }();
+  // Every copy sits where a vertex of the mesh before the cut sits, and goes where it goes.
+  std::map<std::array<double, 3>, int64_t> first;
+  int64_t shared = 0;
+  for (int64_t v = 0; v < n; ++v) {
+    const std::array<double, 3> key{cut.mesh.vertices(v, 0), cut.mesh.vertices(v, 1), cut.mesh.vertices(v, 2)};
+    const auto [it, inserted] = first.emplace(key, v);
+    if (inserted) continue;
+    ++shared;
+    for (const Eigen::MatrixXd& x : skinned) ASSERT_EQ(x.row(v), x.row(it->second)) << v;
+  }
+  EXPECT_EQ(shared, copies);
+  BuildParams params = small_bar_params();
+  params.mesh.slide_joint_gaps = false;
+  Result<Rig> welded = build_rig(bar_inputs(), params, {});
+  ASSERT_TRUE(welded.ok()) << welded.status().to_string();
+  EXPECT_EQ(nlohmann::json::parse(welded->provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>(), 0);
+  EXPECT_NE(welded->id(), cut.id());
 }
 
 TEST(BuildRig, TheIdIsDerivedFromEveryInput) {

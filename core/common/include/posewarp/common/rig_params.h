@@ -73,6 +73,10 @@ struct MeshParams {
   // Split every edge between two bone segments' vertices at its midpoint (mesh::split_bone_gaps): the tissue in the
   // gap between two bones gets vertices that a solve can move, where otherwise bones hold every corner of its tets.
   bool split_bone_gaps = true;
+  // Cut each joint's gap along its middle once weights and centres are made (fem::cut_joint_gaps): its two sides
+  // then slide past each other in the fem method instead of folding the tissue between them. The other methods move
+  // both sides alike, so their results do not change.
+  bool slide_joint_gaps = true;
   // The joint centres (LPS mm) the rig build fills from its skeleton (every joint not declared a plane joint, such
   // as the spine's) when joint_cell_size_mm is set: derived from the labels, so not part of the parameters' JSON.
   std::vector<std::array<double, 3>> joint_centres_lps;

@@ -156,8 +156,21 @@ Status validate(const CorotationalParams& params);
 Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const CorotationalParams& params,
                                            const ProgressHooks& hooks, FemStats* stats = nullptr);
 
-// Per vertex: 1 on the mesh's boundary (its tets do not surround it) and on no bone tet: the skin.
+// Per vertex: 1 on the mesh's boundary (its tets do not surround it) and on no bone tet: the skin. Vertices at the
+// same rest position (the two sides of a joint's gap, cut_joint_gaps) count their tets together: a cut is not skin.
 std::vector<uint8_t> skin_vertices(const TetMesh& rest);
+
+// Cuts each joint's gap along its middle so that its two sides slide past each other instead of shearing the tissue
+// between them. Where two bones come within a tet or two of each other (an articular space), the soft tets there
+// have bone corners on one bone or the other: such a tet is on that bone's side (the bone most of its bone corners
+// are on). A vertex shared by tets of two sides gets a copy per side other than its own, at the same rest position
+// and with the same weights and centre (every skinning method moves the copies with it; only a solve can part them):
+// a bone vertex's own side is its bone's; a soft vertex is cut only where every tet around it has a side and it is
+// not on the skin, so tissue open to the rest of the body stays whole. Without the cut a bent joint slides one bone
+// surface past the other by up to the joint's radius times its angle (38 mm at a hip bent 90 degrees), which folds
+// every tet spanning the gap whatever the solve does. Returns the number of vertices added (0 when the arrays do not
+// fit the mesh); a mesh already cut gets none.
+int64_t cut_joint_gaps(TetMesh& mesh, SkinWeights& weights, RotationCentres& centres);
 
 // Skin vertices (`skin`, from skin_vertices) of the posed mesh that lie inside tissue or bone from elsewhere in the
 // body (no corner of the tet they are in lies within `rest_distance_mm` of them at rest), among those within each
