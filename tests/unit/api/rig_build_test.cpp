@@ -252,6 +252,7 @@ TEST(BuildRig, CutsTheJointGapsUnlessAskedToWeldThem) {
   Result<Rig> welded = build_rig(bar_inputs(), params, {});
   ASSERT_TRUE(welded.ok()) << welded.status().to_string();
   EXPECT_EQ(nlohmann::json::parse(welded->provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>(), 0);
+  EXPECT_EQ(welded->mesh.vertex_count() + copies, n);  // the bar is meshed sequentially: the same mesh, uncut
   EXPECT_NE(welded->id(), cut.id());
 }
 
