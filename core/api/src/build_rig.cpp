@@ -251,6 +251,7 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
     // The joints' gaps cut once every skinning input is made: the copies take their vertex's weights and centre.
     stats["mesh"]["joint_gap_vertices_cut"] =
         params.mesh.slide_joint_gaps ? fem::cut_joint_gaps(rig.mesh, rig.weights, rig.centres) : 0;
+    clock.lap("gaps");
 
     // Surfaces at rest: every bone label, the skin (the body mask's boundary) and optionally every tissue label.
     std::vector<std::pair<Label, std::string>> wanted;
