@@ -35,8 +35,8 @@ TEST(BuildRig, BarBuildsWithNoManualInput) {
   EXPECT_EQ(rig.centres.centre.rows(), rig.mesh.vertex_count());
   std::vector<std::string> stages;
   for (const auto& [stage, seconds] : rig.provenance.stage_seconds) stages.push_back(stage);
-  EXPECT_EQ(stages, (std::vector<std::string>{"skeleton", "body", "contacts", "mesh", "weights", "cor", "surfaces",
-                                              "ranges", "tables"}));
+  EXPECT_EQ(stages, (std::vector<std::string>{"skeleton", "body", "contacts", "mesh", "weights", "cor", "gaps",
+                                              "surfaces", "ranges", "tables"}));
 }
 
 TEST(BuildRig, WeightsArePartitionsOfUnityAndBonesAreExact) {
