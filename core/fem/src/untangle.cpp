@@ -96,8 +96,9 @@ void find_pieces(const PackedTets& tets, Region& r) {
 // A tet with three corners held leaves its fourth one side of a fixed triangle, which the tets around it may
 // forbid: such a tet keeps a floor under its regulariser, a soft push rather than a wall, and its det does not set
 // the others' eps. Where its free corner also touches another bone's tets it sits in a joint's gap, which a bent
-// joint shears past any position of that corner (the two bone surfaces slide; only a cut along the gap would let
-// them): there the floor is 1, elsewhere 0.1. posewarp_fem_probe on eight scripts/body_check rigs at 90 degrees,
+// joint shears past any position of that corner (the two bone surfaces slide; the rig build's cut, cut_joint_gaps,
+// lets them, but a rig built before it or with --weld-joint-gaps keeps such tets, and so does a gap's rim): there the
+// floor is 1, elsewhere 0.1. posewarp_fem_probe on eight scripts/body_check rigs at 90 degrees,
 // tissue within 50 mm, 1 everywhere -> 0.1 off the gaps: knee -1.0 to -5.9% -> -0.4 to -4.6% (better on all eight),
 // elbow -1.0 to -5.1% -> -0.5 to -3.8%, shoulder -2.2 to -5.2% -> -2.0 to -4.9%, hip -14.6 to -20.4% -> -15.4 to
 // -20.3% (worse by up to 1.5 points on six); folded 0.8-6.5% -> 0.8-6.9%. A floor of 0.1 for every such tet (stop 41,

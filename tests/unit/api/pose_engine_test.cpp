@@ -75,15 +75,12 @@ TEST(Posing, IdentityPoseGivesBackTheInputWithEveryMethod) {
 // the cut alike, so a rig with the gaps welded on the same mesh (the bar is meshed sequentially, so both builds mesh
 // it alike) gives the same labels and CT, voxel for voxel.
 TEST(Posing, CuttingTheJointGapsChangesNoSkinningMethodsVolumes) {
-  BuildParams params = posewarp::testing::small_bar_params();
-  params.mesh.slide_joint_gaps = false;
-  Result<Rig> welded_rig = build_rig(posewarp::testing::bar_inputs(), params, {});
-  ASSERT_TRUE(welded_rig.ok()) << welded_rig.status().to_string();
+  const Rig& welded_rig = posewarp::testing::shared_welded_bar_rig();
   const Rig& cut_rig = shared_bar_rig();
-  ASSERT_GT(cut_rig.mesh.vertex_count(), welded_rig->mesh.vertex_count());
-  ASSERT_EQ(cut_rig.mesh.tet_count(), welded_rig->mesh.tet_count());
+  ASSERT_GT(cut_rig.mesh.vertex_count(), welded_rig.mesh.vertex_count());
+  ASSERT_EQ(cut_rig.mesh.tet_count(), welded_rig.mesh.tet_count());
   const std::string joint = cut_rig.skeleton.joints.front().name;
-  Result<PoseEngine> welded = PoseEngine::create(std::move(welded_rig).value());
+  Result<PoseEngine> welded = PoseEngine::create(welded_rig);
   ASSERT_TRUE(welded.ok()) << welded.status().to_string();
   for (const api::Method method : {api::Method::kLbs, api::Method::kDqs, api::Method::kCor}) {
     PoseRequest request;

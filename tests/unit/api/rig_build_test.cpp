@@ -247,13 +247,10 @@ TEST(BuildRig, CutsTheJointGapsUnlessAskedToWeldThem) {
     for (const Eigen::MatrixXd& x : skinned) ASSERT_EQ(x.row(v), x.row(it->second)) << v;
   }
   EXPECT_EQ(shared, copies);
-  BuildParams params = small_bar_params();
-  params.mesh.slide_joint_gaps = false;
-  Result<Rig> welded = build_rig(bar_inputs(), params, {});
-  ASSERT_TRUE(welded.ok()) << welded.status().to_string();
-  EXPECT_EQ(nlohmann::json::parse(welded->provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>(), 0);
-  EXPECT_EQ(welded->mesh.vertex_count() + copies, n);  // the bar is meshed sequentially: the same mesh, uncut
-  EXPECT_NE(welded->id(), cut.id());
+  const Rig& welded = posewarp::testing::shared_welded_bar_rig();
+  EXPECT_EQ(nlohmann::json::parse(welded.provenance.stats_json)["mesh"]["joint_gap_vertices_cut"].get<int64_t>(), 0);
+  EXPECT_EQ(welded.mesh.vertex_count() + copies, n);  // the bar is meshed sequentially: the same mesh, uncut
+  EXPECT_NE(welded.id(), cut.id());
 }
 
 TEST(BuildRig, TheIdIsDerivedFromEveryInput) {

@@ -38,4 +38,16 @@ inline const api::Rig& shared_bar_rig() {
   return rig;
 }
 
+// The same bar with its joints' gaps left whole (slide_joint_gaps off): meshed alike, the shared rig less the cut.
+inline const api::Rig& shared_welded_bar_rig() {
+  static const api::Rig rig = [] {
+    api::BuildParams params = small_bar_params();
+    params.mesh.slide_joint_gaps = false;
+    Result<api::Rig> built = api::build_rig(bar_inputs(), params, {});
+    if (!built.ok()) throw std::runtime_error(built.status().to_string());
+    return std::move(built).value();
+  }();
+  return rig;
+}
+
 }  // namespace posewarp::testing
