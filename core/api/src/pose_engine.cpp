@@ -84,6 +84,7 @@ Result<Method> method_from_name(std::string_view name) {
 // weights and centres, and the surfaces embedded in them.
 struct PreviewRig {
   TetMesh mesh;
+  std::vector<int32_t> rig_vertex;  // preview vertex -> the rig mesh's vertex
   SkinWeights weights;
   RotationCentres centres;
   std::vector<mapping::Embedding> embeddings;
@@ -186,6 +187,7 @@ void prepare_preview(const Rig& rig, PreviewRig& preview) {
     }
   }
   const auto n = static_cast<Eigen::Index>(vertices.size());
+  preview.rig_vertex = vertices;
   preview.mesh.vertices.resize(n, 3);
   preview.weights.influences = rig.weights.influences;
   preview.weights.segment_count = rig.weights.segment_count;
@@ -228,6 +230,9 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
   POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
   if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
     params.max_iterations = max_iterations;
+    // ... and answers in time: the iterations that fit in 70 ms of solve, at least one (on 2 cores the mannequin's
+    // and the body phantom's 20M-voxel rigs take 3 or 4, the real sample's 4; the rest of a call takes 5-10 ms).
+    params.time_budget_seconds = 0.070;
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
     params.untangle = false;  // a slider's steps within the preview's budget; the pose turns the folds back
@@ -459,16 +464,22 @@ Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const
       // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
       // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
       // slider moves and settles when it stops.
-      // 4 per call (5 until 2026-11-29): posewarp_fem_probe's slider of 9 calls to the bench's knee 90 and shoulder
-      // abduction 90 leaves the tissue 2.96 mm (mean) from the steady state on the mannequin instead of 2.86, 3.22
-      // instead of 3.11 on the body phantom, and 1.39 instead of 1.14 at the real sample's hips, each call taking a
-      // fifth less; a slider's updates come as fast as the calls end (the latest wins), so it iterates as much per
-      // second as before and shows each step sooner.
+      // At most 4 per call (5 until 2026-11-29), as many as fit in 70 ms of solve (soft_tissue): posewarp_fem_probe's
+      // slider of 9 calls to the bench's knee 90 and shoulder abduction 90 leaves the tissue 2.96 mm (mean) from the
+      // steady state at 4 per call on the mannequin (2.86 at 5, 3.13 at 3, the 3 that fit there on 2 cores), 3.22 on
+      // the body phantom (4 fit) and 1.39 at the real sample's hips; a slider's updates come as fast as the calls end
+      // (the latest wins), so fewer per call iterate about as much per second and show each step sooner.
       constexpr int kPreviewIterations = 4;
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinned(p, Method::kCor, segments));
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, kPreviewIterations));
-      for (const mapping::Embedding& e : p.rig.embeddings) {
-        result.surface_vertices.push_back(mapping::deform_points(e, p.rig.mesh, posed));
+      // The surfaces through the preview's own tets (the same barycentrics), their corners gathered first: the
+      // whole mesh's vertices are a few times more and scattered.
+      Eigen::MatrixXd corners(static_cast<Eigen::Index>(p.preview.rig_vertex.size()), 3);
+      for (size_t i = 0; i < p.preview.rig_vertex.size(); ++i) {
+        corners.row(static_cast<Eigen::Index>(i)) = posed.row(p.preview.rig_vertex[i]);
+      }
+      for (const mapping::Embedding& e : p.preview.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, p.preview.mesh, corners));
       }
     } else {
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed,

@@ -135,6 +135,10 @@ Status validate(const FemParams& params) {
   if (!(params.volume_weight >= 0.0 && params.volume_weight <= 1e6)) {
     return invalid_argument_error("fem volume_weight must be in [0, 1e6], got " + std::to_string(params.volume_weight));
   }
+  if (!(params.time_budget_seconds >= 0.0 && params.time_budget_seconds <= 3600.0)) {
+    return invalid_argument_error("fem time_budget_seconds must be in [0, 3600], got " +
+                                  std::to_string(params.time_budget_seconds));
+  }
   if (!(params.untangle_volume_weight >= 0.0 && params.untangle_volume_weight <= 1e6)) {
     return invalid_argument_error("fem untangle_volume_weight must be in [0, 1e6], got " +
                                   std::to_string(params.untangle_volume_weight));
@@ -640,6 +644,11 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
       if (!contacts || contacts->detect(x_solve) == 0) break;
       anderson.restart();  // skin newly inside tissue: on with the new contact set
       anderson.accelerated = false;
+    }
+    if (params.time_budget_seconds > 0.0 && iteration + 1 < params.max_iterations &&
+        start.seconds() + iterate_start.seconds() / (iteration + 1) > params.time_budget_seconds) {
+      st.out_of_time = true;
+      break;
     }
   }
   st.iterate_seconds = iterate_start.seconds();

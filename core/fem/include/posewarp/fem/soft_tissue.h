@@ -46,6 +46,10 @@ struct FemParams {
   // carried to this pose's), when a cache holds it: a slider's previews go on converging from call to call. A pose
   // leaves it off, so that its result depends on its request alone.
   bool continue_from_last = false;
+  // A preview's latency: no iteration starts that would end past this many seconds of the solve (the preparation of
+  // its system counted), going by the mean of its iterations so far; the first always runs. 0: no limit. A pose
+  // leaves it 0, so that its result does not depend on the machine's speed.
+  double time_budget_seconds = 0.0;
   // Turn back the tets the steady state leaves inverted (where bending folds a band of tissue that has no room):
   // the free vertices around them minimise a foldover-free energy with everything else held. A preview leaves it off.
   bool untangle = true;
@@ -71,7 +75,9 @@ struct FemStats {
   double last_step_mm = 0.0;   // largest vertex move of the last iteration
   double factor_seconds = 0.0;
   double iterate_seconds = 0.0;
-  bool reused_system = false;  // the cache held the factored system for these free vertices
+  bool reused_system = false;
+  bool out_of_time = false;  // the time budget ended the iterations before max_iterations or convergence  // the cache
+                             // held the factored system for these free vertices
   bool continued = false;      // started from the last solve's end (continue_from_last)
   // Inverted soft tets (det F <= 0) with a free corner before and after untangling (a tet whose corners are all
   // bone vertices is not in the solve: no solve can turn it back).
