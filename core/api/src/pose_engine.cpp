@@ -230,8 +230,8 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
   POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
   if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
     params.max_iterations = max_iterations;
-    // ... and answers in time: the iterations that fit in 70 ms of solve, at least one (on 2 cores the mannequin's
-    // and the body phantom's 20M-voxel rigs take 3 or 4, the real sample's 4; the rest of a call takes 5-10 ms).
+    // ... and answers in time: a slider waits for the iterations that fit in 70 ms of solve (at least one), whatever
+    // the rig and the machine; the rest of a call (skinning, surfaces) is a few ms.
     params.time_budget_seconds = 0.070;
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
@@ -464,11 +464,10 @@ Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const
       // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
       // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
       // slider moves and settles when it stops.
-      // At most 4 per call (5 until 2026-11-29), as many as fit in 70 ms of solve (soft_tissue): posewarp_fem_probe's
-      // slider of 9 calls to the bench's knee 90 and shoulder abduction 90 leaves the tissue 2.96 mm (mean) from the
-      // steady state at 4 per call on the mannequin (2.86 at 5, 3.13 at 3, the 3 that fit there on 2 cores), 3.22 on
-      // the body phantom (4 fit) and 1.39 at the real sample's hips; a slider's updates come as fast as the calls end
-      // (the latest wins), so fewer per call iterate about as much per second and show each step sooner.
+      // At most 4 per call, as many as fit in soft_tissue's time budget: fewer per call leave the tissue a little
+      // further from the steady state after a slider's calls (README: posewarp_fem_probe's figures), but a slider's
+      // updates come as fast as the calls end (the latest wins), so it iterates about as much per second and shows
+      // each step sooner.
       constexpr int kPreviewIterations = 4;
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinned(p, Method::kCor, segments));
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, kPreviewIterations));

@@ -599,6 +599,7 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
     contacts.emplace(in, sys.solve_vertices, sys.contact, sys.contact_stiffness);
   // Which skin is inside which tissue, looked up again every kLookUpEvery iterations and before the solve stops.
   constexpr int kLookUpEvery = 5;
+  const Stopwatch loop_start;  // the budget's mean iteration: the iterations only
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     if (contacts && iteration % kLookUpEvery == 0 && (contacts->detect(x_solve), contacts->changed())) {
       anderson.restart();  // another contact set is another fixed point
@@ -646,7 +647,7 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
       anderson.accelerated = false;
     }
     if (params.time_budget_seconds > 0.0 && iteration + 1 < params.max_iterations &&
-        start.seconds() + iterate_start.seconds() / (iteration + 1) > params.time_budget_seconds) {
+        start.seconds() + loop_start.seconds() / (iteration + 1) > params.time_budget_seconds) {
       st.out_of_time = true;
       break;
     }

@@ -539,6 +539,11 @@ TEST(Posing, PreviewGivesTheFullPosesSurfaces) {
     Result<PoseResult> full = engine.pose(request);
     ASSERT_TRUE(full.ok()) << full.status().to_string();
     Result<PreviewResult> preview = engine.preview(request.pose, method);
+    // fem: a slider stopped at the pose, its calls going on from the last; on a slow or loaded machine the first
+    // call's time budget may leave room for one iteration only (the skin then 5.0 mm off).
+    for (int again = 0; method == api::Method::kFem && again < 3 && preview.ok(); ++again) {
+      preview = engine.preview(request.pose, method);
+    }
     ASSERT_TRUE(preview.ok()) << preview.status().to_string();
     ASSERT_EQ(preview->surface_vertices.size(), engine.rig().surfaces.size());
     const double tolerance = method == api::Method::kFem ? 5.0 : 1e-9;

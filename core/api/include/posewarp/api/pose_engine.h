@@ -94,7 +94,9 @@ class PoseEngine {
   // such a request before it queues; pose() makes the same check.
   Result<PosePlan> plan(const PoseRequest& request) const;
   // The fast path for sliders: the rig's surfaces posed, nothing else. Only the tet vertices that hold a surface
-  // vertex are skinned (prepared once in create()); no volume, no report.
+  // vertex are skinned (prepared once in create()); no volume, no report. `fem` solves the whole bent tissue, a few
+  // iterations per call going on from the last call's (as many as fit in 70 ms), so its surfaces depend on the calls
+  // before and on the machine's speed; a pose's never do.
   Result<PreviewResult> preview(const Pose& pose, Method method) const;
 
   // What create() prepares (frames, ownership, bone voxels, regions, the preview's share, the fem solver's state),

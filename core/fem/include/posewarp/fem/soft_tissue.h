@@ -75,9 +75,8 @@ struct FemStats {
   double last_step_mm = 0.0;   // largest vertex move of the last iteration
   double factor_seconds = 0.0;
   double iterate_seconds = 0.0;
-  bool reused_system = false;
-  bool out_of_time = false;  // the time budget ended the iterations before max_iterations or convergence  // the cache
-                             // held the factored system for these free vertices
+  bool reused_system = false;  // the cache held the factored system for these free vertices
+  bool out_of_time = false;    // the time budget ended the iterations before max_iterations or convergence
   bool continued = false;      // started from the last solve's end (continue_from_last)
   // Inverted soft tets (det F <= 0) with a free corner before and after untangling (a tet whose corners are all
   // bone vertices is not in the solve: no solve can turn it back).
