@@ -221,17 +221,23 @@ const std::vector<uint8_t>& skin_of(const Prepared& p) {
   return p.fem.skin;
 }
 
-// The soft tissue's steady state from skinned (CoR) vertices. With `max_iterations` (a preview's), at most that many,
-// going on from where the last solve on the same free vertices ended; 0: the solve's own, from the warm start.
+// What a soft-tissue solve is for: a pose (its request's options, from the warm start) or a slider's preview.
+enum class SolveFor { kPose, kPreview };
+
+// The soft tissue's steady state from skinned (CoR) vertices; a preview's takes a few iterations of it, going on from
+// where the last solve on the same free vertices ended.
 Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& warm,
                                     const skinning::SegmentTransforms& segments, const ProgressHooks& hooks,
-                                    int max_iterations = 0, const FemOptions& options = {}) {
+                                    SolveFor purpose, const FemOptions& options = {}) {
   std::call_once(p.fem.once, [&] { p.fem.topology = fem::topology(p.rig.mesh, skin_of(p)); });
   POSEWARP_ASSIGN_OR_RETURN(fem::FemParams params, fem_params(options));
-  if (max_iterations > 0) {  // a preview: a slider's next call goes on from where the last one ended
-    params.max_iterations = max_iterations;
-    // ... and answers in time: a slider waits for the iterations that fit in 70 ms of solve (at least one), whatever
-    // the rig and the machine; the rest of a call (skinning, surfaces) is a few ms.
+  if (purpose == SolveFor::kPreview) {  // a slider's next call goes on from where the last one ended
+    // At most 4 iterations per call, as many as fit in 70 ms of solve (at least one), whatever the rig and the
+    // machine; the rest of a call (skinning, surfaces) is a few ms. Fewer per call leave the tissue a little further
+    // from the steady state after a slider's calls (README: posewarp_fem_probe's figures), but a slider's updates
+    // come as fast as the calls end (the latest wins), so it iterates about as much per second and shows each step
+    // sooner.
+    params.max_iterations = 4;
     params.time_budget_seconds = 0.070;
     params.continue_from_last = true;
     params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
@@ -464,13 +470,8 @@ Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const
       // The steady state needs the whole mesh; a slider gets a few iterations of it per call, each call going on
       // from where the last one ended (the solve's system is kept between calls), so the shape converges while the
       // slider moves and settles when it stops.
-      // At most 4 per call, as many as fit in soft_tissue's time budget: fewer per call leave the tissue a little
-      // further from the steady state after a slider's calls (README: posewarp_fem_probe's figures), but a slider's
-      // updates come as fast as the calls end (the latest wins), so it iterates about as much per second and shows
-      // each step sooner.
-      constexpr int kPreviewIterations = 4;
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd warm, skinned(p, Method::kCor, segments));
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, kPreviewIterations));
+      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, SolveFor::kPreview));
       // The surfaces through the preview's own tets (the same barycentrics), their corners gathered first: the
       // whole mesh's vertices are a few times more and scattered.
       Eigen::MatrixXd corners(static_cast<Eigen::Index>(p.preview.rig_vertex.size()), 3);
@@ -636,7 +637,7 @@ Result<PoseResult> pose_unguarded(const Prepared& p, const PoseRequest& request,
   clock.lap("skinning");
   if (request.method == Method::kFem) {
     POSEWARP_ASSIGN_OR_RETURN(result.posed_vertices,
-                              soft_tissue(p, result.posed_vertices, segments, hooks, 0, request.fem));
+                              soft_tissue(p, result.posed_vertices, segments, hooks, SolveFor::kPose, request.fem));
     clock.lap("fem");
   }
 
