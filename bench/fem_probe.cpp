@@ -6,8 +6,10 @@
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
 // steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
 // from the last (a load-stepped solve, measured against the one-step solve).
-// A probe for developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue
-// pinned between two bones by the mesh.
+// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE] is the projected-Newton reference
+// (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective solve's result). A probe for
+// developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue pinned between two
+// bones by the mesh.
 #include <Eigen/Dense>
 
 #include <array>
@@ -117,6 +119,7 @@ int main(int argc, char** argv) {
     // vertices (cor, dqs or lbs).
     std::optional<fem::FemParams> custom;
     std::optional<fem::CorotationalParams> corotational;
+    std::optional<fem::NonlinearParams> nonlinear;
     std::string warm_name = method_name;
     int load_steps = 1;
     if (method_name.rfind("steps:", 0) == 0) {  // steps:K:ITERATIONS, the pose reached in K solves going on from each other
@@ -138,6 +141,23 @@ int main(int argc, char** argv) {
       corotational.emplace();
       corotational->poisson_ratio = std::stod(nu);
       corotational->max_iterations = std::stoi(it);
+    }
+    if (method_name.rfind("nonlinear:", 0) ==
+        0) {  // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE]
+      std::stringstream in(method_name.substr(10));
+      std::string tet, star, it, margin, untangle;
+      std::getline(in, tet, ':');
+      std::getline(in, star, ':');
+      std::getline(in, it, ':');
+      std::getline(in, warm_name, ':');
+      std::getline(in, margin, ':');
+      nonlinear.emplace();
+      nonlinear->tet_volume_weight = std::stod(tet);
+      nonlinear->star_volume_weight = std::stod(star);
+      nonlinear->max_iterations = std::stoi(it);
+      if (!margin.empty()) nonlinear->margin_mm = std::stod(margin);
+      std::getline(in, untangle, ':');
+      nonlinear->untangle = !untangle.empty() && untangle != "0";
     }
     if (method_name.rfind("fem:", 0) == 0) {
       std::stringstream in(method_name.substr(4));
@@ -174,14 +194,16 @@ int main(int argc, char** argv) {
       return 1;
     }
     Eigen::MatrixXd posed = result->posed_vertices;
-    if (custom || corotational) {
+    if (custom || corotational || nonlinear) {
       const skinning::SegmentTransforms segments = segments_of(engine->rig().skeleton, *pose);
       fem::FemStats stats;
       const auto start = std::chrono::steady_clock::now();
       const fem::SolveInputs inputs{mesh, frames, topology, engine->rig().weights, segments, posed};
       Result<Eigen::MatrixXd> solved = posed;
       if (load_steps == 1) {
-        solved = custom ? fem::solve(inputs, *custom, {}, &stats) : fem::solve_corotational(inputs, *corotational, {}, &stats);
+        solved = custom      ? fem::solve(inputs, *custom, {}, &stats)
+                 : nonlinear ? fem::solve_nonlinear(inputs, *nonlinear, {}, &stats)
+                             : fem::solve_corotational(inputs, *corotational, {}, &stats);
       } else {  // a load-stepped solve: each step's warm start carries the last step's correction (measured worse)
         fem::SolveCache cache;
         fem::FemParams step_params = *custom;
@@ -206,7 +228,7 @@ int main(int argc, char** argv) {
       std::printf("%s: %lld free vertices, %lld tets, %d iterations, last step %.3f mm, %d restarts, factor %.2f s, iterations %.2f s, all %.2f s\n", method_name.c_str(), static_cast<long long>(stats.free_vertices), static_cast<long long>(stats.tets), stats.iterations,
                   stats.last_step_mm, stats.restarts, stats.factor_seconds, stats.iterate_seconds,
                   std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-      if (custom && custom->untangle) {
+      if ((custom && custom->untangle) || (nonlinear && nonlinear->untangle)) {
         std::printf(
             "  untangled: inverted tets with a free corner %lld -> %lld (%s), %lld vertices, %d iterations, %.2f s\n",
             static_cast<long long>(stats.inverted_before_untangle), static_cast<long long>(stats.inverted),

@@ -16,20 +16,7 @@
 #include "posewarp/common/stopwatch.h"
 
 namespace posewarp::fem {
-namespace {
-
-using SparseMatrix = Eigen::SparseMatrix<double>;
-using Positions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;  // one row per solve vertex, mm
-
-// The tets touching a free vertex, by slot: their corners as solve vertices (the free ones first, in free order,
-// then the fixed corners), gradient rows and rest volumes.
-struct Elements {
-  Eigen::Index free_count = 0;
-  std::vector<int32_t> solve_vertices;                 // solve vertex -> mesh vertex
-  std::vector<std::array<int32_t, 4>> corner;          // slot -> its corners' solve vertices
-  std::vector<Eigen::Matrix<double, 3, 4>> gradients;  // slot -> its corners' gradient rows
-  std::vector<double> volume;                          // slot -> rest volume
-};
+namespace internal {
 
 // Packs the tets that touch the free vertices.
 Elements gather_elements(const SolveInputs& in, const std::vector<int32_t>& free_vertices) {
@@ -70,33 +57,6 @@ Elements gather_elements(const SolveInputs& in, const std::vector<int32_t>& free
   return el;
 }
 
-// Lame's parameters with mu = 1: a steady state under prescribed positions does not depend on Young's modulus.
-struct Lame {
-  double mu = 1.0;
-  double lambda = 0.0;
-};
-
-// Lame's parameters for a Poisson ratio, mu = 1.
-Lame lame_parameters(double poisson_ratio) {
-  const double mu = 1.0, lambda = 2.0 * poisson_ratio / (1.0 - 2.0 * poisson_ratio) * mu;
-  return {mu, lambda};
-}
-
-// Slot s's rest stiffness block K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I).
-Eigen::Matrix3d stiffness_block(const Elements& el, const Lame& lame, size_t s, int a, int b) {
-  const Eigen::Vector3d ga = el.gradients[s].col(a), gb = el.gradients[s].col(b);
-  return el.volume[s] * (lame.lambda * ga * gb.transpose() + lame.mu * gb * ga.transpose() +
-                         lame.mu * ga.dot(gb) * Eigen::Matrix3d::Identity());
-}
-
-// The matrix's pattern (3 x 3 blocks between free vertices sharing a tet), built once; each iteration writes its
-// values through `where`: per tet, per free (a, b) pair, the 9 value slots of R K_ab R^T.
-struct BlockPattern {
-  SparseMatrix matrix;
-  std::vector<int64_t> where;        // per tet, per (a, b) with both free, 9 slots (row-major in the 3 x 3 block)
-  std::vector<int64_t> where_start;  // slot -> its first entry in `where`
-};
-
 // The free-free blocks' pattern and where each tet's blocks go in its values.
 BlockPattern block_pattern(const Elements& el) {
   const Eigen::Index nf = el.free_count;
@@ -135,6 +95,37 @@ BlockPattern block_pattern(const Elements& el) {
     bp.where_start[s + 1] = static_cast<int64_t>(bp.where.size());
   }
   return bp;
+}
+
+}  // namespace internal
+
+namespace {
+
+using internal::block_pattern;
+using internal::BlockPattern;
+using internal::Elements;
+using internal::gather_elements;
+
+using internal::Positions;
+using internal::SparseMatrix;
+
+// Lame's parameters with mu = 1: a steady state under prescribed positions does not depend on Young's modulus.
+struct Lame {
+  double mu = 1.0;
+  double lambda = 0.0;
+};
+
+// Lame's parameters for a Poisson ratio, mu = 1.
+Lame lame_parameters(double poisson_ratio) {
+  const double mu = 1.0, lambda = 2.0 * poisson_ratio / (1.0 - 2.0 * poisson_ratio) * mu;
+  return {mu, lambda};
+}
+
+// Slot s's rest stiffness block K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I).
+Eigen::Matrix3d stiffness_block(const Elements& el, const Lame& lame, size_t s, int a, int b) {
+  const Eigen::Vector3d ga = el.gradients[s].col(a), gb = el.gradients[s].col(b);
+  return el.volume[s] * (lame.lambda * ga * gb.transpose() + lame.mu * gb * ga.transpose() +
+                         lame.mu * ga.dot(gb) * Eigen::Matrix3d::Identity());
 }
 
 // What the iteration carries: the solve vertices' current and rest positions, each tet's rotation, and the damping

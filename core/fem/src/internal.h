@@ -1,8 +1,9 @@
-// What the fem stage's two solvers share: the inputs' check, the tissue a pose bends, a tet's gradient rows and the
+// What the fem stage's solvers share: the inputs' check, the tissue a pose bends, a tet's gradient rows and the
 // signed SVD of a 3 x 3 deformation gradient.
 #pragma once
 
 #include <Eigen/Core>
+#include <Eigen/SparseCore>
 
 #include <array>
 #include <cstdint>
@@ -35,6 +36,32 @@ Eigen::Vector3d gradient(const skinning::RestTetFrames& frames, int64_t t, int c
 void signed_svd(const Eigen::Matrix3d& f, Eigen::Matrix3d& u, Eigen::Vector3d& sigma, Eigen::Matrix3d& v);
 
 using Positions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;  // one row per solve vertex, mm
+
+using SparseMatrix = Eigen::SparseMatrix<double>;
+
+// The assembled solvers' (co-rotational, nonlinear) tets: those touching a free vertex, by slot: their corners as solve
+// vertices (the free ones first, in free order, then the fixed corners), gradient rows and rest volumes.
+struct Elements {
+  Eigen::Index free_count = 0;
+  std::vector<int32_t> solve_vertices;                 // solve vertex -> mesh vertex
+  std::vector<std::array<int32_t, 4>> corner;          // slot -> its corners' solve vertices
+  std::vector<Eigen::Matrix<double, 3, 4>> gradients;  // slot -> its corners' gradient rows
+  std::vector<double> volume;                          // slot -> rest volume
+};
+
+// Packs the tets that touch the free vertices.
+Elements gather_elements(const SolveInputs& in, const std::vector<int32_t>& free_vertices);
+
+// The matrix's pattern (3 x 3 blocks between free vertices sharing a tet), built once; each iteration writes its
+// values through `where`: per tet, per free (a, b) pair, the 9 value slots of its (a, b) block.
+struct BlockPattern {
+  SparseMatrix matrix;
+  std::vector<int64_t> where;        // per tet, per (a, b) with both free, 9 slots (row-major in the 3 x 3 block)
+  std::vector<int64_t> where_start;  // slot -> its first entry in `where`
+};
+
+// The free-free blocks' pattern and where each tet's blocks go in its values.
+BlockPattern block_pattern(const Elements& el);
 
 // A solve's tets packed with their corners' solve vertices (the free ones, numbered first, then the fixed
 // corners), gradient rows and rest volumes, and each free vertex's (tet, corner) pairs.

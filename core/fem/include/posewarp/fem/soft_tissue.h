@@ -161,6 +161,28 @@ Status validate(const CorotationalParams& params);
 Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const CorotationalParams& params,
                                            const ProgressHooks& hooks, FemStats* stats = nullptr);
 
+// The same steady state by projected Newton on the nonlinear energy (Teran et al. 2005's definite fix of each tet's
+// Hessian, a backtracking line search), kept to measure the projective solve against: per tet
+// V (|F - R|^2 + w_t (det F - 1)^2) with R F's nearest rotation, plus per free vertex's star (its tets)
+// w_n V_s (J_s - 1)^2 with V_s the star's rest volume and J_s its posed volume over it. A volume term per tet locks
+// a mesh of linear tets (a nearly incompressible material cannot bend without compressing the tets along the bend);
+// the star's term, a nodal volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps
+// its own. The matrix is assembled and factored anew at each iteration (the stars couple vertices two edges apart):
+// a minute on a body's hip, a reference, not a method.
+struct NonlinearParams {
+  double tet_volume_weight = 1.0;     // w_t
+  double star_volume_weight = 100.0;  // w_n (0: per-tet volume only)
+  bool untangle = false;              // then the projective solve's untangling (FemParams::untangle)
+  int max_iterations = 30;
+  double tolerance_mm = 0.02;
+  double margin_mm = 40.0;
+};
+
+Status validate(const NonlinearParams& params);
+
+Result<Eigen::MatrixXd> solve_nonlinear(const SolveInputs& inputs, const NonlinearParams& params,
+                                        const ProgressHooks& hooks, FemStats* stats = nullptr);
+
 // Per vertex: 1 on the mesh's boundary (its tets do not surround it) and on no bone tet: the skin. Vertices at the
 // same rest position (the two sides of a joint's gap, cut_joint_gaps) count their tets together: a cut is not skin.
 std::vector<uint8_t> skin_vertices(const TetMesh& rest);

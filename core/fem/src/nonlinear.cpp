@@ -1,0 +1,336 @@
+// The nonlinear steady state by projected Newton (see soft_tissue.h's solve_nonlinear): what the projective solve's
+// result is measured against on the tissue of a bent joint.
+#include <Eigen/CholmodSupport>
+#include <Eigen/Dense>
+#include <Eigen/Sparse>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "internal.h"
+#include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
+#include "posewarp/fem/soft_tissue.h"
+
+namespace posewarp::fem {
+namespace {
+
+using internal::BlockPattern;
+using internal::Elements;
+using internal::Positions;
+using internal::SparseMatrix;
+using Matrix9 = Eigen::Matrix<double, 9, 9>;
+using Vector9 = Eigen::Matrix<double, 9, 1>;
+
+Eigen::Matrix3d cross_matrix(const Eigen::Vector3d& a) {
+  Eigen::Matrix3d m;
+  m << 0.0, -a.z(), a.y(), a.z(), 0.0, -a.x(), -a.y(), a.x(), 0.0;
+  return m;
+}
+
+// det F's gradient in F: its cofactor matrix, column by column f1 x f2, f2 x f0, f0 x f1.
+Eigen::Matrix3d cofactor(const Eigen::Matrix3d& f) {
+  Eigen::Matrix3d c;
+  c.col(0) = f.col(1).cross(f.col(2));
+  c.col(1) = f.col(2).cross(f.col(0));
+  c.col(2) = f.col(0).cross(f.col(1));
+  return c;
+}
+
+Eigen::Matrix3d deformation(const Elements& el, const Positions& x, size_t s) {
+  Eigen::Matrix3d f = Eigen::Matrix3d::Zero();
+  for (int c = 0; c < 4; ++c) {
+    f += x.row(el.corner[s][static_cast<size_t>(c)]).transpose() * el.gradients[s].col(c).transpose();
+  }
+  return f;
+}
+
+// A tet's energy per rest volume, |F - R|^2 + w (det F - 1)^2 (signed singular values: R is a rotation).
+double tet_energy(const Eigen::Matrix3d& f, double w) {
+  Eigen::Matrix3d u, v;
+  Eigen::Vector3d sigma;
+  internal::signed_svd(f, u, sigma, v);
+  const double j = f.determinant();
+  return (sigma.array() - 1.0).square().sum() + w * (j - 1.0) * (j - 1.0);
+}
+
+// One tet's gradient and definite Hessian in its 4 corners' positions, rest volume included.
+struct TetDerivatives {
+  Eigen::Matrix<double, 12, 1> gradient;
+  Eigen::Matrix<double, 12, 12> hessian;
+};
+
+void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>& g, double volume, double w,
+                     TetDerivatives& out) {
+  Eigen::Matrix3d u, v;
+  Eigen::Vector3d sigma;
+  internal::signed_svd(f, u, sigma, v);
+  const double j = f.determinant();
+  const Eigen::Matrix3d cof = cofactor(f);
+  const Eigen::Matrix3d p = 2.0 * (f - u * v.transpose()) + 2.0 * w * (j - 1.0) * cof;
+  // In vec(F) (columns stacked): |F - R|^2's Hessian is 2 I but along the three twists U T V^T / sqrt(2), where it
+  // is 2 - 4 / (sigma_a + sigma_b), clamped at 0 (Smith et al. 2019's eigensystem, projected).
+  Matrix9 h = 2.0 * Matrix9::Identity();
+  constexpr int kPairs[3][2] = {{1, 2}, {0, 2}, {0, 1}};
+  for (const auto& pair : kPairs) {
+    Eigen::Matrix3d twist = Eigen::Matrix3d::Zero();
+    twist(pair[0], pair[1]) = M_SQRT1_2;
+    twist(pair[1], pair[0]) = -M_SQRT1_2;
+    const Eigen::Matrix3d q = u * twist * v.transpose();
+    const Vector9 qv = Eigen::Map<const Vector9>(q.data());
+    const double s = sigma(pair[0]) + sigma(pair[1]);
+    const double lambda = s > 0.0 ? std::max(0.0, 2.0 - 4.0 / s) : 2.0;
+    h += (lambda - 2.0) * qv * qv.transpose();
+  }
+  // w (det F - 1)^2: 2 w (c c^T + (det F - 1) H_det), H_det's blocks the cross-product matrices of F's columns;
+  // projected onto its non-negative eigenvalues.
+  if (w > 0.0) {
+    const Vector9 c = Eigen::Map<const Vector9>(cof.data());
+    Matrix9 hj = Matrix9::Zero();
+    hj.block<3, 3>(0, 3) = -cross_matrix(f.col(2));
+    hj.block<3, 3>(0, 6) = cross_matrix(f.col(1));
+    hj.block<3, 3>(3, 6) = -cross_matrix(f.col(0));
+    hj.block<3, 3>(3, 0) = hj.block<3, 3>(0, 3).transpose();
+    hj.block<3, 3>(6, 0) = hj.block<3, 3>(0, 6).transpose();
+    hj.block<3, 3>(6, 3) = hj.block<3, 3>(3, 6).transpose();
+    const Eigen::SelfAdjointEigenSolver<Matrix9> eigen(2.0 * w * (c * c.transpose() + (j - 1.0) * hj));
+    h += eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).asDiagonal() * eigen.eigenvectors().transpose();
+  }
+  // F = sum_c x_c g_c^T: corner c's gradient P g_c, the (a, b) block sum_jk g_a(j) g_b(k) H_jk.
+  for (int a = 0; a < 4; ++a) {
+    out.gradient.segment<3>(3 * a) = volume * p * g.col(a);
+    for (int b = 0; b < 4; ++b) {
+      Eigen::Matrix3d k = Eigen::Matrix3d::Zero();
+      for (int ja = 0; ja < 3; ++ja)
+        for (int jb = 0; jb < 3; ++jb) k += g(ja, a) * g(jb, b) * h.block<3, 3>(3 * ja, 3 * jb);
+      out.hessian.block<3, 3>(3 * a, 3 * b) = volume * k;
+    }
+  }
+}
+
+// Each free vertex's star: its tets and their rest volume.
+struct Stars {
+  std::vector<std::vector<int32_t>> slots;
+  std::vector<double> volume;
+};
+
+Stars stars_of(const Elements& el) {
+  Stars stars;
+  stars.slots.resize(static_cast<size_t>(el.free_count));
+  stars.volume.assign(static_cast<size_t>(el.free_count), 0.0);
+  for (size_t s = 0; s < el.corner.size(); ++s) {
+    for (const int32_t v : el.corner[s]) {
+      if (v >= el.free_count) continue;
+      stars.slots[static_cast<size_t>(v)].push_back(static_cast<int32_t>(s));
+      stars.volume[static_cast<size_t>(v)] += el.volume[s];
+    }
+  }
+  return stars;
+}
+
+// The whole energy at positions x.
+double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x) {
+  std::vector<double> energy(el.corner.size()), det(el.corner.size());
+  parallel_for(0, static_cast<int64_t>(el.corner.size()), 2048, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      const Eigen::Matrix3d f = deformation(el, x, static_cast<size_t>(s));
+      energy[static_cast<size_t>(s)] = el.volume[static_cast<size_t>(s)] * tet_energy(f, params.tet_volume_weight);
+      det[static_cast<size_t>(s)] = f.determinant();
+    }
+  });
+  double total = 0.0;
+  for (const double e : energy) total += e;
+  if (params.star_volume_weight > 0.0) {
+    for (size_t v = 0; v < stars.slots.size(); ++v) {
+      double posed = 0.0;
+      for (const int32_t s : stars.slots[v]) posed += el.volume[static_cast<size_t>(s)] * det[static_cast<size_t>(s)];
+      const double j = posed / stars.volume[v];
+      total += params.star_volume_weight * stars.volume[v] * (j - 1.0) * (j - 1.0);
+    }
+  }
+  return total;
+}
+
+// The Newton system at x: the tets' definite Hessians in `tets` (its pattern's values), the stars' Gauss-Newton
+// terms 2 w_n V_s dJ_s dJ_s^T as a product of one column per star; returns the gradient.
+Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
+                         BlockPattern& tets, SparseMatrix& star_columns, Eigen::VectorXd& star_scale) {
+  const Eigen::Index nf = el.free_count;
+  std::vector<TetDerivatives> derivatives(el.corner.size());
+  parallel_for(0, static_cast<int64_t>(el.corner.size()), 512, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      const auto slot = static_cast<size_t>(s);
+      tet_derivatives(deformation(el, x, slot), el.gradients[slot], el.volume[slot], params.tet_volume_weight,
+                      derivatives[slot]);
+    }
+  });
+  double* values = tets.matrix.valuePtr();
+  std::fill(values, values + tets.matrix.nonZeros(), 0.0);
+  Eigen::VectorXd gradient = Eigen::VectorXd::Zero(3 * nf);
+  for (size_t s = 0; s < el.corner.size(); ++s) {
+    int64_t where = tets.where_start[s];
+    for (int a = 0; a < 4; ++a) {
+      const int32_t ia = el.corner[s][static_cast<size_t>(a)];
+      if (ia >= nf) continue;
+      gradient.segment<3>(3 * ia) += derivatives[s].gradient.segment<3>(3 * a);
+      for (int b = 0; b < 4; ++b) {
+        if (el.corner[s][static_cast<size_t>(b)] >= nf) continue;
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) {
+            values[tets.where[static_cast<size_t>(where++)]] += derivatives[s].hessian(3 * a + r, 3 * b + c);
+          }
+      }
+    }
+  }
+  if (params.star_volume_weight <= 0.0) return gradient;
+  // dJ_s in corner c of tet t: V_t / V_s cof(F_t) g_c; the same triplets in the same order at every iteration, so
+  // the product's pattern stays what the factor was analysed for.
+  std::vector<Eigen::Triplet<double>> columns;
+  star_scale.resize(static_cast<Eigen::Index>(stars.slots.size()));
+  for (size_t v = 0; v < stars.slots.size(); ++v) {
+    double posed = 0.0;
+    const size_t first = columns.size();
+    for (const int32_t s : stars.slots[v]) {
+      const auto slot = static_cast<size_t>(s);
+      const Eigen::Matrix3d f = deformation(el, x, slot);
+      posed += el.volume[slot] * f.determinant();
+      const Eigen::Matrix3d cof = cofactor(f);
+      for (int c = 0; c < 4; ++c) {
+        const int32_t k = el.corner[slot][static_cast<size_t>(c)];
+        if (k >= nf) continue;
+        const Eigen::Vector3d d = el.volume[slot] / stars.volume[v] * (cof * el.gradients[slot].col(c));
+        for (int r = 0; r < 3; ++r) columns.emplace_back(3 * k + r, static_cast<int>(v), d(r));
+      }
+    }
+    const double j = posed / stars.volume[v];
+    const double scale = 2.0 * params.star_volume_weight * stars.volume[v];
+    for (size_t e = first; e < columns.size(); ++e)
+      gradient(columns[e].row()) += scale * (j - 1.0) * columns[e].value();
+    star_scale(static_cast<Eigen::Index>(v)) = scale;
+  }
+  star_columns.resize(3 * nf, static_cast<Eigen::Index>(stars.slots.size()));
+  star_columns.setFromTriplets(columns.begin(), columns.end());
+  return gradient;
+}
+
+Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const NonlinearParams& params,
+                                               const std::vector<int32_t>& free_vertices, StageProgress& progress,
+                                               FemStats& st, const Stopwatch& start) {
+  const auto nf = static_cast<Eigen::Index>(free_vertices.size());
+  const Elements el = internal::gather_elements(in, free_vertices);
+  st.tets = static_cast<int64_t>(el.corner.size());
+  st.fixed_vertices = static_cast<int64_t>(el.solve_vertices.size()) - nf;
+  BlockPattern tets = internal::block_pattern(el);
+  const Stars stars = stars_of(el);
+  Positions x(static_cast<Eigen::Index>(el.solve_vertices.size()), 3);
+  for (size_t i = 0; i < el.solve_vertices.size(); ++i)
+    x.row(static_cast<Eigen::Index>(i)) = in.warm.row(el.solve_vertices[i]);
+  st.factor_seconds = start.seconds();
+
+  const Stopwatch iterate_start;
+  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
+  SparseMatrix star_columns;
+  Eigen::VectorXd star_scale;
+  double energy = energy_at(el, stars, params, x);
+  for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
+    const Eigen::VectorXd gradient = assemble(el, stars, params, x, tets, star_columns, star_scale);
+    SparseMatrix system = tets.matrix.triangularView<Eigen::Lower>();
+    if (params.star_volume_weight > 0.0) {
+      const SparseMatrix scaled = star_columns * star_scale.asDiagonal();
+      system += SparseMatrix((scaled * SparseMatrix(star_columns.transpose())).triangularView<Eigen::Lower>());
+    }
+    // A faint shift keeps the system definite where a vertex's tets give it no stiffness in some direction.
+    double trace = 0.0;
+    for (Eigen::Index i = 0; i < 3 * nf; ++i) trace += system.coeff(i, i);
+    const double shift = 1e-8 * trace / static_cast<double>(3 * nf);
+    for (Eigen::Index i = 0; i < 3 * nf; ++i) system.coeffRef(i, i) += shift;
+    if (iteration == 0) llt.analyzePattern(system);
+    llt.factorize(system);
+    if (llt.info() != Eigen::Success) {
+      return internal_error("the nonlinear soft-tissue system (" + std::to_string(nf) +
+                            " vertices) could not be factored");
+    }
+    const Eigen::VectorXd step = llt.solve(-gradient);
+    // Backtracking (Armijo): the longest of 1, 1/2, 1/4, ... that lowers the energy by its share of the slope.
+    const double slope = gradient.dot(step);
+    Positions trial = x;
+    double alpha = 1.0, trial_energy = energy;
+    bool lowered = false;
+    for (int k = 0; k < 30; ++k) {
+      for (Eigen::Index i = 0; i < nf; ++i) trial.row(i) = x.row(i) + alpha * step.segment<3>(3 * i).transpose();
+      trial_energy = energy_at(el, stars, params, trial);
+      lowered = trial_energy <= energy + 1e-4 * alpha * slope;
+      if (lowered) break;
+      alpha *= 0.5;
+    }
+    st.iterations = iteration + 1;
+    if (!lowered) break;  // no step lowers the energy: a minimum, as far as doubles tell
+    double moved = 0.0;
+    for (Eigen::Index i = 0; i < nf; ++i) moved = std::max(moved, alpha * step.segment<3>(3 * i).norm());
+    st.last_step_mm = moved;
+    x = trial;
+    energy = trial_energy;
+    progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
+    POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
+    if (moved <= params.tolerance_mm) break;
+  }
+  st.iterate_seconds = iterate_start.seconds();
+  if (params.untangle) {  // as the projective solve ends: the tets left inverted turned back
+    std::vector<int64_t> vertex_start(static_cast<size_t>(nf) + 1, 0);
+    std::vector<std::pair<int32_t, int32_t>> vertex_tets;
+    for (Eigen::Index i = 0; i < nf; ++i) {
+      for (const int32_t s : stars.slots[static_cast<size_t>(i)]) {
+        int c = 0;
+        while (el.corner[static_cast<size_t>(s)][static_cast<size_t>(c)] != i) ++c;
+        vertex_tets.emplace_back(s, c);
+      }
+      vertex_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(vertex_tets.size());
+    }
+    std::vector<int32_t> bone_segment(el.solve_vertices.size(), -1);
+    for (size_t j = static_cast<size_t>(nf); j < el.solve_vertices.size(); ++j) {
+      const int32_t v = el.solve_vertices[j];
+      if (in.topology.bone[static_cast<size_t>(v)]) bone_segment[j] = in.weights.segment(v, 0);
+    }
+    const internal::PackedTets packed{el.corner, el.gradients, el.volume, vertex_start, vertex_tets, bone_segment};
+    internal::UntangleParams untangle_params;
+    untangle_params.piece_volume_weight = FemParams{}.untangle_volume_weight;
+    POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,
+                              internal::untangle(packed, nf, x, untangle_params, internal::ContactLookUp{},
+                                                 [&] { return progress.check_cancel(); }));
+    st.inverted_before_untangle = untangled.inverted_before;
+    st.inverted = untangled.inverted_after;
+    st.untangle_undone = untangled.undone;
+    st.untangle_vertices = untangled.vertices;
+    st.untangle_iterations = untangled.iterations;
+    st.untangle_seconds = untangled.seconds;
+  }
+  Eigen::MatrixXd posed = in.warm;
+  for (Eigen::Index i = 0; i < nf; ++i) posed.row(free_vertices[static_cast<size_t>(i)]) = x.row(i);
+  progress.finish();
+  return posed;
+}
+
+}  // namespace
+
+Status validate(const NonlinearParams& params) {
+  if (!(params.tet_volume_weight >= 0.0 && params.tet_volume_weight <= 1e6)) {
+    return invalid_argument_error("fem tet_volume_weight must be in [0, 1e6], got " +
+                                  std::to_string(params.tet_volume_weight));
+  }
+  if (!(params.star_volume_weight >= 0.0 && params.star_volume_weight <= 1e6)) {
+    return invalid_argument_error("fem star_volume_weight must be in [0, 1e6], got " +
+                                  std::to_string(params.star_volume_weight));
+  }
+  return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
+}
+
+Result<Eigen::MatrixXd> solve_nonlinear(const SolveInputs& in, const NonlinearParams& params,
+                                        const ProgressHooks& hooks, FemStats* stats) {
+  return internal::run_solve(in, params, hooks, stats, nonlinear_steady_state);
+}
+
+}  // namespace posewarp::fem
