@@ -158,6 +158,9 @@ int main(int argc, char** argv) {
       if (!margin.empty()) nonlinear->margin_mm = std::stod(margin);
       std::getline(in, untangle, ':');
       nonlinear->untangle = !untangle.empty() && untangle != "0";
+      std::string barrier;
+      std::getline(in, barrier, ':');
+      if (!barrier.empty()) nonlinear->barrier_weight = std::stod(barrier);
     }
     if (method_name.rfind("fem:", 0) == 0) {
       std::stringstream in(method_name.substr(4));

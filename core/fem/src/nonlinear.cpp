@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -50,12 +51,22 @@ Eigen::Matrix3d deformation(const Elements& el, const Positions& x, size_t s) {
 }
 
 // A tet's energy per rest volume, |F - R|^2 + w (det F - 1)^2 (signed singular values: R is a rotation).
-double tet_energy(const Eigen::Matrix3d& f, double w) {
+// The barrier that keeps a tet from folding: kappa (J - J0)^2 (-log(J / J0)) below J0, 0 above; its value and first
+// two derivatives in J.
+constexpr double kBarrierFrom = 0.3;
+std::array<double, 3> barrier(double j, double kappa) {
+  if (kappa <= 0.0 || j >= kBarrierFrom) return {0.0, 0.0, 0.0};
+  if (j <= 0.0) return {std::numeric_limits<double>::infinity(), 0.0, 0.0};
+  const double d = j - kBarrierFrom, l = std::log(j / kBarrierFrom);
+  return {-kappa * d * d * l, -kappa * (2.0 * d * l + d * d / j), -kappa * (2.0 * l + 4.0 * d / j - d * d / (j * j))};
+}
+
+double tet_energy(const Eigen::Matrix3d& f, double w, double kappa) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   internal::signed_svd(f, u, sigma, v);
   const double j = f.determinant();
-  return (sigma.array() - 1.0).square().sum() + w * (j - 1.0) * (j - 1.0);
+  return (sigma.array() - 1.0).square().sum() + w * (j - 1.0) * (j - 1.0) + barrier(j, kappa)[0];
 }
 
 // One tet's gradient and definite Hessian in its 4 corners' positions, rest volume included.
@@ -65,13 +76,15 @@ struct TetDerivatives {
 };
 
 void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>& g, double volume, double w,
-                     TetDerivatives& out) {
+                     double kappa, TetDerivatives& out) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   internal::signed_svd(f, u, sigma, v);
   const double j = f.determinant();
   const Eigen::Matrix3d cof = cofactor(f);
-  const Eigen::Matrix3d p = 2.0 * (f - u * v.transpose()) + 2.0 * w * (j - 1.0) * cof;
+  const std::array<double, 3> guard = barrier(j, kappa);
+  const double first = 2.0 * w * (j - 1.0) + guard[1], second = 2.0 * w + guard[2];  // the J terms' derivatives in J
+  const Eigen::Matrix3d p = 2.0 * (f - u * v.transpose()) + first * cof;
   // In vec(F) (columns stacked): |F - R|^2's Hessian is 2 I but along the three twists U T V^T / sqrt(2), where it
   // is 2 - 4 / (sigma_a + sigma_b), clamped at 0 (Smith et al. 2019's eigensystem, projected).
   Matrix9 h = 2.0 * Matrix9::Identity();
@@ -88,7 +101,7 @@ void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>
   }
   // w (det F - 1)^2: 2 w (c c^T + (det F - 1) H_det), H_det's blocks the cross-product matrices of F's columns;
   // projected onto its non-negative eigenvalues.
-  if (w > 0.0) {
+  if (w > 0.0 || guard[1] != 0.0) {
     const Vector9 c = Eigen::Map<const Vector9>(cof.data());
     Matrix9 hj = Matrix9::Zero();
     hj.block<3, 3>(0, 3) = -cross_matrix(f.col(2));
@@ -97,7 +110,7 @@ void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>
     hj.block<3, 3>(3, 0) = hj.block<3, 3>(0, 3).transpose();
     hj.block<3, 3>(6, 0) = hj.block<3, 3>(0, 6).transpose();
     hj.block<3, 3>(6, 3) = hj.block<3, 3>(3, 6).transpose();
-    const Eigen::SelfAdjointEigenSolver<Matrix9> eigen(2.0 * w * (c * c.transpose() + (j - 1.0) * hj));
+    const Eigen::SelfAdjointEigenSolver<Matrix9> eigen(second * c * c.transpose() + first * hj);
     h += eigen.eigenvectors() * eigen.eigenvalues().cwiseMax(0.0).asDiagonal() * eigen.eigenvectors().transpose();
   }
   // F = sum_c x_c g_c^T: corner c's gradient P g_c, the (a, b) block sum_jk g_a(j) g_b(k) H_jk.
@@ -133,12 +146,15 @@ Stars stars_of(const Elements& el) {
 }
 
 // The whole energy at positions x.
-double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x) {
+double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
+                 const std::vector<uint8_t>& guarded) {
   std::vector<double> energy(el.corner.size()), det(el.corner.size());
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 2048, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const Eigen::Matrix3d f = deformation(el, x, static_cast<size_t>(s));
-      energy[static_cast<size_t>(s)] = el.volume[static_cast<size_t>(s)] * tet_energy(f, params.tet_volume_weight);
+      const double kappa = guarded[static_cast<size_t>(s)] ? params.barrier_weight : 0.0;
+      energy[static_cast<size_t>(s)] =
+          el.volume[static_cast<size_t>(s)] * tet_energy(f, params.tet_volume_weight, kappa);
       det[static_cast<size_t>(s)] = f.determinant();
     }
   });
@@ -158,14 +174,15 @@ double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& 
 // The Newton system at x: the tets' definite Hessians in `tets` (its pattern's values), the stars' Gauss-Newton
 // terms 2 w_n V_s dJ_s dJ_s^T as a product of one column per star; returns the gradient.
 Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
-                         BlockPattern& tets, SparseMatrix& star_columns, Eigen::VectorXd& star_scale) {
+                         const std::vector<uint8_t>& guarded, BlockPattern& tets, SparseMatrix& star_columns,
+                         Eigen::VectorXd& star_scale) {
   const Eigen::Index nf = el.free_count;
   std::vector<TetDerivatives> derivatives(el.corner.size());
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 512, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const auto slot = static_cast<size_t>(s);
       tet_derivatives(deformation(el, x, slot), el.gradients[slot], el.volume[slot], params.tet_volume_weight,
-                      derivatives[slot]);
+                      guarded[slot] ? params.barrier_weight : 0.0, derivatives[slot]);
     }
   });
   double* values = tets.matrix.valuePtr();
@@ -229,15 +246,18 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
   Positions x(static_cast<Eigen::Index>(el.solve_vertices.size()), 3);
   for (size_t i = 0; i < el.solve_vertices.size(); ++i)
     x.row(static_cast<Eigen::Index>(i)) = in.warm.row(el.solve_vertices[i]);
+  // The barrier guards the tets the warm start has unfolded.
+  std::vector<uint8_t> guarded(el.corner.size(), 0);
+  for (size_t slot = 0; slot < el.corner.size(); ++slot) guarded[slot] = deformation(el, x, slot).determinant() > 0.0;
   st.factor_seconds = start.seconds();
 
   const Stopwatch iterate_start;
   Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
   SparseMatrix star_columns;
   Eigen::VectorXd star_scale;
-  double energy = energy_at(el, stars, params, x);
+  double energy = energy_at(el, stars, params, x, guarded);
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
-    const Eigen::VectorXd gradient = assemble(el, stars, params, x, tets, star_columns, star_scale);
+    const Eigen::VectorXd gradient = assemble(el, stars, params, x, guarded, tets, star_columns, star_scale);
     SparseMatrix system = tets.matrix.triangularView<Eigen::Lower>();
     if (params.star_volume_weight > 0.0) {
       const SparseMatrix scaled = star_columns * star_scale.asDiagonal();
@@ -262,7 +282,7 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
     bool lowered = false;
     for (int k = 0; k < 30; ++k) {
       for (Eigen::Index i = 0; i < nf; ++i) trial.row(i) = x.row(i) + alpha * step.segment<3>(3 * i).transpose();
-      trial_energy = energy_at(el, stars, params, trial);
+      trial_energy = energy_at(el, stars, params, trial, guarded);
       lowered = trial_energy <= energy + 1e-4 * alpha * slope;
       if (lowered) break;
       alpha *= 0.5;
@@ -324,6 +344,10 @@ Status validate(const NonlinearParams& params) {
   if (!(params.star_volume_weight >= 0.0 && params.star_volume_weight <= 1e6)) {
     return invalid_argument_error("fem star_volume_weight must be in [0, 1e6], got " +
                                   std::to_string(params.star_volume_weight));
+  }
+  if (!(params.barrier_weight >= 0.0 && params.barrier_weight <= 1e6)) {
+    return invalid_argument_error("fem barrier_weight must be in [0, 1e6], got " +
+                                  std::to_string(params.barrier_weight));
   }
   return internal::validate_iterations(params.max_iterations, params.tolerance_mm, params.margin_mm);
 }

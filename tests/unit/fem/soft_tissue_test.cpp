@@ -246,7 +246,8 @@ TEST_F(SoftTissue, TheCoRotationalFemConvergesButKeepsLessVolumeThanTheProjectiv
 
 // The projected-Newton reference (solve_nonlinear) on the same bend: it converges (no vertex moves more than the
 // tolerance), holds the bones, and with a volume term per vertex star instead of per tet (linear tets lock) keeps the
-// soft volume nearer rest; out-of-range weights are refused by name.
+// soft volume nearer rest; with its barrier it folds no tet the warm start had unfolded; out-of-range weights are
+// refused by name.
 TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVolume) {
   const skinning::SegmentTransforms transforms = bend(60.0);
   const Eigen::MatrixXd warm = skinning::lbs(limb_.mesh.vertices, limb_.weights, transforms);
@@ -274,6 +275,30 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   }
   EXPECT_LT(std::abs(figures[1].volume_change), std::abs(figures[0].volume_change));
   EXPECT_LT(std::abs(figures[1].volume_change), 0.01);
+  // Bent 120 degrees from LBS, whose inside of the bend is folded: with the barrier no tet the warm start has
+  // unfolded ends folded, and the star volume still gives the bend its volume back.
+  const skinning::SegmentTransforms far = bend(120.0);
+  const Eigen::MatrixXd far_warm = skinning::lbs(limb_.mesh.vertices, limb_.weights, far);
+  NonlinearParams guarded;
+  guarded.barrier_weight = 10.0;
+  guarded.max_iterations = 100;
+  FemStats stats;
+  Result<Eigen::MatrixXd> posed =
+      solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {}, &stats);
+  ASSERT_TRUE(posed.ok()) << posed.status().to_string();
+  const Eigen::VectorXd before = skinning::tet_determinants(limb_.mesh, frames_, far_warm);
+  const Eigen::VectorXd after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
+  int64_t newly_folded = 0;
+  for (Eigen::Index t = 0; t < before.size(); ++t) newly_folded += before(t) > 0.0 && after(t) <= 0.0;
+  const SoftFigures lbs_far = soft_figures(limb_, frames_, far_warm),
+                    guarded_far = soft_figures(limb_, frames_, *posed);
+  std::cout << "120 degrees: lbs " << lbs_far.volume_change << " (" << lbs_far.inverted << " inverted), nonlinear with "
+            << "the barrier " << guarded_far.volume_change << " (" << guarded_far.inverted << " inverted), "
+            << stats.iterations << " iterations, last step " << stats.last_step_mm << " mm\n";
+  EXPECT_GT(lbs_far.inverted, 0);
+  EXPECT_EQ(newly_folded, 0);
+  EXPECT_LE(guarded_far.inverted, lbs_far.inverted);
+  EXPECT_LT(std::abs(guarded_far.volume_change), 0.5 * std::abs(lbs_far.volume_change));
   NonlinearParams bad;
   bad.star_volume_weight = -1.0;
   const Status refused = solve_nonlinear(inputs, bad, {}).status();

@@ -161,17 +161,20 @@ Status validate(const CorotationalParams& params);
 Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const CorotationalParams& params,
                                            const ProgressHooks& hooks, FemStats* stats = nullptr);
 
-// The same steady state by projected Newton on the nonlinear energy (Teran et al. 2005's definite fix of each tet's
-// Hessian, a backtracking line search), kept to measure the projective solve against: per tet
-// V (|F - R|^2 + w_t (det F - 1)^2) with R F's nearest rotation, plus per free vertex's star (its tets)
-// w_n V_s (J_s - 1)^2 with V_s the star's rest volume and J_s its posed volume over it. A volume term per tet locks
-// a mesh of linear tets (a nearly incompressible material cannot bend without compressing the tets along the bend);
-// the star's term, a nodal volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps
-// its own. The matrix is assembled and factored anew at each iteration (the stars couple vertices two edges apart):
-// a minute on a body's hip, a reference, not a method.
+// The same steady state by projected Newton on the nonlinear energy (each tet's Hessian made definite through its
+// eigensystem, Teran et al. 2005 and Smith et al. 2019; a backtracking line search), kept to measure the projective
+// solve against: per tet V (|F - R|^2 + w_t (det F - 1)^2) with R F's nearest rotation, plus per free vertex's star
+// (its tets) w_n V_s (J_s - 1)^2 with V_s the star's rest volume and J_s its posed volume over it, plus optionally a
+// barrier that keeps each tet the warm start has unfolded from folding. A volume term per tet locks a mesh of linear
+// tets (a nearly incompressible material cannot bend without compressing the tets along the bend); the star's term,
+// a nodal volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps its own, and
+// without the barrier they trade it by folding. The matrix is assembled and factored anew at each iteration (the
+// stars couple vertices two edges apart): a minute or two on a body's hip, a reference, not a method. README's fem
+// section gives what it measured.
 struct NonlinearParams {
   double tet_volume_weight = 1.0;     // w_t
   double star_volume_weight = 100.0;  // w_n (0: per-tet volume only)
+  double barrier_weight = 0.0;        // keeps the tets unfolded at the warm start unfolded (0: none)
   bool untangle = false;              // then the projective solve's untangling (FemParams::untangle)
   int max_iterations = 30;
   double tolerance_mm = 0.02;
