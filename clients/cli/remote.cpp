@@ -354,10 +354,12 @@ v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_
     request.set_grid(v1::GRID_POLICY_GIVEN);
     put_grid(*r.given_grid, request.mutable_given_grid());
   }
-  if (r.method == api::Method::kFem && (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0 || r.fem.contact)) {
+  if (r.method == api::Method::kFem &&
+      (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0 || r.fem.contact || r.fem.refine_iterations > 0)) {
     request.mutable_fem()->set_max_iterations(static_cast<uint32_t>(std::max(0, r.fem.max_iterations)));
     request.mutable_fem()->set_volume_weight(r.fem.volume_weight);
     request.mutable_fem()->set_contact(r.fem.contact);
+    request.mutable_fem()->set_refine_iterations(static_cast<uint32_t>(std::max(0, r.fem.refine_iterations)));
   }
   request.set_nearest_ct(r.ct_interpolation == api::Interpolation::kNearest);
   request.set_want_labels(r.want_labels);

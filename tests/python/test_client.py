@@ -86,6 +86,12 @@ def test_upload_build_and_pose_give_what_the_cli_writes(study):
     inside = lambda r: sum(m["skin_inside_tissue"] + m["skin_inside_bone"] for m in r.report["moved_joints"])
     skin = sum(m["skin_vertices"] for m in pressed.report["moved_joints"])
     assert pressed.report["method"] == "fem" and inside(pressed) <= max(inside(steady), 0.01 * skin)
+    # The refinement reaches the server: it moves the tissue on from the solve's result, and out of range is refused.
+    refined = client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_refine=3)
+    assert refined.report["moved_joints"] != steady.report["moved_joints"]
+    with pytest.raises(InvalidArgumentError) as too_long:
+        client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_refine=5000)
+    assert "refine_iterations" in str(too_long.value)
     with pytest.raises(PosewarpError) as too_many:
         client.pose(rig, POSE, method="fem", labels=False, ct=False, fem_iterations=20000)
     assert too_many.value.code == grpc.StatusCode.INVALID_ARGUMENT and "max_iterations" in str(too_many.value)

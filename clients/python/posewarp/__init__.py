@@ -434,7 +434,7 @@ class Client:
              meshes: Optional[Mapping[str, Tuple[Sequence, Sequence]]] = None, fem_iterations: int = 0,
              fem_volume_weight: float = 0.0, label_runs: bool = True, *,
              joints: Optional[Mapping[str, Any]] = None, root: Optional[Mapping[str, Any]] = None,
-             fem_contact: bool = False) -> PoseResult:
+             fem_contact: bool = False, fem_refine: int = 0) -> PoseResult:
         """Poses a rig and returns the PoseResult.
 
         The pose: joints={"knee_left": {"flexion": 90}, "hip_right": (30, 10, 0)} (anatomical degrees: flexion,
@@ -446,7 +446,9 @@ class Client:
         volume-preserving steady state: slower, folds less tissue at bent joints). With "fem", fem_iterations (1 to
         10000, default 20: more converges further and takes longer) and fem_volume_weight (how much more keeping
         volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default; fem_contact=True
-        pushes the skin that bending drives into the tissue facing it back out (slower by about half). grid: "input"
+        pushes the skin that bending drives into the tissue facing it back out (slower by about half); fem_refine (0 to
+        1000, default 0) adds that many Newton iterations of the nonlinear material with a volume per vertex star and
+        no new folds, which keep the volume a bent hip loses, at about a second an iteration there. grid: "input"
         (the study's grid), "grow" (grown to hold the posed body), or another scan's grid (a match's target_grid).
 
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
@@ -479,7 +481,7 @@ class Client:
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
                                  want_fields=fields,
                                  fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight,
-                                                   contact=fem_contact),
+                                                   contact=fem_contact, refine_iterations=fem_refine),
                                  label_encoding=pb.LABEL_ENCODING_RUNS if label_runs else pb.LABEL_ENCODING_SAMPLES)
         if typed is not None:
             request.pose.CopyFrom(typed)  # typed: joints and angles the server checks field by field

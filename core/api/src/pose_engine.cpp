@@ -139,6 +139,24 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
   if (options.volume_weight != 0.0) params.volume_weight = options.volume_weight;
   params.contact = options.contact;
   POSEWARP_RETURN_IF_ERROR(fem::validate(params));
+  if (options.refine_iterations < 0 || options.refine_iterations > 1000) {
+    return invalid_argument_error("fem refine_iterations must be in [0, 1000], got " +
+                                  std::to_string(options.refine_iterations));
+  }
+  return params;
+}
+
+// The refinement after the projective solve (FemOptions::refine_iterations): a star volume of 100 with 1 per tet
+// and a barrier of 10, which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and shoulder at 90
+// degrees (README: fem), on the tissue the pose bends only, the margin held where the solve put it (at the hip 90,
+// 10 iterations: -4.1% within 50 mm in 13 s against -4.5% in 22 s with the solve's 40 mm).
+fem::NonlinearParams refine_params(int iterations) {
+  fem::NonlinearParams params;
+  params.tet_volume_weight = 1.0;
+  params.star_volume_weight = 100.0;
+  params.barrier_weight = 10.0;
+  params.max_iterations = iterations;
+  params.margin_mm = 0.0;
   return params;
 }
 
@@ -244,7 +262,14 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
     params.untangle = false;  // a slider's steps within the preview's budget; the pose turns the folds back
     params.contact = false;   // and pushes the skin out of the tissue facing it
   }
-  return fem::solve({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, warm, &p.fem.cache}, params, hooks);
+  POSEWARP_ASSIGN_OR_RETURN(
+      Eigen::MatrixXd solved,
+      fem::solve({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, warm, &p.fem.cache}, params, hooks));
+  if (purpose == SolveFor::kPose && options.refine_iterations > 0) {
+    return fem::solve_nonlinear({p.rig.mesh, p.frames, p.fem.topology, p.rig.weights, segments, solved},
+                                refine_params(options.refine_iterations), hooks);
+  }
+  return solved;
 }
 
 // The skinned tet vertices of a method other than fem (fem starts from CoR's: soft_tissue).

@@ -171,11 +171,87 @@ double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& 
   return total;
 }
 
-// The Newton system at x: the tets' definite Hessians in `tets` (its pattern's values), the stars' Gauss-Newton
-// terms 2 w_n V_s dJ_s dJ_s^T as a product of one column per star; returns the gradient.
+// The Newton matrix's lower triangle, its pattern fixed for a solve: the tets' blocks between free vertices and, with
+// a star volume, every pair of free vertices in one star (two edges apart); where each entry goes among its values.
+struct NewtonPattern {
+  SparseMatrix matrix;
+  std::vector<int32_t> tet_slot;  // per value of the tets' BlockPattern: its slot here, -1 above the diagonal
+  // Per star: its distinct free vertices; per (tet, free corner) of the star in Stars order, that vertex's place
+  // among them; and per pair (p, q <= p) of the star's coordinates (3 per vertex, ascending), the value slot.
+  std::vector<int64_t> vertex_start, corner_start, pair_start;
+  std::vector<int32_t> vertices, corner_place, pair_slot;
+  std::vector<int32_t> diagonal;  // per coordinate
+};
+
+// The value slot of (row, col) in a compressed column-major matrix that has it.
+int32_t value_slot(const SparseMatrix& m, Eigen::Index row, Eigen::Index col) {
+  const int* begin = m.innerIndexPtr() + m.outerIndexPtr()[col];
+  const int* end = m.innerIndexPtr() + m.outerIndexPtr()[col + 1];
+  return static_cast<int32_t>(std::lower_bound(begin, end, static_cast<int>(row)) - m.innerIndexPtr());
+}
+
+NewtonPattern newton_pattern(const Elements& el, const Stars& stars, const BlockPattern& tets, bool with_stars) {
+  const Eigen::Index nf = el.free_count;
+  NewtonPattern np;
+  std::vector<Eigen::Triplet<double>> entries;
+  for (Eigen::Index col = 0; col < tets.matrix.outerSize(); ++col) {
+    for (SparseMatrix::InnerIterator it(tets.matrix, col); it; ++it) {
+      if (it.row() >= col) entries.emplace_back(static_cast<int>(it.row()), static_cast<int>(col), 1.0);
+    }
+  }
+  np.vertex_start.assign(1, 0);
+  np.corner_start.assign(1, 0);
+  for (size_t v = 0; with_stars && v < stars.slots.size(); ++v) {
+    std::vector<int32_t> mine;
+    for (const int32_t s : stars.slots[v])
+      for (const int32_t k : el.corner[static_cast<size_t>(s)])
+        if (k < nf) mine.push_back(k);
+    std::sort(mine.begin(), mine.end());
+    mine.erase(std::unique(mine.begin(), mine.end()), mine.end());
+    for (const int32_t s : stars.slots[v])
+      for (const int32_t k : el.corner[static_cast<size_t>(s)])
+        if (k < nf) {
+          np.corner_place.push_back(static_cast<int32_t>(std::lower_bound(mine.begin(), mine.end(), k) - mine.begin()));
+        }
+    for (size_t p = 0; p < 3 * mine.size(); ++p)
+      for (size_t q = 0; q <= p; ++q) {
+        entries.emplace_back(3 * mine[p / 3] + static_cast<int>(p % 3), 3 * mine[q / 3] + static_cast<int>(q % 3), 1.0);
+      }
+    np.vertices.insert(np.vertices.end(), mine.begin(), mine.end());
+    np.vertex_start.push_back(static_cast<int64_t>(np.vertices.size()));
+    np.corner_start.push_back(static_cast<int64_t>(np.corner_place.size()));
+  }
+  np.matrix.resize(3 * nf, 3 * nf);
+  np.matrix.setFromTriplets(entries.begin(), entries.end());
+  np.matrix.makeCompressed();
+  entries = {};
+  np.tet_slot.assign(static_cast<size_t>(tets.matrix.nonZeros()), -1);
+  for (Eigen::Index col = 0; col < tets.matrix.outerSize(); ++col) {
+    for (auto at = tets.matrix.outerIndexPtr()[col]; at < tets.matrix.outerIndexPtr()[col + 1]; ++at) {
+      const Eigen::Index row = tets.matrix.innerIndexPtr()[at];
+      if (row >= col) np.tet_slot[static_cast<size_t>(at)] = value_slot(np.matrix, row, col);
+    }
+  }
+  np.pair_start.assign(1, 0);
+  for (size_t v = 0; v + 1 < np.vertex_start.size(); ++v) {
+    const int32_t* mine = np.vertices.data() + np.vertex_start[v];
+    const auto coordinates = static_cast<size_t>(3 * (np.vertex_start[v + 1] - np.vertex_start[v]));
+    for (size_t p = 0; p < coordinates; ++p)
+      for (size_t q = 0; q <= p; ++q) {
+        np.pair_slot.push_back(value_slot(np.matrix, 3 * mine[p / 3] + static_cast<int>(p % 3),
+                                          3 * mine[q / 3] + static_cast<int>(q % 3)));
+      }
+    np.pair_start.push_back(static_cast<int64_t>(np.pair_slot.size()));
+  }
+  np.diagonal.resize(static_cast<size_t>(3 * nf));
+  for (Eigen::Index i = 0; i < 3 * nf; ++i) np.diagonal[static_cast<size_t>(i)] = value_slot(np.matrix, i, i);
+  return np;
+}
+
+// The Newton system at x into the pattern's values: the tets' definite Hessians and the stars' Gauss-Newton terms
+// 2 w_n V_s dJ_s dJ_s^T, dJ_s in corner c of tet t being V_t / V_s cof(F_t) g_c; returns the gradient.
 Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
-                         const std::vector<uint8_t>& guarded, BlockPattern& tets, SparseMatrix& star_columns,
-                         Eigen::VectorXd& star_scale) {
+                         const std::vector<uint8_t>& guarded, const BlockPattern& tets, NewtonPattern& np) {
   const Eigen::Index nf = el.free_count;
   std::vector<TetDerivatives> derivatives(el.corner.size());
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 512, [&](int64_t s0, int64_t s1) {
@@ -185,8 +261,8 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
                       guarded[slot] ? params.barrier_weight : 0.0, derivatives[slot]);
     }
   });
-  double* values = tets.matrix.valuePtr();
-  std::fill(values, values + tets.matrix.nonZeros(), 0.0);
+  double* values = np.matrix.valuePtr();
+  std::fill(values, values + np.matrix.nonZeros(), 0.0);
   Eigen::VectorXd gradient = Eigen::VectorXd::Zero(3 * nf);
   for (size_t s = 0; s < el.corner.size(); ++s) {
     int64_t where = tets.where_start[s];
@@ -198,39 +274,48 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
         if (el.corner[s][static_cast<size_t>(b)] >= nf) continue;
         for (int r = 0; r < 3; ++r)
           for (int c = 0; c < 3; ++c) {
-            values[tets.where[static_cast<size_t>(where++)]] += derivatives[s].hessian(3 * a + r, 3 * b + c);
+            const int32_t to = np.tet_slot[static_cast<size_t>(tets.where[static_cast<size_t>(where++)])];
+            if (to >= 0) values[to] += derivatives[s].hessian(3 * a + r, 3 * b + c);
           }
       }
     }
   }
   if (params.star_volume_weight <= 0.0) return gradient;
-  // dJ_s in corner c of tet t: V_t / V_s cof(F_t) g_c; the same triplets in the same order at every iteration, so
-  // the product's pattern stays what the factor was analysed for.
-  std::vector<Eigen::Triplet<double>> columns;
-  star_scale.resize(static_cast<Eigen::Index>(stars.slots.size()));
-  for (size_t v = 0; v < stars.slots.size(); ++v) {
-    double posed = 0.0;
-    const size_t first = columns.size();
-    for (const int32_t s : stars.slots[v]) {
-      const auto slot = static_cast<size_t>(s);
-      const Eigen::Matrix3d f = deformation(el, x, slot);
-      posed += el.volume[slot] * f.determinant();
-      const Eigen::Matrix3d cof = cofactor(f);
-      for (int c = 0; c < 4; ++c) {
-        const int32_t k = el.corner[slot][static_cast<size_t>(c)];
-        if (k >= nf) continue;
-        const Eigen::Vector3d d = el.volume[slot] / stars.volume[v] * (cof * el.gradients[slot].col(c));
-        for (int r = 0; r < 3; ++r) columns.emplace_back(3 * k + r, static_cast<int>(v), d(r));
+  // Each star's dJ_s over its distinct free vertices (3 per vertex) and its J_s, on every thread; then added in.
+  const auto star_count = static_cast<int64_t>(np.vertex_start.size()) - 1;
+  std::vector<double> dj(3 * np.vertices.size(), 0.0), j(static_cast<size_t>(star_count), 0.0);
+  parallel_for(0, star_count, 256, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) {
+      const auto star = static_cast<size_t>(v);
+      double* d = dj.data() + 3 * np.vertex_start[star];
+      int64_t place = np.corner_start[star];
+      double posed = 0.0;
+      for (const int32_t s : stars.slots[star]) {
+        const auto slot = static_cast<size_t>(s);
+        const Eigen::Matrix3d f = deformation(el, x, slot);
+        posed += el.volume[slot] * f.determinant();
+        const Eigen::Matrix3d cof = cofactor(f);
+        for (int c = 0; c < 4; ++c) {
+          if (el.corner[slot][static_cast<size_t>(c)] >= nf) continue;
+          const Eigen::Vector3d g = el.volume[slot] / stars.volume[star] * (cof * el.gradients[slot].col(c));
+          double* to = d + 3 * np.corner_place[static_cast<size_t>(place++)];
+          for (int r = 0; r < 3; ++r) to[r] += g(r);
+        }
       }
+      j[star] = posed / stars.volume[star];
     }
-    const double j = posed / stars.volume[v];
-    const double scale = 2.0 * params.star_volume_weight * stars.volume[v];
-    for (size_t e = first; e < columns.size(); ++e)
-      gradient(columns[e].row()) += scale * (j - 1.0) * columns[e].value();
-    star_scale(static_cast<Eigen::Index>(v)) = scale;
+  });
+  for (size_t star = 0; star < static_cast<size_t>(star_count); ++star) {
+    const double scale = 2.0 * params.star_volume_weight * stars.volume[star];
+    const double* d = dj.data() + 3 * np.vertex_start[star];
+    const int32_t* mine = np.vertices.data() + np.vertex_start[star];
+    const auto coordinates = static_cast<size_t>(3 * (np.vertex_start[star + 1] - np.vertex_start[star]));
+    for (size_t p = 0; p < coordinates; ++p)
+      gradient(3 * mine[p / 3] + static_cast<Eigen::Index>(p % 3)) += scale * (j[star] - 1.0) * d[p];
+    const int32_t* to = np.pair_slot.data() + np.pair_start[star];
+    for (size_t p = 0; p < coordinates; ++p)
+      for (size_t q = 0; q <= p; ++q) values[*to++] += scale * d[p] * d[q];
   }
-  star_columns.resize(3 * nf, static_cast<Eigen::Index>(stars.slots.size()));
-  star_columns.setFromTriplets(columns.begin(), columns.end());
   return gradient;
 }
 
@@ -249,27 +334,22 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
   // The barrier guards the tets the warm start has unfolded.
   std::vector<uint8_t> guarded(el.corner.size(), 0);
   for (size_t slot = 0; slot < el.corner.size(); ++slot) guarded[slot] = deformation(el, x, slot).determinant() > 0.0;
+  // The matrix's pattern and its ordering, once.
+  NewtonPattern np = newton_pattern(el, stars, tets, params.star_volume_weight > 0.0);
+  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
+  llt.analyzePattern(np.matrix);
   st.factor_seconds = start.seconds();
 
   const Stopwatch iterate_start;
-  Eigen::CholmodSupernodalLLT<SparseMatrix, Eigen::Lower> llt;
-  SparseMatrix star_columns;
-  Eigen::VectorXd star_scale;
   double energy = energy_at(el, stars, params, x, guarded);
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
-    const Eigen::VectorXd gradient = assemble(el, stars, params, x, guarded, tets, star_columns, star_scale);
-    SparseMatrix system = tets.matrix.triangularView<Eigen::Lower>();
-    if (params.star_volume_weight > 0.0) {
-      const SparseMatrix scaled = star_columns * star_scale.asDiagonal();
-      system += SparseMatrix((scaled * SparseMatrix(star_columns.transpose())).triangularView<Eigen::Lower>());
-    }
+    const Eigen::VectorXd gradient = assemble(el, stars, params, x, guarded, tets, np);
     // A faint shift keeps the system definite where a vertex's tets give it no stiffness in some direction.
     double trace = 0.0;
-    for (Eigen::Index i = 0; i < 3 * nf; ++i) trace += system.coeff(i, i);
+    for (const int32_t d : np.diagonal) trace += np.matrix.valuePtr()[d];
     const double shift = 1e-8 * trace / static_cast<double>(3 * nf);
-    for (Eigen::Index i = 0; i < 3 * nf; ++i) system.coeffRef(i, i) += shift;
-    if (iteration == 0) llt.analyzePattern(system);
-    llt.factorize(system);
+    for (const int32_t d : np.diagonal) np.matrix.valuePtr()[d] += shift;
+    llt.factorize(np.matrix);
     if (llt.info() != Eigen::Success) {
       return internal_error("the nonlinear soft-tissue system (" + std::to_string(nf) +
                             " vertices) could not be factored");

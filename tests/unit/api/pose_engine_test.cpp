@@ -523,6 +523,25 @@ TEST(Posing, FemOptionsTuneTheSolveAndOutOfRangeIsRefused) {
   request.fem.max_iterations = 0;
   request.fem.volume_weight = -1.0;
   EXPECT_EQ(engine.pose(request).status().code(), StatusCode::kInvalidArgument);
+  // The refinement goes on from the solve's result, folds no tet that result left unfolded, and keeps the tissue
+  // around the joint at least as near its rest volume.
+  request.fem.volume_weight = 0.0;
+  request.fem.refine_iterations = 10;
+  Result<PoseResult> refined = engine.pose(request);
+  ASSERT_TRUE(refined.ok()) << refined.status().to_string();
+  EXPECT_GT((refined->posed_vertices - steady->posed_vertices).cwiseAbs().maxCoeff(), 0.01);
+  const JointRegionChange& before = steady->report.joint_regions.front();
+  const JointRegionChange& after = refined->report.joint_regions.front();
+  std::cout << "bar at 70 degrees, within " << before.radius_mm << " mm: fem " << before.volume_change << " ("
+            << before.folded_fraction << " folded), refined " << after.volume_change << " (" << after.folded_fraction
+            << " folded)\n";
+  EXPECT_LE(after.folded_fraction, before.folded_fraction);
+  EXPECT_LE(std::abs(after.volume_change), std::abs(before.volume_change) + 1e-3);
+  request.fem.refine_iterations = 2000;
+  refused = engine.pose(request);
+  EXPECT_EQ(refused.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("refine_iterations"), std::string::npos) << refused.status().message();
+  request.fem.refine_iterations = 0;
   request.method = api::Method::kCor;  // the other methods do not read them
   EXPECT_TRUE(engine.pose(request).ok());
 }

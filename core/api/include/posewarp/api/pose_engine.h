@@ -26,6 +26,10 @@ struct FemOptions {
   int max_iterations = 0;      // 1 to 10000; default 20
   double volume_weight = 0.0;  // how much more keeping volume counts than keeping shape, up to 1e6; default 100
   bool contact = false;        // push skin out of the tissue facing it (fem::FemParams::contact)
+  // Then this many Newton iterations of the nonlinear material with a volume per vertex star and no new folds
+  // (fem::solve_nonlinear with its barrier), 1 to 1000; 0, the default, none. It keeps the volume a bent hip loses
+  // to the solve's per-tet volume (README: fem), at about a second an iteration on a body's hip.
+  int refine_iterations = 0;
 };
 
 struct PoseRequest {
