@@ -6,7 +6,7 @@
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
 // steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
 // from the last (a load-stepped solve, measured against the one-step solve).
-// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE] is the projected-Newton reference
+// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER] is the projected-Newton reference
 // (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective solve's result). A probe for
 // developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue pinned between two
 // bones by the mesh.
@@ -75,7 +75,10 @@ pose::Pose slider_step(const pose::Pose& pose, int k) {
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: posewarp_fem_probe RIG POSE.json [METHOD ...]   (methods: cor dqs lbs fem; default cor fem)\n");
+    std::fprintf(
+        stderr,
+        "usage: posewarp_fem_probe RIG POSE.json [METHOD ...]   (methods: cor dqs lbs fem, fem:..., corot:..., "
+        "nonlinear:..., steps:... as the file's head says; default cor fem)\n");
     return 2;
   }
   std::vector<std::string> methods;
@@ -142,8 +145,8 @@ int main(int argc, char** argv) {
       corotational->poisson_ratio = std::stod(nu);
       corotational->max_iterations = std::stoi(it);
     }
-    if (method_name.rfind("nonlinear:", 0) ==
-        0) {  // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE]
+    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER], the projected-Newton reference
+    if (method_name.rfind("nonlinear:", 0) == 0) {
       std::stringstream in(method_name.substr(10));
       std::string tet, star, it, margin, untangle;
       std::getline(in, tet, ':');

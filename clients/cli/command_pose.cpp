@@ -543,7 +543,7 @@ void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
                   "With --method fem: then this many Newton iterations of the nonlinear material with a volume per "
                   "vertex star and no new folds (default 0, none). Keeps the volume a bent hip loses to the solve "
                   "(the body phantom's hip 90: -7.2% within 50 mm without, -4.1% with 10), at about a second an "
-                  "iteration on a body's hip")
+                  "iteration on a body's hip. It has no contact term: skin --fem-contact kept out may pass back")
       ->check(CLI::Range(0, 1000));
 }
 

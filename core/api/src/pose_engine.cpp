@@ -149,7 +149,7 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
 // The refinement after the projective solve (FemOptions::refine_iterations): a star volume of 100 with 1 per tet
 // and a barrier of 10, which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and shoulder at 90
 // degrees (README: fem), on the tissue the pose bends only, the margin held where the solve put it (at the hip 90,
-// 10 iterations: -4.1% within 50 mm in 13 s against -4.5% in 22 s with the solve's 40 mm).
+// 10 iterations: -4.1% within 50 mm after 13 s of refinement, against -4.5% after 22 s with the solve's 40 mm).
 fem::NonlinearParams refine_params(int iterations) {
   fem::NonlinearParams params;
   params.tet_volume_weight = 1.0;

@@ -18,6 +18,13 @@
 namespace posewarp::fem {
 namespace internal {
 
+int64_t value_slot(const SparseMatrix& m, Eigen::Index row, Eigen::Index col) {
+  const int* begin = m.innerIndexPtr() + m.outerIndexPtr()[col];
+  const int* end = m.innerIndexPtr() + m.outerIndexPtr()[col + 1];
+  const int* at = std::lower_bound(begin, end, static_cast<int>(row));
+  return at != end && *at == row ? static_cast<int64_t>(at - m.innerIndexPtr()) : -1;
+}
+
 // Packs the tets that touch the free vertices.
 Elements gather_elements(const SolveInputs& in, const std::vector<int32_t>& free_vertices) {
   const TetMesh& mesh = in.rest;
@@ -78,11 +85,6 @@ BlockPattern block_pattern(const Elements& el) {
     matrix.setFromTriplets(pattern.begin(), pattern.end());
     matrix.makeCompressed();
   }
-  auto value_slot = [&](Eigen::Index row, Eigen::Index col) {
-    const auto* begin = matrix.innerIndexPtr() + matrix.outerIndexPtr()[col];
-    const auto* end = matrix.innerIndexPtr() + matrix.outerIndexPtr()[col + 1];
-    return static_cast<int64_t>(std::lower_bound(begin, end, static_cast<int>(row)) - matrix.innerIndexPtr());
-  };
   bp.where_start.assign(slots + 1, 0);
   for (size_t s = 0; s < slots; ++s) {
     for (int a = 0; a < 4; ++a)
@@ -90,7 +92,7 @@ BlockPattern block_pattern(const Elements& el) {
         const int32_t ia = el.corner[s][static_cast<size_t>(a)], ib = el.corner[s][static_cast<size_t>(b)];
         if (ia >= nf || ib >= nf) continue;
         for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c) bp.where.push_back(value_slot(3 * ia + r, 3 * ib + c));
+          for (int c = 0; c < 3; ++c) bp.where.push_back(value_slot(matrix, 3 * ia + r, 3 * ib + c));
       }
     bp.where_start[s + 1] = static_cast<int64_t>(bp.where.size());
   }

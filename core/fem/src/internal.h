@@ -1,5 +1,6 @@
 // What the fem stage's solvers share: the inputs' check, the tissue a pose bends, a tet's gradient rows and the
-// signed SVD of a 3 x 3 deformation gradient.
+// signed SVD of a 3 x 3 deformation gradient; the assembled solvers' (co-rotational, nonlinear) packed tets and
+// matrix patterns; the untangling and the contacts.
 #pragma once
 
 #include <Eigen/Core>
@@ -62,6 +63,9 @@ struct BlockPattern {
 
 // The free-free blocks' pattern and where each tet's blocks go in its values.
 BlockPattern block_pattern(const Elements& el);
+
+// Where (row, col) is among a compressed column-major matrix's values; -1 when its pattern lacks it.
+int64_t value_slot(const SparseMatrix& m, Eigen::Index row, Eigen::Index col);
 
 // A solve's tets packed with their corners' solve vertices (the free ones, numbered first, then the fixed
 // corners), gradient rows and rest volumes, and each free vertex's (tet, corner) pairs.
@@ -215,15 +219,16 @@ class Contacts {
   double seconds_ = 0.0;
 };
 
-// Both solvers' frame: the parameters and inputs checked, the stats (the caller's, or a local) cleared, the clock
+// The solvers' frame: the parameters and inputs checked, the stats (the caller's, or a local) cleared, the clock
 // started and the vertices the solve moves found; none is the warm start itself (the rest pose, or only rigid
-// motions), else `steady_state(in, params, free_vertices, progress, stats, clock)` solves.
+// motions), else `steady_state(in, params, free_vertices, progress, stats, clock)` solves, its progress reported as
+// the stage `stage`.
 template <typename Params, typename SteadyState>
 Result<Eigen::MatrixXd> run_solve(const SolveInputs& in, const Params& params, const ProgressHooks& hooks,
-                                  FemStats* stats, const SteadyState& steady_state) {
+                                  FemStats* stats, const SteadyState& steady_state, const char* stage = "fem") {
   POSEWARP_RETURN_IF_ERROR(validate(params));
   POSEWARP_RETURN_IF_ERROR(check_inputs(in));
-  StageProgress progress(hooks, "fem");
+  StageProgress progress(hooks, stage);
   FemStats local_stats;
   FemStats& st = stats ? *stats : local_stats;
   st = FemStats{};

@@ -1,5 +1,5 @@
-// The nonlinear steady state by projected Newton (see soft_tissue.h's solve_nonlinear): what the projective solve's
-// result is measured against on the tissue of a bent joint.
+// The nonlinear steady state by projected Newton (see soft_tissue.h's solve_nonlinear): the reference the projective
+// solve is measured against, and the refinement after it that a pose asks for (api::FemOptions::refine_iterations).
 #include <Eigen/CholmodSupport>
 #include <Eigen/Dense>
 #include <Eigen/Sparse>
@@ -42,6 +42,7 @@ Eigen::Matrix3d cofactor(const Eigen::Matrix3d& f) {
   return c;
 }
 
+// Slot s's deformation gradient at positions x.
 Eigen::Matrix3d deformation(const Elements& el, const Positions& x, size_t s) {
   Eigen::Matrix3d f = Eigen::Matrix3d::Zero();
   for (int c = 0; c < 4; ++c) {
@@ -50,9 +51,9 @@ Eigen::Matrix3d deformation(const Elements& el, const Positions& x, size_t s) {
   return f;
 }
 
-// A tet's energy per rest volume, |F - R|^2 + w (det F - 1)^2 (signed singular values: R is a rotation).
 // The barrier that keeps a tet from folding: kappa (J - J0)^2 (-log(J / J0)) below J0, 0 above; its value and first
-// two derivatives in J.
+// two derivatives in J. J0 = 0.3: the projective solve leaves tissue at a bent hip at 0.5-0.7 of its volume, which
+// the barrier should leave free to expand or compress; only a tet heading for a fold meets it.
 constexpr double kBarrierFrom = 0.3;
 std::array<double, 3> barrier(double j, double kappa) {
   if (kappa <= 0.0 || j >= kBarrierFrom) return {0.0, 0.0, 0.0};
@@ -61,6 +62,8 @@ std::array<double, 3> barrier(double j, double kappa) {
   return {-kappa * d * d * l, -kappa * (2.0 * d * l + d * d / j), -kappa * (2.0 * l + 4.0 * d / j - d * d / (j * j))};
 }
 
+// A tet's energy per rest volume, |F - R|^2 + w (det F - 1)^2 (signed singular values: R is a rotation) and the
+// barrier.
 double tet_energy(const Eigen::Matrix3d& f, double w, double kappa) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
@@ -73,6 +76,8 @@ double tet_energy(const Eigen::Matrix3d& f, double w, double kappa) {
 struct TetDerivatives {
   Eigen::Matrix<double, 12, 1> gradient;
   Eigen::Matrix<double, 12, 12> hessian;
+  double det = 0.0;          // det F, for the stars
+  Eigen::Matrix3d cofactor;  // its gradient in F
 };
 
 void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>& g, double volume, double w,
@@ -82,6 +87,8 @@ void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>
   internal::signed_svd(f, u, sigma, v);
   const double j = f.determinant();
   const Eigen::Matrix3d cof = cofactor(f);
+  out.det = j;
+  out.cofactor = cof;
   const std::array<double, 3> guard = barrier(j, kappa);
   const double first = 2.0 * w * (j - 1.0) + guard[1], second = 2.0 * w + guard[2];  // the J terms' derivatives in J
   const Eigen::Matrix3d p = 2.0 * (f - u * v.transpose()) + first * cof;
@@ -125,7 +132,8 @@ void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>
   }
 }
 
-// Each free vertex's star: its tets and their rest volume.
+// Each free vertex's star: its tets and their rest volume. A star of no volume (tets flat at rest) has no term: it
+// keeps nothing, and its J would be 0 / 0.
 struct Stars {
   std::vector<std::vector<int32_t>> slots;
   std::vector<double> volume;
@@ -140,6 +148,12 @@ Stars stars_of(const Elements& el) {
       if (v >= el.free_count) continue;
       stars.slots[static_cast<size_t>(v)].push_back(static_cast<int32_t>(s));
       stars.volume[static_cast<size_t>(v)] += el.volume[s];
+    }
+  }
+  for (size_t v = 0; v < stars.slots.size(); ++v) {
+    if (stars.volume[v] <= 1e-9) {  // mm^3
+      stars.slots[v].clear();
+      stars.volume[v] = 0.0;
     }
   }
   return stars;
@@ -162,6 +176,7 @@ double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& 
   for (const double e : energy) total += e;
   if (params.star_volume_weight > 0.0) {
     for (size_t v = 0; v < stars.slots.size(); ++v) {
+      if (stars.volume[v] <= 0.0) continue;
       double posed = 0.0;
       for (const int32_t s : stars.slots[v]) posed += el.volume[static_cast<size_t>(s)] * det[static_cast<size_t>(s)];
       const double j = posed / stars.volume[v];
@@ -183,11 +198,9 @@ struct NewtonPattern {
   std::vector<int32_t> diagonal;  // per coordinate
 };
 
-// The value slot of (row, col) in a compressed column-major matrix that has it.
+// The pattern has every (row, col) it is asked for.
 int32_t value_slot(const SparseMatrix& m, Eigen::Index row, Eigen::Index col) {
-  const int* begin = m.innerIndexPtr() + m.outerIndexPtr()[col];
-  const int* end = m.innerIndexPtr() + m.outerIndexPtr()[col + 1];
-  return static_cast<int32_t>(std::lower_bound(begin, end, static_cast<int>(row)) - m.innerIndexPtr());
+  return static_cast<int32_t>(internal::value_slot(m, row, col));
 }
 
 NewtonPattern newton_pattern(const Elements& el, const Stars& stars, const BlockPattern& tets, bool with_stars) {
@@ -198,6 +211,9 @@ NewtonPattern newton_pattern(const Elements& el, const Stars& stars, const Block
     for (SparseMatrix::InnerIterator it(tets.matrix, col); it; ++it) {
       if (it.row() >= col) entries.emplace_back(static_cast<int>(it.row()), static_cast<int>(col), 1.0);
     }
+  }
+  for (Eigen::Index i = 0; i < 3 * nf; ++i) {  // a free vertex in no tet (possible through the API) has its diagonal
+    entries.emplace_back(static_cast<int>(i), static_cast<int>(i), 1.0);
   }
   np.vertex_start.assign(1, 0);
   np.corner_start.assign(1, 0);
@@ -251,9 +267,10 @@ NewtonPattern newton_pattern(const Elements& el, const Stars& stars, const Block
 // The Newton system at x into the pattern's values: the tets' definite Hessians and the stars' Gauss-Newton terms
 // 2 w_n V_s dJ_s dJ_s^T, dJ_s in corner c of tet t being V_t / V_s cof(F_t) g_c; returns the gradient.
 Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
-                         const std::vector<uint8_t>& guarded, const BlockPattern& tets, NewtonPattern& np) {
+                         const std::vector<uint8_t>& guarded, const BlockPattern& tets, NewtonPattern& np,
+                         std::vector<TetDerivatives>& derivatives) {
   const Eigen::Index nf = el.free_count;
-  std::vector<TetDerivatives> derivatives(el.corner.size());
+  derivatives.resize(el.corner.size());
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 512, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const auto slot = static_cast<size_t>(s);
@@ -290,14 +307,14 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
       double* d = dj.data() + 3 * np.vertex_start[star];
       int64_t place = np.corner_start[star];
       double posed = 0.0;
+      if (stars.volume[star] <= 0.0) continue;
       for (const int32_t s : stars.slots[star]) {
         const auto slot = static_cast<size_t>(s);
-        const Eigen::Matrix3d f = deformation(el, x, slot);
-        posed += el.volume[slot] * f.determinant();
-        const Eigen::Matrix3d cof = cofactor(f);
+        posed += el.volume[slot] * derivatives[slot].det;
         for (int c = 0; c < 4; ++c) {
           if (el.corner[slot][static_cast<size_t>(c)] >= nf) continue;
-          const Eigen::Vector3d g = el.volume[slot] / stars.volume[star] * (cof * el.gradients[slot].col(c));
+          const Eigen::Vector3d g =
+              el.volume[slot] / stars.volume[star] * (derivatives[slot].cofactor * el.gradients[slot].col(c));
           double* to = d + 3 * np.corner_place[static_cast<size_t>(place++)];
           for (int r = 0; r < 3; ++r) to[r] += g(r);
         }
@@ -306,6 +323,7 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
     }
   });
   for (size_t star = 0; star < static_cast<size_t>(star_count); ++star) {
+    if (stars.volume[star] <= 0.0) continue;
     const double scale = 2.0 * params.star_volume_weight * stars.volume[star];
     const double* d = dj.data() + 3 * np.vertex_start[star];
     const int32_t* mine = np.vertices.data() + np.vertex_start[star];
@@ -342,8 +360,13 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
 
   const Stopwatch iterate_start;
   double energy = energy_at(el, stars, params, x, guarded);
+  std::vector<TetDerivatives> derivatives;
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
-    const Eigen::VectorXd gradient = assemble(el, stars, params, x, guarded, tets, np);
+    const Eigen::VectorXd gradient = assemble(el, stars, params, x, guarded, tets, np, derivatives);
+    if (!std::isfinite(energy) || !gradient.allFinite()) {
+      return internal_error("the nonlinear soft-tissue energy is not finite at its start (" + std::to_string(nf) +
+                            " vertices; a tet flat at rest?): rebuild the rig");
+    }
     // A faint shift keeps the system definite where a vertex's tets give it no stiffness in some direction.
     double trace = 0.0;
     for (const int32_t d : np.diagonal) trace += np.matrix.valuePtr()[d];
@@ -355,8 +378,19 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
                             " vertices) could not be factored");
     }
     const Eigen::VectorXd step = llt.solve(-gradient);
+    // Converged once the Newton step itself moves no vertex more than the tolerance: where the barrier holds a tet,
+    // the line search takes a part of the step only, which says nothing of how far the minimum still is.
+    double newton_step = 0.0;
+    for (Eigen::Index i = 0; i < nf; ++i) newton_step = std::max(newton_step, step.segment<3>(3 * i).norm());
+    st.iterations = iteration + 1;
+    st.last_step_mm = newton_step;
+    if (newton_step <= params.tolerance_mm) break;
     // Backtracking (Armijo): the longest of 1, 1/2, 1/4, ... that lowers the energy by its share of the slope.
     const double slope = gradient.dot(step);
+    if (!std::isfinite(slope)) {
+      return internal_error("the nonlinear soft-tissue solve's step is not finite (" + std::to_string(nf) +
+                            " vertices)");
+    }
     Positions trial = x;
     double alpha = 1.0, trial_energy = energy;
     bool lowered = false;
@@ -367,16 +401,12 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
       if (lowered) break;
       alpha *= 0.5;
     }
-    st.iterations = iteration + 1;
-    if (!lowered) break;  // no step lowers the energy: a minimum, as far as doubles tell
-    double moved = 0.0;
-    for (Eigen::Index i = 0; i < nf; ++i) moved = std::max(moved, alpha * step.segment<3>(3 * i).norm());
-    st.last_step_mm = moved;
+    if (!lowered)
+      break;  // a descent direction along which no step lowers the energy: a minimum, as far as doubles tell
     x = trial;
     energy = trial_energy;
     progress.update(static_cast<double>(iteration + 1) / params.max_iterations);
     POSEWARP_RETURN_IF_ERROR(progress.check_cancel());
-    if (moved <= params.tolerance_mm) break;
   }
   st.iterate_seconds = iterate_start.seconds();
   if (params.untangle) {  // as the projective solve ends: the tets left inverted turned back
@@ -434,7 +464,7 @@ Status validate(const NonlinearParams& params) {
 
 Result<Eigen::MatrixXd> solve_nonlinear(const SolveInputs& in, const NonlinearParams& params,
                                         const ProgressHooks& hooks, FemStats* stats) {
-  return internal::run_solve(in, params, hooks, stats, nonlinear_steady_state);
+  return internal::run_solve(in, params, hooks, stats, nonlinear_steady_state, "fem-refine");
 }
 
 }  // namespace posewarp::fem

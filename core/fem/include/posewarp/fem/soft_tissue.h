@@ -162,23 +162,30 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const Coro
                                            const ProgressHooks& hooks, FemStats* stats = nullptr);
 
 // The same steady state by projected Newton on the nonlinear energy (each tet's Hessian made definite through its
-// eigensystem, Teran et al. 2005 and Smith et al. 2019; a backtracking line search), kept to measure the projective
-// solve against: per tet V (|F - R|^2 + w_t (det F - 1)^2) with R F's nearest rotation, plus per free vertex's star
-// (its tets) w_n V_s (J_s - 1)^2 with V_s the star's rest volume and J_s its posed volume over it, plus optionally a
-// barrier that keeps each tet the warm start has unfolded from folding. A volume term per tet locks a mesh of linear
-// tets (a nearly incompressible material cannot bend without compressing the tets along the bend); the star's term,
-// a nodal volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps its own, and
-// without the barrier they trade it by folding. The matrix is assembled and factored anew at each iteration (the
-// stars couple vertices two edges apart): a minute or two on a body's hip, a reference, not a method. README's fem
-// section gives what it measured.
+// eigensystem, Teran et al. 2005 and Smith et al. 2019; a backtracking line search): per tet
+// V (|F - R|^2 + w_t (det F - 1)^2) with R F's nearest rotation, plus per free vertex's star (its tets)
+// w_n V_s (J_s - 1)^2 with V_s the star's rest volume and J_s its posed volume over it, plus optionally a barrier
+// that keeps each tet the warm start has unfolded from folding. A volume term per tet locks a mesh of linear tets (a
+// nearly incompressible material cannot bend without compressing the tets along the bend); the star's term, a nodal
+// volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps its own, and without the
+// barrier they trade it by folding. The matrix is assembled and factored anew at each iteration (the stars couple
+// vertices two edges apart; its memory grows with the square of a star's vertices, and with the margin): a second
+// an iteration on a body's bent hip. Measured against the projective solve it is a reference (README: fem); after
+// it, with the star's term and the barrier, it is the refinement a pose may ask for (api::FemOptions). It has no
+// contact term: skin that --fem-contact kept out of the tissue facing it may pass back in. INVALID_ARGUMENT naming
+// a parameter out of range; INTERNAL when the energy is not finite at the start (a tet flat at rest) or the system
+// cannot be factored; CANCELLED or DEADLINE_EXCEEDED through the hooks (every iteration, as the stage
+// "fem-refine").
 struct NonlinearParams {
-  double tet_volume_weight = 1.0;     // w_t
-  double star_volume_weight = 100.0;  // w_n (0: per-tet volume only)
-  double barrier_weight = 0.0;        // keeps the tets unfolded at the warm start unfolded (0: none)
-  bool untangle = false;              // then the projective solve's untangling (FemParams::untangle)
-  int max_iterations = 30;
-  double tolerance_mm = 0.02;
-  double margin_mm = 40.0;
+  double tet_volume_weight = 1.0;     // w_t, 0 to 1e6
+  double star_volume_weight = 100.0;  // w_n, 0 to 1e6 (0: per-tet volume only)
+  // kappa, 0 to 1e6 (0: none): the barrier kappa (J - 0.3)^2 (-log(J / 0.3)) below J = 0.3 on every tet with det F
+  // above 0 at the warm start, which then never folds.
+  double barrier_weight = 0.0;
+  bool untangle = false;       // then the projective solve's untangling (FemParams::untangle)
+  int max_iterations = 30;     // Newton iterations, 1 to 10000
+  double tolerance_mm = 0.02;  // converged once the Newton step moves no vertex more (the line search may take less)
+  double margin_mm = 40.0;     // reach of the solve beyond the tissue the pose bends (rest mm, along mesh edges)
 };
 
 Status validate(const NonlinearParams& params);
