@@ -6,10 +6,10 @@
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
 // steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
 // from the last (a load-stepped solve, measured against the one-step solve).
-// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER] is the projected-Newton reference
-// (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective solve's result). A probe for
-// developers: the figures say whether the loss is tissue a solve could move (free corners) or tissue pinned between two
-// bones by the mesh.
+// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS] is the
+// projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective
+// solve's result). A probe for developers: the figures say whether the loss is tissue a solve could move (free corners)
+// or tissue pinned between two bones by the mesh.
 #include <Eigen/Dense>
 
 #include <array>
@@ -145,7 +145,8 @@ int main(int argc, char** argv) {
       corotational->poisson_ratio = std::stod(nu);
       corotational->max_iterations = std::stoi(it);
     }
-    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER], the projected-Newton reference
+    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS], the
+    // projected-Newton reference
     if (method_name.rfind("nonlinear:", 0) == 0) {
       std::stringstream in(method_name.substr(10));
       std::string tet, star, it, margin, untangle;
@@ -161,9 +162,13 @@ int main(int argc, char** argv) {
       if (!margin.empty()) nonlinear->margin_mm = std::stod(margin);
       std::getline(in, untangle, ':');
       nonlinear->untangle = !untangle.empty() && untangle != "0";
-      std::string barrier;
+      std::string barrier, below, rings;
       std::getline(in, barrier, ':');
       if (!barrier.empty()) nonlinear->barrier_weight = std::stod(barrier);
+      std::getline(in, below, ':');
+      if (!below.empty()) nonlinear->region_below = std::stod(below);
+      std::getline(in, rings, ':');
+      if (!rings.empty()) nonlinear->region_rings = std::stoi(rings);
     }
     if (method_name.rfind("fem:", 0) == 0) {
       std::stringstream in(method_name.substr(4));

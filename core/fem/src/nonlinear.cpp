@@ -337,9 +337,50 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
   return gradient;
 }
 
+// The free vertices within `rings` edges of a vertex whose star is compressed below `below` of its rest volume at the
+// warm start (NonlinearParams::region_below), ascending as given.
+std::vector<int32_t> compressed_region(const SolveInputs& in, const std::vector<int32_t>& free_vertices, double below,
+                                       int rings) {
+  const Elements el = internal::gather_elements(in, free_vertices);
+  const Stars stars = stars_of(el);
+  Positions x(static_cast<Eigen::Index>(el.solve_vertices.size()), 3);
+  for (size_t i = 0; i < el.solve_vertices.size(); ++i)
+    x.row(static_cast<Eigen::Index>(i)) = in.warm.row(el.solve_vertices[i]);
+  std::vector<uint8_t> in_region(free_vertices.size(), 0);
+  std::vector<int32_t> frontier;
+  for (size_t v = 0; v < stars.slots.size(); ++v) {
+    if (stars.volume[v] <= 0.0) continue;
+    double posed = 0.0;
+    for (const int32_t s : stars.slots[v]) {
+      posed += el.volume[static_cast<size_t>(s)] * deformation(el, x, static_cast<size_t>(s)).determinant();
+    }
+    if (posed / stars.volume[v] < below) {
+      in_region[v] = 1;
+      frontier.push_back(static_cast<int32_t>(v));
+    }
+  }
+  for (int ring = 0; ring < rings; ++ring) {
+    std::vector<int32_t> next;
+    for (const int32_t v : frontier)
+      for (const int32_t s : stars.slots[static_cast<size_t>(v)])
+        for (const int32_t k : el.corner[static_cast<size_t>(s)])
+          if (k < el.free_count && !std::exchange(in_region[static_cast<size_t>(k)], uint8_t{1})) next.push_back(k);
+    frontier = std::move(next);
+  }
+  std::vector<int32_t> region;
+  for (size_t i = 0; i < free_vertices.size(); ++i)
+    if (in_region[i]) region.push_back(free_vertices[i]);
+  return region;
+}
+
 Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const NonlinearParams& params,
-                                               const std::vector<int32_t>& free_vertices, StageProgress& progress,
+                                               std::vector<int32_t> free_vertices, StageProgress& progress,
                                                FemStats& st, const Stopwatch& start) {
+  if (params.region_below > 0.0) {
+    free_vertices = compressed_region(in, free_vertices, params.region_below, params.region_rings);
+    st.free_vertices = static_cast<int64_t>(free_vertices.size());
+    if (free_vertices.empty()) return in.warm;
+  }
   const auto nf = static_cast<Eigen::Index>(free_vertices.size());
   const Elements el = internal::gather_elements(in, free_vertices);
   st.tets = static_cast<int64_t>(el.corner.size());
@@ -454,6 +495,12 @@ Status validate(const NonlinearParams& params) {
   if (!(params.star_volume_weight >= 0.0 && params.star_volume_weight <= 1e6)) {
     return invalid_argument_error("fem star_volume_weight must be in [0, 1e6], got " +
                                   std::to_string(params.star_volume_weight));
+  }
+  if (!(params.region_below >= 0.0 && params.region_below <= 1.0)) {
+    return invalid_argument_error("fem region_below must be in [0, 1], got " + std::to_string(params.region_below));
+  }
+  if (params.region_rings < 0 || params.region_rings > 100) {
+    return invalid_argument_error("fem region_rings must be in [0, 100], got " + std::to_string(params.region_rings));
   }
   if (!(params.barrier_weight >= 0.0 && params.barrier_weight <= 1e6)) {
     return invalid_argument_error("fem barrier_weight must be in [0, 1e6], got " +

@@ -299,11 +299,32 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   EXPECT_EQ(newly_folded, 0);
   EXPECT_LE(guarded_far.inverted, lbs_far.inverted);
   EXPECT_LT(std::abs(guarded_far.volume_change), 0.5 * std::abs(lbs_far.volume_change));
+  // Only the vertices whose stars LBS compressed below 0.9: fewer vertices, none newly folded, most of the volume back.
+  guarded.region_below = 0.9;
+  guarded.region_rings = 0;
+  FemStats region_stats;
+  posed = solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {}, &region_stats);
+  ASSERT_TRUE(posed.ok()) << posed.status().to_string();
+  const Eigen::VectorXd region_after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
+  int64_t region_folded = 0;
+  for (Eigen::Index t = 0; t < before.size(); ++t) region_folded += before(t) > 0.0 && region_after(t) <= 0.0;
+  const SoftFigures region = soft_figures(limb_, frames_, *posed);
+  std::cout << "120 degrees around the compressed stars: " << region.volume_change << " (" << region.inverted
+            << " inverted), " << region_stats.free_vertices << " of " << stats.free_vertices << " vertices\n";
+  EXPECT_GT(region_stats.free_vertices, 0);
+  EXPECT_LT(region_stats.free_vertices, stats.free_vertices);
+  EXPECT_EQ(region_folded, 0);
+  EXPECT_LT(std::abs(region.volume_change), 0.5 * std::abs(lbs_far.volume_change));
   NonlinearParams bad;
   bad.star_volume_weight = -1.0;
-  const Status refused = solve_nonlinear(inputs, bad, {}).status();
+  Status refused = solve_nonlinear(inputs, bad, {}).status();
   EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
   EXPECT_NE(refused.message().find("star_volume_weight"), std::string::npos);
+  bad = NonlinearParams{};
+  bad.region_below = 1.5;
+  refused = solve_nonlinear(inputs, bad, {}).status();
+  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.message().find("region_below"), std::string::npos);
 }
 
 // Bent 150 degrees and stopped after one iteration, the steady state leaves the inside of the bend folded; the
