@@ -448,7 +448,7 @@ class Client:
         volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default; fem_contact=True
         pushes the skin that bending drives into the tissue facing it back out (slower by about half); fem_refine (0 to
         1000, default 0) adds that many Newton iterations of the nonlinear material with a volume per vertex star and
-        no new folds, which keep the volume a bent hip loses, at 0.2-0.3 s an iteration there (no contact term:
+        no new folds, which keep the volume a bent hip loses, at 0.2-0.4 s an iteration there (no contact term:
         skin fem_contact kept out may pass back in). grid: "input"
         (the study's grid), "grow" (grown to hold the posed body), or another scan's grid (a match's target_grid).
 

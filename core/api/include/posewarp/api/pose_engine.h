@@ -28,7 +28,7 @@ struct FemOptions {
   bool contact = false;        // push skin out of the tissue facing it (fem::FemParams::contact)
   // Then this many Newton iterations of the nonlinear material with a volume per vertex star and no new folds
   // (fem::solve_nonlinear with its barrier), 1 to 1000; 0, the default, none. It keeps the volume a bent hip loses
-  // to the solve's per-tet volume (README: fem), at 0.2-0.3 s an iteration on a body's hip. It has no contact
+  // to the solve's per-tet volume (README: fem), at 0.2-0.4 s an iteration on a body's hip. It has no contact
   // term: skin that `contact` kept out of the tissue facing it may pass back in.
   int refine_iterations = 0;
 };

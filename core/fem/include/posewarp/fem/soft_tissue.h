@@ -170,7 +170,7 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const Coro
 // volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps its own, and without the
 // barrier they trade it by folding. The matrix is assembled and factored anew at each iteration (the stars couple
 // vertices two edges apart; its memory grows with the square of a star's vertices, and with the margin): a second
-// an iteration on a body's bent hip, 0.2-0.3 s on the compressed region only (region_below). Measured against the
+// an iteration on a body's bent hip, 0.2-0.4 s on the compressed region only (region_below). Measured against the
 // projective solve it is a reference (README: fem); after it, with the star's term, the barrier and the region, it
 // is the refinement a pose may ask for (api::FemOptions). It has no
 // contact term: skin that --fem-contact kept out of the tissue facing it may pass back in. INVALID_ARGUMENT naming
@@ -180,7 +180,7 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const Coro
 struct NonlinearParams {
   double tet_volume_weight = 1.0;     // w_t, 0 to 1e6
   double star_volume_weight = 100.0;  // w_n, 0 to 1e6 (0: per-tet volume only)
-  // kappa, 0 to 1e6 (0: none): the barrier kappa (J - 0.3)^2 (-log(J / 0.3)) below J = 0.3 on every tet with det F
+  // kappa, 0 to 1e6 (0: none): the barrier kappa (J - 0.7)^2 (-log(J / 0.7)) below J = 0.7 on every tet with det F
   // above 0 at the warm start, which then never folds.
   double barrier_weight = 0.0;
   bool untangle = false;       // then the projective solve's untangling (FemParams::untangle)
