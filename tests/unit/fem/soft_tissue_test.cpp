@@ -299,7 +299,8 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   EXPECT_EQ(newly_folded, 0);
   EXPECT_LE(guarded_far.inverted, lbs_far.inverted);
   EXPECT_LT(std::abs(guarded_far.volume_change), 0.5 * std::abs(lbs_far.volume_change));
-  // Only the vertices whose stars LBS compressed below 0.9: fewer vertices, none newly folded, most of the volume back.
+  // Only the vertices whose stars LBS compressed below 0.9: fewer vertices, none newly folded, the volume nearer rest
+  // than LBS left it (+9%: on this small limb the compressed stars expand into tissue held around them).
   guarded.region_below = 0.9;
   guarded.region_rings = 0;
   FemStats region_stats;
