@@ -6,8 +6,8 @@
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
 // steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
 // from the last (a load-stepped solve, measured against the one-step solve).
-// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS] is the
-// projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective
+// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM] is
+// the projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective
 // solve's result). A probe for developers: the figures say whether the loss is tissue a solve could move (free corners)
 // or tissue pinned between two bones by the mesh.
 #include <Eigen/Dense>
@@ -145,8 +145,8 @@ int main(int argc, char** argv) {
       corotational->poisson_ratio = std::stod(nu);
       corotational->max_iterations = std::stoi(it);
     }
-    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS], the
-    // projected-Newton reference
+    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM],
+    // the projected-Newton reference
     if (method_name.rfind("nonlinear:", 0) == 0) {
       std::stringstream in(method_name.substr(10));
       std::string tet, star, it, margin, untangle;
@@ -169,6 +169,9 @@ int main(int argc, char** argv) {
       if (!below.empty()) nonlinear->region_below = std::stod(below);
       std::getline(in, rings, ':');
       if (!rings.empty()) nonlinear->region_rings = std::stoi(rings);
+      std::string from;
+      std::getline(in, from, ':');
+      if (!from.empty()) nonlinear->barrier_from = std::stod(from);
     }
     if (method_name.rfind("fem:", 0) == 0) {
       std::stringstream in(method_name.substr(4));

@@ -147,12 +147,10 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
 }
 
 // The refinement after the projective solve (FemOptions::refine_iterations): a star volume of 100 with 1 per tet
-// and a barrier of 10, which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and shoulder at 90
-// degrees (README: fem). It moves the bent tissue within 3 edges of a star the solve left below 0.9 of its volume,
-// the rest held where the solve put it: at the hip 90, with the barrier from 0.3 (now 0.7, nonlinear.cpp), 10
-// iterations gave -4.5% within 50 mm after 2.7 s of refinement (3,260 vertices); all the bent tissue -4.1% after
-// 13 s (10,715); with the solve's 40 mm margin too -4.5% after 22 s (14,270); within 5 rings of 0.8, -3.9% after
-// 4.3 s.
+// and a barrier of 10 (from J = 0.7), which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and
+// shoulder at 90 degrees. It moves the bent tissue within 3 edges of a star the solve left below 0.9 of its volume,
+// the rest held where the solve put it: at a hip a third of the bent tissue, for as much volume in a fifth of the
+// time (README: fem).
 fem::NonlinearParams refine_params(int iterations) {
   fem::NonlinearParams params;
   params.tet_volume_weight = 1.0;

@@ -64,6 +64,11 @@ struct BlockPattern {
 // The free-free blocks' pattern and where each tet's blocks go in its values.
 BlockPattern block_pattern(const Elements& el);
 
+// Per solve vertex (the free ones first, `free_count` of them): the segment of the bone a fixed corner is on, -1 for a
+// free vertex or a fixed one off bone (PackedTets::bone_segment).
+std::vector<int32_t> bone_segments(const SolveInputs& in, const std::vector<int32_t>& solve_vertices,
+                                   size_t free_count);
+
 // Where (row, col) is among a compressed column-major matrix's values; -1 when its pattern lacks it.
 int64_t value_slot(const SparseMatrix& m, Eigen::Index row, Eigen::Index col);
 
@@ -130,6 +135,9 @@ using ContactLookUp = std::function<std::vector<ContactPlane>(const Positions&)>
 Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, Positions& x,
                                const UntangleParams& params, const ContactLookUp& contact_planes,
                                const std::function<Status()>& cancel);
+
+// The untangling's figures into a solve's stats.
+void record(const UntangleStats& untangled, FemStats& st);
 
 // Items (points, or the boxes of tets and faces) on a uniform grid of cubic cells: which items a box may touch. An
 // item inserted with a box is in every cell the box touches, so a query may visit it more than once.

@@ -51,28 +51,28 @@ Eigen::Matrix3d deformation(const Elements& el, const Positions& x, size_t s) {
   return f;
 }
 
-// The barrier that keeps a tet from folding: kappa (J - J0)^2 (-log(J / J0)) below J0, 0 above; its value and first
-// two derivatives in J. J0 = 0.7, so that the Newton step sees the barrier's curvature before a tet's det nears 0
-// (with J0 = 0.3 every cut of the line search was a tet the step carried from above 0.3 past 0), and tissue pressed
-// below 0.7 of its volume, which a nearly incompressible material does not reach, is pushed back.
-// posewarp_fem_probe, hip 90 on out/bc9, the refinement's region, within 50 mm: J0 0.3 -4.5% after 10 iterations;
-// 0.5 -5.0% after 5, -3.1% after 10; 0.7 -3.9% after 5, -2.6% after 10; folded 0.9% in each.
-constexpr double kBarrierFrom = 0.7;
-std::array<double, 3> barrier(double j, double kappa) {
-  if (kappa <= 0.0 || j >= kBarrierFrom) return {0.0, 0.0, 0.0};
+// One tet's barrier (NonlinearParams::barrier_weight and barrier_from; kappa 0 for a tet it does not guard).
+struct Barrier {
+  double kappa = 0.0, from = 0.0;
+};
+
+// The barrier's value and first two derivatives in J: kappa (J - J0)^2 (-log(J / J0)) below J0, 0 above.
+std::array<double, 3> barrier(double j, const Barrier& b) {
+  if (b.kappa <= 0.0 || j >= b.from) return {0.0, 0.0, 0.0};
   if (j <= 0.0) return {std::numeric_limits<double>::infinity(), 0.0, 0.0};
-  const double d = j - kBarrierFrom, l = std::log(j / kBarrierFrom);
-  return {-kappa * d * d * l, -kappa * (2.0 * d * l + d * d / j), -kappa * (2.0 * l + 4.0 * d / j - d * d / (j * j))};
+  const double d = j - b.from, l = std::log(j / b.from);
+  return {-b.kappa * d * d * l, -b.kappa * (2.0 * d * l + d * d / j),
+          -b.kappa * (2.0 * l + 4.0 * d / j - d * d / (j * j))};
 }
 
 // A tet's energy per rest volume, |F - R|^2 + w (det F - 1)^2 (signed singular values: R is a rotation) and the
 // barrier.
-double tet_energy(const Eigen::Matrix3d& f, double w, double kappa) {
+double tet_energy(const Eigen::Matrix3d& f, double w, const Barrier& b) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   internal::signed_svd(f, u, sigma, v);
   const double j = f.determinant();
-  return (sigma.array() - 1.0).square().sum() + w * (j - 1.0) * (j - 1.0) + barrier(j, kappa)[0];
+  return (sigma.array() - 1.0).square().sum() + w * (j - 1.0) * (j - 1.0) + barrier(j, b)[0];
 }
 
 // One tet's gradient and definite Hessian in its 4 corners' positions, rest volume included.
@@ -84,7 +84,7 @@ struct TetDerivatives {
 };
 
 void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>& g, double volume, double w,
-                     double kappa, TetDerivatives& out) {
+                     const Barrier& guarded_by, TetDerivatives& out) {
   Eigen::Matrix3d u, v;
   Eigen::Vector3d sigma;
   internal::signed_svd(f, u, sigma, v);
@@ -92,7 +92,7 @@ void tet_derivatives(const Eigen::Matrix3d& f, const Eigen::Matrix<double, 3, 4>
   const Eigen::Matrix3d cof = cofactor(f);
   out.det = j;
   out.cofactor = cof;
-  const std::array<double, 3> guard = barrier(j, kappa);
+  const std::array<double, 3> guard = barrier(j, guarded_by);
   const double first = 2.0 * w * (j - 1.0) + guard[1], second = 2.0 * w + guard[2];  // the J terms' derivatives in J
   const Eigen::Matrix3d p = 2.0 * (f - u * v.transpose()) + first * cof;
   // In vec(F) (columns stacked): |F - R|^2's Hessian is 2 I but along the three twists U T V^T / sqrt(2), where it
@@ -169,9 +169,8 @@ double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& 
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 2048, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const Eigen::Matrix3d f = deformation(el, x, static_cast<size_t>(s));
-      const double kappa = guarded[static_cast<size_t>(s)] ? params.barrier_weight : 0.0;
-      energy[static_cast<size_t>(s)] =
-          el.volume[static_cast<size_t>(s)] * tet_energy(f, params.tet_volume_weight, kappa);
+      const Barrier b{guarded[static_cast<size_t>(s)] ? params.barrier_weight : 0.0, params.barrier_from};
+      energy[static_cast<size_t>(s)] = el.volume[static_cast<size_t>(s)] * tet_energy(f, params.tet_volume_weight, b);
       det[static_cast<size_t>(s)] = f.determinant();
     }
   });
@@ -277,8 +276,9 @@ Eigen::VectorXd assemble(const Elements& el, const Stars& stars, const Nonlinear
   parallel_for(0, static_cast<int64_t>(el.corner.size()), 512, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       const auto slot = static_cast<size_t>(s);
-      tet_derivatives(deformation(el, x, slot), el.gradients[slot], el.volume[slot], params.tet_volume_weight,
-                      guarded[slot] ? params.barrier_weight : 0.0, derivatives[slot]);
+      const Barrier b{guarded[slot] ? params.barrier_weight : 0.0, params.barrier_from};
+      tet_derivatives(deformation(el, x, slot), el.gradients[slot], el.volume[slot], params.tet_volume_weight, b,
+                      derivatives[slot]);
     }
   });
   double* values = np.matrix.valuePtr();
@@ -464,23 +464,14 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
       }
       vertex_start[static_cast<size_t>(i) + 1] = static_cast<int64_t>(vertex_tets.size());
     }
-    std::vector<int32_t> bone_segment(el.solve_vertices.size(), -1);
-    for (size_t j = static_cast<size_t>(nf); j < el.solve_vertices.size(); ++j) {
-      const int32_t v = el.solve_vertices[j];
-      if (in.topology.bone[static_cast<size_t>(v)]) bone_segment[j] = in.weights.segment(v, 0);
-    }
+    const std::vector<int32_t> bone_segment = internal::bone_segments(in, el.solve_vertices, static_cast<size_t>(nf));
     const internal::PackedTets packed{el.corner, el.gradients, el.volume, vertex_start, vertex_tets, bone_segment};
     internal::UntangleParams untangle_params;
     untangle_params.piece_volume_weight = FemParams{}.untangle_volume_weight;
     POSEWARP_ASSIGN_OR_RETURN(const internal::UntangleStats untangled,
                               internal::untangle(packed, nf, x, untangle_params, internal::ContactLookUp{},
                                                  [&] { return progress.check_cancel(); }));
-    st.inverted_before_untangle = untangled.inverted_before;
-    st.inverted = untangled.inverted_after;
-    st.untangle_undone = untangled.undone;
-    st.untangle_vertices = untangled.vertices;
-    st.untangle_iterations = untangled.iterations;
-    st.untangle_seconds = untangled.seconds;
+    internal::record(untangled, st);
   }
   Eigen::MatrixXd posed = in.warm;
   for (Eigen::Index i = 0; i < nf; ++i) posed.row(free_vertices[static_cast<size_t>(i)]) = x.row(i);
@@ -504,6 +495,9 @@ Status validate(const NonlinearParams& params) {
   }
   if (params.region_rings < 0 || params.region_rings > 100) {
     return invalid_argument_error("fem region_rings must be in [0, 100], got " + std::to_string(params.region_rings));
+  }
+  if (!(params.barrier_from > 0.0 && params.barrier_from <= 1.0)) {
+    return invalid_argument_error("fem barrier_from must be in (0, 1], got " + std::to_string(params.barrier_from));
   }
   if (!(params.barrier_weight >= 0.0 && params.barrier_weight <= 1e6)) {
     return invalid_argument_error("fem barrier_weight must be in [0, 1e6], got " +

@@ -340,11 +340,7 @@ Result<std::unique_ptr<SolveSystem>> prepare(const SolveInputs& in, std::vector<
     sys.contact_stiffness.push_back(own(i));
   }
   // Which bone each fixed corner belongs to, for the untangling to tell a joint's gap (the free are never bone).
-  sys.bone_segment.assign(sys.solve_vertices.size(), -1);
-  for (size_t j = static_cast<size_t>(nf); j < sys.solve_vertices.size(); ++j) {
-    const int32_t v = sys.solve_vertices[j];
-    if (in.topology.bone[static_cast<size_t>(v)]) sys.bone_segment[j] = in.weights.segment(v, 0);
-  }
+  sys.bone_segment = internal::bone_segments(in, sys.solve_vertices, static_cast<size_t>(nf));
   SparseMatrix matrix(nf, nf);
   matrix.setFromTriplets(triplets.begin(), triplets.end());
   sys.llt.compute(matrix);
@@ -518,6 +514,25 @@ Status check_inputs(const SolveInputs& in) {
   return ok_status();
 }
 
+std::vector<int32_t> bone_segments(const SolveInputs& in, const std::vector<int32_t>& solve_vertices,
+                                   size_t free_count) {
+  std::vector<int32_t> segment(solve_vertices.size(), -1);
+  for (size_t j = free_count; j < solve_vertices.size(); ++j) {
+    const int32_t v = solve_vertices[j];
+    if (in.topology.bone[static_cast<size_t>(v)]) segment[j] = in.weights.segment(v, 0);
+  }
+  return segment;
+}
+
+void record(const UntangleStats& untangled, FemStats& st) {
+  st.inverted_before_untangle = untangled.inverted_before;
+  st.inverted = untangled.inverted_after;
+  st.untangle_undone = untangled.undone;
+  st.untangle_vertices = untangled.vertices;
+  st.untangle_iterations = untangled.iterations;
+  st.untangle_seconds = untangled.seconds;
+}
+
 std::vector<int32_t> free_vertices(const SolveInputs& in, double margin_mm) {
   const TetMesh& mesh = in.rest;
   const int64_t n = mesh.vertex_count();
@@ -666,12 +681,7 @@ Result<Eigen::MatrixXd> projective_steady_state(const SolveInputs& in, const Fem
                                                  })
                                                           : internal::ContactLookUp{},
                                                  [&] { return progress.check_cancel(); }));
-    st.inverted_before_untangle = untangled.inverted_before;
-    st.inverted = untangled.inverted_after;
-    st.untangle_undone = untangled.undone;
-    st.untangle_vertices = untangled.vertices;
-    st.untangle_iterations = untangled.iterations;
-    st.untangle_seconds = untangled.seconds;
+    internal::record(untangled, st);
   }
   if (contacts) {
     st.contacts = contacts->pressed(x_solve);

@@ -326,6 +326,11 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   refused = solve_nonlinear(inputs, bad, {}).status();
   EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
   EXPECT_NE(refused.message().find("region_below"), std::string::npos);
+  bad = NonlinearParams{};
+  bad.barrier_from = 0.0;
+  refused = solve_nonlinear(inputs, bad, {}).status();
+  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.message().find("barrier_from"), std::string::npos);
 }
 
 // Bent 150 degrees and stopped after one iteration, the steady state leaves the inside of the bend folded; the
