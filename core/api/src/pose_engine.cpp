@@ -159,7 +159,8 @@ fem::NonlinearParams refine_params(int iterations) {
   params.max_iterations = iterations;
   params.margin_mm = 0.0;
   params.region_below = 0.9;
-  params.region_rings = 3;
+  params.region_rings = 2;
+  params.star_below = 1.0;
   return params;
 }
 

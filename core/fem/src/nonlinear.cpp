@@ -162,6 +162,23 @@ Stars stars_of(const Elements& el) {
   return stars;
 }
 
+// Each star's posed over rest volume at positions x (1 for a star of no rest volume).
+std::vector<double> star_ratios(const Elements& el, const Stars& stars, const Positions& x) {
+  std::vector<double> ratio(stars.slots.size(), 1.0);
+  parallel_for(0, static_cast<int64_t>(stars.slots.size()), 1024, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) {
+      const auto star = static_cast<size_t>(v);
+      if (stars.volume[star] <= 0.0) continue;
+      double posed = 0.0;
+      for (const int32_t s : stars.slots[star]) {
+        posed += el.volume[static_cast<size_t>(s)] * deformation(el, x, static_cast<size_t>(s)).determinant();
+      }
+      ratio[star] = posed / stars.volume[star];
+    }
+  });
+  return ratio;
+}
+
 // The whole energy at positions x.
 double energy_at(const Elements& el, const Stars& stars, const NonlinearParams& params, const Positions& x,
                  const std::vector<uint8_t>& guarded) {
@@ -351,13 +368,9 @@ std::vector<int32_t> compressed_region(const SolveInputs& in, const std::vector<
     x.row(static_cast<Eigen::Index>(i)) = in.warm.row(el.solve_vertices[i]);
   std::vector<uint8_t> in_region(free_vertices.size(), 0);
   std::vector<int32_t> frontier;
+  const std::vector<double> ratio = star_ratios(el, stars, x);
   for (size_t v = 0; v < stars.slots.size(); ++v) {
-    if (stars.volume[v] <= 0.0) continue;
-    double posed = 0.0;
-    for (const int32_t s : stars.slots[v]) {
-      posed += el.volume[static_cast<size_t>(s)] * deformation(el, x, static_cast<size_t>(s)).determinant();
-    }
-    if (posed / stars.volume[v] < below) {
+    if (stars.volume[v] > 0.0 && ratio[v] < below) {
       in_region[v] = 1;
       frontier.push_back(static_cast<int32_t>(v));
     }
@@ -389,10 +402,19 @@ Result<Eigen::MatrixXd> nonlinear_steady_state(const SolveInputs& in, const Nonl
   st.tets = static_cast<int64_t>(el.corner.size());
   st.fixed_vertices = static_cast<int64_t>(el.solve_vertices.size()) - nf;
   BlockPattern tets = internal::block_pattern(el);
-  const Stars stars = stars_of(el);
+  Stars stars = stars_of(el);
   Positions x(static_cast<Eigen::Index>(el.solve_vertices.size()), 3);
   for (size_t i = 0; i < el.solve_vertices.size(); ++i)
     x.row(static_cast<Eigen::Index>(i)) = in.warm.row(el.solve_vertices[i]);
+  if (params.star_below > 0.0) {  // only the stars the warm start left compressed keep their volume
+    const std::vector<double> ratio = star_ratios(el, stars, x);
+    for (size_t v = 0; v < stars.slots.size(); ++v) {
+      if (ratio[v] >= params.star_below) {
+        stars.slots[v].clear();
+        stars.volume[v] = 0.0;
+      }
+    }
+  }
   // The barrier guards the tets the warm start has unfolded.
   std::vector<uint8_t> guarded(el.corner.size(), 0);
   for (size_t slot = 0; slot < el.corner.size(); ++slot) guarded[slot] = deformation(el, x, slot).determinant() > 0.0;
@@ -495,6 +517,9 @@ Status validate(const NonlinearParams& params) {
   }
   if (params.region_rings < 0 || params.region_rings > 100) {
     return invalid_argument_error("fem region_rings must be in [0, 100], got " + std::to_string(params.region_rings));
+  }
+  if (!(params.star_below >= 0.0 && params.star_below <= 10.0)) {
+    return invalid_argument_error("fem star_below must be in [0, 10], got " + std::to_string(params.star_below));
   }
   if (!(params.barrier_from > 0.0 && params.barrier_from <= 1.0)) {
     return invalid_argument_error("fem barrier_from must be in (0, 1], got " + std::to_string(params.barrier_from));

@@ -198,6 +198,10 @@ struct NonlinearParams {
   // refinement works where the solve left tissue compressed, a third of the bent tissue at a hip.
   double region_below = 0.0;
   int region_rings = 3;
+  // The star term only on the stars whose volume at the warm start is below this fraction (0 to 10) of their rest
+  // volume; 0: on every star. At 1 the term gives the tissue the solve compressed its volume back and leaves the
+  // tissue it did not to the tets' terms, with a sparser matrix (the stars couple vertices two edges apart).
+  double star_below = 0.0;
 };
 
 Status validate(const NonlinearParams& params);
