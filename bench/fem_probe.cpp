@@ -6,7 +6,8 @@
 // volume change (the report's figure), the share folded (det <= 0) and what the folded tets cost of the volume.
 // steps:K:ITERATIONS reaches the pose in K solves of ITERATIONS each, every angle scaled by k / K, each step going on
 // from the last (a load-stepped solve, measured against the one-step solve).
-// pose:REFINE[:REPEATS] times the whole fem pose with --fem-refine REFINE (best of REPEATS, default 3).
+// pose:REFINE[:REPEATS[:ITERATIONS]] times the whole fem pose with --fem-refine REFINE (best of REPEATS, default 3)
+// and --fem-iterations ITERATIONS.
 // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM:STAR_BELOW] is
 // the projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective
 // solve's result). A probe for developers: the figures say whether the loss is tissue a solve could move (free corners)
@@ -15,6 +16,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdlib>
 #include <limits>
 #include <map>
 #include <optional>
@@ -200,15 +202,17 @@ int main(int argc, char** argv) {
       custom->volume_weight = std::stod(w);
       custom->max_iterations = std::stoi(it);
     }
-    // pose:REFINE[:REPEATS] is the whole fem pose as a user gets it (labels and CT warped, surfaces deformed) with
-    // --fem-refine REFINE, REPEATS times (default 3, the first also preparing what the engine keeps): its best wall
+    // pose:REFINE[:REPEATS[:ITERATIONS]] is the whole fem pose as a user gets it (labels and CT warped, surfaces deformed) with
+    // --fem-refine REFINE (and --fem-iterations ITERATIONS when given), REPEATS times (default 3, the first also preparing what the engine keeps): its best wall
     // time and its stages' best.
-    int refine = -1, repeats = 1;
+    int refine = -1, repeats = 1, projective_iterations = 0;
     if (method_name.rfind("pose:", 0) == 0) {
       std::stringstream in(method_name.substr(5));
-      std::string n, r;
+      std::string n, r, it;
       std::getline(in, n, ':');
       std::getline(in, r, ':');
+      std::getline(in, it, ':');
+      if (!it.empty()) projective_iterations = std::stoi(it);
       refine = std::stoi(n);
       repeats = r.empty() ? 3 : std::max(1, std::stoi(r));
       warm_name = "fem";
@@ -223,6 +227,7 @@ int main(int argc, char** argv) {
     request.method = *method;
     request.want_labels = request.want_ct = request.want_surfaces = refine >= 0;
     if (refine >= 0) request.fem.refine_iterations = refine;
+    request.fem.max_iterations = projective_iterations;
     Result<api::PoseResult> result = internal_error("no pose");
     double best = std::numeric_limits<double>::infinity();
     std::map<std::string, double> stage_best;
@@ -373,6 +378,8 @@ int main(int argc, char** argv) {
     }
   }
   // A slider dragged from rest to the pose in 9 steps (every angle scaled), fem previews: what each call waits for.
+  // POSEWARP_PROBE_NO_SLIDER=1 leaves it out (ten seconds on a body) when only the methods' figures are wanted.
+  if (const char* skip = std::getenv("POSEWARP_PROBE_NO_SLIDER"); skip && std::string(skip) == "1") return 0;
   std::printf("fem preview, the pose reached in 9 slider steps:");
   for (int k = 1; k <= 9; ++k) {
     const auto start = std::chrono::steady_clock::now();

@@ -185,7 +185,9 @@ api::PoseRequest engine_request(CheckedPose checked, const v1::PoseRequest& requ
   core.fem.max_iterations = static_cast<int>(std::min<uint32_t>(request.fem().max_iterations(), 1u << 30));
   core.fem.volume_weight = request.fem().volume_weight();  // the engine refuses what is out of range
   core.fem.contact = request.fem().contact();
-  core.fem.refine_iterations = static_cast<int>(std::min<uint32_t>(request.fem().refine_iterations(), 1u << 30));
+  if (request.fem().has_refine_iterations()) {  // absent: the engine's default
+    core.fem.refine_iterations = static_cast<int>(std::min<uint32_t>(request.fem().refine_iterations(), 1u << 30));
+  }
   core.grid = checked.grid == v1::GRID_POLICY_GROW    ? api::GridPolicy::kGrow
               : checked.grid == v1::GRID_POLICY_GIVEN ? api::GridPolicy::kGiven
                                                       : api::GridPolicy::kInput;

@@ -541,10 +541,10 @@ void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
                 "forearm against the belly) back out of it; takes about half as long again");
   cmd->add_option("--fem-refine", fem.refine_iterations,
                   "With --method fem: then this many Newton iterations of the nonlinear material with a volume per "
-                  "vertex star and no new folds (default 0, none). Keeps the volume a bent hip loses to the solve "
-                  "(the body phantom's hip 90: -7.2% within 50 mm without, -3.9% with 5, -2.6% with 10: the pose 4-7 s "
-                  "instead of 2), at 0.2-0.4 s an iteration there. It has no contact term: skin --fem-contact kept out "
-                  "may pass back")
+                  "compressed vertex star and no new folds (default 3; 0: none). They give back the volume a bent hip "
+                  "loses to the solve (the body phantom's hip 90 within 50 mm: -4.4 to -7.9% without, -3.3 to -4.4% "
+                  "with 3), at 0.1-0.2 s an iteration there. No contact term: skin --fem-contact kept out may pass "
+                  "back")
       ->check(CLI::Range(0, 1000));
 }
 

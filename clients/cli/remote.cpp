@@ -355,7 +355,8 @@ v1::PoseRequest proto_request(const api::PoseRequest& r, const std::string& rig_
     put_grid(*r.given_grid, request.mutable_given_grid());
   }
   if (r.method == api::Method::kFem &&
-      (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0 || r.fem.contact || r.fem.refine_iterations > 0)) {
+      (r.fem.max_iterations > 0 || r.fem.volume_weight > 0.0 || r.fem.contact ||
+       r.fem.refine_iterations != api::FemOptions{}.refine_iterations)) {
     request.mutable_fem()->set_max_iterations(static_cast<uint32_t>(std::max(0, r.fem.max_iterations)));
     request.mutable_fem()->set_volume_weight(r.fem.volume_weight);
     request.mutable_fem()->set_contact(r.fem.contact);

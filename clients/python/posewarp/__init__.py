@@ -434,7 +434,7 @@ class Client:
              meshes: Optional[Mapping[str, Tuple[Sequence, Sequence]]] = None, fem_iterations: int = 0,
              fem_volume_weight: float = 0.0, label_runs: bool = True, *,
              joints: Optional[Mapping[str, Any]] = None, root: Optional[Mapping[str, Any]] = None,
-             fem_contact: bool = False, fem_refine: int = 0) -> PoseResult:
+             fem_contact: bool = False, fem_refine: Optional[int] = None) -> PoseResult:
         """Poses a rig and returns the PoseResult.
 
         The pose: joints={"knee_left": {"flexion": 90}, "hip_right": (30, 10, 0)} (anatomical degrees: flexion,
@@ -447,9 +447,10 @@ class Client:
         10000, default 20: more converges further and takes longer) and fem_volume_weight (how much more keeping
         volume counts than keeping shape, default 100) tune its solve; 0 keeps the server's default; fem_contact=True
         pushes the skin that bending drives into the tissue facing it back out (slower by about half); fem_refine (0 to
-        1000, default 0) adds that many Newton iterations of the nonlinear material with a volume per vertex star and
-        no new folds, which keep the volume a bent hip loses, at 0.2-0.4 s an iteration there (no contact term:
-        skin fem_contact kept out may pass back in). grid: "input"
+        1000; None, the default, keeps the server's 3) is how many Newton iterations of the nonlinear material with a
+        volume per compressed vertex star and no new folds follow the solve, which give back the volume a bent hip
+        loses, at 0.1-0.2 s an iteration there (0: none; no contact term: skin fem_contact kept out may pass
+        back in). grid: "input"
         (the study's grid), "grow" (grown to hold the posed body), or another scan's grid (a match's target_grid).
 
         samples: "stored" gives each volume in the study's own type (the CT rounded as a file stores it, the fewest
@@ -482,7 +483,9 @@ class Client:
                                  samples=pb.SAMPLE_TYPE_STORED if samples == "stored" else pb.SAMPLE_TYPE_COMPUTED,
                                  want_fields=fields,
                                  fem=pb.FemOptions(max_iterations=fem_iterations, volume_weight=fem_volume_weight,
-                                                   contact=fem_contact, refine_iterations=fem_refine),
+                                                   contact=fem_contact,
+                                                   **({} if fem_refine is None else
+                                                      {"refine_iterations": fem_refine})),
                                  label_encoding=pb.LABEL_ENCODING_RUNS if label_runs else pb.LABEL_ENCODING_SAMPLES)
         if typed is not None:
             request.pose.CopyFrom(typed)  # typed: joints and angles the server checks field by field

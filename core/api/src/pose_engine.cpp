@@ -148,9 +148,10 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
 
 // The refinement after the projective solve (FemOptions::refine_iterations): a star volume of 100 with 1 per tet
 // and a barrier of 10 (from J = 0.7), which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and
-// shoulder at 90 degrees. It moves the bent tissue within 3 edges of a star the solve left below 0.9 of its volume,
-// the rest held where the solve put it: at a hip a third of the bent tissue, for as much volume in a fifth of the
-// time (README: fem).
+// shoulder at 90 degrees. It moves the bent tissue within 2 edges of a star the solve left below 0.9 of its volume,
+// the rest held where the solve put it, and only the stars the solve left compressed (below 1) keep their volume:
+// at a hip a fifth of the bent tissue, with a matrix a third as full as every star's, for more volume in each
+// iteration (README: fem).
 fem::NonlinearParams refine_params(int iterations) {
   fem::NonlinearParams params;
   params.tet_volume_weight = 1.0;

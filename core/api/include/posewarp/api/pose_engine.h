@@ -26,11 +26,11 @@ struct FemOptions {
   int max_iterations = 0;      // 1 to 10000; default 20
   double volume_weight = 0.0;  // how much more keeping volume counts than keeping shape, up to 1e6; default 100
   bool contact = false;        // push skin out of the tissue facing it (fem::FemParams::contact)
-  // Then this many Newton iterations of the nonlinear material with a volume per vertex star and no new folds
-  // (fem::solve_nonlinear with its barrier), 1 to 1000; 0, the default, none. It keeps the volume a bent hip loses
-  // to the solve's per-tet volume (README: fem), at 0.2-0.4 s an iteration on a body's hip. It has no contact
-  // term: skin that `contact` kept out of the tissue facing it may pass back in.
-  int refine_iterations = 0;
+  // Then this many Newton iterations of the nonlinear material with a volume per compressed vertex star and no new
+  // folds (fem::solve_nonlinear with its barrier), 0 (none) to 1000; default 3. They give back the volume a bent
+  // hip loses to the solve's per-tet volume (README: fem), at 0.1-0.2 s an iteration on a body's hip. They have no
+  // contact term: skin that `contact` kept out of the tissue facing it may pass back in.
+  int refine_iterations = 3;
 };
 
 struct PoseRequest {
