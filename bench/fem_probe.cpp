@@ -227,6 +227,7 @@ int main(int argc, char** argv) {
     request.method = *method;
     request.want_labels = request.want_ct = request.want_surfaces = refine >= 0;
     if (refine >= 0) request.fem.refine_iterations = refine;
+    if (nonlinear) request.fem.refine_iterations = 0;  // WARM fem: the projective solve's own result
     request.fem.max_iterations = projective_iterations;
     Result<api::PoseResult> result = internal_error("no pose");
     double best = std::numeric_limits<double>::infinity();

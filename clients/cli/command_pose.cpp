@@ -542,7 +542,7 @@ void add_fem_options(CLI::App* cmd, api::FemOptions& fem) {
   cmd->add_option("--fem-refine", fem.refine_iterations,
                   "With --method fem: then this many Newton iterations of the nonlinear material with a volume per "
                   "compressed vertex star and no new folds (default 3; 0: none). They give back the volume a bent hip "
-                  "loses to the solve (the body phantom's hip 90 within 50 mm: -4.4 to -7.9% without, -3.3 to -4.4% "
+                  "loses to the solve (the body phantom's hip 90 within 50 mm: -6.0 to -7.9% without, -3.3 to -4.4% "
                   "with 3), at 0.1-0.2 s an iteration there. No contact term: skin --fem-contact kept out may pass "
                   "back")
       ->check(CLI::Range(0, 1000));

@@ -150,8 +150,8 @@ Result<fem::FemParams> fem_params(const FemOptions& options) {
 // and a barrier of 10 (from J = 0.7), which posewarp_fem_probe measured on the body phantom's hip, knee, elbow and
 // shoulder at 90 degrees. It moves the bent tissue within 2 edges of a star the solve left below 0.9 of its volume,
 // the rest held where the solve put it, and only the stars the solve left compressed (below 1) keep their volume:
-// at a hip a fifth of the bent tissue, with a matrix a third as full as every star's, for more volume in each
-// iteration (README: fem).
+// at a hip a fifth of the bent tissue, with a sparser matrix than every star's, for more volume in each iteration
+// (README: fem).
 fem::NonlinearParams refine_params(int iterations) {
   fem::NonlinearParams params;
   params.tet_volume_weight = 1.0;
