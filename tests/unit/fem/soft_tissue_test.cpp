@@ -316,6 +316,26 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   EXPECT_LT(region_stats.free_vertices, stats.free_vertices);
   EXPECT_EQ(region_folded, 0);
   EXPECT_LT(std::abs(region.volume_change), 0.5 * std::abs(lbs_far.volume_change));
+  // The refinement's region, two edges around those vertices, with only the stars LBS compressed held to their
+  // volume (star_below 1): it moves the tissue otherwise than with every star held, folds none, and leaves the
+  // volume nearer rest than LBS did.
+  guarded.region_rings = 2;
+  const Result<Eigen::MatrixXd> every_star =
+      solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {});
+  ASSERT_TRUE(every_star.ok()) << every_star.status().to_string();
+  guarded.star_below = 1.0;
+  posed = solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {});
+  ASSERT_TRUE(posed.ok()) << posed.status().to_string();
+  EXPECT_GT((*posed - *every_star).cwiseAbs().maxCoeff(), 0.01);
+  const Eigen::VectorXd compressed_after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
+  int64_t compressed_folded = 0;
+  for (Eigen::Index t = 0; t < before.size(); ++t) compressed_folded += before(t) > 0.0 && compressed_after(t) <= 0.0;
+  const SoftFigures compressed = soft_figures(limb_, frames_, *posed);
+  std::cout << "120 degrees, two edges around them, only the compressed stars keeping their volume: "
+            << compressed.volume_change << " (" << compressed.inverted << " inverted; every star "
+            << soft_figures(limb_, frames_, *every_star).volume_change << ")\n";
+  EXPECT_EQ(compressed_folded, 0);
+  EXPECT_LT(std::abs(compressed.volume_change), 0.5 * std::abs(lbs_far.volume_change));
   NonlinearParams bad;
   bad.star_volume_weight = -1.0;
   Status refused = solve_nonlinear(inputs, bad, {}).status();
@@ -331,6 +351,11 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   refused = solve_nonlinear(inputs, bad, {}).status();
   EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
   EXPECT_NE(refused.message().find("barrier_from"), std::string::npos);
+  bad = NonlinearParams{};
+  bad.star_below = 11.0;
+  refused = solve_nonlinear(inputs, bad, {}).status();
+  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.message().find("star_below"), std::string::npos);
 }
 
 // Bent 150 degrees and stopped after one iteration, the steady state leaves the inside of the bend folded; the
