@@ -170,9 +170,10 @@ Result<Eigen::MatrixXd> solve_corotational(const SolveInputs& inputs, const Coro
 // volume (Bonet and Burton 1998), lets the tets of a star trade volume while the star keeps its own, and without the
 // barrier they trade it by folding. The matrix is assembled and factored anew at each iteration (the stars couple
 // vertices two edges apart; its memory grows with the square of a star's vertices, and with the margin): a second
-// an iteration on a body's bent hip, 0.2-0.4 s on the compressed region only (region_below). Measured against the
+// an iteration on a body's bent hip, 0.07-0.1 s on the refinement's region with only its compressed stars held
+// (region_below, star_below; 2,000-2,400 vertices, 2026-11-29). Measured against the
 // projective solve it is a reference (README: fem); after it, with the star's term, the barrier and the region, it
-// is the refinement a pose may ask for (api::FemOptions). It has no
+// is the refinement a pose runs (3 iterations unless it asks otherwise: api::FemOptions). It has no
 // contact term: skin that --fem-contact kept out of the tissue facing it may pass back in. INVALID_ARGUMENT naming
 // a parameter out of range; INTERNAL when the energy is not finite at the start (a tet flat at rest) or the system
 // cannot be factored; CANCELLED or DEADLINE_EXCEEDED through the hooks (every iteration, as the stage
@@ -186,7 +187,8 @@ struct NonlinearParams {
   // J0, in (0, 1]. 0.7 so that the Newton step sees the barrier's curvature before a tet's det nears 0 (from 0.3,
   // every cut of the line search on the body phantom's hip was a tet the step carried from above 0.3 past 0), and
   // tissue pressed below 0.7 of its volume, which a nearly incompressible material does not reach, is pushed back.
-  // posewarp_fem_probe, hip 90 on out/bc9, the refinement's region, within 50 mm: from 0.3 -4.5% after 10
+  // posewarp_fem_probe, hip 90 on out/bc9, the refinement's region as it was then (3 edges, every star held),
+  // within 50 mm: from 0.3 -4.5% after 10
   // iterations; 0.5 -5.0% after 5, -3.1% after 10; 0.7 -3.9% after 5, -2.6% after 10; folded 0.9% in each.
   double barrier_from = 0.7;
   bool untangle = false;       // then the projective solve's untangling (FemParams::untangle)
@@ -195,7 +197,7 @@ struct NonlinearParams {
   double margin_mm = 40.0;     // reach of the solve beyond the tissue the pose bends (rest mm, along mesh edges)
   // Only the free vertices within `region_rings` edges (0 to 100) of a vertex whose star's volume is below
   // `region_below` (0 to 1; 0: every free vertex) of its rest volume at the warm start, the rest held there: the
-  // refinement works where the solve left tissue compressed, a third of the bent tissue at a hip.
+  // refinement works where the solve left tissue compressed: two edges around it, a fifth of the bent tissue at a hip.
   double region_below = 0.0;
   int region_rings = 3;
   // The star term only on the stars whose volume at the warm start is below this fraction (0 to 10) of their rest
