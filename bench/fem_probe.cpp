@@ -8,10 +8,10 @@
 // from the last (a load-stepped solve, measured against the one-step solve).
 // pose:REFINE[:REPEATS[:ITERATIONS]] times the whole fem pose with --fem-refine REFINE (best of REPEATS, default 3)
 // and --fem-iterations ITERATIONS.
-// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM:STAR_BELOW] is
-// the projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from the projective
-// solve's result). A probe for developers: the figures say whether the loss is tissue a solve could move (free corners)
-// or tissue pinned between two bones by the mesh.
+// nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM:
+// STAR_BELOW] is the projected-Newton reference (fem::solve_nonlinear) from WARM's vertices (cor, or fem to go on from
+// the projective solve's result). A probe for developers: the figures say whether the loss is tissue a solve could
+// move (free corners) or tissue pinned between two bones by the mesh.
 #include <Eigen/Dense>
 
 #include <algorithm>
@@ -151,8 +151,8 @@ int main(int argc, char** argv) {
       corotational->poisson_ratio = std::stod(nu);
       corotational->max_iterations = std::stoi(it);
     }
-    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:BARRIER_FROM:STAR_BELOW],
-    // the projected-Newton reference
+    // nonlinear:TET_WEIGHT:STAR_WEIGHT:ITERATIONS:WARM[:MARGIN:UNTANGLE:BARRIER:REGION_BELOW:REGION_RINGS:
+    // BARRIER_FROM:STAR_BELOW], the projected-Newton reference
     if (method_name.rfind("nonlinear:", 0) == 0) {
       std::stringstream in(method_name.substr(10));
       std::string tet, star, it, margin, untangle;
@@ -202,9 +202,9 @@ int main(int argc, char** argv) {
       custom->volume_weight = std::stod(w);
       custom->max_iterations = std::stoi(it);
     }
-    // pose:REFINE[:REPEATS[:ITERATIONS]] is the whole fem pose as a user gets it (labels and CT warped, surfaces deformed) with
-    // --fem-refine REFINE (and --fem-iterations ITERATIONS when given), REPEATS times (default 3, the first also preparing what the engine keeps): its best wall
-    // time and its stages' best.
+    // pose:REFINE[:REPEATS[:ITERATIONS]] is the whole fem pose as a user gets it (labels and CT warped, surfaces
+    // deformed) with --fem-refine REFINE (and --fem-iterations ITERATIONS when given), REPEATS times (default 3, the
+    // first also preparing what the engine keeps): its best wall time and its stages' best.
     int refine = -1, repeats = 1, projective_iterations = 0;
     if (method_name.rfind("pose:", 0) == 0) {
       std::stringstream in(method_name.substr(5));
@@ -238,8 +238,8 @@ int main(int argc, char** argv) {
       if (!result.ok()) break;
       best = std::min(best, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
       for (const auto& [stage, seconds] : result->report.stage_seconds) {
-        stage_best.try_emplace(stage, seconds);
-        stage_best[stage] = std::min(stage_best[stage], seconds);
+        const auto [at, first] = stage_best.try_emplace(stage, seconds);
+        if (!first) at->second = std::min(at->second, seconds);
       }
     }
     if (!result.ok()) {

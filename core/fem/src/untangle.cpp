@@ -108,11 +108,11 @@ constexpr double kHeldEps = 0.1;
 constexpr double kGapEps = 1.0;
 // The regulariser's schedule: the worst tet's regularised det starts at kFirstMu and falls by at least kLeastCut a
 // round of kInner L-BFGS steps; kPureBarrier once every tet is positive (the energy then keeps them so). 0.5 and 25
-// (were 0.3 and 40): posewarp_fem_probe, fem:100:20:cor on out/bc9's knee, elbow, shoulder and hip 90 and bc10's
-// hip, the untangling took 0.28 / 0.65 s at the hips instead of 0.76 / 1.08 (the shoulder's whole solve 0.40 s
-// instead of 1.05); the folded share within 50 mm the same or less (knee 0.7 -> 0.4%, shoulder 0.5 -> 0.3%, bc10's
-// hip 0.6 -> 0.5%), the volume there 0.2 to 1.3 points further from rest (bc9's hip -7.2 -> -7.9%, bc10's -5.5 ->
-// -6.8%), which the refinement after it gives back (api::FemOptions::refine_iterations).
+// (were 0.3 and 40), posewarp_fem_probe on out/bc9 and bc10: at the hips 90 (fem:100:20:cor) the untangling took
+// 0.28 / 0.65 s instead of 0.76 / 1.08, the share folded within 50 mm 0.9 / 0.5% (was 0.9 / 0.6%), the volume
+// there -7.9 / -6.8% (was -7.2 / -5.5%); at bc9's knee, elbow and shoulder 90 (pose:0:2, no refinement) the whole solve
+// 0.26-0.40 s instead of 0.35-1.05 (the shoulder), folded 0.7 -> 0.4%, 0.6 -> 0.6%, 0.5 -> 0.3%, the volume 0.2-0.5
+// point further from rest. The refinement after it gives that volume back (api::FemOptions::refine_iterations).
 constexpr double kFirstMu = 0.1;
 constexpr double kLeastCut = 0.5;
 constexpr double kPureBarrier = 1e-10;

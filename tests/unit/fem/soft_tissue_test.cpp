@@ -286,10 +286,15 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   Result<Eigen::MatrixXd> posed =
       solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {}, &stats);
   ASSERT_TRUE(posed.ok()) << posed.status().to_string();
+  // The tets LBS left unfolded that a solve folds.
   const Eigen::VectorXd before = skinning::tet_determinants(limb_.mesh, frames_, far_warm);
-  const Eigen::VectorXd after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
-  int64_t newly_folded = 0;
-  for (Eigen::Index t = 0; t < before.size(); ++t) newly_folded += before(t) > 0.0 && after(t) <= 0.0;
+  const auto folded_anew = [&](const Eigen::MatrixXd& solved) {
+    const Eigen::VectorXd after = skinning::tet_determinants(limb_.mesh, frames_, solved);
+    int64_t folded = 0;
+    for (Eigen::Index t = 0; t < before.size(); ++t) folded += before(t) > 0.0 && after(t) <= 0.0;
+    return folded;
+  };
+  const int64_t newly_folded = folded_anew(*posed);
   const SoftFigures lbs_far = soft_figures(limb_, frames_, far_warm),
                     guarded_far = soft_figures(limb_, frames_, *posed);
   std::cout << "120 degrees: lbs " << lbs_far.volume_change << " (" << lbs_far.inverted << " inverted), nonlinear with "
@@ -306,9 +311,7 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   FemStats region_stats;
   posed = solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {}, &region_stats);
   ASSERT_TRUE(posed.ok()) << posed.status().to_string();
-  const Eigen::VectorXd region_after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
-  int64_t region_folded = 0;
-  for (Eigen::Index t = 0; t < before.size(); ++t) region_folded += before(t) > 0.0 && region_after(t) <= 0.0;
+  const int64_t region_folded = folded_anew(*posed);
   const SoftFigures region = soft_figures(limb_, frames_, *posed);
   std::cout << "120 degrees around the compressed stars: " << region.volume_change << " (" << region.inverted
             << " inverted), " << region_stats.free_vertices << " of " << stats.free_vertices << " vertices\n";
@@ -327,35 +330,31 @@ TEST_F(SoftTissue, TheNonlinearReferenceConvergesAndItsStarVolumeKeepsTheBendsVo
   posed = solve_nonlinear({limb_.mesh, frames_, topology_, limb_.weights, far, far_warm}, guarded, {});
   ASSERT_TRUE(posed.ok()) << posed.status().to_string();
   EXPECT_GT((*posed - *every_star).cwiseAbs().maxCoeff(), 0.01);
-  const Eigen::VectorXd compressed_after = skinning::tet_determinants(limb_.mesh, frames_, *posed);
-  int64_t compressed_folded = 0;
-  for (Eigen::Index t = 0; t < before.size(); ++t) compressed_folded += before(t) > 0.0 && compressed_after(t) <= 0.0;
+  const int64_t compressed_folded = folded_anew(*posed);
   const SoftFigures compressed = soft_figures(limb_, frames_, *posed);
   std::cout << "120 degrees, two edges around them, only the compressed stars keeping their volume: "
             << compressed.volume_change << " (" << compressed.inverted << " inverted; every star "
             << soft_figures(limb_, frames_, *every_star).volume_change << ")\n";
   EXPECT_EQ(compressed_folded, 0);
   EXPECT_LT(std::abs(compressed.volume_change), 0.5 * std::abs(lbs_far.volume_change));
+  // A parameter out of range is refused by name.
+  const auto expect_refused = [&](NonlinearParams bad, const std::string& name) {
+    const Status refused = solve_nonlinear(inputs, bad, {}).status();
+    EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument) << name;
+    EXPECT_NE(refused.message().find(name), std::string::npos) << refused.message();
+  };
   NonlinearParams bad;
   bad.star_volume_weight = -1.0;
-  Status refused = solve_nonlinear(inputs, bad, {}).status();
-  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(refused.message().find("star_volume_weight"), std::string::npos);
+  expect_refused(bad, "star_volume_weight");
   bad = NonlinearParams{};
   bad.region_below = 1.5;
-  refused = solve_nonlinear(inputs, bad, {}).status();
-  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(refused.message().find("region_below"), std::string::npos);
+  expect_refused(bad, "region_below");
   bad = NonlinearParams{};
   bad.barrier_from = 0.0;
-  refused = solve_nonlinear(inputs, bad, {}).status();
-  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(refused.message().find("barrier_from"), std::string::npos);
+  expect_refused(bad, "barrier_from");
   bad = NonlinearParams{};
   bad.star_below = 11.0;
-  refused = solve_nonlinear(inputs, bad, {}).status();
-  EXPECT_EQ(refused.code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(refused.message().find("star_below"), std::string::npos);
+  expect_refused(bad, "star_below");
 }
 
 // Bent 150 degrees and stopped after one iteration, the steady state leaves the inside of the bend folded; the
