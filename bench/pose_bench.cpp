@@ -3,12 +3,16 @@
 // through a DisplacementFieldTransform (same output grid, volume and threads, same run), and whole poses of the
 // real sample and of a mannequin.
 // Usage: posewarp_bench_pose [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M (0 = skip)]
-//                            [--body-mvoxels M (0 = skip)] [--repeats R] [--data-dir DIR]
+//                            [--body-mvoxels M (0 = skip)] [--repeats R] [--data-dir DIR] [--rig RIG --pose POSE]
+//                            [--quick]
 // With several thread counts it prints the scaling table instead: per case, the whole pose, each stage and ITK on
 // the same warp at each count, and the parallel efficiency from the first count of at least 2 to the last (from the
 // first count when only the last is 2 or more).
 // --data-dir names the real sample's folder (seg_total.nii.gz, ct.nii.gz) where the build tree's path does not
 // exist (a bundle run on another machine).
+// --rig RIG --pose POSE.json benches that rig with that pose instead of the built-in cases (a rig of your own data, a
+// pose that moves the root), with the same rows. --quick gives only the whole pose and its stages (no surfaces, fem,
+// previews or ITK): what a change to a stage is measured by.
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Geometry>
@@ -17,6 +21,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <functional>
 #include <iostream>
 #include <limits>
@@ -25,7 +30,9 @@
 #include <string>
 #include <vector>
 
+#include "posewarp/api/files.h"
 #include "posewarp/api/pose_engine.h"
+#include "posewarp/api/rig_file.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/io/volume_io.h"
@@ -95,7 +102,7 @@ nlohmann::json bench_skinning(int repeats) {
   return row;
 }
 
-nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pose& pose, int repeats) {
+nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pose& pose, int repeats, bool quick) {
   // Once per rig: rest tet frames, rest ownership, bone voxels and body regions.
   const auto created = std::chrono::steady_clock::now();
   Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig));
@@ -115,7 +122,7 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   std::printf("%-14s engine created in %.0f ms\n", name.c_str(), 1000.0 * create_s);
 
   // Surfaces: 1M points inside the rest mesh, embedded (spatial hash) and deformed.
-  {
+  if (!quick) {
     const TetMesh& mesh = engine->rig().mesh;
     const int64_t n = 1'000'000;
     std::mt19937 rng(11);
@@ -154,6 +161,12 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   });
   row["whole_pose_ms"] = 1000.0 * whole_s;
   for (const auto& [stage, seconds] : stages) row["stages_ms"][stage] = 1000.0 * seconds;
+  if (quick) {
+    std::printf("%-14s %9.0f voxels: whole pose %7.1f ms; stages:", name.c_str(), voxels, 1000.0 * whole_s);
+    for (const auto& [stage, seconds] : stages) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
+    std::printf("\n");
+    return row;
+  }
 
   // The same pose with the soft tissue's steady state (fem): CoR, then the solve, then the same warp.
   api::PoseRequest fem = whole;
@@ -361,6 +374,8 @@ int main(int argc, char** argv) {
   int repeats = 3;
   double mannequin_mvoxels = 20.0, body_mvoxels = 20.0;
   std::string dir = POSEWARP_SAMPLE_DIR;
+  std::string rig_path, pose_path;
+  bool quick = false;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
       counts = thread_counts(argv[++i]);
@@ -372,16 +387,26 @@ int main(int argc, char** argv) {
       repeats = std::max(1, std::atoi(argv[++i]));
     } else if (!std::strcmp(argv[i], "--data-dir") && i + 1 < argc) {
       dir = argv[++i];
+    } else if (!std::strcmp(argv[i], "--quick")) {
+      quick = true;
+    } else if (!std::strcmp(argv[i], "--rig") && i + 1 < argc) {
+      rig_path = argv[++i];
+    } else if (!std::strcmp(argv[i], "--pose") && i + 1 < argc) {
+      pose_path = argv[++i];
     } else {
       counts.clear();
     }
     if (counts.empty()) {
       std::fprintf(stderr,
                    "usage: %s [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M] [--body-mvoxels M] "
-                   "[--repeats R] [--data-dir DIR]\n",
+                   "[--repeats R] [--data-dir DIR] [--rig RIG --pose POSE.json] [--quick]\n",
                    argv[0]);
       return 2;
     }
+  }
+  if (rig_path.empty() != pose_path.empty()) {
+    std::fprintf(stderr, "--rig and --pose go together: the rig file and the pose file to bench on it\n");
+    return 2;
   }
   const bool sweep = counts.size() > 1;
   set_thread_count(sweep ? *std::max_element(counts.begin(), counts.end()) : counts[0]);
@@ -393,10 +418,22 @@ int main(int argc, char** argv) {
     if (sweep) {
       out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats));
     } else {
-      out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats));
+      out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats, quick));
     }
     return true;
   };
+  if (!rig_path.empty()) {
+    Result<api::Rig> rig = api::load_rig(rig_path);
+    Result<Pose> pose = api::read_pose(pose_path);
+    if (!rig.ok() || !pose.ok()) {
+      std::fprintf(stderr, "%s\n", (rig.ok() ? pose.status() : rig.status()).to_string().c_str());
+      return 1;
+    }
+    const std::string name = std::filesystem::path(pose_path).stem().string();
+    if (!bench(name, std::move(rig), *pose)) return 1;
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
   if (!sweep) out["skinning_1M"] = bench_skinning(repeats);
 
   api::BuildInputs sample;

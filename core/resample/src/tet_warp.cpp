@@ -12,6 +12,7 @@
 #include <new>
 #include <optional>
 #include <string>
+#include <tuple>
 #include <utility>
 
 #include "posewarp/common/parallel.h"
@@ -23,6 +24,9 @@ using namespace internal;
 
 namespace {
 
+// Runs at least this long look for their span inside the grid (inside_span); shorter ones check each voxel.
+constexpr int64_t kSpanFrom = 16;
+
 // Copies `count` source voxels from whole index (x0, y, z) along x to dst, the part that lies in the grid m.
 template <typename T>
 inline void copy_source_row(const T* in, const Index3& m, int64_t x0, int64_t y, int64_t z, int64_t count, T* dst) {
@@ -30,6 +34,72 @@ inline void copy_source_row(const T* in, const Index3& m, int64_t x0, int64_t y,
   const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
   const T* row = in + m[0] * (y + m[1] * z) + x0;
   if (c0 < c1) std::copy(row + c0, row + c1, dst + c0);
+}
+
+// The voxels [first, end) of a run whose samples s0 + c ds all satisfy `inside(c)`, a test that holds on a box of
+// source index space [lo, hi) per axis. Each coordinate of s0 + c ds is monotone in c, so the voxels inside form one
+// interval: its real bounds, a voxel narrower on each side, then widened or narrowed to where `inside` says, voxel by
+// voxel (none, or a few, for the rounding). first == end when no voxel is inside.
+template <typename Inside>
+std::pair<int64_t, int64_t> inside_span(const double s0[3], const double ds[3], int64_t count, const double lo[3],
+                                        const double hi[3], const Inside& inside) {
+  double c_lo = 0.0, c_hi = static_cast<double>(count - 1);
+  for (int a = 0; a < 3; ++a) {
+    if (ds[a] == 0.0) {
+      if (!(s0[a] >= lo[a] && s0[a] < hi[a])) return {0, 0};
+      continue;
+    }
+    double from = (lo[a] - s0[a]) / ds[a], to = (hi[a] - s0[a]) / ds[a];
+    if (from > to) std::swap(from, to);
+    c_lo = std::max(c_lo, from);
+    c_hi = std::min(c_hi, to);
+  }
+  if (!(c_lo <= c_hi)) return {0, 0};
+  int64_t first = static_cast<int64_t>(std::ceil(c_lo)) + 1, last = static_cast<int64_t>(std::floor(c_hi)) - 1;
+  first = std::clamp<int64_t>(first, 0, count - 1);
+  last = std::clamp<int64_t>(last, 0, count - 1);
+  if (first > last) return {0, 0};
+  if (!inside(first) || !inside(last)) return {0, 0};  // the rounding took the margin: no fast span
+  while (first > 0 && inside(first - 1)) --first;
+  while (last + 1 < count && inside(last + 1)) ++last;
+  return {first, last + 1};
+}
+
+// The nearest voxels of `in` (grid m) at s0 + c ds for c in [first, end), each in the grid, to out[c]. The run's
+// values are copied to locals, so that the compiler keeps them in registers across out's stores.
+template <typename T>
+void nearest_inside(const T* in, const Index3& m, const double s0[3], const double ds[3], int64_t first, int64_t end,
+                    T* out) {
+  const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
+  const int64_t sy = m[0], sz = m[0] * m[1];
+  // round_index of a sample in the grid: x + 0.5 >= 0 there, where truncation is the floor it takes.
+  auto rounded = [](double x) { return static_cast<int64_t>(x + 0.5); };
+  for (int64_t c = first; c < end; ++c) {
+    const double dc = double(c);
+    out[c] = in[rounded(a0 + dc * d0) + sy * rounded(a1 + dc * d1) + sz * rounded(a2 + dc * d2)];
+  }
+}
+
+// Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
+// its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop.
+void trilinear_inside(const float* in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
+                      int64_t end, float* out) {
+  const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
+  const int64_t sy = m[0], sz = m[0] * m[1];
+  for (int64_t c = first; c < end; ++c) {
+    const double dc = double(c);
+    const double x = a0 + dc * d0, y = a1 + dc * d1, z = a2 + dc * d2;
+    const int64_t b0 = static_cast<int64_t>(x), b1 = static_cast<int64_t>(y), b2 = static_cast<int64_t>(z);
+    const double f0 = x - static_cast<double>(b0), f1 = y - static_cast<double>(b1), f2 = z - static_cast<double>(b2);
+    const float* p = in + b0 + b1 * sy + b2 * sz;
+    const double c00 = p[0] + f0 * (p[1] - p[0]);
+    const double c10 = p[sy] + f0 * (p[sy + 1] - p[sy]);
+    const double c01 = p[sz] + f0 * (p[sz + 1] - p[sz]);
+    const double c11 = p[sz + sy] + f0 * (p[sz + sy + 1] - p[sz + sy]);
+    const double e0 = c00 + f1 * (c10 - c00);
+    const double e1 = c01 + f1 * (c11 - c01);
+    out[c] = static_cast<float>(e0 + f2 * (e1 - e0));
+  }
 }
 
 }  // namespace
@@ -137,22 +207,44 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   const Index3& m = source_.size;
   const Label* in = labels.data();
   Label* dst = out.data();
-  const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
+  const bool has_bones = bones_ != nullptr;
+  const double nearest_lo[3] = {-0.5, -0.5, -0.5};
+  const double nearest_hi[3] = {static_cast<double>(m[0]) - 0.5, static_cast<double>(m[1]) - 0.5,
+                                static_cast<double>(m[2]) - 0.5};
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
-    const bool keep_bones_out = soft && bone_of;
+    const bool keep_bones_out = soft && has_bones;
     if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
       copy_source_row(in, m, round_index(s0[0]), round_index(s0[1]), round_index(s0[2]), count, dst + v);
       return;
     }
-    for (int64_t c = 0; c < count; ++c) {
+    auto nearest = [&](int64_t c, int64_t& x, int64_t& y, int64_t& z) {
       const double dc = double(c);
-      const int64_t x = round_index(s0[0] + dc * ds[0]), y = round_index(s0[1] + dc * ds[1]),
-                    z = round_index(s0[2] + dc * ds[2]);
-      if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
-      int64_t at = x + m[0] * (y + m[1] * z);
-      if (keep_bones_out && bone_of[at] >= 0) at = bones_->substitute_of(at);
-      dst[v + c] = in[at];
+      x = round_index(s0[0] + dc * ds[0]), y = round_index(s0[1] + dc * ds[1]), z = round_index(s0[2] + dc * ds[2]);
+    };
+    auto sample = [&](int64_t c0, int64_t c1) {  // with the bounds checked and the bones kept out
+      for (int64_t c = c0; c < c1; ++c) {
+        int64_t x = 0, y = 0, z = 0;
+        nearest(c, x, y, z);
+        if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
+        int64_t at = x + m[0] * (y + m[1] * z);
+        if (keep_bones_out && bones_->is_bone(at)) at = bones_->substitute_of(at);
+        dst[v + c] = in[at];
+      }
+    };
+    if (keep_bones_out || count < kSpanFrom) {
+      sample(0, count);
+      return;
     }
+    // A long run (the background where the root moved): the voxels whose nearest source voxel is in the grid without
+    // a check each, the ends with theirs.
+    const auto [first, end] = inside_span(s0, ds, count, nearest_lo, nearest_hi, [&](int64_t c) {
+      int64_t x = 0, y = 0, z = 0;
+      nearest(c, x, y, z);
+      return x >= 0 && y >= 0 && z >= 0 && x < m[0] && y < m[1] && z < m[2];
+    });
+    sample(0, first);
+    nearest_inside(in, m, s0, ds, first, end, dst + v);
+    sample(std::max(first, end), count);
   });
   return out;
 }
@@ -176,9 +268,12 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
   const double top[3] = {static_cast<double>(m[0] - 1), static_cast<double>(m[1] - 1), static_cast<double>(m[2] - 1)};
   const int64_t base_max[3] = {std::max<int64_t>(0, m[0] - 2), std::max<int64_t>(0, m[1] - 2),
                                std::max<int64_t>(0, m[2] - 2)};
-  const int16_t* bone_of = bones_ ? bones_->segment.data() : nullptr;
+  const bool has_bones = bones_ != nullptr;
+  // Where every axis has two voxels or more, a sample in [0, m - 1) on each axis has its 8 neighbours in the grid.
+  const bool interior = m[0] > 1 && m[1] > 1 && m[2] > 1;
+  const double interior_lo[3] = {0.0, 0.0, 0.0};
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
-    const bool keep_bones_out = soft && bone_of;
+    const bool keep_bones_out = soft && has_bones;
     int64_t x0 = 0, y = 0, z = 0;
     if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2]) && integral(s0[0], x0) && integral(s0[1], y) &&
         integral(s0[2], z)) {
@@ -186,13 +281,27 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
       copy_source_row(in, m, x0, y, z, count, dst + v);
       return;
     }
+    int64_t first = 0, end = 0;  // the span whose 8 neighbours are all in the grid, interpolated without clamping
+    if (!keep_bones_out && interpolation == Interpolation::kLinear && interior && count >= kSpanFrom) {
+      std::tie(first, end) = inside_span(s0, ds, count, interior_lo, top, [&](int64_t c) {
+        const double dc = double(c);
+        for (int a = 0; a < 3; ++a) {
+          const double x = s0[a] + dc * ds[a];
+          if (!(x >= 0.0 && x < top[a])) return false;
+        }
+        return true;
+      });
+    }
+    trilinear_inside(in, m, s0, ds, first, end, dst + v);
     for (int64_t c = 0; c < count; ++c) {
+      if (c == first && first < end) c = end;
+      if (c >= count) break;
       const double dc = double(c);
       const double s[3] = {s0[0] + dc * ds[0], s0[1] + dc * ds[1], s0[2] + dc * ds[2]};
       if (s[0] < -0.5 || s[1] < -0.5 || s[2] < -0.5 || s[0] > hi[0] || s[1] > hi[1] || s[2] > hi[2]) continue;
       if (keep_bones_out) {
         const int64_t nearest = round_index(s[0]) + sy * round_index(s[1]) + sz * round_index(s[2]);
-        if (bone_of[nearest] >= 0) {
+        if (bones_->is_bone(nearest)) {
           dst[v + c] = in[bones_->substitute_of(nearest)];
           continue;
         }
@@ -276,11 +385,12 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
             if (x < 0 || x >= m[0] || background_row[x] < 0) continue;
           }
           double s[3];
-          apply_map(map_of(o), double(i), double(j), double(k), s);
+          apply_map(o == -1 ? background_map_ : map_of(o), double(i), double(j), double(k), s);
           const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
           if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
-          const int segment = bones_->segment[static_cast<size_t>(x + m[0] * (y + m[1] * z))];
-          if (segment < 0) continue;
+          const int64_t at = x + m[0] * (y + m[1] * z);
+          if (!bones_->is_bone(at)) continue;
+          const int segment = bones_->segment[static_cast<size_t>(at)];
           if (is_bone_owner(o) && o - kBoneOwner == segment) {  // the same map: s is the bone's own sample
             ++slice.exact[static_cast<size_t>(segment)];
             continue;

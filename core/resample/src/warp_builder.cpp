@@ -454,7 +454,8 @@ class TetWarp::Builder {
     double src[3];
     apply_map(map, i, j, k, src);
     const int64_t v = source_voxel(src);
-    return v < 0 ? -1 : in_.bones->voxels->segment[static_cast<size_t>(v)];
+    const BoneVoxels& bones = *in_.bones->voxels;
+    return v < 0 || !bones.is_bone(v) ? -1 : bones.segment[static_cast<size_t>(v)];
   }
 
   // Drops a tet's (or its shell's) sample of tissue from a body part separated from the tet's own.
@@ -560,13 +561,15 @@ class TetWarp::Builder {
         for (int64_t i = 0; i < n_[0]; ++i) {
           const int64_t local = local_begin + i;
           int32_t& o = owner_[row_begin + i];
-          if (o == -1 && fast && (i < bones_lo || i > bones_hi) &&
+          if (o == -1 && in_.rest_owner && (i < bones_lo || i > bones_hi) &&
               (next_shell >= found.size() || found[next_shell].first != local)) {
             // This voxel and those after it up to the next that needs more than its rest owner (a moving tet covers
             // it, a moving bone reaches it, or it is in the shell), in one loop.
             const int64_t shell_at = next_shell < found.size() ? found[next_shell].first - local_begin : n_[0];
             const int64_t stop = std::min({n_[0], shell_at, i < bones_lo ? bones_lo : n_[0]});
-            i = classify_uncovered_run(owner_ + row_begin, i, stop, x0, rest_row, stats) - 1;
+            i = (fast ? classify_uncovered_run(owner_ + row_begin, i, stop, x0, rest_row, stats)
+                      : classify_uncovered_mapped(owner_ + row_begin, i, stop, row, stats)) -
+                1;
             continue;
           }
           int32_t shell_owner = -1;
@@ -610,6 +613,19 @@ class TetWarp::Builder {
     for (; i < stop && row[i] == -1; ++i) {
       const int64_t x = x0 + i;
       classify_uncovered(row[i], rest_row && x >= 0 && x < width ? rest_row[x] : -1, stats);
+    }
+    return i;
+  }
+
+  // The same where the background map does not run along a source row (the root moved): each voxel's rest owner is
+  // looked up where the map takes it, `start` being the map at i = 0.
+  int64_t classify_uncovered_mapped(int32_t* row, int64_t i, int64_t stop, const double start[3],
+                                    WarpStats& stats) const {
+    const double* bg = warp_.background_map_;
+    for (; i < stop && row[i] == -1; ++i) {
+      const double di = double(i);
+      const double sb[3] = {start[0] + di * bg[0], start[1] + di * bg[3], start[2] + di * bg[6]};
+      classify_uncovered(row[i], rest_owner_at(sb), stats);
     }
     return i;
   }

@@ -112,6 +112,69 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   }
 }
 
+// A moved root on the study's own grid: every voxel samples through the root's map, runs of them across the source
+// rows and off its edges (the unchecked span inside the grid, checked voxels at its ends). Each voxel is what the map
+// says, worked out here voxel by voxel: the nearest label, the trilinear CT, the background outside the source.
+TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(7.0 * M_PI / 180.0, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(6.3, -4.1, 2.7);
+  const Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
+  ResampleParams params;
+  params.intensity_background = -1000.0f;
+  Result<TetWarp> warp = TetWarp::build({.rest = s.mesh,
+                                         .posed = posed,
+                                         .source = g,
+                                         .output = g,
+                                         .background_rotation = r,
+                                         .background_translation = t,
+                                         .rest_owner = &s.rest_owner,
+                                         .params = params});
+  ASSERT_TRUE(warp.ok()) << warp.status().to_string();
+  EXPECT_EQ(warp->rasterized_tets(), 0);
+  Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
+  Result<IntensityVolume> ct = warp->warp_intensities(s.phantom.ct, Interpolation::kLinear);
+  ASSERT_TRUE(labels.ok() && ct.ok());
+  const Index3& m = g.size;
+  int64_t inside = 0, outside = 0;
+  for (int64_t k = 0; k < m[2]; ++k) {
+    for (int64_t j = 0; j < m[1]; ++j) {
+      for (int64_t i = 0; i < m[0]; ++i) {
+        const Vec3 x = g.index_to_physical({double(i), double(j), double(k)});
+        const Eigen::Vector3d rest = r.transpose() * (Eigen::Vector3d(x[0], x[1], x[2]) - t);
+        const Vec3 u = g.physical_to_index({rest.x(), rest.y(), rest.z()});
+        const int64_t v = g.offset(i, j, k);
+        const int64_t n[3] = {std::llround(u[0]), std::llround(u[1]), std::llround(u[2])};
+        if (n[0] < 0 || n[1] < 0 || n[2] < 0 || n[0] >= m[0] || n[1] >= m[1] || n[2] >= m[2]) {
+          ++outside;
+          ASSERT_EQ(labels->data()[v], 0) << i << " " << j << " " << k;
+          continue;
+        }
+        ++inside;
+        ASSERT_EQ(labels->data()[v], s.phantom.labels.at(n[0], n[1], n[2])) << i << " " << j << " " << k;
+        if (u[0] < 0 || u[1] < 0 || u[2] < 0 || u[0] >= double(m[0] - 1) || u[1] >= double(m[1] - 1) ||
+            u[2] >= double(m[2] - 1)) {
+          continue;  // the CT's edge voxels clamp: checked by the ITK comparison above
+        }
+        const int64_t b[3] = {int64_t(u[0]), int64_t(u[1]), int64_t(u[2])};
+        const double f[3] = {u[0] - double(b[0]), u[1] - double(b[1]), u[2] - double(b[2])};
+        double value = 0.0;
+        for (int corner = 0; corner < 8; ++corner) {
+          const int c[3] = {corner & 1, (corner >> 1) & 1, (corner >> 2) & 1};
+          double w = 1.0;
+          for (int a = 0; a < 3; ++a) w *= c[a] ? f[a] : 1.0 - f[a];
+          value += w * s.phantom.ct.at(b[0] + c[0], b[1] + c[1], b[2] + c[2]);
+        }
+        ASSERT_NEAR(ct->data()[v], value, 1e-2) << i << " " << j << " " << k;
+      }
+    }
+  }
+  EXPECT_GT(inside, g.voxel_count() / 2);
+  EXPECT_GT(outside, 0);
+}
+
 TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();

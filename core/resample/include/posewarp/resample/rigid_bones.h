@@ -30,6 +30,9 @@ struct BoneVoxels {
   std::vector<std::array<int64_t, 6>> box;  // per segment: source index box (i0, j0, k0, i1, j1, k1), empty: i0 > i1
   int64_t bone_voxels = 0;
 
+  // Whether source voxel v is a bone voxel (segment[v] != kNone), from its bit: a lookup in 1/16 of the segment
+  // table's bytes, which stays in cache where the table would not.
+  bool is_bone(int64_t v) const { return (bone_bits[static_cast<size_t>(v >> 6)] >> (v & 63)) & 1; }
   // Bone voxel v's entry of `substitute` (segment[v] != kNone), and its substitute.
   size_t rank_of(int64_t v) const {
     const auto word = static_cast<size_t>(v >> 6);
