@@ -18,6 +18,10 @@
 #include "posewarp/common/parallel.h"
 #include "raster.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace posewarp::resample {
 
 using namespace internal;
@@ -68,8 +72,8 @@ std::pair<int64_t, int64_t> inside_span(const double s0[3], const double ds[3], 
 // The nearest voxels of `in` (grid m) at s0 + c ds for c in [first, end), each in the grid, to out[c]. The run's
 // values are copied to locals, so that the compiler keeps them in registers across out's stores.
 template <typename T>
-void nearest_inside(const T* in, const Index3& m, const double s0[3], const double ds[3], int64_t first, int64_t end,
-                    T* out) {
+void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
+                    int64_t end, T* __restrict out) {
   const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
   const int64_t sy = m[0], sz = m[0] * m[1];
   // round_index of a sample in the grid: x + 0.5 >= 0 there, where truncation is the floor it takes.
@@ -82,11 +86,40 @@ void nearest_inside(const T* in, const Index3& m, const double s0[3], const doub
 
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
 // its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop.
-void trilinear_inside(const float* in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
-                      int64_t end, float* out) {
+void trilinear_inside(const float* __restrict in, const Index3& m, const double s0[3], const double ds[3],
+                      int64_t first, int64_t end, float* __restrict out) {
   const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
   const int64_t sy = m[0], sz = m[0] * m[1];
-  for (int64_t c = first; c < end; ++c) {
+  int64_t c = first;
+#if defined(__SSE2__)
+  // Two voxels at a time, one in each lane: the same IEEE operations on the same values, so the same bits (the
+  // indices truncated to int32, which holds any grid's). A third faster on the body's moved root.
+  const __m128d x0 = _mm_set1_pd(a0), y0 = _mm_set1_pd(a1), z0 = _mm_set1_pd(a2);
+  const __m128d dx = _mm_set1_pd(d0), dy = _mm_set1_pd(d1), dz = _mm_set1_pd(d2);
+  auto lane = [](__m128i v, int l) { return static_cast<int64_t>(_mm_cvtsi128_si32(l ? _mm_shuffle_epi32(v, 1) : v)); };
+  auto pair = [](const float* at) { return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at))); };
+  __m128d cc = _mm_set_pd(double(c + 1), double(c));
+  for (; c + 1 < end; c += 2, cc = _mm_add_pd(cc, _mm_set1_pd(2.0))) {
+    const __m128d x = _mm_add_pd(x0, _mm_mul_pd(cc, dx)), y = _mm_add_pd(y0, _mm_mul_pd(cc, dy)),
+                  z = _mm_add_pd(z0, _mm_mul_pd(cc, dz));
+    const __m128i bx = _mm_cvttpd_epi32(x), by = _mm_cvttpd_epi32(y), bz = _mm_cvttpd_epi32(z);
+    const __m128d fx = _mm_sub_pd(x, _mm_cvtepi32_pd(bx)), fy = _mm_sub_pd(y, _mm_cvtepi32_pd(by)),
+                  fz = _mm_sub_pd(z, _mm_cvtepi32_pd(bz));
+    const float* p = in + lane(bx, 0) + lane(by, 0) * sy + lane(bz, 0) * sz;
+    const float* q = in + lane(bx, 1) + lane(by, 1) * sy + lane(bz, 1) * sz;
+    auto along_x = [&](int64_t at) {                                  // p[at] + f0 (p[at + 1] - p[at]) | the same at q
+      const __m128 both = _mm_movelh_ps(pair(p + at), pair(q + at));  // p0 p1 q0 q1
+      const __m128 low = _mm_shuffle_ps(both, both, _MM_SHUFFLE(3, 1, 2, 0));  // p0 q0 p1 q1
+      const __m128 diff = _mm_sub_ps(_mm_movehl_ps(low, low), low);            // p1 - p0, q1 - q0
+      return _mm_add_pd(_mm_cvtps_pd(low), _mm_mul_pd(fx, _mm_cvtps_pd(diff)));
+    };
+    const __m128d c00 = along_x(0), c10 = along_x(sy), c01 = along_x(sz), c11 = along_x(sz + sy);
+    const __m128d e0 = _mm_add_pd(c00, _mm_mul_pd(fy, _mm_sub_pd(c10, c00)));
+    const __m128d e1 = _mm_add_pd(c01, _mm_mul_pd(fy, _mm_sub_pd(c11, c01)));
+    _mm_storel_pi(reinterpret_cast<__m64*>(out + c), _mm_cvtpd_ps(_mm_add_pd(e0, _mm_mul_pd(fz, _mm_sub_pd(e1, e0)))));
+  }
+#endif
+  for (; c < end; ++c) {
     const double dc = double(c);
     const double x = a0 + dc * d0, y = a1 + dc * d1, z = a2 + dc * d2;
     const int64_t b0 = static_cast<int64_t>(x), b1 = static_cast<int64_t>(y), b2 = static_cast<int64_t>(z);
@@ -359,6 +392,13 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
     std::vector<std::vector<float>> off;
   };
   std::vector<Found> found(static_cast<size_t>(n[2]));
+  // The segments whose map is the background's, bit for bit (those that did not move off the root): a background
+  // voxel that lands on one of their voxels is where its bone puts it, deviation exactly 0, counted with the zeros.
+  std::vector<uint8_t> as_background(static_cast<size_t>(segment_count), 0);
+  for (int segment = 0; segment < segment_count; ++segment) {
+    as_background[static_cast<size_t>(segment)] =
+        std::equal(background_map_, background_map_ + 12, bone_maps_.data() + 12 * segment);
+  }
   parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {
       Found& slice = found[static_cast<size_t>(k)];
@@ -391,7 +431,8 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
           const int64_t at = x + m[0] * (y + m[1] * z);
           if (!bones_->is_bone(at)) continue;
           const int segment = bones_->segment[static_cast<size_t>(at)];
-          if (is_bone_owner(o) && o - kBoneOwner == segment) {  // the same map: s is the bone's own sample
+          if ((is_bone_owner(o) && o - kBoneOwner == segment) ||  // the same map: s is the bone's own sample
+              (o == -1 && as_background[static_cast<size_t>(segment)])) {
             ++slice.exact[static_cast<size_t>(segment)];
             continue;
           }
