@@ -317,14 +317,16 @@ void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTra
   }
   const std::vector<double> radii{50.0, 100.0};
   qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
+  std::vector<Eigen::Vector3d> centres;
+  for (const auto& [name, centre] : moved_joints) centres.push_back(centre);
+  const std::vector<std::vector<fem::Penetration>> inside =
+      fem::penetration(mesh, result.posed_vertices, skin_of(p), centres, radii);
   for (size_t j = 0; j < moved_joints.size(); ++j) {
-    const std::vector<fem::Penetration> inside =
-        fem::penetration(mesh, result.posed_vertices, skin_of(p), moved_joints[j].second, radii);
     for (size_t r = 0; r < radii.size(); ++r) {
       JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
-      change.skin_vertices = inside[r].skin_vertices;
-      change.skin_inside_tissue = inside[r].inside_tissue;
-      change.skin_inside_bone = inside[r].inside_bone;
+      change.skin_vertices = inside[j][r].skin_vertices;
+      change.skin_inside_tissue = inside[j][r].inside_tissue;
+      change.skin_inside_bone = inside[j][r].inside_bone;
     }
   }
 }

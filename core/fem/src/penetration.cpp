@@ -7,6 +7,8 @@
 #include <atomic>
 #include <cmath>
 #include <functional>
+#include <limits>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <unordered_map>
@@ -39,6 +41,68 @@ double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eig
   const double denominator = lu * lv * lw + u.dot(v) * lw + u.dot(w) * lv + v.dot(w) * lu;
   return 2.0 * std::atan2(numerator, denominator);
 }
+
+// Points in cells of `cell_mm`, as internal::CellGrid keeps them (the same cells, the same boxes left out), held
+// densely over the cells the points occupy: a box's cells are found by index instead of by hash. empty() when the
+// points spread over too many cells for that (then CellGrid is the one to use).
+class DenseCells {
+ public:
+  DenseCells(const std::vector<Eigen::Vector3d>& points, double cell_mm) : cell_mm_(cell_mm) {
+    Eigen::Array3i lo = Eigen::Array3i::Constant(std::numeric_limits<int>::max()), hi = -lo;
+    for (const Eigen::Vector3d& p : points) {
+      if (!in_range(p)) continue;
+      lo = lo.min(cell(p));
+      hi = hi.max(cell(p));
+    }
+    if ((lo > hi).any()) return;
+    size_ = hi - lo + 1;
+    if ((size_.cast<double>().prod()) > double{kMostDenseCells}) return;
+    first_ = lo;
+    start_.assign(static_cast<size_t>(size_.prod()) + 1, 0);
+    for (const Eigen::Vector3d& p : points) {
+      if (in_range(p)) ++start_[index(cell(p)) + 1];
+    }
+    for (size_t c = 1; c < start_.size(); ++c) start_[c] += start_[c - 1];
+    items_.resize(static_cast<size_t>(start_.back()));
+    std::vector<int32_t> next(start_.begin(), start_.end() - 1);
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (in_range(points[i])) items_[static_cast<size_t>(next[index(cell(points[i]))]++)] = static_cast<int32_t>(i);
+    }
+  }
+  bool empty() const { return start_.empty(); }
+  // Calls visit(item) for each point in the cells the box touches: the points CellGrid::in_box gives.
+  template <typename Visit>
+  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
+    if (!in_range(lo) || !in_range(hi)) return;
+    Eigen::Array3i a = cell(lo), b = cell(hi);
+    if (((b - a) > kMostCells).any()) return;
+    a = a.max(first_);
+    b = b.min(first_ + size_ - 1);
+    for (int x = a.x(); x <= b.x(); ++x)
+      for (int y = a.y(); y <= b.y(); ++y)
+        for (int z = a.z(); z <= b.z(); ++z) {
+          const size_t c = index(Eigen::Array3i(x, y, z));
+          for (int32_t k = start_[c]; k < start_[c + 1]; ++k) visit(items_[static_cast<size_t>(k)]);
+        }
+  }
+
+ private:
+  static constexpr int kMostCells = 32;                // as CellGrid
+  static constexpr int64_t kMostDenseCells = 1 << 22;  // 16 MB of starts at most
+  Eigen::Array3i cell(const Eigen::Vector3d& p) const { return (p.array() / cell_mm_).floor().cast<int>(); }
+  bool in_range(const Eigen::Vector3d& p) const {
+    return p.allFinite() && (p.array().abs() / cell_mm_ < double{1 << 20}).all();
+  }
+  size_t index(const Eigen::Array3i& c) const {
+    const Eigen::Array3i d = c - first_;
+    return static_cast<size_t>(d.x()) +
+           static_cast<size_t>(size_.x()) *
+               (static_cast<size_t>(d.y()) + static_cast<size_t>(size_.y()) * static_cast<size_t>(d.z()));
+  }
+  double cell_mm_;
+  Eigen::Array3i first_ = Eigen::Array3i::Zero(), size_ = Eigen::Array3i::Zero();
+  std::vector<int32_t> start_, items_;
+};
 
 }  // namespace
 
@@ -95,77 +159,127 @@ std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
   return skin;
 }
 
-std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const std::vector<uint8_t>& skin,
-                                     const Eigen::Vector3d& centre, const std::vector<double>& radii_mm,
-                                     double rest_distance_mm) {
-  std::vector<Penetration> result(radii_mm.size());
+namespace {
+
+// One centre's skin points (within the largest radius at rest), posed, in cells, with what each was found inside.
+struct NearCentre {
+  std::vector<int32_t> points;
+  std::vector<Eigen::Vector3d> posed;
+  std::optional<DenseCells> dense;
+  internal::CellGrid grid{10.0};                 // only where the points spread too far for the dense cells
+  Eigen::Vector3d lo, hi;                        // the posed points' box
+  std::unique_ptr<std::atomic<uint8_t>[]> what;  // 0 nothing, 1 tissue, 2 bone
+};
+
+}  // namespace
+
+std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed,
+                                                  const std::vector<uint8_t>& skin,
+                                                  const std::vector<Eigen::Vector3d>& centres,
+                                                  const std::vector<double>& radii_mm, double rest_distance_mm) {
+  std::vector<std::vector<Penetration>> result(centres.size(), std::vector<Penetration>(radii_mm.size()));
   if (radii_mm.empty() || posed.rows() != rest.vertex_count() || posed.cols() != 3 ||
       static_cast<int64_t>(skin.size()) != rest.vertex_count() || rest.tet_class.size() != rest.tet_count()) {
     return result;
   }
   const double radius = *std::max_element(radii_mm.begin(), radii_mm.end());
-  std::vector<int32_t> points;  // skin vertices within the radius at rest
-  for (int64_t v = 0; v < rest.vertex_count(); ++v) {
-    if (skin[static_cast<size_t>(v)] && (rest.vertices.row(v).transpose() - centre).squaredNorm() <= radius * radius) {
-      points.push_back(static_cast<int32_t>(v));
+  constexpr double kCellMm = 10.0;
+  std::vector<NearCentre> near(centres.size());
+  bool any = false;
+  for (size_t j = 0; j < centres.size(); ++j) {
+    NearCentre& n = near[j];
+    for (int64_t v = 0; v < rest.vertex_count(); ++v) {
+      if (skin[static_cast<size_t>(v)] &&
+          (rest.vertices.row(v).transpose() - centres[j]).squaredNorm() <= radius * radius) {
+        n.points.push_back(static_cast<int32_t>(v));
+      }
     }
+    if (n.points.empty()) continue;
+    any = true;
+    for (const int32_t v : n.points) n.posed.push_back(posed.row(v).transpose());
+    n.dense.emplace(n.posed, kCellMm);
+    if (n.dense->empty()) {
+      for (size_t i = 0; i < n.posed.size(); ++i) n.grid.insert(static_cast<int32_t>(i), n.posed[i], n.posed[i]);
+    }
+    n.lo = n.hi = n.posed[0];
+    for (const Eigen::Vector3d& x : n.posed) n.lo = n.lo.cwiseMin(x), n.hi = n.hi.cwiseMax(x);
+    n.what.reset(new std::atomic<uint8_t>[n.points.size()]);
+    for (size_t i = 0; i < n.points.size(); ++i) n.what[i].store(0, std::memory_order_relaxed);
   }
-  if (points.empty()) return result;
-  // Every tet that could be "elsewhere" for them and near them posed: within the radius, the contact distance and
-  // a tet's length (kTetReach) of the centre at rest; each posed tet's box looks up the points it may hold.
+  if (!any) return result;
+  // Every tet that could be "elsewhere" for a centre's points and near them posed: within the radius, the contact
+  // distance and a tet's length (kTetReach) of the centre at rest; each posed tet's box looks up the points it may
+  // hold. One pass over the tets for every centre: a tet's box and corners are worked out once.
   constexpr double kTetReach = 100.0;
   const double reach = radius + rest_distance_mm + kTetReach;
-  internal::CellGrid grid(10.0);
-  for (size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3d p = posed.row(points[i]).transpose();
-    grid.insert(static_cast<int32_t>(i), p, p);
-  }
-  Eigen::Vector3d points_lo = posed.row(points[0]).transpose(), points_hi = points_lo;
-  for (const int32_t v : points) {
-    points_lo = points_lo.cwiseMin(posed.row(v).transpose());
-    points_hi = points_hi.cwiseMax(posed.row(v).transpose());
-  }
-  std::vector<std::atomic<uint8_t>> what(points.size());
-  for (std::atomic<uint8_t>& w : what) w.store(0, std::memory_order_relaxed);
   parallel_for(0, rest.tet_count(), 4096, [&](int64_t t0, int64_t t1) {
     for (int64_t t = t0; t < t1; ++t) {
-      if ((rest.vertices.row(rest.tets(t, 0)).transpose() - centre).squaredNorm() > reach * reach) continue;
-      Eigen::Vector3d lo = posed.row(rest.tets(t, 0)).transpose(), hi = lo;
-      for (int c = 1; c < 4; ++c) {
-        lo = lo.cwiseMin(posed.row(rest.tets(t, c)).transpose());
-        hi = hi.cwiseMax(posed.row(rest.tets(t, c)).transpose());
-      }
-      if ((hi.array() < points_lo.array()).any() || (lo.array() > points_hi.array()).any()) continue;
-      const uint8_t kind = rest.tet_class(t) >= kFirstBoneClass ? 2 : 1;
+      const Eigen::Vector3d first = rest.vertices.row(rest.tets(t, 0)).transpose();
+      bool boxed = false;
+      Eigen::Vector3d lo, hi;
       std::array<Eigen::Vector3d, 4> corners;
-      for (int c = 0; c < 4; ++c) corners[static_cast<size_t>(c)] = posed.row(rest.tets(t, c)).transpose();
-      grid.in_box(lo, hi, [&](int32_t i) {
-        const int32_t v = points[static_cast<size_t>(i)];
-        if (what[static_cast<size_t>(i)].load(std::memory_order_relaxed) >= kind) return;
-        const Eigen::Vector3d x = rest.vertices.row(v).transpose();
-        for (int c = 0; c < 4; ++c) {
-          if ((rest.vertices.row(rest.tets(t, c)).transpose() - x).squaredNorm() < rest_distance_mm * rest_distance_mm) return;
+      for (size_t j = 0; j < near.size(); ++j) {
+        NearCentre& n = near[j];
+        if (n.points.empty() || (first - centres[j]).squaredNorm() > reach * reach) continue;
+        if (!boxed) {
+          for (int c = 0; c < 4; ++c) corners[static_cast<size_t>(c)] = posed.row(rest.tets(t, c)).transpose();
+          lo = hi = corners[0];
+          for (int c = 1; c < 4; ++c) {
+            lo = lo.cwiseMin(corners[static_cast<size_t>(c)]);
+            hi = hi.cwiseMax(corners[static_cast<size_t>(c)]);
+          }
+          boxed = true;
         }
-        const std::optional<Eigen::Vector4d> b = internal::barycentric(corners, posed.row(v).transpose());
-        constexpr double kInside = 1e-9;
-        if (!b || b->minCoeff() <= kInside) return;
-        uint8_t seen = what[static_cast<size_t>(i)].load(std::memory_order_relaxed);
-        while (seen < kind && !what[static_cast<size_t>(i)].compare_exchange_weak(seen, kind)) {
+        if ((hi.array() < n.lo.array()).any() || (lo.array() > n.hi.array()).any()) continue;
+        const uint8_t kind = rest.tet_class(t) >= kFirstBoneClass ? 2 : 1;
+        auto visit = [&](int32_t i) {
+          std::atomic<uint8_t>& what = n.what[static_cast<size_t>(i)];
+          if (what.load(std::memory_order_relaxed) >= kind) return;
+          // Outside the posed tet's box, a point is outside the tet by more than barycentric's rounding: not inside.
+          const Eigen::Vector3d& at = n.posed[static_cast<size_t>(i)];
+          if ((at.array() < lo.array()).any() || (at.array() > hi.array()).any()) return;
+          const Eigen::Vector3d x = rest.vertices.row(n.points[static_cast<size_t>(i)]).transpose();
+          for (int c = 0; c < 4; ++c) {
+            if ((rest.vertices.row(rest.tets(t, c)).transpose() - x).squaredNorm() <
+                rest_distance_mm * rest_distance_mm) {
+              return;
+            }
+          }
+          const std::optional<Eigen::Vector4d> b = internal::barycentric(corners, at);
+          constexpr double kInside = 1e-9;
+          if (!b || b->minCoeff() <= kInside) return;
+          uint8_t seen = what.load(std::memory_order_relaxed);
+          while (seen < kind && !what.compare_exchange_weak(seen, kind)) {
+          }
+        };
+        if (n.dense->empty()) {
+          n.grid.in_box(lo, hi, visit);
+        } else {
+          n.dense->in_box(lo, hi, visit);
         }
-      });
+      }
     }
   });
-  for (size_t i = 0; i < points.size(); ++i) {
-    const double d = (rest.vertices.row(points[i]).transpose() - centre).norm();
-    const uint8_t w = what[i].load(std::memory_order_relaxed);
-    for (size_t r = 0; r < radii_mm.size(); ++r) {
-      if (d > radii_mm[r]) continue;
-      ++result[r].skin_vertices;
-      result[r].inside_tissue += w == 1;
-      result[r].inside_bone += w == 2;
+  for (size_t j = 0; j < near.size(); ++j) {
+    const NearCentre& n = near[j];
+    for (size_t i = 0; i < n.points.size(); ++i) {
+      const double d = (rest.vertices.row(n.points[i]).transpose() - centres[j]).norm();
+      const uint8_t w = n.what[i].load(std::memory_order_relaxed);
+      for (size_t r = 0; r < radii_mm.size(); ++r) {
+        if (d > radii_mm[r]) continue;
+        ++result[j][r].skin_vertices;
+        result[j][r].inside_tissue += w == 1;
+        result[j][r].inside_bone += w == 2;
+      }
     }
   }
   return result;
+}
+
+std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed,
+                                     const std::vector<uint8_t>& skin, const Eigen::Vector3d& centre,
+                                     const std::vector<double>& radii_mm, double rest_distance_mm) {
+  return penetration(rest, posed, skin, std::vector<Eigen::Vector3d>{centre}, radii_mm, rest_distance_mm).front();
 }
 
 }  // namespace posewarp::fem

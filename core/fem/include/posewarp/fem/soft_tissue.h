@@ -240,5 +240,10 @@ struct Penetration {
 std::vector<Penetration> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed, const std::vector<uint8_t>& skin,
                                      const Eigen::Vector3d& centre, const std::vector<double>& radii_mm,
                                      double rest_distance_mm = 15.0);
+// The same about several centres (a pose's moved joints) in one pass over the tets: per centre, per radius.
+std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed,
+                                                  const std::vector<uint8_t>& skin,
+                                                  const std::vector<Eigen::Vector3d>& centres,
+                                                  const std::vector<double>& radii_mm, double rest_distance_mm = 15.0);
 
 }  // namespace posewarp::fem
