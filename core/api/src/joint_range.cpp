@@ -24,7 +24,6 @@ Result<std::vector<JointRange>> joint_ranges(const Rig& rig, const RangeParams& 
   std::vector<std::vector<Label>> segment_labels;
   for (const rig::Segment& s : skeleton.segments) segment_labels.push_back(s.labels);
   POSEWARP_ASSIGN_OR_RETURN(const resample::BoneVoxels bones, resample::bone_voxels(labels, segment_labels));
-  const std::vector<int16_t>& segment = bones.segment;  // per voxel: its bone segment, or -1
   // Index <-> physical: x = origin + M i with M = direction * diag(spacing).
   Eigen::Matrix3d m;
   for (int r = 0; r < 3; ++r)
@@ -48,13 +47,13 @@ Result<std::vector<JointRange>> joint_ranges(const Rig& rig, const RangeParams& 
       }
     }
     int64_t count = 0;
-    for (const int16_t s : segment) count += s >= 0 && moving[static_cast<size_t>(s)];
+    for (const int16_t s : bones.bone_segment) count += moving[static_cast<size_t>(s)];
     const int stride = std::max(1, static_cast<int>(std::ceil(std::cbrt(static_cast<double>(count) / params.max_points))));
     std::vector<Eigen::Vector3d> points;  // index space
     for (int64_t k = 0; k < g.size[2]; k += stride)
       for (int64_t jj = 0; jj < g.size[1]; jj += stride)
         for (int64_t i = 0; i < g.size[0]; i += stride) {
-          const int16_t s = segment[static_cast<size_t>(g.offset(i, jj, k))];
+          const int16_t s = bones.segment_of(g.offset(i, jj, k));
           if (s >= 0 && moving[static_cast<size_t>(s)]) points.emplace_back(double(i), double(jj), double(k));
         }
     const double point_ml = voxel_ml * stride * stride * stride;
@@ -70,7 +69,7 @@ Result<std::vector<JointRange>> joint_ranges(const Rig& rig, const RangeParams& 
           const Eigen::Vector3d q = a * points[static_cast<size_t>(p)] + b;
           const int64_t i = std::llround(q.x()), jj = std::llround(q.y()), k = std::llround(q.z());
           if (i < 0 || jj < 0 || k < 0 || i >= g.size[0] || jj >= g.size[1] || k >= g.size[2]) continue;
-          const int16_t s = segment[static_cast<size_t>(g.offset(i, jj, k))];
+          const int16_t s = bones.segment_of(g.offset(i, jj, k));
           local += s >= 0 && !moving[static_cast<size_t>(s)];
         }
         hits += local;

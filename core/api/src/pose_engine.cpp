@@ -409,7 +409,7 @@ void forward_field(const Prepared& p, const skinning::SegmentTransforms& segment
           int32_t t = p.rest_owner[static_cast<size_t>(v)];
           if (t <= -2) t = -2 - t;
           Eigen::Vector3d moved;
-          const int16_t bone = p.bone_voxels.segment[static_cast<size_t>(v)];
+          const int16_t bone = p.bone_voxels.segment_of(v);
           if (bone != resample::BoneVoxels::kNone) {  // a bone voxel moves with its bone, exactly
             moved = segments.rotation[static_cast<size_t>(bone)] * x + segments.translation[static_cast<size_t>(bone)];
           } else if (t >= 0) {

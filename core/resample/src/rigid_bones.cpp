@@ -1,4 +1,4 @@
-// Bone voxels of a source grid: segment per voxel, index boxes, soft-tissue substitutes for bone voxels.
+// Bone voxels of a source grid: segment per bone voxel, index boxes, soft-tissue substitutes for bone voxels.
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/resample/rigid_bones.h"
@@ -14,12 +14,14 @@ namespace posewarp::resample {
 
 namespace {
 
-// The rank index over the bone voxels (BoneVoxels::bone_bits, bones_before), and room for their substitutes.
-void index_bone_voxels(BoneVoxels& bones) {
-  const int64_t n = static_cast<int64_t>(bones.segment.size()), words = (n + 63) / 64;
+// The rank index over the bone voxels of `segment_table` (a segment per source voxel; BoneVoxels::bone_bits,
+// bones_before), their segments in rank order, and room for their substitutes.
+void index_bone_voxels(const std::vector<int16_t>& segment_table, BoneVoxels& bones) {
+  const int64_t n = static_cast<int64_t>(segment_table.size()), words = (n + 63) / 64;
+  bones.voxel_count = n;
   bones.bone_bits.assign(static_cast<size_t>(words), 0);
   bones.bones_before.resize(static_cast<size_t>(words));
-  const int16_t* segment = bones.segment.data();
+  const int16_t* segment = segment_table.data();
   parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
     for (int64_t w = w0; w < w1; ++w) {
       uint64_t bits = 0;
@@ -32,9 +34,18 @@ void index_bone_voxels(BoneVoxels& bones) {
   int32_t before = 0;
   for (int64_t w = 0; w < words; ++w) {
     bones.bones_before[static_cast<size_t>(w)] = before;
-    before += std::popcount(bones.bone_bits[static_cast<size_t>(w)]);
+    before += count_bits(bones.bone_bits[static_cast<size_t>(w)]);
   }
   bones.substitute.assign(static_cast<size_t>(before), -1);
+  bones.bone_segment.resize(static_cast<size_t>(before));
+  parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
+    for (int64_t w = w0; w < w1; ++w) {
+      auto rank = static_cast<size_t>(bones.bones_before[static_cast<size_t>(w)]);
+      for (uint64_t bits = bones.bone_bits[static_cast<size_t>(w)]; bits != 0; bits &= bits - 1) {
+        bones.bone_segment[rank++] = segment[64 * w + std::countr_zero(bits)];
+      }
+    }
+  });
 }
 
 // Calls visit(v, rank) for each bone voxel v in voxel order, rank its entry of `substitute`.
@@ -110,7 +121,8 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
     };
     const ImageGeometry& g = labels.geometry();
     const int64_t n = labels.voxel_count();
-    bones.segment.assign(static_cast<size_t>(n), BoneVoxels::kNone);
+    // A segment per voxel while the bones are found and their substitutes searched; kept per bone voxel after.
+    std::vector<int16_t> segment_table(static_cast<size_t>(n), BoneVoxels::kNone);
     using Box = std::array<int64_t, 6>;
     const Box empty{std::numeric_limits<int64_t>::max(), std::numeric_limits<int64_t>::max(),
                     std::numeric_limits<int64_t>::max(), -1, -1, -1};
@@ -126,7 +138,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
           for (int64_t i = 0, v = g.offset(0, j, k); i < g.size[0]; ++i, ++v) {
             const int16_t segment = segment_of(data[v]);
             if (segment == BoneVoxels::kNone) continue;
-            bones.segment[static_cast<size_t>(v)] = segment;
+            segment_table[static_cast<size_t>(v)] = segment;
             ++count;
             Box& box = boxes[static_cast<size_t>(segment)];
             box[0] = std::min(box[0], i), box[1] = std::min(box[1], j), box[2] = std::min(box[2], k);
@@ -145,7 +157,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
         }
       }
     });
-    index_bone_voxels(bones);
+    index_bone_voxels(segment_table, bones);
     if (substitutes) {
       POSEWARP_RETURN_IF_ERROR(take_substitutes(*substitutes, bones));
       return bones;
@@ -168,7 +180,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
     for_each_bone_voxel(bones, [&](int64_t v, int32_t rank) {
       int32_t& mine = bones.substitute[static_cast<size_t>(rank)];
       for_neighbours(v, [&](int64_t w) {
-        if (mine < 0 && bones.segment[static_cast<size_t>(w)] == BoneVoxels::kNone) mine = static_cast<int32_t>(w);
+        if (mine < 0 && segment_table[static_cast<size_t>(w)] == BoneVoxels::kNone) mine = static_cast<int32_t>(w);
       });
       if (mine >= 0) front.push_back(v);
     });
@@ -177,7 +189,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
       for (const int64_t v : front) {
         const int32_t mine = substitute(v);
         for_neighbours(v, [&](int64_t w) {
-          if (bones.segment[static_cast<size_t>(w)] != BoneVoxels::kNone && substitute(w) < 0) {
+          if (segment_table[static_cast<size_t>(w)] != BoneVoxels::kNone && substitute(w) < 0) {
             substitute(w) = mine;
             next.push_back(w);
           }

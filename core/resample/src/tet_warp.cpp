@@ -150,9 +150,12 @@ namespace internal {
 Status check(const WarpInputs& in) {
   POSEWARP_RETURN_IF_ERROR(validate(in.params));
   if (const RigidBones* bones = in.bones) {
-    if (!bones->voxels || static_cast<int64_t>(bones->voxels->segment.size()) != in.source.voxel_count() ||
-        bones->voxels->bone_bits.size() != (bones->voxels->segment.size() + 63) / 64 ||
-        bones->voxels->bones_before.size() != bones->voxels->bone_bits.size()) {
+    const BoneVoxels* voxels = bones->voxels;
+    if (!voxels || voxels->voxel_count != in.source.voxel_count() ||
+        static_cast<int64_t>(voxels->bone_bits.size()) != (voxels->voxel_count + 63) / 64 ||
+        voxels->bones_before.size() != voxels->bone_bits.size() ||
+        static_cast<int64_t>(voxels->bone_segment.size()) != voxels->bone_voxels ||
+        voxels->substitute.size() != voxels->bone_segment.size()) {
       return invalid_argument_error("the bone voxels do not match the source grid");
     }
     if (bones->rotation.size() != bones->translation.size() || bones->rotation.size() != bones->voxels->box.size() ||
@@ -408,21 +411,33 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
         const int32_t* row = owner_.get() + output_.offset(0, j, k);
         // Where the background map runs along one source row, a background voxel's source voxel is x0 + i on it: most
         // voxels need no mapping to be found off every bone.
-        const int16_t* background_row = nullptr;
+        int64_t background_row = -1;  // the first voxel of that source row
         double start[3];
         int64_t x0 = 0, y0 = 0, z0 = 0;
         if (along_source_row(background_map_, double(j), double(k), start, x0, y0, z0) && y0 >= 0 && z0 >= 0 &&
             y0 < m[1] && z0 < m[2]) {
-          background_row = bones_->segment.data() + m[0] * (y0 + m[1] * z0);
+          background_row = m[0] * (y0 + m[1] * z0);
         }
         for (int64_t i = 0; i < n[0]; ++i) {
           const int32_t o = row[i];
           // No bone value where nothing maps or a soft map does (it takes the substitute): skipped before mapping.
           const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
           if (o == kNoSample || soft) continue;
-          if (o == -1 && background_row) {
+          if (is_bone_owner(o) && claimed_by_own_map_[static_cast<size_t>(o - kBoneOwner)]) {
+            // Claimed where its own map lands on its own bone (claim_bone's test, the same arithmetic): exact.
+            ++slice.exact[static_cast<size_t>(o - kBoneOwner)];
+            continue;
+          }
+          if (o == -1 && background_row >= 0) {
             const int64_t x = x0 + i;
-            if (x < 0 || x >= m[0] || background_row[x] < 0) continue;
+            if (x < 0 || x >= m[0] || !bones_->is_bone(background_row + x)) continue;
+            // The map takes this voxel to source voxel x on that row (within 1e-9 of a whole index and a step of 1
+            // within 1e-12, so it rounds there): a bone whose map is the background's has it exactly.
+            const int segment = bones_->bone_segment[bones_->rank_of(background_row + x)];
+            if (as_background[static_cast<size_t>(segment)]) {
+              ++slice.exact[static_cast<size_t>(segment)];
+              continue;
+            }
           }
           double s[3];
           apply_map(o == -1 ? background_map_ : map_of(o), double(i), double(j), double(k), s);
@@ -430,7 +445,7 @@ std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
           if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
           const int64_t at = x + m[0] * (y + m[1] * z);
           if (!bones_->is_bone(at)) continue;
-          const int segment = bones_->segment[static_cast<size_t>(at)];
+          const int segment = bones_->bone_segment[bones_->rank_of(at)];
           if ((is_bone_owner(o) && o - kBoneOwner == segment) ||  // the same map: s is the bone's own sample
               (o == -1 && as_background[static_cast<size_t>(segment)])) {
             ++slice.exact[static_cast<size_t>(segment)];

@@ -124,6 +124,13 @@ class TetWarp::Builder {
       }
       out_box = posed_index_box(box, rotation, translation, src_space_, out_space_, n_);
     }
+    // claim_bone claims a moving bone's voxels through the bone's map, a still one's through the background's.
+    warp_.claimed_by_own_map_.assign(static_cast<size_t>(segment_count_), 0);
+    for (int k = 0; k < segment_count_; ++k) {
+      warp_.claimed_by_own_map_[static_cast<size_t>(k)] =
+          bone_moves_[static_cast<size_t>(k)] ||
+          std::equal(warp_.background_map_, warp_.background_map_ + 12, warp_.bone_maps_.data() + 12 * k);
+    }
   }
 
   // Step 2: the vertices in output (posed) and source (rest) index space once, row-major; the tets to rasterize (all
@@ -454,8 +461,7 @@ class TetWarp::Builder {
     double src[3];
     apply_map(map, i, j, k, src);
     const int64_t v = source_voxel(src);
-    const BoneVoxels& bones = *in_.bones->voxels;
-    return v < 0 || !bones.is_bone(v) ? -1 : bones.segment[static_cast<size_t>(v)];
+    return v < 0 ? -1 : in_.bones->voxels->segment_of(v);
   }
 
   // Drops a tet's (or its shell's) sample of tissue from a body part separated from the tet's own.

@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 
+#include <bit>
 #include <iostream>
 #include <map>
 #include <set>
@@ -332,7 +333,7 @@ TEST(TetWarp, BoneDeviationCountsExactVoxelsAndFindsThePercentileOverAll) {
         const Vec3 u = g.physical_to_index({from.x(), from.y(), from.z()});
         const int64_t si = std::llround(u[0]), sj = std::llround(u[1]), sk = std::llround(u[2]);
         if (!s.phantom.labels.contains(si, sj, sk)) continue;
-        const int segment = voxels->segment[static_cast<size_t>(g.offset(si, sj, sk))];
+        const int segment = voxels->segment_of(g.offset(si, sj, sk));
         if (segment < 0) continue;
         all[static_cast<size_t>(segment)].push_back(
             static_cast<float>((from - inverse(static_cast<size_t>(segment), x)).norm()));
@@ -356,8 +357,9 @@ TEST(TetWarp, BoneDeviationCountsExactVoxelsAndFindsThePercentileOverAll) {
   EXPECT_GT(deviation[moved].second, 0.0);
 }
 
-// Each bone voxel's substitute is a voxel outside the bones; kept sparse (as a rig file keeps them) they give back the
-// same table, and a sparse table naming a voxel that is no bone is refused as damage.
+// Each bone voxel's segment is its label's, kept per bone voxel behind the rank index; each bone voxel's substitute
+// is a voxel outside the bones; kept sparse (as a rig file keeps them) they give back the same table, and a sparse
+// table naming a voxel that is no bone is refused as damage.
 TEST(BoneVoxels, SubstitutesAreSoftVoxelsAndSurviveTheSparseFormTheRigKeeps) {
   const Scene& s = bar_scene();
   std::vector<std::vector<Label>> segment_labels;
@@ -368,17 +370,31 @@ TEST(BoneVoxels, SubstitutesAreSoftVoxelsAndSurviveTheSparseFormTheRigKeeps) {
   ASSERT_TRUE(bones.ok()) << bones.status().to_string();
   ASSERT_GT(bones->bone_voxels, 1000);
   ASSERT_EQ(bones->substitute.size(), static_cast<size_t>(bones->bone_voxels));
+  ASSERT_EQ(bones->voxel_count, s.phantom.labels.voxel_count());
+  ASSERT_EQ(bones->bone_segment.size(), static_cast<size_t>(bones->bone_voxels));
   int64_t seen = 0, first_soft = -1;
-  for (int64_t v = 0; v < static_cast<int64_t>(bones->segment.size()); ++v) {
-    if (bones->segment[static_cast<size_t>(v)] == BoneVoxels::kNone) {
+  std::set<int> segments_seen;
+  for (int64_t v = 0; v < bones->voxel_count; ++v) {
+    int expected = BoneVoxels::kNone;
+    for (size_t k = 0; k < segment_labels.size(); ++k) {
+      if (segment_labels[k].front() == s.phantom.labels.data()[v]) expected = static_cast<int>(k);
+    }
+    ASSERT_EQ(bones->segment_of(v), expected) << "voxel " << v;
+    ASSERT_EQ(bones->is_bone(v), expected != BoneVoxels::kNone) << "voxel " << v;
+    if (expected == BoneVoxels::kNone) {
       if (first_soft < 0) first_soft = v;
       continue;
     }
+    segments_seen.insert(expected);
     const int32_t substitute = bones->substitute_of(v);
     ASSERT_EQ(bones->rank_of(v), static_cast<size_t>(seen++));
-    ASSERT_EQ(bones->segment[static_cast<size_t>(substitute)], BoneVoxels::kNone) << "bone voxel " << v;
+    ASSERT_FALSE(bones->is_bone(substitute)) << "bone voxel " << v;
   }
   EXPECT_EQ(seen, bones->bone_voxels);
+  EXPECT_EQ(segments_seen.size(), segment_labels.size());  // every bone's voxels, not one bone's for all
+  for (const uint64_t word : {uint64_t{0}, ~uint64_t{0}, uint64_t{0x8000000000000001}, uint64_t{0x0123456789abcdef}}) {
+    EXPECT_EQ(count_bits(word), std::popcount(word)) << word;
+  }
   const BoneSubstitutes sparse = bones->sparse();
   EXPECT_EQ(sparse.voxel.size(), static_cast<size_t>(bones->bone_voxels));  // no bone voxel is its own here
   Result<BoneVoxels> again = bone_voxels(s.phantom.labels, segment_labels, &sparse);

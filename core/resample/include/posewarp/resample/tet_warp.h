@@ -157,6 +157,9 @@ class TetWarp {
   std::shared_ptr<double[]> maps_;         // 12 per rasterized tet: output index -> source index, s = A u + b
   double background_map_[12] = {};         // the same for the background transform
   std::vector<double> bone_maps_;          // 12 per bone segment (RigidBones)
+  // Per bone segment: its voxels were claimed through its own map (it moves off the background, or its map is the
+  // background's bit for bit), so each lands on its own bone exactly.
+  std::vector<uint8_t> claimed_by_own_map_;
   const BoneVoxels* bones_ = nullptr;
   Label label_background_ = 0;
   float intensity_background_ = 0.0f;
