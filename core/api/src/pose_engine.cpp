@@ -442,12 +442,13 @@ std::vector<std::string> segment_names(const rig::Skeleton& skeleton) {
 // Per tet: the body region at its rest centroid (-1 outside the grid), for the warp's skin-contact guard.
 std::vector<int16_t> tet_regions(const Rig& rig, const std::vector<int16_t>& region) {
   const ImageGeometry& g = rig.labels.geometry();
+  const PhysicalToIndex to_index(g);
   std::vector<int16_t> tet_region(static_cast<size_t>(rig.mesh.tet_count()), -1);
   parallel_for(0, rig.mesh.tet_count(), 4096, [&](int64_t begin, int64_t end) {
     for (int64_t t = begin; t < end; ++t) {
       Eigen::Vector3d c = Eigen::Vector3d::Zero();
       for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
-      const Vec3 u = g.physical_to_index({c.x() / 4, c.y() / 4, c.z() / 4});
+      const Vec3 u = to_index({c.x() / 4, c.y() / 4, c.z() / 4});
       // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
       // undefined; such a centre lies in no voxel.
       auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };

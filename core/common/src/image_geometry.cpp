@@ -38,14 +38,11 @@ Vec3 ImageGeometry::index_to_physical(const Vec3& index) const {
 }
 
 Vec3 ImageGeometry::physical_to_index(const Vec3& point) const {
-  const std::array<double, 9> inv = inverse3(direction);
-  const Vec3 d{point[0] - origin[0], point[1] - origin[1], point[2] - origin[2]};
-  Vec3 index{};
-  for (int r = 0; r < 3; ++r) {
-    index[r] = (inv[3 * r] * d[0] + inv[3 * r + 1] * d[1] + inv[3 * r + 2] * d[2]) / spacing[r];
-  }
-  return index;
+  return PhysicalToIndex(*this)(point);
 }
+
+PhysicalToIndex::PhysicalToIndex(const ImageGeometry& geometry)
+    : inverse_(inverse3(geometry.direction)), origin_(geometry.origin), spacing_(geometry.spacing) {}
 
 bool ImageGeometry::same_grid(const ImageGeometry& other, double tolerance) const {
   if (size != other.size) return false;

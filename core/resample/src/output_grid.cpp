@@ -24,8 +24,9 @@ Result<ImageGeometry> output_geometry(GridPolicy policy, const ImageGeometry& so
       double lo[3] = {0.0, 0.0, 0.0};
       double hi[3] = {static_cast<double>(source.size[0] - 1), static_cast<double>(source.size[1] - 1),
                       static_cast<double>(source.size[2] - 1)};
+      const PhysicalToIndex to_index(source);
       for (int64_t v = 0; v < posed.rows(); ++v) {
-        const Vec3 u = source.physical_to_index({posed(v, 0), posed(v, 1), posed(v, 2)});
+        const Vec3 u = to_index({posed(v, 0), posed(v, 1), posed(v, 2)});
         for (int a = 0; a < 3; ++a) {
           if (!std::isfinite(u[a])) return invalid_argument_error("posed vertices are not finite");
           const double pad = params.grow_margin_mm / source.spacing[a];

@@ -256,8 +256,9 @@ SkinContactCut cut_skin_contacts(LabelVolume& classes, const Skeleton& skeleton,
 
 std::vector<int> vertex_regions(const TetMesh& mesh, const BodyRegions& regions, const ImageGeometry& grid) {
   std::vector<int> region(static_cast<size_t>(mesh.vertex_count()), -1);
+  const PhysicalToIndex to_index(grid);
   for (int64_t v = 0; v < mesh.vertex_count(); ++v) {
-    const Vec3 u = grid.physical_to_index({mesh.vertices(v, 0), mesh.vertices(v, 1), mesh.vertices(v, 2)});
+    const Vec3 u = to_index({mesh.vertices(v, 0), mesh.vertices(v, 1), mesh.vertices(v, 2)});
     const int64_t ci = std::llround(u[0]), cj = std::llround(u[1]), ck = std::llround(u[2]);
     double best = std::numeric_limits<double>::infinity();
     for (int64_t dk = -2; dk <= 2; ++dk) {

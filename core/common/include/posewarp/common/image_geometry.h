@@ -42,6 +42,25 @@ struct ImageGeometry {
   std::string describe() const;
 };
 
+// ImageGeometry::physical_to_index for many points: the direction's inverse worked out once instead of per point
+// (the same arithmetic, so the same indices).
+class PhysicalToIndex {
+ public:
+  explicit PhysicalToIndex(const ImageGeometry& geometry);
+  Vec3 operator()(const Vec3& point) const {
+    const Vec3 d{point[0] - origin_[0], point[1] - origin_[1], point[2] - origin_[2]};
+    Vec3 index{};
+    for (int r = 0; r < 3; ++r) {
+      index[r] = (inverse_[3 * r] * d[0] + inverse_[3 * r + 1] * d[1] + inverse_[3 * r + 2] * d[2]) / spacing_[r];
+    }
+    return index;
+  }
+
+ private:
+  std::array<double, 9> inverse_;
+  Vec3 origin_, spacing_;
+};
+
 // The direction matrix (row-major, columns = index axes in LPS) of a rotation by `degrees` about `axis` (any
 // non-zero length), by Rodrigues' formula.
 std::array<double, 9> rotation_direction(Vec3 axis, double degrees);
