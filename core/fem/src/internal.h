@@ -139,15 +139,29 @@ Result<UntangleStats> untangle(const PackedTets& tets, Eigen::Index free_count, 
 // The untangling's figures into a solve's stats.
 void record(const UntangleStats& untangled, FemStats& st);
 
+// Cubic cells of `mm`: a point's cell, and the points a grid of them takes (CellGrid, DenseCells).
+struct Cells {
+  static constexpr int kMostPerAxis = 32;  // a box stretched over more cells per axis than this is left out
+  double mm;
+  Eigen::Array3i of(const Eigen::Vector3d& p) const { return (p.array() / mm).floor().cast<int>(); }
+  // Finite and within the cells' 21-bit keys (a point beyond is no body's).
+  bool hold(const Eigen::Vector3d& p) const { return p.allFinite() && (p.array().abs() / mm < double{1 << 20}).all(); }
+  // The cells a box touches, (a, b) corner to corner; false for a box left out.
+  bool of_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, Eigen::Array3i& a, Eigen::Array3i& b) const {
+    if (!hold(lo) || !hold(hi)) return false;
+    a = of(lo), b = of(hi);
+    return !((b - a) > kMostPerAxis).any();
+  }
+};
+
 // Items (points, or the boxes of tets and faces) on a uniform grid of cubic cells: which items a box may touch. An
 // item inserted with a box is in every cell the box touches, so a query may visit it more than once.
 class CellGrid {
  public:
-  explicit CellGrid(double cell_mm) : cell_mm_(cell_mm) {}
+  explicit CellGrid(double cell_mm) : cells_of_{cell_mm} {}
   void insert(int32_t item, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
-    if (!in_range(lo) || !in_range(hi)) return;
-    const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (((b - a) > kMostCells).any()) return;
+    Eigen::Array3i a, b;
+    if (!cells_of_.of_box(lo, hi, a, b)) return;
     for (int x = a.x(); x <= b.x(); ++x)
       for (int y = a.y(); y <= b.y(); ++y)
         for (int z = a.z(); z <= b.z(); ++z) cells_[key(Eigen::Array3i(x, y, z))].push_back(item);
@@ -155,9 +169,8 @@ class CellGrid {
   // Calls visit(item) for each item in the cells a box touches.
   template <typename Visit>
   void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
-    if (!in_range(lo) || !in_range(hi)) return;
-    const Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (((b - a) > kMostCells).any()) return;
+    Eigen::Array3i a, b;
+    if (!cells_of_.of_box(lo, hi, a, b)) return;
     for (int x = a.x(); x <= b.x(); ++x)
       for (int y = a.y(); y <= b.y(); ++y)
         for (int z = a.z(); z <= b.z(); ++z) {
@@ -168,18 +181,47 @@ class CellGrid {
   }
 
  private:
-  static constexpr int kMostCells = 32;  // a box stretched over more cells per axis than this is left out
-  Eigen::Array3i cell(const Eigen::Vector3d& p) const { return (p.array() / cell_mm_).floor().cast<int>(); }
-  // Finite and within the cells' 21-bit keys (a point beyond is no body's).
-  bool in_range(const Eigen::Vector3d& p) const {
-    return p.allFinite() && (p.array().abs() / cell_mm_ < double{1 << 20}).all();
-  }
   static int64_t key(const Eigen::Array3i& c) {
     constexpr int64_t kMask = (int64_t{1} << 21) - 1;
     return ((int64_t{c.x()} & kMask) << 42) | ((int64_t{c.y()} & kMask) << 21) | (int64_t{c.z()} & kMask);
   }
-  double cell_mm_;
+  Cells cells_of_;
   std::unordered_map<int64_t, std::vector<int32_t>> cells_;
+};
+
+// Points in the cells a CellGrid of the same size keeps them in (the same boxes left out), held densely over the
+// cells the points occupy: a box's cells are found by index instead of by hash. empty() when the points spread over
+// too many cells for that (then CellGrid is the one to use).
+class DenseCells {
+ public:
+  DenseCells(const std::vector<Eigen::Vector3d>& points, double cell_mm);
+  bool empty() const { return start_.empty(); }
+  // Calls visit(item) for each point in the cells the box touches: the points CellGrid::in_box gives.
+  template <typename Visit>
+  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
+    Eigen::Array3i a, b;
+    if (!cells_of_.of_box(lo, hi, a, b)) return;
+    a = a.max(first_);
+    b = b.min(first_ + size_ - 1);
+    for (int x = a.x(); x <= b.x(); ++x)
+      for (int y = a.y(); y <= b.y(); ++y)
+        for (int z = a.z(); z <= b.z(); ++z) {
+          const size_t c = index(Eigen::Array3i(x, y, z));
+          for (int32_t k = start_[c]; k < start_[c + 1]; ++k) visit(items_[static_cast<size_t>(k)]);
+        }
+  }
+
+ private:
+  static constexpr int64_t kMostDenseCells = 1 << 22;  // 16 MB of starts at most
+  size_t index(const Eigen::Array3i& c) const {
+    const Eigen::Array3i d = c - first_;
+    return static_cast<size_t>(d.x()) +
+           static_cast<size_t>(size_.x()) *
+               (static_cast<size_t>(d.y()) + static_cast<size_t>(size_.y()) * static_cast<size_t>(d.z()));
+  }
+  Cells cells_of_;
+  Eigen::Array3i first_ = Eigen::Array3i::Zero(), size_ = Eigen::Array3i::Zero();
+  std::vector<int32_t> start_, items_;
 };
 
 // The barycentric coordinates of p in the tet x[0..3], or nothing for a flat tet.

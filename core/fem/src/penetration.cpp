@@ -29,6 +29,31 @@ std::optional<Eigen::Vector4d> barycentric(const std::array<Eigen::Vector3d, 4>&
   return Eigen::Vector4d(1.0 - b.sum(), b.x(), b.y(), b.z());
 }
 
+DenseCells::DenseCells(const std::vector<Eigen::Vector3d>& points, double cell_mm) : cells_of_{cell_mm} {
+  Eigen::Array3i lo = Eigen::Array3i::Constant(std::numeric_limits<int>::max()), hi = -lo;
+  for (const Eigen::Vector3d& p : points) {
+    if (!cells_of_.hold(p)) continue;
+    lo = lo.min(cells_of_.of(p));
+    hi = hi.max(cells_of_.of(p));
+  }
+  if ((lo > hi).any()) return;
+  size_ = hi - lo + 1;
+  if ((size_.cast<double>().prod()) > double{kMostDenseCells}) return;
+  first_ = lo;
+  start_.assign(static_cast<size_t>(size_.prod()) + 1, 0);
+  for (const Eigen::Vector3d& p : points) {
+    if (cells_of_.hold(p)) ++start_[index(cells_of_.of(p)) + 1];
+  }
+  for (size_t c = 1; c < start_.size(); ++c) start_[c] += start_[c - 1];
+  items_.resize(static_cast<size_t>(start_.back()));
+  std::vector<int32_t> next(start_.begin(), start_.end() - 1);
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (cells_of_.hold(points[i])) {
+      items_[static_cast<size_t>(next[index(cells_of_.of(points[i]))]++)] = static_cast<int32_t>(i);
+    }
+  }
+}
+
 }  // namespace internal
 
 namespace {
@@ -41,68 +66,6 @@ double solid_angle(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eig
   const double denominator = lu * lv * lw + u.dot(v) * lw + u.dot(w) * lv + v.dot(w) * lu;
   return 2.0 * std::atan2(numerator, denominator);
 }
-
-// Points in cells of `cell_mm`, as internal::CellGrid keeps them (the same cells, the same boxes left out), held
-// densely over the cells the points occupy: a box's cells are found by index instead of by hash. empty() when the
-// points spread over too many cells for that (then CellGrid is the one to use).
-class DenseCells {
- public:
-  DenseCells(const std::vector<Eigen::Vector3d>& points, double cell_mm) : cell_mm_(cell_mm) {
-    Eigen::Array3i lo = Eigen::Array3i::Constant(std::numeric_limits<int>::max()), hi = -lo;
-    for (const Eigen::Vector3d& p : points) {
-      if (!in_range(p)) continue;
-      lo = lo.min(cell(p));
-      hi = hi.max(cell(p));
-    }
-    if ((lo > hi).any()) return;
-    size_ = hi - lo + 1;
-    if ((size_.cast<double>().prod()) > double{kMostDenseCells}) return;
-    first_ = lo;
-    start_.assign(static_cast<size_t>(size_.prod()) + 1, 0);
-    for (const Eigen::Vector3d& p : points) {
-      if (in_range(p)) ++start_[index(cell(p)) + 1];
-    }
-    for (size_t c = 1; c < start_.size(); ++c) start_[c] += start_[c - 1];
-    items_.resize(static_cast<size_t>(start_.back()));
-    std::vector<int32_t> next(start_.begin(), start_.end() - 1);
-    for (size_t i = 0; i < points.size(); ++i) {
-      if (in_range(points[i])) items_[static_cast<size_t>(next[index(cell(points[i]))]++)] = static_cast<int32_t>(i);
-    }
-  }
-  bool empty() const { return start_.empty(); }
-  // Calls visit(item) for each point in the cells the box touches: the points CellGrid::in_box gives.
-  template <typename Visit>
-  void in_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, const Visit& visit) const {
-    if (!in_range(lo) || !in_range(hi)) return;
-    Eigen::Array3i a = cell(lo), b = cell(hi);
-    if (((b - a) > kMostCells).any()) return;
-    a = a.max(first_);
-    b = b.min(first_ + size_ - 1);
-    for (int x = a.x(); x <= b.x(); ++x)
-      for (int y = a.y(); y <= b.y(); ++y)
-        for (int z = a.z(); z <= b.z(); ++z) {
-          const size_t c = index(Eigen::Array3i(x, y, z));
-          for (int32_t k = start_[c]; k < start_[c + 1]; ++k) visit(items_[static_cast<size_t>(k)]);
-        }
-  }
-
- private:
-  static constexpr int kMostCells = 32;                // as CellGrid
-  static constexpr int64_t kMostDenseCells = 1 << 22;  // 16 MB of starts at most
-  Eigen::Array3i cell(const Eigen::Vector3d& p) const { return (p.array() / cell_mm_).floor().cast<int>(); }
-  bool in_range(const Eigen::Vector3d& p) const {
-    return p.allFinite() && (p.array().abs() / cell_mm_ < double{1 << 20}).all();
-  }
-  size_t index(const Eigen::Array3i& c) const {
-    const Eigen::Array3i d = c - first_;
-    return static_cast<size_t>(d.x()) +
-           static_cast<size_t>(size_.x()) *
-               (static_cast<size_t>(d.y()) + static_cast<size_t>(size_.y()) * static_cast<size_t>(d.z()));
-  }
-  double cell_mm_;
-  Eigen::Array3i first_ = Eigen::Array3i::Zero(), size_ = Eigen::Array3i::Zero();
-  std::vector<int32_t> start_, items_;
-};
 
 }  // namespace
 
@@ -161,12 +124,14 @@ std::vector<uint8_t> skin_vertices(const TetMesh& rest) {
 
 namespace {
 
+constexpr double kCellMm = 10.0;  // the skin points' cells
+
 // One centre's skin points (within the largest radius at rest), posed, in cells, with what each was found inside.
 struct NearCentre {
   std::vector<int32_t> points;
   std::vector<Eigen::Vector3d> posed;
-  std::optional<DenseCells> dense;
-  internal::CellGrid grid{10.0};                 // only where the points spread too far for the dense cells
+  std::optional<internal::DenseCells> dense;
+  internal::CellGrid grid{kCellMm};              // only where the points spread too far for the dense cells
   Eigen::Vector3d lo, hi;                        // the posed points' box
   std::unique_ptr<std::atomic<uint8_t>[]> what;  // 0 nothing, 1 tissue, 2 bone
 };
@@ -183,7 +148,6 @@ std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eig
     return result;
   }
   const double radius = *std::max_element(radii_mm.begin(), radii_mm.end());
-  constexpr double kCellMm = 10.0;
   std::vector<NearCentre> near(centres.size());
   bool any = false;
   for (size_t j = 0; j < centres.size(); ++j) {
