@@ -373,7 +373,8 @@ void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& 
 
 // The label report, which needs only the posed labels: counts before and after, names, each bone's voxel deviation.
 void report_labels(const Prepared& p, const resample::TetWarp& warp, const LabelVolume& posed,
-                   const std::vector<std::string>& names, QualityReport& qr) {
+                   const std::vector<std::pair<double, double>>& deviation, const std::vector<std::string>& names,
+                   QualityReport& qr) {
   // The posed values are rest values or the background: their range is known.
   std::optional<std::pair<Label, Label>> range;
   if (!p.rest_label_counts.empty()) {
@@ -384,7 +385,6 @@ void report_labels(const Prepared& p, const resample::TetWarp& warp, const Label
   for (const auto& [value, counts] : qr.labels.voxels) {
     if (const labels::LabelEntry* entry = p.rig.label_map.find(value)) qr.label_names[value] = entry->name;
   }
-  const std::vector<std::pair<double, double>> deviation = warp.bone_deviation_mm();
   for (size_t k = 0; k < deviation.size(); ++k) {
     qr.voxel_rigidity.push_back({names[k], deviation[k].first, deviation[k].second});
     qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
@@ -613,8 +613,9 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
   clock.lap("warp-prepare");
   std::shared_ptr<const LabelVolume> handed_out;  // the labels given to labels_ready: the report reads them
   const LabelVolume* posed_labels = nullptr;
+  std::vector<std::pair<double, double>> bone_deviation;  // per segment, found with the labels, for their report
   if (request.want_labels) {
-    POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(p.rig.labels));
+    POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(p.rig.labels, &bone_deviation));
     clock.lap("warp-labels");
     if (request.labels_ready) {
       handed_out = std::make_shared<const LabelVolume>(std::move(labels));
@@ -638,7 +639,7 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
   }
   if (request.want_labels) {
     POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
-    report_labels(p, warp, *posed_labels, names, qr);
+    report_labels(p, warp, *posed_labels, bone_deviation, names, qr);
     clock.lap("report-labels");
   }
   if (request.want_fields) {

@@ -8,6 +8,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <new>
 #include <optional>
@@ -232,7 +234,160 @@ void TetWarp::for_each_mapped_run(const Sample& sample) const {
   });
 }
 
-Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
+// Where warp_labels puts bone values, per output slice and bone segment: how many output voxels hold a value of that
+// bone exactly where its own rigid inverse would sample (deviation 0, counted, not stored) and how far (mm) the others
+// are; then max and 99th percentile over the zeros and the rest together. A run is tallied from the source voxels its
+// labels are taken from, with the same arithmetic: the report describes the labels written.
+class TetWarp::BoneTally {
+ public:
+  // `source`: the labels warped.
+  BoneTally(const TetWarp& warp, const LabelVolume& source)
+      : warp_(warp), segments_(warp.bone_maps_.size() / 12), found_(static_cast<size_t>(warp.output_.size[2])) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        to_mm_(r, c) =
+            warp.source_.direction[static_cast<size_t>(3 * r + c)] * warp.source_.spacing[static_cast<size_t>(c)];
+    // The segments whose map is the background's, bit for bit (those that did not move off the root): a background
+    // voxel that lands on one of their voxels is where its bone puts it, deviation exactly 0, counted with the zeros.
+    as_background_.assign(segments_, 0);
+    for (size_t segment = 0; segment < segments_; ++segment) {
+      as_background_[segment] =
+          std::equal(warp.background_map_, warp.background_map_ + 12, warp.bone_maps_.data() + 12 * segment);
+    }
+    for (Slice& slice : found_) slice.exact.assign(segments_, 0);
+    // The values bone voxels hold: an output voxel holding another value holds no bone's, found without mapping it.
+    const std::vector<uint64_t>& bits = warp.bones_->bone_bits;
+    const Label* in = source.data();
+    Label lo = 0, hi = -1;
+    for (size_t word = 0; word < bits.size(); ++word) {
+      for (uint64_t b = bits[word]; b != 0; b &= b - 1) {
+        const Label value = in[64 * word + static_cast<size_t>(__builtin_ctzll(b))];
+        if (hi < lo) lo = hi = value;
+        lo = std::min(lo, value), hi = std::max(hi, value);
+        if (static_cast<int64_t>(hi) - lo >= kMaxBoneLabelRange) return;  // too wide a range: every voxel is mapped
+      }
+    }
+    bone_value_lo_ = lo;
+    bone_value_.assign(static_cast<size_t>(static_cast<int64_t>(hi) - lo + 1), 0);
+    for (size_t word = 0; word < bits.size(); ++word) {
+      for (uint64_t b = bits[word]; b != 0; b &= b - 1) {
+        bone_value_[static_cast<size_t>(in[64 * word + static_cast<size_t>(__builtin_ctzll(b))] - lo)] = 1;
+      }
+    }
+  }
+
+  // warp_labels' run of `count` output voxels from v, whose labels are the source's at s0 + c ds, mapped by a bone
+  // or the background (a soft map puts no bone value: it samples the substitute). `written`: the run's labels.
+  void run(int64_t v, int64_t count, const double s0[3], const double ds[3], const Label* written) {
+    const int32_t o = warp_.owner_[v];
+    const Index3& n = warp_.output_.size;
+    const int64_t i0 = v % n[0], j = (v / n[0]) % n[1], k = v / (n[0] * n[1]);
+    Slice& slice = found_[static_cast<size_t>(k)];
+    const int own = is_bone_owner(o) ? o - kBoneOwner : -1;  // -1: the background's run
+    if (own >= 0 && warp_.claimed_by_own_map_[static_cast<size_t>(own)]) {
+      // Claimed where its own map lands on its own bone (claim_bone's test, the same arithmetic): exact.
+      slice.exact[static_cast<size_t>(own)] += count;
+      return;
+    }
+    const BoneVoxels& bones = *warp_.bones_;
+    const Index3& m = warp_.source_.size;
+    auto land = [&](int64_t c, int64_t at) {  // output voxel i0 + c holds bone voxel `at`
+      const int segment = bones.bone_segment[bones.rank_of(at)];
+      if (segment == own || (own < 0 && as_background_[static_cast<size_t>(segment)])) {  // its bone's own map
+        ++slice.exact[static_cast<size_t>(segment)];
+        return;
+      }
+      double s[3], b[3];
+      apply_map(warp_.map_of(o), double(i0 + c), double(j), double(k), s);
+      apply_map(warp_.bone_maps_.data() + 12 * segment, double(i0 + c), double(j), double(k), b);
+      const Eigen::Vector3d d(s[0] - b[0], s[1] - b[1], s[2] - b[2]);
+      slice.off.push_back({static_cast<int16_t>(segment), static_cast<float>((to_mm_ * d).norm())});
+    };
+    if (steps_one_x(ds[0], ds[1], ds[2])) {  // warp_labels copies the run from one source row
+      const int64_t x0 = round_index(s0[0]), y = round_index(s0[1]), z = round_index(s0[2]);
+      if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
+      // The run takes source voxels [first, end) of that row (output voxel c from row + x0 + c): their bone voxels,
+      // 64 bits at a time.
+      const int64_t row = m[0] * (y + m[1] * z);
+      const int64_t first = row + std::max<int64_t>(0, x0), end = row + std::min(m[0], x0 + count);
+      const std::vector<uint64_t>& bits = bones.bone_bits;
+      for (int64_t word = first >> 6; word << 6 < end; ++word) {
+        uint64_t b = bits[static_cast<size_t>(word)];
+        if (word << 6 < first) b &= ~uint64_t{0} << (first & 63);
+        if ((word + 1) << 6 > end) b &= ~(~uint64_t{0} << (end & 63));
+        for (; b != 0; b &= b - 1) {
+          const int64_t at = (word << 6) + __builtin_ctzll(b);
+          land(at - row - x0, at);
+        }
+      }
+      return;
+    }
+    for (int64_t c = 0; c < count; ++c) {
+      if (!maybe_bone(written[c])) continue;
+      const double dc = double(c);
+      const int64_t x = round_index(s0[0] + dc * ds[0]), y = round_index(s0[1] + dc * ds[1]),
+                    z = round_index(s0[2] + dc * ds[2]);
+      if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
+      const int64_t at = x + m[0] * (y + m[1] * z);
+      if (bones.is_bone(at)) land(c, at);
+    }
+  }
+
+  // Per segment, {max, 99th percentile} of the deviations tallied.
+  std::vector<std::pair<double, double>> deviation_mm() const {
+    std::vector<int64_t> zeros(segments_, 0);
+    std::vector<std::vector<float>> off(segments_);
+    for (const Slice& slice : found_) {
+      for (size_t segment = 0; segment < segments_; ++segment) zeros[segment] += slice.exact[segment];
+      for (const auto& [segment, mm] : slice.off) off[static_cast<size_t>(segment)].push_back(mm);
+    }
+    std::vector<std::pair<double, double>> result(segments_, {0.0, 0.0});
+    for (size_t segment = 0; segment < segments_; ++segment) {
+      std::vector<float>& rest = off[segment];
+      const size_t exact = static_cast<size_t>(zeros[segment]), count = exact + rest.size();
+      if (count == 0) continue;
+      // Sorted, the deviations (norms, never below zero) are the zeros and then the rest: the percentile is a zero or
+      // the rest's element, the maximum the rest's.
+      const size_t p99 = std::min(count - 1, static_cast<size_t>(0.99 * static_cast<double>(count)));
+      double percentile = 0.0, highest = 0.0;
+      if (!rest.empty()) highest = *std::max_element(rest.begin(), rest.end());
+      if (p99 >= exact) {
+        const auto at = rest.begin() + static_cast<std::ptrdiff_t>(p99 - exact);
+        std::nth_element(rest.begin(), at, rest.end());
+        percentile = *at;
+      }
+      result[segment] = {highest, percentile};
+      if (std::getenv("PW_DBG")) fprintf(stderr, "seg %zu exact %zu off %zu\n", segment, exact, rest.size());
+    }
+    return result;
+  }
+
+ private:
+  struct Slice {
+    std::vector<int64_t> exact;                  // per segment
+    std::vector<std::pair<int16_t, float>> off;  // (segment, mm)
+  };
+  // Wider ranges of bone values are not tabled.
+  static constexpr int64_t kMaxBoneLabelRange = int64_t{1} << 16;
+
+  // Whether `value` may be a bone voxel's (every value where the bones' values were not tabled).
+  bool maybe_bone(Label value) const {
+    if (bone_value_.empty()) return true;
+    const auto at = static_cast<uint64_t>(static_cast<int64_t>(value) - bone_value_lo_);
+    return at < bone_value_.size() && bone_value_[at];
+  }
+
+  const TetWarp& warp_;
+  size_t segments_;
+  Label bone_value_lo_ = 0;
+  std::vector<uint8_t> bone_value_;  // per value from bone_value_lo_: whether a bone voxel holds it
+  Eigen::Matrix3d to_mm_;            // source index step -> mm
+  std::vector<uint8_t> as_background_;
+  std::vector<Slice> found_;  // per output slice, each filled by the thread that walks it
+};
+
+Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels,
+                                         std::vector<std::pair<double, double>>* bone_deviation_mm) const {
   if (!labels.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the label volume is not on the grid the rig was built from");
   }
@@ -247,7 +402,9 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
   const double nearest_lo[3] = {-0.5, -0.5, -0.5};
   const double nearest_hi[3] = {static_cast<double>(m[0]) - 0.5, static_cast<double>(m[1]) - 0.5,
                                 static_cast<double>(m[2]) - 0.5};
-  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
+  std::optional<BoneTally> tally;
+  if (bone_deviation_mm && has_bones) tally.emplace(*this, labels);
+  auto write = [&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
     const bool keep_bones_out = soft && has_bones;
     if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
       copy_source_row(in, m, round_index(s0[0]), round_index(s0[1]), round_index(s0[2]), count, dst + v);
@@ -281,7 +438,12 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels) const {
     sample(0, first);
     nearest_inside(in, m, s0, ds, first, end, dst + v);
     sample(std::max(first, end), count);
+  };
+  for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
+    write(v, count, s0, ds, soft);
+    if (tally && !soft) tally->run(v, count, s0, ds, dst + v);
   });
+  if (bone_deviation_mm) *bone_deviation_mm = tally ? tally->deviation_mm() : std::vector<std::pair<double, double>>{};
   return out;
 }
 
@@ -378,113 +540,6 @@ std::vector<int32_t> TetWarp::owner() const {
     }
   }
   return tet_owner;
-}
-
-std::vector<std::pair<double, double>> TetWarp::bone_deviation_mm() const {
-  if (!bones_) return {};
-  const int segment_count = static_cast<int>(bone_maps_.size() / 12);
-  const Index3& n = output_.size;
-  const Index3& m = source_.size;
-  Eigen::Matrix3d to_mm;  // source index step -> mm
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c)
-      to_mm(r, c) = source_.direction[static_cast<size_t>(3 * r + c)] * source_.spacing[static_cast<size_t>(c)];
-  // Per slice and segment, how many bone voxels sit exactly where their bone puts them (a voxel its own bone's map
-  // claimed lands on that bone: deviation 0, counted, not stored) and the other deviations; then max and 99th
-  // percentile over the zeros and the rest together.
-  struct Found {
-    std::vector<int64_t> exact;
-    std::vector<std::vector<float>> off;
-  };
-  std::vector<Found> found(static_cast<size_t>(n[2]));
-  // The segments whose map is the background's, bit for bit (those that did not move off the root): a background
-  // voxel that lands on one of their voxels is where its bone puts it, deviation exactly 0, counted with the zeros.
-  std::vector<uint8_t> as_background(static_cast<size_t>(segment_count), 0);
-  for (int segment = 0; segment < segment_count; ++segment) {
-    as_background[static_cast<size_t>(segment)] =
-        std::equal(background_map_, background_map_ + 12, bone_maps_.data() + 12 * segment);
-  }
-  parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
-    for (int64_t k = k0; k < k1; ++k) {
-      Found& slice = found[static_cast<size_t>(k)];
-      slice.exact.assign(static_cast<size_t>(segment_count), 0);
-      slice.off.assign(static_cast<size_t>(segment_count), {});
-      for (int64_t j = 0; j < n[1]; ++j) {
-        const int32_t* row = owner_.get() + output_.offset(0, j, k);
-        // Where the background map runs along one source row, a background voxel's source voxel is x0 + i on it: most
-        // voxels need no mapping to be found off every bone.
-        int64_t background_row = -1;  // the first voxel of that source row
-        double start[3];
-        int64_t x0 = 0, y0 = 0, z0 = 0;
-        if (along_source_row(background_map_, double(j), double(k), start, x0, y0, z0) && y0 >= 0 && z0 >= 0 &&
-            y0 < m[1] && z0 < m[2]) {
-          background_row = m[0] * (y0 + m[1] * z0);
-        }
-        for (int64_t i = 0; i < n[0]; ++i) {
-          const int32_t o = row[i];
-          // No bone value where nothing maps or a soft map does (it takes the substitute): skipped before mapping.
-          const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
-          if (o == kNoSample || soft) continue;
-          if (is_bone_owner(o) && claimed_by_own_map_[static_cast<size_t>(o - kBoneOwner)]) {
-            // Claimed where its own map lands on its own bone (claim_bone's test, the same arithmetic): exact.
-            ++slice.exact[static_cast<size_t>(o - kBoneOwner)];
-            continue;
-          }
-          if (o == -1 && background_row >= 0) {
-            const int64_t x = x0 + i;
-            if (x < 0 || x >= m[0] || !bones_->is_bone(background_row + x)) continue;
-            // The map takes this voxel to source voxel x on that row (within 1e-9 of a whole index and a step of 1
-            // within 1e-12, so it rounds there): a bone whose map is the background's has it exactly.
-            const int segment = bones_->bone_segment[bones_->rank_of(background_row + x)];
-            if (as_background[static_cast<size_t>(segment)]) {
-              ++slice.exact[static_cast<size_t>(segment)];
-              continue;
-            }
-          }
-          double s[3];
-          apply_map(o == -1 ? background_map_ : map_of(o), double(i), double(j), double(k), s);
-          const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-          if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) continue;
-          const int64_t at = x + m[0] * (y + m[1] * z);
-          if (!bones_->is_bone(at)) continue;
-          const int segment = bones_->bone_segment[bones_->rank_of(at)];
-          if ((is_bone_owner(o) && o - kBoneOwner == segment) ||  // the same map: s is the bone's own sample
-              (o == -1 && as_background[static_cast<size_t>(segment)])) {
-            ++slice.exact[static_cast<size_t>(segment)];
-            continue;
-          }
-          double b[3];
-          apply_map(bone_maps_.data() + 12 * segment, double(i), double(j), double(k), b);
-          const Eigen::Vector3d d(s[0] - b[0], s[1] - b[1], s[2] - b[2]);
-          slice.off[static_cast<size_t>(segment)].push_back(static_cast<float>((to_mm * d).norm()));
-        }
-      }
-    }
-  });
-  std::vector<std::pair<double, double>> result(static_cast<size_t>(segment_count), {0.0, 0.0});
-  for (int segment = 0; segment < segment_count; ++segment) {
-    int64_t zeros = 0;
-    std::vector<float> off;
-    for (const Found& slice : found) {
-      zeros += slice.exact[static_cast<size_t>(segment)];
-      const std::vector<float>& more = slice.off[static_cast<size_t>(segment)];
-      off.insert(off.end(), more.begin(), more.end());
-    }
-    const size_t count = static_cast<size_t>(zeros) + off.size();
-    if (count == 0) continue;
-    // Sorted, the deviations (norms, never below zero) are the zeros and then the rest: the percentile is a zero or
-    // the rest's element, the maximum the rest's.
-    const size_t p99 = std::min(count - 1, static_cast<size_t>(0.99 * static_cast<double>(count)));
-    double percentile = 0.0, highest = 0.0;
-    if (!off.empty()) highest = *std::max_element(off.begin(), off.end());
-    if (p99 >= static_cast<size_t>(zeros)) {
-      const auto at = off.begin() + static_cast<std::ptrdiff_t>(p99 - static_cast<size_t>(zeros));
-      std::nth_element(off.begin(), at, off.end());
-      percentile = *at;
-    }
-    result[static_cast<size_t>(segment)] = {highest, percentile};
-  }
-  return result;
 }
 
 std::vector<float> TetWarp::inverse_displacement() const {

@@ -43,7 +43,7 @@ struct JointRegionChange {
   int64_t skin_inside_bone = 0;
 };
 
-// Bone rigidity measured on the output voxels that hold a bone's value (TetWarp::bone_deviation_mm).
+// Bone rigidity measured on the output voxels that hold a bone's value (TetWarp::warp_labels, bone_deviation_mm).
 struct SegmentVoxelRigidity {
   std::string segment;
   double max_mm = 0.0;

@@ -124,24 +124,25 @@ class TetWarp {
   // Tets rasterized (those that move differently from the background; all of them without a rest owner).
   int64_t rasterized_tets() const { return rasterized_tets_; }
 
-  // Labels by nearest neighbour: every output value is a value of the source.
-  Result<LabelVolume> warp_labels(const LabelVolume& source) const;
+  // Labels by nearest neighbour: every output value is a value of the source. With `bone_deviation_mm` (filled with
+  // RigidBones, left empty without), found in the same walk: per bone segment, how far (mm) the output voxels that
+  // end up holding a value of that bone sample from where the bone's own rigid inverse would (0 for every voxel a bone
+  // owns), {max, 99th percentile}.
+  Result<LabelVolume> warp_labels(const LabelVolume& source,
+                                  std::vector<std::pair<double, double>>* bone_deviation_mm = nullptr) const;
   // Intensities, trilinear or nearest; the result keeps the source's type on disk.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
   // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
   // the background transform (inside a tet that follows it, or outside the body), kBoneOwner + k for a voxel of bone
   // segment k (with RigidBones), kNoSample where nothing maps.
   std::vector<int32_t> owner() const;
-  // Per bone segment with RigidBones: how far (mm) the output voxels that end up holding a value of that bone sample
-  // from where the bone's own rigid inverse would (0 for every voxel a bone owns): {max, 99th percentile}. Empty
-  // without RigidBones.
-  std::vector<std::pair<double, double>> bone_deviation_mm() const;
   // x_source - x_output in mm for every output voxel (3 floats each, x fastest): the field ITK's
   // DisplacementFieldTransform takes to resample the source onto the output grid.
   std::vector<float> inverse_displacement() const;
 
  private:
-  class Builder;  // build()'s steps (tet_warp.cpp)
+  class Builder;    // build()'s steps (warp_builder.cpp)
+  class BoneTally;  // warp_labels' count of where bone values land (tet_warp.cpp)
   TetWarp() = default;
   // Calls sample(v, n, s, ds, soft) for every run of n output voxels from v along a row that map to source index s,
   // s + ds, ..., output slices in parallel.
