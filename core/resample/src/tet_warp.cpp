@@ -8,8 +8,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <limits>
 #include <new>
 #include <optional>
@@ -357,7 +355,6 @@ class TetWarp::BoneTally {
         percentile = *at;
       }
       result[segment] = {highest, percentile};
-      if (std::getenv("PW_DBG")) fprintf(stderr, "seg %zu exact %zu off %zu\n", segment, exact, rest.size());
     }
     return result;
   }
