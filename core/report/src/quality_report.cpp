@@ -113,14 +113,25 @@ std::map<Label, int64_t> label_counts(const LabelVolume& labels, std::optional<s
   parallel_for(0, n, int64_t{1} << 18, [&](int64_t begin, int64_t end) {
     std::vector<int64_t> local(static_cast<size_t>(range), 0);
     int64_t off = 0;
-    for (int64_t i = begin; i < end; ++i) {
-      const auto bin = static_cast<uint64_t>(static_cast<int64_t>(v[i]) - first);
+    auto add = [&](Label value, int64_t count) {
+      const auto bin = static_cast<uint64_t>(static_cast<int64_t>(value) - first);
       if (bin < static_cast<uint64_t>(range)) {
-        ++local[bin];
+        local[bin] += count;
       } else {
-        ++off;
+        off += count;
       }
+    };
+    // Labels come in long runs: counted a run at a time, since a count per voxel waits on the store of the one before
+    // it (the body's moved root: report-labels 8.0-8.2 -> 4.5-4.7 ms).
+    int64_t run = begin;
+    Label value = v[begin];
+    for (int64_t i = begin + 1; i < end; ++i) {
+      if (v[i] == value) continue;
+      add(value, i - run);
+      run = i;
+      value = v[i];
     }
+    add(value, end - run);
     const std::lock_guard<std::mutex> lock(merge);
     for (size_t b = 0; b < local.size(); ++b) total[b] += local[b];
     outside += off;
