@@ -19,7 +19,7 @@
 #include "raster.h"
 
 #if defined(__SSE2__)
-#include <emmintrin.h>
+#include <immintrin.h>
 #endif
 
 namespace posewarp::resample {
@@ -84,6 +84,58 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
   }
 }
 
+#if defined(__x86_64__)
+// Two floats from `at` in the low half.
+inline __m128 float_pair(const float* at) {
+  return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at)));
+}
+
+// p[l][at] + fx[l] (p[l][at + 1] - p[l][at]) for the four lanes l.
+__attribute__((target("avx2"), always_inline)) inline __m256d lerp_x4(const float* const p[4], int64_t at, __m256d fx) {
+  const __m128 a = _mm_movelh_ps(float_pair(p[0] + at), float_pair(p[1] + at));  // p0[at] p0[at+1] p1[at] p1[at+1]
+  const __m128 b = _mm_movelh_ps(float_pair(p[2] + at), float_pair(p[3] + at));
+  const __m128 low = _mm_shuffle_ps(a, b, _MM_SHUFFLE(2, 0, 2, 0)),
+               high = _mm_shuffle_ps(a, b, _MM_SHUFFLE(3, 1, 3, 1));
+  return _mm256_add_pd(_mm256_cvtps_pd(low), _mm256_mul_pd(fx, _mm256_cvtps_pd(_mm_sub_ps(high, low))));
+}
+
+// trilinear_inside's loop four voxels at a time in AVX2, without FMA: each lane does the scalar code's IEEE operations
+// on the same values, so the same bits. From c up to the last whole four; returns where it stopped. For machines that
+// have AVX2 (x86-64's baseline stops at SSE2): the body's moved root, warp-ct 88-95 -> 75-76 ms.
+__attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict in, const Index3& m, const double s0[3],
+                                                       const double ds[3], int64_t c, int64_t end,
+                                                       float* __restrict out) {
+  const int64_t sy = m[0], sz = m[0] * m[1];
+  const __m256d x0 = _mm256_set1_pd(s0[0]), y0 = _mm256_set1_pd(s0[1]), z0 = _mm256_set1_pd(s0[2]);
+  const __m256d dx = _mm256_set1_pd(ds[0]), dy = _mm256_set1_pd(ds[1]), dz = _mm256_set1_pd(ds[2]);
+  for (__m256d cc = _mm256_set_pd(double(c + 3), double(c + 2), double(c + 1), double(c)); c + 3 < end;
+       c += 4, cc = _mm256_add_pd(cc, _mm256_set1_pd(4.0))) {
+    const __m256d x = _mm256_add_pd(x0, _mm256_mul_pd(cc, dx)), y = _mm256_add_pd(y0, _mm256_mul_pd(cc, dy)),
+                  z = _mm256_add_pd(z0, _mm256_mul_pd(cc, dz));
+    const __m128i bx = _mm256_cvttpd_epi32(x), by = _mm256_cvttpd_epi32(y), bz = _mm256_cvttpd_epi32(z);
+    const __m256d fx = _mm256_sub_pd(x, _mm256_cvtepi32_pd(bx)), fy = _mm256_sub_pd(y, _mm256_cvtepi32_pd(by)),
+                  fz = _mm256_sub_pd(z, _mm256_cvtepi32_pd(bz));
+    alignas(16) int32_t ix[4], iy[4], iz[4];
+    _mm_store_si128(reinterpret_cast<__m128i*>(ix), bx);
+    _mm_store_si128(reinterpret_cast<__m128i*>(iy), by);
+    _mm_store_si128(reinterpret_cast<__m128i*>(iz), bz);
+    const float* p[4];
+    for (int l = 0; l < 4; ++l) p[l] = in + int64_t{ix[l]} + int64_t{iy[l]} * sy + int64_t{iz[l]} * sz;
+    const __m256d c00 = lerp_x4(p, 0, fx), c10 = lerp_x4(p, sy, fx), c01 = lerp_x4(p, sz, fx),
+                  c11 = lerp_x4(p, sz + sy, fx);
+    const __m256d e0 = _mm256_add_pd(c00, _mm256_mul_pd(fy, _mm256_sub_pd(c10, c00)));
+    const __m256d e1 = _mm256_add_pd(c01, _mm256_mul_pd(fy, _mm256_sub_pd(c11, c01)));
+    _mm_storeu_ps(out + c, _mm256_cvtpd_ps(_mm256_add_pd(e0, _mm256_mul_pd(fz, _mm256_sub_pd(e1, e0)))));
+  }
+  return c;
+}
+
+bool has_avx2() {
+  static const bool yes = (__builtin_cpu_init(), __builtin_cpu_supports("avx2"));
+  return yes;
+}
+#endif
+
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
 // its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop.
 void trilinear_inside(const float* __restrict in, const Index3& m, const double s0[3], const double ds[3],
@@ -91,6 +143,9 @@ void trilinear_inside(const float* __restrict in, const Index3& m, const double 
   const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
   const int64_t sy = m[0], sz = m[0] * m[1];
   int64_t c = first;
+#if defined(__x86_64__)
+  if (has_avx2()) c = trilinear_avx2(in, m, s0, ds, c, end, out);
+#endif
 #if defined(__SSE2__)
   // Two voxels at a time, one in each lane: the same IEEE operations on the same values, so the same bits (the
   // indices truncated to int32, which holds any grid's). The body's moved root: warp-ct 121 -> 91 ms.
