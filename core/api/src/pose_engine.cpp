@@ -110,7 +110,9 @@ struct PoseEngine::Prepared {
   std::vector<int16_t> tet_region;   // per tet: the region at its rest centroid
   std::vector<uint8_t> separated;    // regions that must not show each other's tissue
   float ct_minimum = 0.0f;           // the CT's lowest value: the warp's background is never below it
-  PreviewRig preview;
+  // The preview's share (preview_of), made by the first preview: a command-line pose never needs it.
+  mutable std::once_flag preview_once;
+  mutable PreviewRig preview;
   mutable FemState fem;
 };
 
@@ -486,16 +488,26 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       p->tet_region = tet_regions(rig, p->region);
       p->rest_label_counts = report::label_counts(rig.labels);
       if (rig.ct) p->ct_minimum = std::min(0.0f, lowest_value(*rig.ct));
-      prepare_preview(rig, p->preview);
       p->rig = std::move(rig);
       return PoseEngine(std::move(p));
     });
   });
 }
 
+namespace {
+
+// The preview's share of the rig, made once, by the first preview that needs it.
+const PreviewRig& preview_of(const PoseEngine::Prepared& p) {
+  std::call_once(p.preview_once, [&] { prepare_preview(p.rig, p.preview); });
+  return p.preview;
+}
+
+}  // namespace
+
 Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const {
   return guarded("previewing the pose", [&]() -> Result<PreviewResult> {
     const Prepared& p = *prepared_;
+    const PreviewRig& preview = preview_of(p);
     POSEWARP_ASSIGN_OR_RETURN(const std::vector<RigidTransform> transforms, kinematics(p, pose, ""));
     const skinning::SegmentTransforms segments = segment_transforms(transforms);
     PreviewResult result;
@@ -507,19 +519,19 @@ Result<PreviewResult> PoseEngine::preview(const Pose& pose, Method method) const
       POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed, soft_tissue(p, warm, segments, {}, SolveFor::kPreview));
       // The surfaces through the preview's own tets (the same barycentrics), their corners gathered first: the
       // whole mesh's vertices are a few times more and scattered.
-      Eigen::MatrixXd corners(static_cast<Eigen::Index>(p.preview.rig_vertex.size()), 3);
-      for (size_t i = 0; i < p.preview.rig_vertex.size(); ++i) {
-        corners.row(static_cast<Eigen::Index>(i)) = posed.row(p.preview.rig_vertex[i]);
+      Eigen::MatrixXd corners(static_cast<Eigen::Index>(preview.rig_vertex.size()), 3);
+      for (size_t i = 0; i < preview.rig_vertex.size(); ++i) {
+        corners.row(static_cast<Eigen::Index>(i)) = posed.row(preview.rig_vertex[i]);
       }
-      for (const mapping::Embedding& e : p.preview.embeddings) {
-        result.surface_vertices.push_back(mapping::deform_points(e, p.preview.mesh, corners));
+      for (const mapping::Embedding& e : preview.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, preview.mesh, corners));
       }
     } else {
-      POSEWARP_ASSIGN_OR_RETURN(const Eigen::MatrixXd posed,
-                                skinning::skin(stage_method(method), p.preview.mesh.vertices, p.preview.weights,
-                                               p.preview.centres, segments));
-      for (const mapping::Embedding& e : p.preview.embeddings) {
-        result.surface_vertices.push_back(mapping::deform_points(e, p.preview.mesh, posed));
+      POSEWARP_ASSIGN_OR_RETURN(
+          const Eigen::MatrixXd posed,
+          skinning::skin(stage_method(method), preview.mesh.vertices, preview.weights, preview.centres, segments));
+      for (const mapping::Embedding& e : preview.embeddings) {
+        result.surface_vertices.push_back(mapping::deform_points(e, preview.mesh, posed));
       }
     }
     // A joint centre moves with its parent segment (the child turns about it).
