@@ -312,34 +312,8 @@ class TetWarp::BoneTally {
           std::equal(warp.background_map_, warp.background_map_ + 12, warp.bone_maps_.data() + 12 * segment);
     }
     for (Slice& slice : found_) slice.exact.assign(segments_, 0);
-  }
-
-  // The values bone voxels hold (a bone's few labels), tabled for maybe_bone: an output voxel holding another value
-  // holds no bone's, found without mapping it. Worth it where the background's runs cross the source rows (the root
-  // moved); without it every voxel of such a run is mapped.
-  void find_bone_values() {
-    const std::vector<uint64_t>& bits = warp_.bones_->bone_bits;
-    const Label* in = source_.data();
-    std::mutex merge;
-    std::vector<Label> values;
-    parallel_for(0, static_cast<int64_t>(bits.size()), 4096, [&](int64_t begin, int64_t end) {
-      std::vector<Label> found;  // few, and most bone voxels hold the value of the one before
-      for (int64_t word = begin; word < end; ++word) {
-        for (uint64_t b = bits[static_cast<size_t>(word)]; b != 0; b &= b - 1) {
-          const Label value = in[64 * word + __builtin_ctzll(b)];
-          if (!found.empty() && found.back() == value) continue;
-          if (std::find(found.begin(), found.end(), value) == found.end()) found.push_back(value);
-        }
-      }
-      const std::lock_guard<std::mutex> lock(merge);
-      values.insert(values.end(), found.begin(), found.end());
-    });
-    if (values.empty()) return;
-    const auto [lo, hi] = std::minmax_element(values.begin(), values.end());
-    if (static_cast<int64_t>(*hi) - *lo >= kMaxBoneLabelRange) return;  // too wide a range: every voxel is mapped
-    bone_value_lo_ = *lo;
-    bone_value_.assign(static_cast<size_t>(static_cast<int64_t>(*hi) - *lo + 1), 0);
-    for (const Label value : values) bone_value_[static_cast<size_t>(value - *lo)] = 1;
+    // Only runs across the source rows (the background's where the root moved) look the bones' values up.
+    if (!steps_one_x(warp.background_map_[0], warp.background_map_[3], warp.background_map_[6])) find_bone_values();
   }
 
   // warp_labels' run of `count` output voxels from v, whose labels are the source's at s0 + c ds, mapped by a bone
@@ -435,6 +409,33 @@ class TetWarp::BoneTally {
   // Wider ranges of bone values are not tabled.
   static constexpr int64_t kMaxBoneLabelRange = int64_t{1} << 16;
 
+  // The values bone voxels hold (a bone's few labels), tabled for maybe_bone: an output voxel holding another value
+  // holds no bone's, found without mapping it (without the table every voxel of such a run is mapped).
+  void find_bone_values() {
+    const std::vector<uint64_t>& bits = warp_.bones_->bone_bits;
+    const Label* in = source_.data();
+    std::mutex merge;
+    std::vector<Label> values;
+    parallel_for(0, static_cast<int64_t>(bits.size()), 4096, [&](int64_t begin, int64_t end) {
+      std::vector<Label> found;  // few, and most bone voxels hold the value of the one before
+      for (int64_t word = begin; word < end; ++word) {
+        for (uint64_t b = bits[static_cast<size_t>(word)]; b != 0; b &= b - 1) {
+          const Label value = in[64 * word + __builtin_ctzll(b)];
+          if (!found.empty() && found.back() == value) continue;
+          if (std::find(found.begin(), found.end(), value) == found.end()) found.push_back(value);
+        }
+      }
+      const std::lock_guard<std::mutex> lock(merge);
+      values.insert(values.end(), found.begin(), found.end());
+    });
+    if (values.empty()) return;
+    const auto [lo, hi] = std::minmax_element(values.begin(), values.end());
+    if (static_cast<int64_t>(*hi) - *lo >= kMaxBoneLabelRange) return;  // too wide a range: every voxel is mapped
+    bone_value_lo_ = *lo;
+    bone_value_.assign(static_cast<size_t>(static_cast<int64_t>(*hi) - *lo + 1), 0);
+    for (const Label value : values) bone_value_[static_cast<size_t>(value - *lo)] = 1;
+  }
+
   // Whether `value` may be a bone voxel's (every value where the bones' values were not tabled).
   bool maybe_bone(Label value) const {
     if (bone_value_.empty()) return true;
@@ -469,10 +470,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels,
   const double nearest_hi[3] = {static_cast<double>(m[0]) - 0.5, static_cast<double>(m[1]) - 0.5,
                                 static_cast<double>(m[2]) - 0.5};
   std::optional<BoneTally> tally;
-  if (bone_deviation_mm && has_bones) {
-    tally.emplace(*this, labels);
-    if (!steps_one_x(background_map_[0], background_map_[3], background_map_[6])) tally->find_bone_values();
-  }
+  if (bone_deviation_mm && has_bones) tally.emplace(*this, labels);
   auto write = [&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {
     const bool keep_bones_out = soft && has_bones;
     if (!keep_bones_out && steps_one_x(ds[0], ds[1], ds[2])) {  // a run along a source row: copy it
