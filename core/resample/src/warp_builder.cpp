@@ -511,7 +511,8 @@ class TetWarp::Builder {
     }
   }
 
-  // The moving bones whose posed box meets row (j, k): (segment, first i, last i).
+  // The moving bones whose posed box meets row (j, k): (segment, first i, last i), the i narrowed to where the bone's
+  // map takes the row into the bone's source box (a thin bone turned fills little of its posed box).
   void bones_on_row(int64_t j, int64_t k, std::vector<std::array<int64_t, 3>>& row_bones) const {
     row_bones.clear();
     for (int seg = 0; seg < segment_count_; ++seg) {
@@ -520,9 +521,35 @@ class TetWarp::Builder {
           double(k) > box[5]) {
         continue;
       }
-      row_bones.push_back({seg, std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(box[0]))),
-                           std::min<int64_t>(n_[0] - 1, static_cast<int64_t>(fast_floor(box[3])))});
+      double lo = std::max(0.0, fast_ceil(box[0])), hi = std::min(double(n_[0] - 1), fast_floor(box[3]));
+      if (!row_in_source_box(warp_.bone_maps_.data() + 12 * seg, j, k, in_.bones->voxels->box[static_cast<size_t>(seg)],
+                             lo, hi)) {
+        continue;
+      }
+      row_bones.push_back({seg, static_cast<int64_t>(lo), static_cast<int64_t>(hi)});
     }
+  }
+
+  // Narrows [lo, hi] (whole i) to the voxels of output row (j, k) that `map` may take into the source index box
+  // (i0, j0, k0, i1, j1, k1): those whose source index rounds into it, give or take a voxel, so that no voxel
+  // bone_at() would find in the box is dropped. False when none is left.
+  static bool row_in_source_box(const double* map, int64_t j, int64_t k, const std::array<int64_t, 6>& box, double& lo,
+                                double& hi) {
+    double start[3];
+    apply_map(map, 0.0, double(j), double(k), start);
+    for (int a = 0; a < 3; ++a) {
+      const double step = map[3 * a];
+      const double low = double(box[static_cast<size_t>(a)]) - 1.5,
+                   high = double(box[static_cast<size_t>(a + 3)]) + 1.5;
+      if (std::abs(step) < 1e-9) {
+        if (!(start[a] >= low && start[a] <= high)) return false;  // the whole row is off the box along a
+        continue;
+      }
+      const double at_low = (low - start[a]) / step, at_high = (high - start[a]) / step;
+      lo = std::max(lo, fast_floor(std::max(std::min(at_low, at_high), -1e9)) - 1.0);
+      hi = std::min(hi, fast_ceil(std::min(std::max(at_low, at_high), 1e9)) + 1.0);
+    }
+    return lo <= hi;
   }
 
   // Pass 3 over slab s, classify every voxel. Without a rest owner: covered, shell or background. With one, a voxel
