@@ -79,8 +79,13 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
   const int64_t sy = m[0], sz = m[0] * m[1];
   // round_index of a sample in the grid: x + 0.5 >= 0 there, where truncation is the floor it takes.
   auto rounded = [](double x) { return static_cast<int64_t>(x + 0.5); };
+  constexpr int64_t kAhead = 32;
   for (int64_t c = first; c < end; ++c) {
     const double dc = double(c);
+    if (c + kAhead < end) {
+      const double da = double(c + kAhead);
+      __builtin_prefetch(in + rounded(a0 + da * d0) + sy * rounded(a1 + da * d1) + sz * rounded(a2 + da * d2));
+    }
     out[c] = in[rounded(a0 + dc * d0) + sy * rounded(a1 + dc * d1) + sz * rounded(a2 + dc * d2)];
   }
 }
@@ -107,6 +112,7 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
                                                        const double ds[3], int64_t c, int64_t end,
                                                        float* __restrict out) {
   const int64_t sy = m[0], sz = m[0] * m[1];
+  constexpr int64_t kAheadCt = 16;
   const __m256d x0 = _mm256_set1_pd(s0[0]), y0 = _mm256_set1_pd(s0[1]), z0 = _mm256_set1_pd(s0[2]);
   const __m256d dx = _mm256_set1_pd(ds[0]), dy = _mm256_set1_pd(ds[1]), dz = _mm256_set1_pd(ds[2]);
   for (__m256d cc = _mm256_set_pd(double(c + 3), double(c + 2), double(c + 1), double(c)); c + 3 < end;
@@ -122,6 +128,15 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
     _mm_store_si128(reinterpret_cast<__m128i*>(iz), bz);
     const float* p[4];
     for (int l = 0; l < 4; ++l) p[l] = in + int64_t{ix[l]} + int64_t{iy[l]} * sy + int64_t{iz[l]} * sz;
+    if (c + 4 + kAheadCt < end) {
+      const double da = double(c + kAheadCt);
+      const float* q = in + static_cast<int64_t>(s0[0] + da * ds[0]) + static_cast<int64_t>(s0[1] + da * ds[1]) * sy +
+                       static_cast<int64_t>(s0[2] + da * ds[2]) * sz;
+      __builtin_prefetch(q);
+      __builtin_prefetch(q + sy);
+      __builtin_prefetch(q + sz);
+      __builtin_prefetch(q + sz + sy);
+    }
     const __m256d c00 = lerp_x4(p, 0, fx), c10 = lerp_x4(p, sy, fx), c01 = lerp_x4(p, sz, fx),
                   c11 = lerp_x4(p, sz + sy, fx);
     const __m256d e0 = _mm256_add_pd(c00, _mm256_mul_pd(fy, _mm256_sub_pd(c10, c00)));

@@ -655,10 +655,23 @@ class TetWarp::Builder {
   int64_t classify_uncovered_mapped(int32_t* row, int64_t i, int64_t stop, const double start[3],
                                     WarpStats& stats) const {
     const double* bg = warp_.background_map_;
-    for (; i < stop && row[i] == -1; ++i) {
-      const double di = double(i);
-      const double sb[3] = {start[0] + di * bg[0], start[1] + di * bg[3], start[2] + di * bg[6]};
-      classify_uncovered(row[i], rest_owner_at(sb), stats);
+    const int32_t* rest_owner = in_.rest_owner->data();
+    // A turned map crosses a source row every few voxels, and each crossing may miss the cache: the voxels are taken
+    // a batch at a time, their rest owners' places found and fetched ahead, so that the misses overlap.
+    constexpr int64_t kBatch = 32;
+    int64_t at[kBatch];
+    while (i < stop) {
+      const int64_t n = std::min(kBatch, stop - i);
+      for (int64_t c = 0; c < n; ++c) {
+        const double di = double(i + c);
+        const double sb[3] = {start[0] + di * bg[0], start[1] + di * bg[3], start[2] + di * bg[6]};
+        at[c] = source_voxel(sb);
+        if (at[c] >= 0) __builtin_prefetch(rest_owner + at[c]);
+      }
+      for (int64_t c = 0; c < n; ++c, ++i) {
+        if (row[i] != -1) return i;
+        classify_uncovered(row[i], at[c] < 0 ? -1 : rest_owner[at[c]], stats);
+      }
     }
     return i;
   }
