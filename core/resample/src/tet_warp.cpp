@@ -79,7 +79,7 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
   const int64_t sy = m[0], sz = m[0] * m[1];
   // round_index of a sample in the grid: x + 0.5 >= 0 there, where truncation is the floor it takes.
   auto rounded = [](double x) { return static_cast<int64_t>(x + 0.5); };
-  constexpr int64_t kAhead = 32;
+  constexpr int64_t kAhead = 64;
   for (int64_t c = first; c < end; ++c) {
     const double dc = double(c);
     if (c + kAhead < end) {
@@ -112,7 +112,7 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
                                                        const double ds[3], int64_t c, int64_t end,
                                                        float* __restrict out) {
   const int64_t sy = m[0], sz = m[0] * m[1];
-  constexpr int64_t kAheadCt = 16;
+  constexpr int64_t kAheadCt = 48;
   const __m256d x0 = _mm256_set1_pd(s0[0]), y0 = _mm256_set1_pd(s0[1]), z0 = _mm256_set1_pd(s0[2]);
   const __m256d dx = _mm256_set1_pd(ds[0]), dy = _mm256_set1_pd(ds[1]), dz = _mm256_set1_pd(ds[2]);
   for (__m256d cc = _mm256_set_pd(double(c + 3), double(c + 2), double(c + 1), double(c)); c + 3 < end;
@@ -146,10 +146,6 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
   return c;
 }
 
-bool has_avx2() {
-  static const bool yes = (__builtin_cpu_init(), __builtin_cpu_supports("avx2"));
-  return yes;
-}
 #endif
 
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with

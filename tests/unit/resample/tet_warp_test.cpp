@@ -115,7 +115,8 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
 
 // A moved root on the study's own grid: every voxel samples through the root's map, runs of them across the source
 // rows and off its edges (the unchecked span inside the grid, checked voxels at its ends). Each voxel is what the map
-// says, worked out here voxel by voxel: the nearest label, the trilinear CT, the background outside the source.
+// says, worked out here voxel by voxel: the nearest label, the trilinear CT, the background outside the source, and
+// the warp's counts from the rest owner of that nearest voxel (the classification's own walk across the rows).
 TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
@@ -139,7 +140,7 @@ TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
   Result<IntensityVolume> ct = warp->warp_intensities(s.phantom.ct, Interpolation::kLinear);
   ASSERT_TRUE(labels.ok() && ct.ok());
   const Index3& m = g.size;
-  int64_t inside = 0, outside = 0;
+  int64_t inside = 0, outside = 0, covered = 0, extrapolated = 0;
   for (int64_t k = 0; k < m[2]; ++k) {
     for (int64_t j = 0; j < m[1]; ++j) {
       for (int64_t i = 0; i < m[0]; ++i) {
@@ -155,6 +156,9 @@ TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
         }
         ++inside;
         ASSERT_EQ(labels->data()[v], s.phantom.labels.at(n[0], n[1], n[2])) << i << " " << j << " " << k;
+        const int32_t rest_owner = s.rest_owner[static_cast<size_t>(g.offset(n[0], n[1], n[2]))];
+        covered += rest_owner >= 0 ? 1 : 0;
+        extrapolated += rest_owner <= -2 && rest_owner != TetWarp::kNoSample ? 1 : 0;
         if (u[0] < 0 || u[1] < 0 || u[2] < 0 || u[0] >= double(m[0] - 1) || u[1] >= double(m[1] - 1) ||
             u[2] >= double(m[2] - 1)) {
           continue;  // the CT's edge voxels clamp: checked by the ITK comparison above
@@ -174,6 +178,10 @@ TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
   }
   EXPECT_GT(inside, g.voxel_count() / 2);
   EXPECT_GT(outside, 0);
+  EXPECT_EQ(warp->stats().covered_voxels, covered);
+  EXPECT_EQ(warp->stats().extrapolated_voxels, extrapolated);
+  EXPECT_GT(extrapolated, 0);
+  EXPECT_EQ(warp->stats().background_voxels, g.voxel_count() - covered - extrapolated);
 }
 
 TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
