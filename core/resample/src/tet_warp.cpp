@@ -90,13 +90,14 @@ __attribute__((target("avx2"))) int64_t nearest_avx2(const int32_t* __restrict i
                                                      const double ds[3], int64_t c, int64_t end,
                                                      int32_t* __restrict out) {
   constexpr int64_t kAhead = 64;
+  const bool across_rows = ds[1] != 0.0 || ds[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
   const __m256d m0 = _mm256_set1_pd(double(m[0])), m1 = _mm256_set1_pd(double(m[1]));
   const __m256d start[3] = {_mm256_set1_pd(s0[0]), _mm256_set1_pd(s0[1]), _mm256_set1_pd(s0[2])};
   const __m256d step[3] = {_mm256_set1_pd(ds[0]), _mm256_set1_pd(ds[1]), _mm256_set1_pd(ds[2])};
   for (; c + 3 < end; c += 4) {
     const double at = double(c);
     const __m256d cc = _mm256_set_pd(at + 3.0, at + 2.0, at + 1.0, at);
-    if (c + kAhead + 3 < end) {
+    if (across_rows && c + kAhead + 3 < end) {
       const __m128i ahead = nearest_x4(start, step, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), m0, m1);
       _mm_prefetch(reinterpret_cast<const char*>(in + _mm_cvtsi128_si32(ahead)), _MM_HINT_T0);
       _mm_prefetch(reinterpret_cast<const char*>(in + _mm_extract_epi32(ahead, 2)), _MM_HINT_T0);
@@ -153,7 +154,10 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
                                                        const double ds[3], int64_t c, int64_t end,
                                                        float* __restrict out) {
   const int64_t sy = m[0], sz = m[0] * m[1];
+  // A run across the source rows (a turned map) asks for its lines ahead; along a row the hardware's prefetcher sees
+  // them coming.
   constexpr int64_t kAheadCt = 48;
+  const bool across_rows = ds[1] != 0.0 || ds[2] != 0.0;
   const __m256d x0 = _mm256_set1_pd(s0[0]), y0 = _mm256_set1_pd(s0[1]), z0 = _mm256_set1_pd(s0[2]);
   const __m256d dx = _mm256_set1_pd(ds[0]), dy = _mm256_set1_pd(ds[1]), dz = _mm256_set1_pd(ds[2]);
   for (__m256d cc = _mm256_set_pd(double(c + 3), double(c + 2), double(c + 1), double(c)); c + 3 < end;
@@ -169,7 +173,7 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
     _mm_store_si128(reinterpret_cast<__m128i*>(iz), bz);
     const float* p[4];
     for (int l = 0; l < 4; ++l) p[l] = in + int64_t{ix[l]} + int64_t{iy[l]} * sy + int64_t{iz[l]} * sz;
-    if (c + 4 + kAheadCt < end) {
+    if (across_rows && c + 4 + kAheadCt < end) {
       const double da = double(c + kAheadCt);
       const float* q = in + static_cast<int64_t>(s0[0] + da * ds[0]) + static_cast<int64_t>(s0[1] + da * ds[1]) * sy +
                        static_cast<int64_t>(s0[2] + da * ds[2]) * sz;

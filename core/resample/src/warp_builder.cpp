@@ -41,6 +41,7 @@ __attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_own
   const __m256d dx = _mm256_set1_pd(step[0]), dy = _mm256_set1_pd(step[1]), dz = _mm256_set1_pd(step[2]);
   const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
   constexpr int64_t kAhead = 64;
+  const bool across_rows = step[1] != 0.0 || step[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
   const __m256d last = _mm256_set1_pd(double(m[0] * m[1] * m[2] - 1));
   int64_t c = 0;
   for (; c + 4 <= n; c += 4) {
@@ -58,7 +59,7 @@ __attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_own
         _mm256_and_pd(_mm256_add_pd(x, _mm256_mul_pd(mx, _mm256_add_pd(y, _mm256_mul_pd(my, z)))), inside);
     const __m128i index = _mm256_cvttpd_epi32(offset);
     const __m128i mask = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(inside), low_halves));
-    {  // the lines kAhead voxels on, asked for now: a batch's loads alone leave too few misses in flight
+    if (across_rows) {  // the lines kAhead voxels on, asked for now: a batch's loads alone leave too few in flight
       const __m256d ahead = _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead)));
       const __m256d ax = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sx, _mm256_mul_pd(ahead, dx)), half));
       const __m256d ay = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sy, _mm256_mul_pd(ahead, dy)), half));
