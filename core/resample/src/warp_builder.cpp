@@ -332,6 +332,8 @@ class TetWarp::Builder {
     const int64_t row_count = n_[1] * n_[2];
     row_first_.resize(static_cast<size_t>(row_count));
     row_last_.resize(static_cast<size_t>(row_count));
+    row_words_ = (n_[0] + 63) / 64;
+    covered_bits_.resize(static_cast<size_t>(row_count * row_words_));
     conflicts_.resize(static_cast<size_t>(slab_count_));
     shells_.resize(static_cast<size_t>(slab_count_));
     slab_stats_.resize(static_cast<size_t>(slab_count_));
@@ -368,7 +370,7 @@ class TetWarp::Builder {
   }
 
   // Pass 1 over slab s: rasterize its moving tets; where two cover a voxel, resolve the fold. Each row (j, k)
-  // remembers the first and last voxel any tet covered, for the skin shell.
+  // remembers the first and last voxel any tet covered and which voxels, for the skin shell.
   void rasterize_slab(int64_t s) {
     int64_t kb = 0, ke = 0;
     if (!slab_range(s, kb, ke)) return;
@@ -376,6 +378,7 @@ class TetWarp::Builder {
     std::fill(owner_ + slab_begin, owner_ + slab_begin + slab_voxels, -1);
     std::fill(row_first_.begin() + kb * n_[1], row_first_.begin() + ke * n_[1], static_cast<int32_t>(n_[0]));
     std::fill(row_last_.begin() + kb * n_[1], row_last_.begin() + ke * n_[1], -1);
+    std::fill(covered_bits_.begin() + kb * n_[1] * row_words_, covered_bits_.begin() + ke * n_[1] * row_words_, 0);
     std::vector<int64_t>& conflicts = conflicts_[static_cast<size_t>(s)];
     for (const int32_t t : scratch_->interior[static_cast<size_t>(s)]) {
       const RasterTet& r = raster_[static_cast<size_t>(t)];
@@ -390,6 +393,7 @@ class TetWarp::Builder {
         int32_t& o = owner_[v];
         if (o < 0) {
           o = t;
+          covered_bits_[static_cast<size_t>((j + n_[1] * k) * row_words_ + (i >> 6))] |= uint64_t{1} << (i & 63);
           return;
         }
         uint8_t folded = 0;
@@ -463,40 +467,65 @@ class TetWarp::Builder {
   }
 
   // Pass 2 over slab s, the skin shell: an uncovered voxel whose shell ellipsoid holds a covered voxel's centre takes
-  // the map of the nearest such voxel's tet. Rows far from any covered voxel are skipped by the rows' covered extents.
+  // the map of the nearest such voxel's tet. Only voxels within the shell's box of some covered voxel look: a row's
+  // covered voxels from the neighbour rows within reach, ORed and widened by the reach along the row (a row that
+  // crosses both moved arms has the chest between them, far from either).
   void find_shell(int64_t s) {
     int64_t kb = 0, ke = 0;
     if (!slab_range(s, kb, ke) || offsets_.empty()) return;
     const int64_t slab_begin = kb * n_[0] * n_[1];
     std::vector<std::pair<int64_t, int32_t>>& found = shells_[static_cast<size_t>(s)];
+    std::vector<uint64_t> near(static_cast<size_t>(row_words_)), wider(static_cast<size_t>(row_words_));
     for (int64_t k = kb; k < ke; ++k) {
       for (int64_t j = 0; j < n_[1]; ++j) {
         int64_t lo = n_[0], hi = -1;  // the hull of the neighbour rows' covered extents, grown by the reach
+        std::fill(near.begin(), near.end(), 0);
         for (int64_t dk = std::max<int64_t>(-reach_[2], -k); dk <= reach_[2] && k + dk < n_[2]; ++dk) {
           for (int64_t dj = std::max<int64_t>(-reach_[1], -j); dj <= reach_[1] && j + dj < n_[1]; ++dj) {
             const size_t row = static_cast<size_t>(j + dj + n_[1] * (k + dk));
             if (row_first_[row] > row_last_[row]) continue;
             lo = std::min<int64_t>(lo, row_first_[row] - reach_[0]);
             hi = std::max<int64_t>(hi, row_last_[row] + reach_[0]);
+            const uint64_t* bits = covered_bits_.data() + row * static_cast<size_t>(row_words_);
+            for (int64_t w = row_first_[row] >> 6; w <= row_last_[row] >> 6; ++w)
+              near[static_cast<size_t>(w)] |= bits[w];
           }
         }
         lo = std::max<int64_t>(lo, 0);
         hi = std::min<int64_t>(hi, n_[0] - 1);
-        for (int64_t i = lo; i <= hi; ++i) {
-          const int64_t v = in_.output.offset(i, j, k);
-          if (owner_[v] >= 0) continue;
-          for (const ShellOffset& o : offsets_) {
-            const int64_t x = i + o.di, y = j + o.dj, z = k + o.dk;
-            if (x < 0 || y < 0 || z < 0 || x >= n_[0] || y >= n_[1] || z >= n_[2]) continue;
-            const int32_t near = owner_[in_.output.offset(x, y, z)];
-            if (near >= 0) {
-              found.emplace_back(v - slab_begin, near);
-              break;
+        if (lo > hi) continue;
+        for (int64_t step = 0; step < reach_[0]; ++step) widen_by_one(near, wider);
+        for (int64_t w = lo >> 6; w <= hi >> 6; ++w) {
+          uint64_t b = near[static_cast<size_t>(w)];
+          if (w << 6 < lo) b &= ~uint64_t{0} << (lo & 63);
+          if ((w + 1) << 6 > hi + 1) b &= ~(~uint64_t{0} << ((hi + 1) & 63));
+          for (; b != 0; b &= b - 1) {
+            const int64_t i = (w << 6) + __builtin_ctzll(b);
+            const int64_t v = in_.output.offset(i, j, k);
+            if (owner_[v] >= 0) continue;
+            for (const ShellOffset& o : offsets_) {
+              const int64_t x = i + o.di, y = j + o.dj, z = k + o.dk;
+              if (x < 0 || y < 0 || z < 0 || x >= n_[0] || y >= n_[1] || z >= n_[2]) continue;
+              const int32_t near_owner = owner_[in_.output.offset(x, y, z)];
+              if (near_owner >= 0) {
+                found.emplace_back(v - slab_begin, near_owner);
+                break;
+              }
             }
           }
         }
       }
     }
+  }
+
+  // Sets in `bits` (a row's bit per voxel) the neighbours along the row of every bit set; `scratch` is its size.
+  static void widen_by_one(std::vector<uint64_t>& bits, std::vector<uint64_t>& scratch) {
+    const size_t words = bits.size();
+    for (size_t w = 0; w < words; ++w) {
+      const uint64_t below = w > 0 ? bits[w - 1] >> 63 : 0, above = w + 1 < words ? bits[w + 1] << 63 : 0;
+      scratch[w] = bits[w] | (bits[w] << 1) | (bits[w] >> 1) | below | above;
+    }
+    bits.swap(scratch);
   }
 
   // The source voxel at source index s, or -1 outside the source grid.
@@ -804,6 +833,8 @@ class TetWarp::Builder {
   int64_t slab_count_ = 0, slab_depth_ = 0;
   int32_t* owner_ = nullptr;
   std::vector<int32_t> row_first_, row_last_;
+  int64_t row_words_ = 0;                        // 64-bit words per output row in covered_bits_
+  std::vector<uint64_t> covered_bits_;           // per output row, a bit per voxel a moving tet covers (pass 1)
   std::vector<std::vector<int64_t>> conflicts_;  // per slab: its folded voxels (slab-local indices)
   std::vector<ShellOffset> offsets_;
   std::vector<std::vector<std::pair<int64_t, int32_t>>> shells_;  // (slab voxel, owner)

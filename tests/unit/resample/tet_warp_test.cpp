@@ -5,7 +5,9 @@
 #include <Eigen/Geometry>
 
 #include <bit>
+#include <cmath>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <set>
 
@@ -508,6 +510,56 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
     EXPECT_EQ(away->rasterized_tets(), root.isZero() ? s.mesh.tet_count() : 0);
     EXPECT_EQ(away->stats().covered_voxels, 0);
   }
+}
+
+// The skin shell voxel by voxel: an uncovered voxel takes a tet exactly when a covered voxel lies within its ellipsoid
+// (two source voxels along each axis by default, so on the source's own grid every offset with di^2 + dj^2 + dk^2 <=
+// 4), and the tet is one covering a nearest such voxel. The warp looks only near the covered voxels of the neighbour
+// rows; this is the whole search it must agree with.
+TEST(TetWarp, TheSkinShellTakesTheTetOfTheNearestCoveredVoxelWithinReach) {
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  Eigen::MatrixXd posed = s.mesh.vertices;  // the upper half sheared
+  for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
+  Result<TetWarp> warp = TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g});
+  ASSERT_TRUE(warp.ok()) << warp.status().to_string();
+  const std::vector<int32_t> owner = warp->owner();
+  const Index3& n = g.size;
+  int64_t shell = 0;
+  for (int64_t k = 0; k < n[2]; ++k) {
+    for (int64_t j = 0; j < n[1]; ++j) {
+      for (int64_t i = 0; i < n[0]; ++i) {
+        const int32_t o = owner[static_cast<size_t>(g.offset(i, j, k))];
+        if (o >= 0) continue;
+        double nearest = std::numeric_limits<double>::infinity();
+        std::set<int32_t> nearest_tets;
+        for (int64_t dk = -2; dk <= 2; ++dk) {
+          for (int64_t dj = -2; dj <= 2; ++dj) {
+            for (int64_t di = -2; di <= 2; ++di) {
+              const int64_t x = i + di, y = j + dj, z = k + dk;
+              if (di * di + dj * dj + dk * dk > 4 || x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2])
+                continue;
+              const int32_t covering = owner[static_cast<size_t>(g.offset(x, y, z))];
+              if (covering < 0) continue;
+              const double d =
+                  std::hypot(double(di) * g.spacing[0], double(dj) * g.spacing[1], double(dk) * g.spacing[2]);
+              if (d < nearest - 1e-9) nearest = d, nearest_tets.clear();
+              if (d <= nearest + 1e-9) nearest_tets.insert(covering);
+            }
+          }
+        }
+        if (nearest_tets.empty()) {
+          ASSERT_EQ(o, -1) << i << " " << j << " " << k << ": in the shell with no covered voxel within reach";
+          continue;
+        }
+        ++shell;
+        ASSERT_LE(o, -2) << i << " " << j << " " << k << ": a covered voxel within reach, yet not in the shell";
+        ASSERT_TRUE(nearest_tets.count(-2 - o)) << i << " " << j << " " << k << ": not a nearest covered voxel's tet";
+      }
+    }
+  }
+  EXPECT_GT(shell, 0);
+  EXPECT_EQ(shell, warp->stats().extrapolated_voxels);
 }
 
 TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
