@@ -176,17 +176,42 @@ std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eig
   // hold. One pass over the tets for every centre: a tet's box and corners are worked out once.
   constexpr double kTetReach = 100.0;
   const double reach = radius + rest_distance_mm + kTetReach;
+  // Which centres each vertex is within reach of at rest, a bit per centre (8 to a byte), found in one pass down the
+  // vertices: the tets' pass then reads a byte or two per tet instead of its first vertex's three scattered columns,
+  // and skips a tet near no centre at once.
+  const int64_t nv = rest.vertex_count();
+  const size_t groups = (centres.size() + 7) / 8;
+  std::vector<uint8_t> within(static_cast<size_t>(nv) * groups, 0);
+  parallel_for(0, nv, 16384, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) {
+      const Eigen::Vector3d x = rest.vertices.row(v).transpose();
+      for (size_t j = 0; j < centres.size(); ++j) {
+        if (!near[j].points.empty() && (x - centres[j]).squaredNorm() <= reach * reach)
+          within[static_cast<size_t>(v) * groups + j / 8] |= static_cast<uint8_t>(1u << (j % 8));
+      }
+    }
+  });
+  // The posed vertices a row each (the matrix keeps x, y and z apart: three scattered lines per corner otherwise).
+  std::vector<Eigen::Vector3d> posed_rows(static_cast<size_t>(nv));
+  parallel_for(0, nv, 16384, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) posed_rows[static_cast<size_t>(v)] = posed.row(v).transpose();
+  });
   parallel_for(0, rest.tet_count(), 4096, [&](int64_t t0, int64_t t1) {
     for (int64_t t = t0; t < t1; ++t) {
-      const Eigen::Vector3d first = rest.vertices.row(rest.tets(t, 0)).transpose();
+      const uint8_t* first_within = within.data() + static_cast<size_t>(rest.tets(t, 0)) * groups;
       bool boxed = false;
       Eigen::Vector3d lo, hi;
       std::array<Eigen::Vector3d, 4> corners;
       for (size_t j = 0; j < near.size(); ++j) {
+        if (j % 8 == 0 && first_within[j / 8] == 0) {  // near none of these eight
+          j += 7;
+          continue;
+        }
+        if (!(first_within[j / 8] >> (j % 8) & 1)) continue;
         NearCentre& n = near[j];
-        if (n.points.empty() || (first - centres[j]).squaredNorm() > reach * reach) continue;
         if (!boxed) {
-          for (int c = 0; c < 4; ++c) corners[static_cast<size_t>(c)] = posed.row(rest.tets(t, c)).transpose();
+          for (int c = 0; c < 4; ++c)
+            corners[static_cast<size_t>(c)] = posed_rows[static_cast<size_t>(rest.tets(t, c))];
           lo = hi = corners[0];
           for (int c = 1; c < 4; ++c) {
             lo = lo.cwiseMin(corners[static_cast<size_t>(c)]);

@@ -564,9 +564,13 @@ TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhe
   EXPECT_EQ(moved[1].inside_bone, 0);
   EXPECT_EQ(moved[1].skin_vertices, at_rest[1].skin_vertices);
   // Several centres in one pass count what each counts alone (a pose's moved joints); one far off counts nothing.
-  const std::vector<Eigen::Vector3d> centres{centre, Eigen::Vector3d(12, 12, 40), Eigen::Vector3d(5000, 0, 0)};
+  // Eleven, so that the pass's eight-to-a-byte record of which centres a vertex is near takes two bytes: eight far
+  // off, then three near (the first byte holds none of them).
+  std::vector<Eigen::Vector3d> centres;
+  for (int far = 1; far <= 8; ++far) centres.emplace_back(5000.0 * far, 0, 0);
+  centres.insert(centres.end(), {centre, Eigen::Vector3d(12, 12, 40), Eigen::Vector3d(112, 12, 40)});
   const std::vector<std::vector<Penetration>> each = penetration(two, posed, skin, centres, radii);
-  ASSERT_EQ(each.size(), 3u);
+  ASSERT_EQ(each.size(), 11u);
   for (size_t j = 0; j < centres.size(); ++j) {
     const std::vector<Penetration> alone = penetration(two, posed, skin, centres[j], radii);
     for (size_t r = 0; r < radii.size(); ++r) {
@@ -575,9 +579,10 @@ TEST_F(SoftTissue, PenetrationCountsSkinVerticesInsideTheTissueOrBoneFromElsewhe
       EXPECT_EQ(each[j][r].inside_bone, alone[r].inside_bone) << j << " " << r;
     }
   }
-  EXPECT_EQ(each[0][1].inside_tissue, 2 * 9 * 7);
-  EXPECT_GT(each[1][1].inside_tissue, 0);
-  EXPECT_EQ(each[2][1].skin_vertices, 0);
+  EXPECT_EQ(each[0][1].skin_vertices, 0);
+  EXPECT_EQ(each[8][1].inside_tissue, 2 * 9 * 7);
+  EXPECT_GT(each[9][1].inside_tissue, 0);
+  EXPECT_GT(each[10][1].inside_tissue, 0);
   // Pushed 30 mm further along z, the second limb's skin reaches the first's upper bone block.
   for (Eigen::Index v = n; v < 2 * n; ++v) posed(v, 2) += 30.0;
   EXPECT_GT(penetration(two, posed, skin, centre, radii)[1].inside_bone, 0);
