@@ -1,5 +1,6 @@
 #include "engine_tables.h"
 
+#include "posewarp/fem/soft_tissue.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/resample/rigid_bones.h"
 #include "posewarp/resample/tet_warp.h"
@@ -22,6 +23,7 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
   for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
   POSEWARP_ASSIGN_OR_RETURN(resample::BoneVoxels bones, resample::bone_voxels(rig.labels, segment_labels));
   rig.bone_substitute = bones.sparse();
+  if (rig.skin_vertex.empty()) rig.skin_vertex = fem::skin_vertices(rig.mesh);
   return ok_status();
 }
 

@@ -239,9 +239,10 @@ Result<std::vector<RigidTransform>> kinematics(const Prepared& p, const Pose& po
   return transforms;
 }
 
-// The mesh's skin vertices (fem::skin_vertices), made by the first request that needs them: the report's
-// penetration count and the fem topology share them.
+// The mesh's skin vertices (fem::skin_vertices): the report's penetration count and the fem topology share them. The
+// rig file keeps them (section SKIN); for a rig from before it, the first request that needs them makes them.
 const std::vector<uint8_t>& skin_of(const Prepared& p) {
+  if (static_cast<int64_t>(p.rig.skin_vertex.size()) == p.rig.mesh.vertex_count()) return p.rig.skin_vertex;
   std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(p.rig.mesh); });
   return p.fem.skin;
 }

@@ -53,6 +53,7 @@ constexpr uint32_t kCtVolume = tag("CTVO");
 constexpr uint32_t kRestOwner = tag("OWNR");
 constexpr uint32_t kBodyRegion = tag("REGN");
 constexpr uint32_t kBoneSubstitute = tag("SUBS");
+constexpr uint32_t kSkinVertices = tag("SKIN");
 constexpr uint32_t kEnd = tag("END!");
 
 // Sections holding a volume's worth of values: read in parallel, after the others.
@@ -238,6 +239,16 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
     sections.emplace_back(kBoneSubstitute,
                           internal::substitute_section(*rig.bone_substitute, rig.labels.voxel_count()));
   }
+  if (!rig.skin_vertex.empty()) {
+    std::string packed((rig.skin_vertex.size() + 7) / 8, '\0');  // a bit per vertex
+    for (size_t v = 0; v < rig.skin_vertex.size(); ++v) {
+      if (rig.skin_vertex[v]) packed[v / 8] = static_cast<char>(packed[v / 8] | (1 << (v % 8)));
+    }
+    Writer w;
+    w.put<uint64_t>(rig.skin_vertex.size());
+    w.put_string(packed);
+    sections.emplace_back(kSkinVertices, w.take());
+  }
   for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
   {
     nlohmann::json prov;
@@ -381,6 +392,22 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   }
   if (t == kParams) {
     rig.params_json = payload;
+    return ok_status();
+  }
+  if (t == kSkinVertices) {
+    Reader r(payload, name);
+    uint64_t count = 0;
+    std::string_view packed;
+    POSEWARP_RETURN_IF_ERROR(r.get(count));
+    POSEWARP_RETURN_IF_ERROR(r.get_view(packed));
+    if (count > uint64_t{8} * packed.size() || packed.size() != (count + 7) / 8) {
+      return data_loss_error("rig section " + name + " declares " + std::to_string(count) + " vertices for " +
+                             std::to_string(packed.size()) + " bytes; the file is damaged");
+    }
+    rig.skin_vertex.resize(static_cast<size_t>(count));
+    for (size_t v = 0; v < rig.skin_vertex.size(); ++v) {
+      rig.skin_vertex[v] = static_cast<uint8_t>((static_cast<unsigned char>(packed[v / 8]) >> (v % 8)) & 1);
+    }
     return ok_status();
   }
   if (t == kVertices) {

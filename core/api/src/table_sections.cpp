@@ -14,6 +14,11 @@
 namespace posewarp::api::internal {
 
 Status check_engine_tables(const Rig& rig) {
+  if (!rig.skin_vertex.empty() && static_cast<int64_t>(rig.skin_vertex.size()) != rig.mesh.vertex_count()) {
+    return data_loss_error(
+        "rig's skin table (section SKIN) does not hold one value per mesh vertex; the file is "
+        "damaged. Rebuild the rig");
+  }
   if (rig.rest_owner.empty() && rig.body_region.empty() && !rig.bone_substitute) return ok_status();
   const auto voxels = static_cast<size_t>(rig.labels.voxel_count());
   if (rig.rest_owner.size() != voxels || rig.body_region.size() != voxels || !rig.bone_substitute ||

@@ -416,6 +416,33 @@ TEST(Posing, ARigWithoutItsEngineTablesPosesTheSame) {
   EXPECT_EQ(made->report.skin_contact_voxels, kept->report.skin_contact_voxels);
 }
 
+// A rig from before the mesh's skin vertices were kept in the rig file (section SKIN): its engine makes them on the
+// first pose, and the report's skin figures near each moved joint are the same as from the kept ones.
+TEST(Posing, ARigWithoutItsSkinVerticesReportsTheSame) {
+  Rig old = shared_bar_rig();
+  ASSERT_EQ(static_cast<int64_t>(old.skin_vertex.size()), old.mesh.vertex_count());
+  old.skin_vertex.clear();
+  Result<PoseEngine> engine = PoseEngine::create(std::move(old));
+  ASSERT_TRUE(engine.ok()) << engine.status().to_string();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 60.0, 15.0);
+  Result<PoseResult> made = engine->pose(request);
+  Result<PoseResult> kept = bar_engine().pose(request);
+  ASSERT_TRUE(made.ok() && kept.ok());
+  ASSERT_FALSE(kept->report.joint_regions.empty());
+  ASSERT_EQ(made->report.joint_regions.size(), kept->report.joint_regions.size());
+  int64_t skin = 0;
+  for (size_t r = 0; r < kept->report.joint_regions.size(); ++r) {
+    const JointRegionChange& a = made->report.joint_regions[r];
+    const JointRegionChange& b = kept->report.joint_regions[r];
+    EXPECT_EQ(a.skin_vertices, b.skin_vertices) << r;
+    EXPECT_EQ(a.skin_inside_tissue, b.skin_inside_tissue) << r;
+    EXPECT_EQ(a.skin_inside_bone, b.skin_inside_bone) << r;
+    skin += b.skin_vertices;
+  }
+  EXPECT_GT(skin, 0);
+}
+
 // A rig the last release wrote (format 1: volumes in one zlib stream, no engine tables) opens, and saved again in
 // the current format (volumes in chunks of their source's type) it holds the same volumes and poses the same.
 TEST(Posing, AFormatOneRigOpensAndPosesAsItsFormatTwoCopy) {

@@ -50,6 +50,10 @@ TEST(RigFile, RoundTripKeepsEverySection) {
   EXPECT_EQ(back->rest_owner, rig.rest_owner);
   EXPECT_EQ(back->body_region, rig.body_region);
   EXPECT_EQ(back->bone_substitute, rig.bone_substitute);
+  // And the mesh's skin vertices, a bit per vertex (SKIN).
+  ASSERT_EQ(static_cast<int64_t>(rig.skin_vertex.size()), rig.mesh.vertex_count());
+  EXPECT_GT(std::count(rig.skin_vertex.begin(), rig.skin_vertex.end(), 1), 0);
+  EXPECT_EQ(back->skin_vertex, rig.skin_vertex);
 }
 
 TEST(RigFile, TruncatedFileIsDataLoss) {
@@ -187,6 +191,11 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
     Rig rig = posewarp::testing::shared_bar_rig();
     rig.body_region.pop_back();
     refused(std::move(rig), "one value per voxel");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.skin_vertex.pop_back();
+    refused(std::move(rig), "SKIN");
   }
 }
 

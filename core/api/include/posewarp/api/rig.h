@@ -83,6 +83,10 @@ struct Rig {
   std::vector<int32_t> rest_owner;
   std::vector<int16_t> body_region;
   std::optional<BoneSubstitutes> bone_substitute;
+  // Per tet-mesh vertex, 1 where it lies on the mesh's skin (fem::skin_vertices: the report's skin penetration and the
+  // soft tissue's contacts), which costs a whole body a tenth of a second; made by build_rig, empty in a rig from
+  // before it (its engine makes it on first use).
+  std::vector<uint8_t> skin_vertex;
   // Sections of a newer writer that this reader does not understand, kept verbatim so a re-save loses nothing.
   std::vector<std::pair<uint32_t, std::string>> unknown_sections;
 
