@@ -281,6 +281,29 @@ int run_export(const std::string& path, const std::string& mesh_out, const std::
   return 0;
 }
 
+// Writes the rig at `path` again with what this version keeps in a rig and it lacks (complete_rig), to `out` (the same
+// file when empty, replaced whole).
+int run_upgrade(const std::string& path, const std::string& out) {
+  const std::string to = out.empty() ? path : out;
+  if (Status s = refuse_directories({to}); !s.ok()) return report(s);
+  Result<api::Rig> rig = api::load_rig(path);
+  if (!rig.ok()) return report(rig.status());
+  const bool had_tables = !rig->rest_owner.empty() && !rig->body_region.empty() && rig->bone_substitute;
+  const bool had_skin = !rig->skin_vertex.empty();
+  Result<bool> added = api::complete_rig(*rig, progress_bar());
+  if (!added.ok()) return report(added.status().with_context(path));
+  if (!*added && out.empty()) {
+    say(path + " already holds everything this version keeps in a rig; left as it is");
+    return 0;
+  }
+  if (Status saved = api::save_rig(*rig, to); !saved.ok()) return report(saved);
+  std::string what = had_tables ? "" : "the engine's per-voxel tables (OWNR, REGN, SUBS)";
+  if (!had_skin) what += std::string(what.empty() ? "" : " and ") + "the mesh's skin vertices (SKIN)";
+  say((what.empty() ? std::string("nothing to add; ") : "added " + what + "; ") + "rig " + rig->id() + " written to " +
+      to);
+  return 0;
+}
+
 // posewarp rig build: locally into a file, or on a server.
 void add_rig_build(CLI::App* group) {
   auto o = std::make_shared<BuildOptions>();
@@ -384,6 +407,22 @@ void add_rig_info(CLI::App* group) {
   });
 }
 
+// posewarp rig upgrade: a rig from an earlier version, completed.
+void add_rig_upgrade(CLI::App* group) {
+  auto path = std::make_shared<std::string>();
+  auto out = std::make_shared<std::string>();
+  CLI::App* cmd = group->add_subcommand(
+      "upgrade",
+      "Write a rig from an earlier posewarp again with what this version keeps in a rig and it lacks (the engine's "
+      "per-voxel tables, the mesh's skin vertices), made from the rig itself, so that opening it and its first pose "
+      "compute nothing; its mesh, weights and volumes stay as they are (no rebuild, the same rig id)");
+  cmd->add_option("rig", *path, "Rig file")->required();
+  cmd->add_option("-o,--out", *out, "Where to write it (default: replace the rig file, atomically)");
+  cmd->callback([path, out] {
+    if (int code = run_upgrade(*path, *out); code != 0) throw CLI::RuntimeError(code);
+  });
+}
+
 // posewarp rig delete: a rig on a server.
 void add_rig_delete(CLI::App* group) {
   auto id = std::make_shared<std::string>();
@@ -438,6 +477,7 @@ void add_rig_commands(CLI::App& app) {
   add_rig_build(group);
   add_rig_list(group);
   add_rig_info(group);
+  add_rig_upgrade(group);
   add_rig_delete(group);
   add_rig_export(group);
 }

@@ -1,5 +1,7 @@
 #include "engine_tables.h"
 
+#include "posewarp/api/rig_file.h"
+
 #include "posewarp/fem/soft_tissue.h"
 #include "posewarp/labels/body.h"
 #include "posewarp/resample/rigid_bones.h"
@@ -28,3 +30,21 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
 }
 
 }  // namespace posewarp::api::internal
+
+namespace posewarp::api {
+
+Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks) {
+  if (rig.labels.empty()) {
+    return failed_precondition_error("the rig holds no source volume to make its tables from; rebuild it");
+  }
+  const bool tables = rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute;
+  const bool skin = rig.skin_vertex.empty();
+  if (tables) {
+    POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));  // the skin vertices with them
+  } else if (skin) {
+    rig.skin_vertex = fem::skin_vertices(rig.mesh);
+  }
+  return tables || skin;
+}
+
+}  // namespace posewarp::api

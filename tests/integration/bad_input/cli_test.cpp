@@ -51,6 +51,33 @@ TEST_F(BadInput, DirectoriesFifosAndDevicesAreNamedAndNeverBlock) {
   expect_refused(posewarp({"rig", "info", at("missing.rig")}), 2, "missing.rig", "no such file");
 }
 
+// `posewarp rig upgrade`: a rig from the last release gains what this version keeps (its sections), the same again
+// has nothing to add and is left as it is, and a directory as the output or a damaged rig is refused.
+TEST_F(BadInput, RigUpgradeCompletesAnOlderRigAndRefusesBadFiles) {
+  fs::copy_file(std::string(POSEWARP_SOURCE_DIR) + "/tests/data/rig_format_1/bar.rig", at("old.rig"),
+                fs::copy_options::overwrite_existing);
+  const CliRun upgraded = posewarp({"rig", "upgrade", at("old.rig"), "-o", at("upgraded.rig")});
+  EXPECT_EQ(upgraded.exit_code, 0) << upgraded.err;
+  const std::string old_bytes = file_text(at("old.rig")), new_bytes = file_text(at("upgraded.rig"));
+  for (const char* section : {"OWNR", "REGN", "SUBS", "SKIN"}) {
+    EXPECT_EQ(old_bytes.find(section), std::string::npos) << section;
+    EXPECT_NE(new_bytes.find(section), std::string::npos) << section;
+  }
+  const fs::file_time_type written = fs::last_write_time(at("upgraded.rig"));
+  const CliRun again = posewarp({"rig", "upgrade", at("upgraded.rig")});
+  EXPECT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_EQ(fs::last_write_time(at("upgraded.rig")), written);  // nothing to add: not written again
+  EXPECT_EQ(posewarp({"pose", at("upgraded.rig"), "--pose", at("pose.json")}).exit_code, 0);
+  fs::create_directories(at("out_dir.rig"));
+  expect_refused(posewarp({"rig", "upgrade", at("upgraded.rig"), "-o", at("out_dir.rig")}), 2, "out_dir.rig",
+                 "is a directory");
+  const std::string bytes = file_text(at("upgraded.rig"));
+  std::ofstream(at("cut.rig"), std::ios::binary) << bytes.substr(0, bytes.size() / 3);
+  const CliRun cut = posewarp({"rig", "upgrade", at("cut.rig")});
+  EXPECT_EQ(cut.exit_code, 2) << cut.err;
+  EXPECT_EQ(file_text(at("cut.rig")).size(), bytes.size() / 3);  // left as it was
+}
+
 TEST_F(BadInput, DamagedFilesExitWithTwo) {
   // A truncated rig (DATA_LOSS is bad input: copy the file again).
   const std::string rig = file_text(at("bar.rig"));

@@ -443,6 +443,43 @@ TEST(Posing, ARigWithoutItsSkinVerticesReportsTheSame) {
   EXPECT_GT(skin, 0);
 }
 
+// An older rig completed (what `posewarp rig upgrade` does): the format 1 fixture gains the engine's tables and the
+// skin vertices, a second completion adds nothing, and the completed rig poses as the one whose engine made them.
+TEST(Posing, ACompletedOldRigHoldsWhatItsEngineMadeAndPosesTheSame) {
+  Result<Rig> old = load_rig(std::string(POSEWARP_SOURCE_DIR) + "/tests/data/rig_format_1/bar.rig");
+  ASSERT_TRUE(old.ok()) << old.status().to_string();
+  ASSERT_TRUE(old->rest_owner.empty() && old->skin_vertex.empty());
+  Rig completed = *old;
+  Result<bool> added = complete_rig(completed);
+  ASSERT_TRUE(added.ok()) << added.status().to_string();
+  EXPECT_TRUE(*added);
+  EXPECT_EQ(completed.rest_owner.size(), static_cast<size_t>(completed.labels.voxel_count()));
+  EXPECT_EQ(static_cast<int64_t>(completed.skin_vertex.size()), completed.mesh.vertex_count());
+  EXPECT_EQ(completed.id(), old->id());
+  Rig again = completed;
+  EXPECT_FALSE(*complete_rig(again));
+  EXPECT_EQ(again.skin_vertex, completed.skin_vertex);
+  Rig only_skin = completed;  // a format 2 rig from before SKIN
+  only_skin.skin_vertex.clear();
+  EXPECT_TRUE(*complete_rig(only_skin));
+  EXPECT_EQ(only_skin.skin_vertex, completed.skin_vertex);
+  Rig empty;
+  EXPECT_EQ(complete_rig(empty).status().code(), StatusCode::kFailedPrecondition);
+  Result<PoseEngine> from_old = PoseEngine::create(std::move(old).value());
+  Result<PoseEngine> from_completed = PoseEngine::create(std::move(completed));
+  ASSERT_TRUE(from_old.ok() && from_completed.ok());
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 60.0, 15.0);
+  Result<PoseResult> a = from_old->pose(request);
+  Result<PoseResult> b = from_completed->pose(request);
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_EQ(a->labels->voxels(), b->labels->voxels());
+  EXPECT_EQ(a->ct->voxels(), b->ct->voxels());
+  ASSERT_EQ(a->report.joint_regions.size(), b->report.joint_regions.size());
+  for (size_t r = 0; r < a->report.joint_regions.size(); ++r)
+    EXPECT_EQ(a->report.joint_regions[r].skin_vertices, b->report.joint_regions[r].skin_vertices) << r;
+}
+
 // A rig the last release wrote (format 1: volumes in one zlib stream, no engine tables) opens, and saved again in
 // the current format (volumes in chunks of their source's type) it holds the same volumes and poses the same.
 TEST(Posing, AFormatOneRigOpensAndPosesAsItsFormatTwoCopy) {

@@ -12,6 +12,7 @@
 #include <string_view>
 
 #include "posewarp/api/rig.h"
+#include "posewarp/common/progress.h"
 
 namespace posewarp::api {
 
@@ -24,6 +25,12 @@ Status save_rig(const Rig& rig, const std::string& path);
 // Reads and verifies every section's checksum. DATA_LOSS for a truncated or corrupt file, FAILED_PRECONDITION for
 // a file from a newer format, INVALID_ARGUMENT for a file that is not a rig.
 Result<Rig> load_rig(const std::string& path);
+
+// Adds to `rig` what this version keeps in a rig file and an older rig lacks, made from the rest of the rig: the
+// engine's tables (sections OWNR, REGN, SUBS) and the mesh's skin vertices (SKIN). What the rig holds is kept as it
+// is (its mesh, weights and volumes). Returns whether anything was added; FAILED_PRECONDITION for a rig without its
+// label volume (one from before rigs held their volumes: rebuild it).
+Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks = {});
 
 // The same artifact in memory: what save_rig writes and load_rig reads, for a store or a network stream that
 // holds rigs without files. `where` names the source in messages (a quoted path, "uploaded rig 3f2a...").
