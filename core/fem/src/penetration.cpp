@@ -136,6 +136,33 @@ struct NearCentre {
   std::unique_ptr<std::atomic<uint8_t>[]> what;  // 0 nothing, 1 tissue, 2 bone
 };
 
+// Which centres (those with points) each rest vertex is within `reach` of, a bit per centre, 8 to a byte, `groups`
+// bytes a vertex: one pass down the vertices, so that the tets' pass reads a byte or two per tet instead of its first
+// vertex's three scattered columns, and skips a tet near no centre at once.
+std::vector<uint8_t> centres_within_reach(const TetMesh& rest, const std::vector<Eigen::Vector3d>& centres,
+                                          const std::vector<NearCentre>& near, double reach, size_t groups) {
+  std::vector<uint8_t> within(static_cast<size_t>(rest.vertex_count()) * groups, 0);
+  parallel_for(0, rest.vertex_count(), 16384, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) {
+      const Eigen::Vector3d x = rest.vertices.row(v).transpose();
+      for (size_t j = 0; j < centres.size(); ++j) {
+        if (!near[j].points.empty() && (x - centres[j]).squaredNorm() <= reach * reach)
+          within[static_cast<size_t>(v) * groups + j / 8] |= static_cast<uint8_t>(1u << (j % 8));
+      }
+    }
+  });
+  return within;
+}
+
+// The posed vertices a row each (the matrix keeps x, y and z apart: three scattered lines per corner otherwise).
+std::vector<Eigen::Vector3d> rows_of(const Eigen::MatrixXd& posed) {
+  std::vector<Eigen::Vector3d> rows(static_cast<size_t>(posed.rows()));
+  parallel_for(0, posed.rows(), 16384, [&](int64_t v0, int64_t v1) {
+    for (int64_t v = v0; v < v1; ++v) rows[static_cast<size_t>(v)] = posed.row(v).transpose();
+  });
+  return rows;
+}
+
 }  // namespace
 
 std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eigen::MatrixXd& posed,
@@ -176,26 +203,9 @@ std::vector<std::vector<Penetration>> penetration(const TetMesh& rest, const Eig
   // hold. One pass over the tets for every centre: a tet's box and corners are worked out once.
   constexpr double kTetReach = 100.0;
   const double reach = radius + rest_distance_mm + kTetReach;
-  // Which centres each vertex is within reach of at rest, a bit per centre (8 to a byte), found in one pass down the
-  // vertices: the tets' pass then reads a byte or two per tet instead of its first vertex's three scattered columns,
-  // and skips a tet near no centre at once.
-  const int64_t nv = rest.vertex_count();
   const size_t groups = (centres.size() + 7) / 8;
-  std::vector<uint8_t> within(static_cast<size_t>(nv) * groups, 0);
-  parallel_for(0, nv, 16384, [&](int64_t v0, int64_t v1) {
-    for (int64_t v = v0; v < v1; ++v) {
-      const Eigen::Vector3d x = rest.vertices.row(v).transpose();
-      for (size_t j = 0; j < centres.size(); ++j) {
-        if (!near[j].points.empty() && (x - centres[j]).squaredNorm() <= reach * reach)
-          within[static_cast<size_t>(v) * groups + j / 8] |= static_cast<uint8_t>(1u << (j % 8));
-      }
-    }
-  });
-  // The posed vertices a row each (the matrix keeps x, y and z apart: three scattered lines per corner otherwise).
-  std::vector<Eigen::Vector3d> posed_rows(static_cast<size_t>(nv));
-  parallel_for(0, nv, 16384, [&](int64_t v0, int64_t v1) {
-    for (int64_t v = v0; v < v1; ++v) posed_rows[static_cast<size_t>(v)] = posed.row(v).transpose();
-  });
+  const std::vector<uint8_t> within = centres_within_reach(rest, centres, near, reach, groups);
+  const std::vector<Eigen::Vector3d> posed_rows = rows_of(posed);
   parallel_for(0, rest.tet_count(), 4096, [&](int64_t t0, int64_t t1) {
     for (int64_t t = t0; t < t1; ++t) {
       const uint8_t* first_within = within.data() + static_cast<size_t>(rest.tets(t, 0)) * groups;

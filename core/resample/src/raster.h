@@ -222,15 +222,6 @@ inline void classify_alone(int32_t& o, int32_t shell_owner, WarpStats& stats) {
   }
 }
 
-#if defined(__x86_64__)
-// Whether this machine runs AVX2 (x86-64's baseline stops at SSE2): the loops that use it are compiled for it alone
-// and chosen at run time.
-inline bool has_avx2() {
-  static const bool yes = (__builtin_cpu_init(), __builtin_cpu_supports("avx2"));
-  return yes;
-}
-#endif
-
 // TetWarp::build's checks of its inputs, before anything is allocated.
 Status check(const WarpInputs& inputs);
 

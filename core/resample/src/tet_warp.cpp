@@ -16,6 +16,7 @@
 #include <tuple>
 #include <utility>
 
+#include "avx2.h"
 #include "posewarp/common/parallel.h"
 #include "raster.h"
 
@@ -70,45 +71,6 @@ std::pair<int64_t, int64_t> inside_span(const double s0[3], const double ds[3], 
   return {first, last + 1};
 }
 
-#if defined(__x86_64__)
-// The grid offsets of the nearest voxels at s0 + cc ds (four lanes), in a grid of m0 x m1 x ... voxels: x + 0.5 >= 0
-// in the grid, where truncation is round_index's floor. Whole numbers under 2^31, so exact in double.
-__attribute__((target("avx2"), always_inline)) inline __m128i nearest_x4(const __m256d s0[3], const __m256d ds[3],
-                                                                         __m256d cc, __m256d m0, __m256d m1) {
-  const __m256d half = _mm256_set1_pd(0.5);
-  __m256d u[3];
-  for (int a = 0; a < 3; ++a) {
-    u[a] = _mm256_round_pd(_mm256_add_pd(_mm256_add_pd(s0[a], _mm256_mul_pd(cc, ds[a])), half), _MM_FROUND_TO_ZERO);
-  }
-  return _mm256_cvttpd_epi32(_mm256_add_pd(u[0], _mm256_mul_pd(m0, _mm256_add_pd(u[1], _mm256_mul_pd(m1, u[2])))));
-}
-
-// nearest_inside's loop four voxels at a time in AVX2 (no FMA: each lane rounds what the scalar code does), the
-// source lines kAhead voxels on asked for ahead: a turned run crosses a source row every few voxels. From c up to the
-// last whole four; returns where it stopped. The grid must hold fewer than 2^31 voxels (the offsets are int32).
-__attribute__((target("avx2"))) int64_t nearest_avx2(const int32_t* __restrict in, const Index3& m, const double s0[3],
-                                                     const double ds[3], int64_t c, int64_t end,
-                                                     int32_t* __restrict out) {
-  constexpr int64_t kAhead = 64;
-  const bool across_rows = ds[1] != 0.0 || ds[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
-  const __m256d m0 = _mm256_set1_pd(double(m[0])), m1 = _mm256_set1_pd(double(m[1]));
-  const __m256d start[3] = {_mm256_set1_pd(s0[0]), _mm256_set1_pd(s0[1]), _mm256_set1_pd(s0[2])};
-  const __m256d step[3] = {_mm256_set1_pd(ds[0]), _mm256_set1_pd(ds[1]), _mm256_set1_pd(ds[2])};
-  for (; c + 3 < end; c += 4) {
-    const double at = double(c);
-    const __m256d cc = _mm256_set_pd(at + 3.0, at + 2.0, at + 1.0, at);
-    if (across_rows && c + kAhead + 3 < end) {
-      const __m128i ahead = nearest_x4(start, step, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), m0, m1);
-      _mm_prefetch(reinterpret_cast<const char*>(in + _mm_cvtsi128_si32(ahead)), _MM_HINT_T0);
-      _mm_prefetch(reinterpret_cast<const char*>(in + _mm_extract_epi32(ahead, 2)), _MM_HINT_T0);
-    }
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + c),
-                     _mm_i32gather_epi32(in, nearest_x4(start, step, cc, m0, m1), 4));
-  }
-  return c;
-}
-#endif
-
 // The nearest voxels of `in` (grid m) at s0 + c ds for c in [first, end), each in the grid, to out[c]. The run's
 // values are copied to locals, so that the compiler keeps them in registers across out's stores.
 template <typename T>
@@ -131,67 +93,6 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
     out[c] = in[rounded(a0 + dc * d0) + sy * rounded(a1 + dc * d1) + sz * rounded(a2 + dc * d2)];
   }
 }
-
-#if defined(__x86_64__)
-// Two floats from `at` in the low half.
-inline __m128 float_pair(const float* at) {
-  return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at)));
-}
-
-// p[l][at] + fx[l] (p[l][at + 1] - p[l][at]) for the four lanes l.
-__attribute__((target("avx2"), always_inline)) inline __m256d lerp_x4(const float* const p[4], int64_t at, __m256d fx) {
-  const __m128 a = _mm_movelh_ps(float_pair(p[0] + at), float_pair(p[1] + at));  // p0[at] p0[at+1] p1[at] p1[at+1]
-  const __m128 b = _mm_movelh_ps(float_pair(p[2] + at), float_pair(p[3] + at));
-  const __m128 low = _mm_shuffle_ps(a, b, _MM_SHUFFLE(2, 0, 2, 0)),
-               high = _mm_shuffle_ps(a, b, _MM_SHUFFLE(3, 1, 3, 1));
-  return _mm256_add_pd(_mm256_cvtps_pd(low), _mm256_mul_pd(fx, _mm256_cvtps_pd(_mm_sub_ps(high, low))));
-}
-
-// trilinear_inside's loop four voxels at a time in AVX2, without FMA: each lane does the scalar code's IEEE operations
-// on the same values, so the same bits. From c up to the last whole four; returns where it stopped. For machines that
-// have AVX2 (x86-64's baseline stops at SSE2): the body's moved root, warp-ct 88-95 -> 75-76 ms.
-__attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict in, const Index3& m, const double s0[3],
-                                                       const double ds[3], int64_t c, int64_t end,
-                                                       float* __restrict out) {
-  const int64_t sy = m[0], sz = m[0] * m[1];
-  // A run across the source rows (a turned map) asks for its lines ahead; along a row the hardware's prefetcher sees
-  // them coming.
-  constexpr int64_t kAheadCt = 48;
-  const bool across_rows = ds[1] != 0.0 || ds[2] != 0.0;
-  const __m256d x0 = _mm256_set1_pd(s0[0]), y0 = _mm256_set1_pd(s0[1]), z0 = _mm256_set1_pd(s0[2]);
-  const __m256d dx = _mm256_set1_pd(ds[0]), dy = _mm256_set1_pd(ds[1]), dz = _mm256_set1_pd(ds[2]);
-  for (__m256d cc = _mm256_set_pd(double(c + 3), double(c + 2), double(c + 1), double(c)); c + 3 < end;
-       c += 4, cc = _mm256_add_pd(cc, _mm256_set1_pd(4.0))) {
-    const __m256d x = _mm256_add_pd(x0, _mm256_mul_pd(cc, dx)), y = _mm256_add_pd(y0, _mm256_mul_pd(cc, dy)),
-                  z = _mm256_add_pd(z0, _mm256_mul_pd(cc, dz));
-    const __m128i bx = _mm256_cvttpd_epi32(x), by = _mm256_cvttpd_epi32(y), bz = _mm256_cvttpd_epi32(z);
-    const __m256d fx = _mm256_sub_pd(x, _mm256_cvtepi32_pd(bx)), fy = _mm256_sub_pd(y, _mm256_cvtepi32_pd(by)),
-                  fz = _mm256_sub_pd(z, _mm256_cvtepi32_pd(bz));
-    alignas(16) int32_t ix[4], iy[4], iz[4];
-    _mm_store_si128(reinterpret_cast<__m128i*>(ix), bx);
-    _mm_store_si128(reinterpret_cast<__m128i*>(iy), by);
-    _mm_store_si128(reinterpret_cast<__m128i*>(iz), bz);
-    const float* p[4];
-    for (int l = 0; l < 4; ++l) p[l] = in + int64_t{ix[l]} + int64_t{iy[l]} * sy + int64_t{iz[l]} * sz;
-    if (across_rows && c + 4 + kAheadCt < end) {
-      const double da = double(c + kAheadCt);
-      const float* q = in + static_cast<int64_t>(s0[0] + da * ds[0]) + static_cast<int64_t>(s0[1] + da * ds[1]) * sy +
-                       static_cast<int64_t>(s0[2] + da * ds[2]) * sz;
-      __builtin_prefetch(q);
-      __builtin_prefetch(q + sy);
-      __builtin_prefetch(q + sz);
-      __builtin_prefetch(q + sz + sy);
-    }
-    const __m256d c00 = lerp_x4(p, 0, fx), c10 = lerp_x4(p, sy, fx), c01 = lerp_x4(p, sz, fx),
-                  c11 = lerp_x4(p, sz + sy, fx);
-    const __m256d e0 = _mm256_add_pd(c00, _mm256_mul_pd(fy, _mm256_sub_pd(c10, c00)));
-    const __m256d e1 = _mm256_add_pd(c01, _mm256_mul_pd(fy, _mm256_sub_pd(c11, c01)));
-    _mm_storeu_ps(out + c, _mm256_cvtpd_ps(_mm256_add_pd(e0, _mm256_mul_pd(fz, _mm256_sub_pd(e1, e0)))));
-  }
-  return c;
-}
-
-#endif
 
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
 // its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop.

@@ -11,72 +11,16 @@
 #include <string>
 #include <utility>
 
+#include "avx2.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/voxel_memory.h"
 #include "posewarp/resample/tet_warp.h"
 #include "raster.h"
 
-#if defined(__x86_64__)
-#include <immintrin.h>
-#endif
-
 namespace posewarp::resample {
 
 using namespace internal;
-
-namespace {
-
-#if defined(__x86_64__)
-// rest_owner at the nearest source voxel of start + c step, for c in [c0, c0 + n), to ro[c - c0] (-1 off the grid m),
-// four voxels at a time in AVX2, without FMA: each lane does source_voxel's IEEE operations (round_index(x) is
-// floor(x + 0.5)), so it finds the same voxel. The grid must hold fewer than 2^31 voxels (the offsets are int32).
-// Returns how many it did (a whole number of fours).
-__attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_owner, const Index3& m,
-                                                         const double start[3], const double step[3], int64_t c0,
-                                                         int64_t n, int32_t* ro) {
-  const __m256d half = _mm256_set1_pd(0.5), zero = _mm256_setzero_pd();
-  const __m256d mx = _mm256_set1_pd(double(m[0])), my = _mm256_set1_pd(double(m[1])), mz = _mm256_set1_pd(double(m[2]));
-  const __m256d sx = _mm256_set1_pd(start[0]), sy = _mm256_set1_pd(start[1]), sz = _mm256_set1_pd(start[2]);
-  const __m256d dx = _mm256_set1_pd(step[0]), dy = _mm256_set1_pd(step[1]), dz = _mm256_set1_pd(step[2]);
-  const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-  constexpr int64_t kAhead = 64;
-  const bool across_rows = step[1] != 0.0 || step[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
-  const __m256d last = _mm256_set1_pd(double(m[0] * m[1] * m[2] - 1));
-  int64_t c = 0;
-  for (; c + 4 <= n; c += 4) {
-    const double at = double(c0 + c);
-    const __m256d cc = _mm256_set_pd(at + 3.0, at + 2.0, at + 1.0, at);
-    const __m256d x = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sx, _mm256_mul_pd(cc, dx)), half));
-    const __m256d y = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sy, _mm256_mul_pd(cc, dy)), half));
-    const __m256d z = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sz, _mm256_mul_pd(cc, dz)), half));
-    const __m256d inside = _mm256_and_pd(
-        _mm256_and_pd(_mm256_and_pd(_mm256_cmp_pd(x, zero, _CMP_GE_OQ), _mm256_cmp_pd(x, mx, _CMP_LT_OQ)),
-                      _mm256_and_pd(_mm256_cmp_pd(y, zero, _CMP_GE_OQ), _mm256_cmp_pd(y, my, _CMP_LT_OQ))),
-        _mm256_and_pd(_mm256_cmp_pd(z, zero, _CMP_GE_OQ), _mm256_cmp_pd(z, mz, _CMP_LT_OQ)));
-    // The offset x + m0 (y + m1 z) is a whole number under 2^31 in every lane inside, so exact in double.
-    const __m256d offset =
-        _mm256_and_pd(_mm256_add_pd(x, _mm256_mul_pd(mx, _mm256_add_pd(y, _mm256_mul_pd(my, z)))), inside);
-    const __m128i index = _mm256_cvttpd_epi32(offset);
-    const __m128i mask = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(inside), low_halves));
-    if (across_rows) {  // the lines kAhead voxels on, asked for now: a batch's loads alone leave too few in flight
-      const __m256d ahead = _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead)));
-      const __m256d ax = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sx, _mm256_mul_pd(ahead, dx)), half));
-      const __m256d ay = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sy, _mm256_mul_pd(ahead, dy)), half));
-      const __m256d az = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sz, _mm256_mul_pd(ahead, dz)), half));
-      const __m256d off = _mm256_add_pd(ax, _mm256_mul_pd(mx, _mm256_add_pd(ay, _mm256_mul_pd(my, az))));
-      const __m128i ai = _mm256_cvttpd_epi32(_mm256_min_pd(_mm256_max_pd(off, zero), last));  // a voxel of the grid
-      _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_cvtsi128_si32(ai)), _MM_HINT_T0);
-      _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_extract_epi32(ai, 2)), _MM_HINT_T0);
-    }
-    const __m128i found = _mm_mask_i32gather_epi32(_mm_set1_epi32(-1), rest_owner, index, mask, 4);
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(ro + c), found);
-  }
-  return c;
-}
-#endif
-
-}  // namespace
 
 // build()'s steps, split the way ITK splits a filter: the maps (background and bones), the tets to rasterize and
 // their raster data, then three passes over output slabs in parallel (each thread owns whole slabs): rasterize the
