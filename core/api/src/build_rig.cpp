@@ -7,7 +7,7 @@
 #include "posewarp/api/joint_range.h"
 #include "posewarp/api/rig.h"
 
-#include "engine_tables.h"
+#include "posewarp/api/rig_file.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/sha256.h"
@@ -311,7 +311,7 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
   }
   clock.lap("ranges");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "tables").check_cancel());
-  POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
+  POSEWARP_RETURN_IF_ERROR(complete_rig(rig, hooks).status());  // the engine's tables and the skin vertices
   clock.lap("tables");
   rig.provenance.stats_json = stats.dump();
   return rig;

@@ -25,7 +25,6 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
   for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
   POSEWARP_ASSIGN_OR_RETURN(resample::BoneVoxels bones, resample::bone_voxels(rig.labels, segment_labels));
   rig.bone_substitute = bones.sparse();
-  if (rig.skin_vertex.empty()) rig.skin_vertex = fem::skin_vertices(rig.mesh);
   return ok_status();
 }
 
@@ -39,11 +38,8 @@ Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks) {
   }
   const bool tables = rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute;
   const bool skin = rig.skin_vertex.empty();
-  if (tables) {
-    POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));  // the skin vertices with them
-  } else if (skin) {
-    rig.skin_vertex = fem::skin_vertices(rig.mesh);
-  }
+  if (tables) POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
+  if (skin) rig.skin_vertex = fem::skin_vertices(rig.mesh);
   return tables || skin;
 }
 

@@ -10,7 +10,7 @@
 namespace posewarp::api::internal {
 
 // Fills rig.rest_owner, rig.body_region and rig.bone_substitute from the rest of the rig (its labels, CT, skeleton
-// and mesh), and rig.skin_vertex where it is empty.
+// and mesh). complete_rig (rig_file.h) adds the skin vertices to them.
 Status make_engine_tables(Rig& rig, const ProgressHooks& hooks);
 
 }  // namespace posewarp::api::internal

@@ -13,16 +13,17 @@ bool has_avx2() {
 
 namespace {
 
-// The grid offsets of the nearest voxels at s0 + cc ds (four lanes), in a grid of m0 x m1 x ... voxels: x + 0.5 >= 0
-// in the grid, where truncation is round_index's floor. Whole numbers under 2^31, so exact in double.
-__attribute__((target("avx2"), always_inline)) inline __m128i nearest_x4(const __m256d s0[3], const __m256d ds[3],
-                                                                         __m256d cc, __m256d m0, __m256d m1) {
+// The nearest voxel's index along each axis at s0 + cc ds (four lanes): round_index's floor(x + 0.5), in double.
+__attribute__((target("avx2"), always_inline)) inline void nearest_x4(const __m256d s0[3], const __m256d ds[3],
+                                                                      __m256d cc, __m256d u[3]) {
   const __m256d half = _mm256_set1_pd(0.5);
-  __m256d u[3];
-  for (int a = 0; a < 3; ++a) {
-    u[a] = _mm256_round_pd(_mm256_add_pd(_mm256_add_pd(s0[a], _mm256_mul_pd(cc, ds[a])), half), _MM_FROUND_TO_ZERO);
-  }
-  return _mm256_cvttpd_epi32(_mm256_add_pd(u[0], _mm256_mul_pd(m0, _mm256_add_pd(u[1], _mm256_mul_pd(m1, u[2])))));
+  for (int a = 0; a < 3; ++a)
+    u[a] = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(s0[a], _mm256_mul_pd(cc, ds[a])), half));
+}
+
+// The offset u0 + m0 (u1 + m1 u2) of whole indices in a grid of m0 x m1 x ... voxels: exact in double.
+__attribute__((target("avx2"), always_inline)) inline __m256d offset_x4(const __m256d u[3], __m256d m0, __m256d m1) {
+  return _mm256_add_pd(u[0], _mm256_mul_pd(m0, _mm256_add_pd(u[1], _mm256_mul_pd(m1, u[2]))));
 }
 
 // Two floats from `at` in the low half.
@@ -52,16 +53,19 @@ __attribute__((target("avx2"))) int64_t nearest_avx2(const int32_t* __restrict i
   const __m256d m0 = _mm256_set1_pd(double(m[0])), m1 = _mm256_set1_pd(double(m[1]));
   const __m256d start[3] = {_mm256_set1_pd(s0[0]), _mm256_set1_pd(s0[1]), _mm256_set1_pd(s0[2])};
   const __m256d step[3] = {_mm256_set1_pd(ds[0]), _mm256_set1_pd(ds[1]), _mm256_set1_pd(ds[2])};
+  __m256d u[3];
   for (; c + 3 < end; c += 4) {
     const double at = double(c);
     const __m256d cc = _mm256_set_pd(at + 3.0, at + 2.0, at + 1.0, at);
     if (across_rows && c + kAhead + 3 < end) {
-      const __m128i ahead = nearest_x4(start, step, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), m0, m1);
+      nearest_x4(start, step, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), u);
+      const __m128i ahead = _mm256_cvttpd_epi32(offset_x4(u, m0, m1));
       _mm_prefetch(reinterpret_cast<const char*>(in + _mm_cvtsi128_si32(ahead)), _MM_HINT_T0);
       _mm_prefetch(reinterpret_cast<const char*>(in + _mm_extract_epi32(ahead, 2)), _MM_HINT_T0);
     }
+    nearest_x4(start, step, cc, u);  // each in the grid: offsets under 2^31
     _mm_storeu_si128(reinterpret_cast<__m128i*>(out + c),
-                     _mm_i32gather_epi32(in, nearest_x4(start, step, cc, m0, m1), 4));
+                     _mm_i32gather_epi32(in, _mm256_cvttpd_epi32(offset_x4(u, m0, m1)), 4));
   }
   return c;
 }
@@ -117,10 +121,10 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
 __attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_owner, const Index3& m,
                                                          const double start[3], const double step[3], int64_t c0,
                                                          int64_t n, int32_t* ro) {
-  const __m256d half = _mm256_set1_pd(0.5), zero = _mm256_setzero_pd();
+  const __m256d zero = _mm256_setzero_pd();
   const __m256d mx = _mm256_set1_pd(double(m[0])), my = _mm256_set1_pd(double(m[1])), mz = _mm256_set1_pd(double(m[2]));
-  const __m256d sx = _mm256_set1_pd(start[0]), sy = _mm256_set1_pd(start[1]), sz = _mm256_set1_pd(start[2]);
-  const __m256d dx = _mm256_set1_pd(step[0]), dy = _mm256_set1_pd(step[1]), dz = _mm256_set1_pd(step[2]);
+  const __m256d s0[3] = {_mm256_set1_pd(start[0]), _mm256_set1_pd(start[1]), _mm256_set1_pd(start[2])};
+  const __m256d ds[3] = {_mm256_set1_pd(step[0]), _mm256_set1_pd(step[1]), _mm256_set1_pd(step[2])};
   const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
   constexpr int64_t kAhead = 64;
   const bool across_rows = step[1] != 0.0 || step[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
@@ -129,25 +133,19 @@ __attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_own
   for (; c + 4 <= n; c += 4) {
     const double at = double(c0 + c);
     const __m256d cc = _mm256_set_pd(at + 3.0, at + 2.0, at + 1.0, at);
-    const __m256d x = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sx, _mm256_mul_pd(cc, dx)), half));
-    const __m256d y = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sy, _mm256_mul_pd(cc, dy)), half));
-    const __m256d z = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sz, _mm256_mul_pd(cc, dz)), half));
+    __m256d u[3];
+    nearest_x4(s0, ds, cc, u);
     const __m256d inside = _mm256_and_pd(
-        _mm256_and_pd(_mm256_and_pd(_mm256_cmp_pd(x, zero, _CMP_GE_OQ), _mm256_cmp_pd(x, mx, _CMP_LT_OQ)),
-                      _mm256_and_pd(_mm256_cmp_pd(y, zero, _CMP_GE_OQ), _mm256_cmp_pd(y, my, _CMP_LT_OQ))),
-        _mm256_and_pd(_mm256_cmp_pd(z, zero, _CMP_GE_OQ), _mm256_cmp_pd(z, mz, _CMP_LT_OQ)));
-    // The offset x + m0 (y + m1 z) is a whole number under 2^31 in every lane inside, so exact in double.
-    const __m256d offset =
-        _mm256_and_pd(_mm256_add_pd(x, _mm256_mul_pd(mx, _mm256_add_pd(y, _mm256_mul_pd(my, z)))), inside);
-    const __m128i index = _mm256_cvttpd_epi32(offset);
+        _mm256_and_pd(_mm256_and_pd(_mm256_cmp_pd(u[0], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[0], mx, _CMP_LT_OQ)),
+                      _mm256_and_pd(_mm256_cmp_pd(u[1], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[1], my, _CMP_LT_OQ))),
+        _mm256_and_pd(_mm256_cmp_pd(u[2], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[2], mz, _CMP_LT_OQ)));
+    // Under 2^31 in every lane inside; the lanes outside gather nothing.
+    const __m128i index = _mm256_cvttpd_epi32(_mm256_and_pd(offset_x4(u, mx, my), inside));
     const __m128i mask = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(inside), low_halves));
     if (across_rows) {  // the lines kAhead voxels on, asked for now: a batch's loads alone leave too few in flight
-      const __m256d ahead = _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead)));
-      const __m256d ax = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sx, _mm256_mul_pd(ahead, dx)), half));
-      const __m256d ay = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sy, _mm256_mul_pd(ahead, dy)), half));
-      const __m256d az = _mm256_floor_pd(_mm256_add_pd(_mm256_add_pd(sz, _mm256_mul_pd(ahead, dz)), half));
-      const __m256d off = _mm256_add_pd(ax, _mm256_mul_pd(mx, _mm256_add_pd(ay, _mm256_mul_pd(my, az))));
-      const __m128i ai = _mm256_cvttpd_epi32(_mm256_min_pd(_mm256_max_pd(off, zero), last));  // a voxel of the grid
+      __m256d a[3];
+      nearest_x4(s0, ds, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), a);
+      const __m128i ai = _mm256_cvttpd_epi32(_mm256_min_pd(_mm256_max_pd(offset_x4(a, mx, my), zero), last));
       _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_cvtsi128_si32(ai)), _MM_HINT_T0);
       _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_extract_epi32(ai, 2)), _MM_HINT_T0);
     }

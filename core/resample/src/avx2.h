@@ -12,6 +12,10 @@ namespace posewarp::resample::internal {
 #if defined(__x86_64__)
 // Whether this machine runs AVX2.
 bool has_avx2();
+// Whether the lookups of a grid of size m may take AVX2's gathers: the machine has it and every offset fits int32.
+inline bool avx2_gathers(const Index3& m) {
+  return has_avx2() && m[0] * m[1] * m[2] < (int64_t{1} << 31);
+}
 
 // nearest_inside's loop (tet_warp.cpp): the nearest voxels of `in` (grid m, fewer than 2^31 voxels) at s0 + c ds for
 // c from `c` to the last whole four before `end`, each in the grid, to out[c]; a run across the source rows asks for

@@ -21,7 +21,7 @@
 #include "raster.h"
 
 #if defined(__SSE2__)
-#include <immintrin.h>
+#include <emmintrin.h>
 #endif
 
 namespace posewarp::resample {
@@ -83,7 +83,7 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
   int64_t c = first;
 #if defined(__x86_64__)
   if constexpr (sizeof(T) == 4) {
-    if (has_avx2() && m[0] * m[1] * m[2] < (int64_t{1} << 31)) {
+    if (avx2_gathers(m)) {
       c = nearest_avx2(reinterpret_cast<const int32_t*>(in), m, s0, ds, c, end, reinterpret_cast<int32_t*>(out));
     }
   }

@@ -756,7 +756,7 @@ class TetWarp::Builder {
   std::optional<StageProgress> progress_;  // from the checks on
 #if defined(__x86_64__)
   // Rest owners along a turned background looked up four at a time (AVX2, a source grid under 2^31 voxels).
-  const bool wide_source_lookup_ = has_avx2() && in_.source.voxel_count() < (int64_t{1} << 31);
+  const bool wide_source_lookup_ = avx2_gathers(in_.source.size);
 #endif
   TetWarp warp_;
   IndexSpace out_space_, src_space_;
