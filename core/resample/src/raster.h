@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "posewarp/common/image_geometry.h"
+#include "posewarp/common/parallel.h"
 #include "posewarp/common/status.h"
 #include "posewarp/resample/tet_warp.h"
 
@@ -51,7 +52,8 @@ struct RasterTet {
 // Buffers a thread reuses from one warp to the next, and whether a warp on that thread holds them.
 struct RasterScratch {
   std::vector<RasterTet> raster;
-  std::vector<std::vector<int32_t>> interior;  // per slab: the rasterized tets that meet it
+  std::vector<int32_t> interior;        // per slab, in turn: the rasterized tets that meet it
+  std::vector<int64_t> interior_first;  // where each slab's begin in interior (one more: the end)
   bool busy = false;
 };
 
@@ -65,6 +67,45 @@ class ScratchLease {
  private:
   RasterScratch& scratch_;
 };
+
+// Items 0..n-1 put in order of their keys into `out`, `first[key]` (key_count + 1 entries) where each key's items
+// begin: `for_keys(i, emit)` calls emit(key) for each key of item i (none, one or several; key < key_count). A
+// counting sort in parallel, each thread counting and then filling whole blocks of items: within a key the items keep
+// their order, so the result is what one thread would give.
+template <typename ForKeys>
+void sort_by_keys(int64_t n, int64_t key_count, const ForKeys& for_keys, std::vector<int32_t>& out,
+                  std::vector<int64_t>& first) {
+  const int64_t blocks = std::clamp<int64_t>((n + 4095) / 4096, 1, 4 * static_cast<int64_t>(thread_count()));
+  const int64_t block = (n + blocks - 1) / blocks;
+  std::vector<int64_t> at(static_cast<size_t>(blocks * key_count), 0);  // per block and key: a count, then a place
+  parallel_for(0, blocks, 1, [&](int64_t b0, int64_t b1) {
+    for (int64_t b = b0; b < b1; ++b) {
+      int64_t* count = at.data() + b * key_count;
+      for (int64_t i = b * block; i < std::min(n, (b + 1) * block); ++i)
+        for_keys(i, [&](int64_t key) { ++count[key]; });
+    }
+  });
+  first.assign(static_cast<size_t>(key_count) + 1, 0);
+  int64_t total = 0;
+  for (int64_t key = 0; key < key_count; ++key) {
+    first[static_cast<size_t>(key)] = total;
+    for (int64_t b = 0; b < blocks; ++b) {
+      const int64_t count = at[static_cast<size_t>(b * key_count + key)];
+      at[static_cast<size_t>(b * key_count + key)] = total;
+      total += count;
+    }
+  }
+  first[static_cast<size_t>(key_count)] = total;
+  out.resize(static_cast<size_t>(total));
+  parallel_for(0, blocks, 1, [&](int64_t b0, int64_t b1) {
+    for (int64_t b = b0; b < b1; ++b) {
+      int64_t* place = at.data() + b * key_count;
+      for (int64_t i = b * block; i < std::min(n, (b + 1) * block); ++i) {
+        for_keys(i, [&](int64_t key) { out[static_cast<size_t>(place[key]++)] = static_cast<int32_t>(i); });
+      }
+    }
+  });
+}
 
 // floor and ceil without libm calls (baseline x86-64 has no SSE4.1 rounding instruction); |x| < 2^62.
 inline double fast_floor(double x) {

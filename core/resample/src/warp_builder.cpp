@@ -148,36 +148,50 @@ void TetWarp::Builder::select_tets() {
       }
     }
   });
-  moving_.assign(static_cast<size_t>(nt), 1);
-  if (in_.rest_owner) {
-    parallel_for(0, nt, 8192, [&](int64_t begin, int64_t end) {
-      for (int64_t t = begin; t < end; ++t) {
-        bool all_follow = true;
-        for (int c = 0; c < 4; ++c) all_follow = all_follow && follows[static_cast<size_t>(rest.tets(t, c))];
-        moving_[static_cast<size_t>(t)] = all_follow ? 0 : 1;
-      }
-    });
-  }
-  std::vector<int32_t>& tets = warp_.tets_;  // rasterized index -> tet
-  for (int64_t t = 0; t < nt; ++t) {
-    if (moving_[static_cast<size_t>(t)]) tets.push_back(static_cast<int32_t>(t));
-  }
+  // Which tets move (counted per block of tets), then the moving ones in tet order with their lowest posed k, each
+  // block writing its own from where the blocks before it end.
   const int64_t nz = n_[2];
-  std::vector<int32_t> bucket(tets.size());
-  std::vector<int64_t> start(static_cast<size_t>(nz) + 1, 0);
-  for (size_t c = 0; c < tets.size(); ++c) {
-    double z = std::numeric_limits<double>::infinity();
-    for (int q = 0; q < 4; ++q) z = std::min(z, posed_index_[static_cast<size_t>(rest.tets(tets[c], q)) * 3 + 2]);
-    bucket[c] = static_cast<int32_t>(
-        std::clamp<double>(fast_floor(std::clamp(z, -1.0, 1e9)), 0.0, static_cast<double>(nz - 1)));
-    ++start[static_cast<size_t>(bucket[c]) + 1];
-  }
-  for (size_t b = 1; b < start.size(); ++b) start[b] += start[b - 1];
-  std::vector<int32_t> sorted(tets.size());
-  for (size_t c = 0; c < tets.size(); ++c)
-    sorted[static_cast<size_t>(start[static_cast<size_t>(bucket[c])]++)] = tets[c];
-  tets.swap(sorted);
-  warp_.rasterized_tets_ = static_cast<int64_t>(tets.size());
+  constexpr int64_t kBlock = 8192;
+  const int64_t blocks = (nt + kBlock - 1) / kBlock;
+  moving_.resize(static_cast<size_t>(nt));
+  std::vector<int64_t> block_at(static_cast<size_t>(blocks) + 1, 0);
+  parallel_for(0, blocks, 1, [&](int64_t b0, int64_t b1) {
+    for (int64_t b = b0; b < b1; ++b) {
+      int64_t n = 0;
+      for (int64_t t = b * kBlock; t < std::min(nt, (b + 1) * kBlock); ++t) {
+        bool all_follow = in_.rest_owner != nullptr;
+        for (int c = 0; c < 4 && all_follow; ++c) all_follow = follows[static_cast<size_t>(rest.tets(t, c))];
+        moving_[static_cast<size_t>(t)] = all_follow ? 0 : 1;
+        n += all_follow ? 0 : 1;
+      }
+      block_at[static_cast<size_t>(b) + 1] = n;
+    }
+  });
+  for (int64_t b = 0; b < blocks; ++b) block_at[static_cast<size_t>(b) + 1] += block_at[static_cast<size_t>(b)];
+  const int64_t nm = block_at[static_cast<size_t>(blocks)];
+  std::vector<int32_t> list(static_cast<size_t>(nm)), list_k(static_cast<size_t>(nm));
+  parallel_for(0, blocks, 1, [&](int64_t b0, int64_t b1) {
+    for (int64_t b = b0; b < b1; ++b) {
+      int64_t n = block_at[static_cast<size_t>(b)];
+      for (int64_t t = b * kBlock; t < std::min(nt, (b + 1) * kBlock); ++t) {
+        if (!moving_[static_cast<size_t>(t)]) continue;
+        double z = std::numeric_limits<double>::infinity();
+        for (int q = 0; q < 4; ++q) z = std::min(z, posed_index_[static_cast<size_t>(rest.tets(t, q)) * 3 + 2]);
+        list[static_cast<size_t>(n)] = static_cast<int32_t>(t);
+        list_k[static_cast<size_t>(n++)] = static_cast<int32_t>(
+            std::clamp<double>(fast_floor(std::clamp(z, -1.0, 1e9)), 0.0, static_cast<double>(nz - 1)));
+      }
+    }
+  });
+  // In order of their lowest k (rasterized index -> tet).
+  std::vector<int64_t> first;
+  sort_by_keys(
+      nm, nz, [&](int64_t c, const auto& emit) { emit(list_k[static_cast<size_t>(c)]); }, warp_.tets_, first);
+  parallel_for(0, nm, 16384, [&](int64_t begin, int64_t end) {
+    for (int64_t c = begin; c < end; ++c)
+      warp_.tets_[static_cast<size_t>(c)] = list[static_cast<size_t>(warp_.tets_[static_cast<size_t>(c)])];
+  });
+  warp_.rasterized_tets_ = static_cast<int64_t>(warp_.tets_.size());
 }
 
 // Step 3: per rasterized tet, densely (a pose that moves a few tets touches only theirs), the output-index ->
@@ -246,15 +260,16 @@ inline bool TetWarp::Builder::prepare_tet(int64_t c) {
 void TetWarp::Builder::split_into_slabs() {
   slab_count_ = std::clamp<int64_t>(n_[2], 1, 16 * static_cast<int64_t>(thread_count()));
   slab_depth_ = (n_[2] + slab_count_ - 1) / slab_count_;
-  std::vector<std::vector<int32_t>>& interior = scratch_->interior;
-  if (interior.size() < static_cast<size_t>(slab_count_)) interior.resize(static_cast<size_t>(slab_count_));
-  for (std::vector<int32_t>& list : interior) list.clear();
-  for (int64_t c = 0; c < warp_.rasterized_tets_; ++c) {
-    const auto [k0, k1] = k_range_[static_cast<size_t>(c)];
-    for (int64_t s = k0 / slab_depth_; k0 <= k1 && s <= k1 / slab_depth_; ++s) {
-      interior[static_cast<size_t>(s)].push_back(static_cast<int32_t>(c));
-    }
-  }
+  std::vector<int32_t> slab_of(static_cast<size_t>(n_[2]));  // each output k's slab, without a division per tet
+  for (int64_t k = 0; k < n_[2]; ++k) slab_of[static_cast<size_t>(k)] = static_cast<int32_t>(k / slab_depth_);
+  sort_by_keys(
+      warp_.rasterized_tets_, slab_count_,
+      [&](int64_t c, const auto& emit) {
+        const auto [k0, k1] = k_range_[static_cast<size_t>(c)];
+        if (k0 > k1) return;
+        for (int32_t s = slab_of[static_cast<size_t>(k0)]; s <= slab_of[static_cast<size_t>(k1)]; ++s) emit(s);
+      },
+      scratch_->interior, scratch_->interior_first);
   const size_t owner_bytes = static_cast<size_t>(in_.output.voxel_count()) * sizeof(int32_t);
   warp_.owner_ = std::shared_ptr<int32_t[]>(static_cast<int32_t*>(allocate_voxels(owner_bytes)),
                                             [owner_bytes](int32_t* p) { free_voxels(p, owner_bytes); });

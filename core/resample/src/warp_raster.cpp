@@ -20,7 +20,10 @@ void TetWarp::Builder::rasterize_slab(int64_t s) {
   std::fill(row_last_.begin() + kb * n_[1], row_last_.begin() + ke * n_[1], -1);
   std::fill(covered_bits_.begin() + kb * n_[1] * row_words_, covered_bits_.begin() + ke * n_[1] * row_words_, 0);
   std::vector<int64_t>& conflicts = conflicts_[static_cast<size_t>(s)];
-  for (const int32_t t : scratch_->interior[static_cast<size_t>(s)]) {
+  const int32_t* interior = scratch_->interior.data();
+  for (int64_t at = scratch_->interior_first[static_cast<size_t>(s)];
+       at < scratch_->interior_first[static_cast<size_t>(s) + 1]; ++at) {
+    const int32_t t = interior[at];
     const RasterTet& r = raster_[static_cast<size_t>(t)];
     const int64_t k0 = std::max(kb, static_cast<int64_t>(fast_ceil(r.lo[2])));
     const int64_t k1 = std::min(ke - 1, static_cast<int64_t>(fast_floor(r.hi[2])));
