@@ -268,9 +268,9 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 }
 
 // One case's scaling: the engine made once, then per thread count the best whole pose, each stage's best and ITK's
-// resampler on the same warp (labels + CT), printed as a table with each row's efficiency.
+// resampler on the same warp (labels + CT; not with `quick`), printed as a table with each row's efficiency.
 nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::Pose& pose,
-                             const std::vector<int>& counts, int repeats) {
+                             const std::vector<int>& counts, int repeats, bool quick) {
   const api::PoseEngine engine = std::move(api::PoseEngine::create(std::move(rig))).value();
   api::PoseRequest request;
   request.pose = pose;
@@ -279,7 +279,7 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
   request.want_fields = false;
   std::vector<std::string> rows{"whole pose", "warp labels + CT"};
   for (const auto& [stage, seconds] : with_fields.report.stage_seconds) rows.push_back(stage);
-  rows.push_back("ITK warp labels + CT");
+  if (!quick) rows.push_back("ITK warp labels + CT");
   std::map<std::string, std::vector<double>> ms;  // row -> per count
   for (const int threads : counts) {
     ProgressHooks hooks;
@@ -295,14 +295,16 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
       best["warp labels + CT"] = best.count("warp labels + CT") ? std::min(best["warp labels + CT"], warp) : warp;
     });
     best["whole pose"] = whole_s;
-    run_in_arena(threads, [&] {
-      best["ITK warp labels + CT"] = best_of(repeats, [&] {
-        (void)io::itk_resample_with_field(*engine.rig().ct, with_fields.inverse_field, with_fields.output_grid,
-                                          -1024.0f);
-        (void)io::itk_resample_labels_with_field(engine.rig().labels, with_fields.inverse_field,
-                                                 with_fields.output_grid);
+    if (!quick) {
+      run_in_arena(threads, [&] {
+        best["ITK warp labels + CT"] = best_of(repeats, [&] {
+          (void)io::itk_resample_with_field(*engine.rig().ct, with_fields.inverse_field, with_fields.output_grid,
+                                            -1024.0f);
+          (void)io::itk_resample_labels_with_field(engine.rig().labels, with_fields.inverse_field,
+                                                   with_fields.output_grid);
+        });
       });
-    });
+    }
     for (const std::string& row : rows) ms[row].push_back(1000.0 * best[row]);
   }
   // Efficiency from the first count of at least 2 threads (a 2-core machine's figure) to the last; from the first
@@ -416,7 +418,7 @@ int main(int argc, char** argv) {
   auto bench = [&](const std::string& name, Result<api::Rig> rig, const pose::Pose& pose) {
     if (!rig.ok()) return false;
     if (sweep) {
-      out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats));
+      out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats, quick));
     } else {
       out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats, quick));
     }
