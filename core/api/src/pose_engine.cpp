@@ -7,14 +7,14 @@
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/stopwatch.h"
 #include "posewarp/fem/soft_tissue.h"
-#include "posewarp/labels/label_map.h"
 #include "posewarp/labels/body.h"
+#include "posewarp/labels/label_map.h"
 #include "posewarp/mapping/tet_locator.h"
-#include "posewarp/rig/skin_contacts.h"
 #include "posewarp/pose/forward_kinematics.h"
 #include "posewarp/report/quality_report.h"
 #include "posewarp/resample/tet_warp.h"
 #include "posewarp/rig/skeleton.h"
+#include "posewarp/rig/skin_contacts.h"
 #include "posewarp/skinning/skinning.h"
 #include "posewarp/skinning/tet_maps.h"
 
@@ -29,7 +29,6 @@
 #include <mutex>
 #include <unordered_map>
 #include <utility>
-
 
 namespace posewarp::api {
 
@@ -266,7 +265,7 @@ Result<Eigen::MatrixXd> soft_tissue(const Prepared& p, const Eigen::MatrixXd& wa
     params.max_iterations = 4;
     params.time_budget_seconds = 0.070;
     params.continue_from_last = true;
-    params.margin_mm = 0.0;  // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
+    params.margin_mm = 0.0;   // only the tissue the pose bends (the margin changes the figures by 0.1-0.7%)
     params.untangle = false;  // a slider's steps within the preview's budget; the pose turns the folds back
     params.contact = false;   // and pushes the skin out of the tissue facing it
   }
@@ -294,44 +293,56 @@ void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTra
   const rig::Skeleton& skeleton = p.rig.skeleton;
   QualityReport& qr = result.report;
   const Eigen::VectorXd det = skinning::tet_determinants(mesh, p.frames, result.posed_vertices);
-  qr.mesh = report::mesh_change(mesh, det, p.frames.rest_volume);
-  qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
-  const ImageGeometry& source = p.rig.labels.geometry();
-  const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
-  for (const SegmentRigidity& s : qr.rigidity)
-    qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
-  qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
-  std::vector<std::pair<std::string, Eigen::Vector3d>> moved_joints;
-  for (const JointRotation& rotation : pose.joints) {
-    const int j = skeleton.joint_index(rotation.joint);
-    const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
-    const Eigen::Matrix3d turn = pose::joint_rotation_in_lps(joint, rotation);
-    if (turn.isIdentity(1e-12)) continue;
-    moved_joints.emplace_back(joint.name, joint.centre_mm);
-    const auto [flexion, abduction] = flexion_and_abduction(joint, rotation, turn);
-    for (const rig::MotionRange& range : joint.ranges) {
-      const double angle = range.motion == "abduction" ? abduction : flexion;
-      constexpr double kSlackDeg = 0.5;
-      if ((range.positive_stopped && angle > range.positive_deg + kSlackDeg) ||
-          (range.negative_stopped && angle < -range.negative_deg - kSlackDeg)) {
-        qr.past_range.push_back({joint.name, range.motion, angle, range.negative_deg, range.positive_deg});
+  // The mesh's volume change is one serial pass (its sums in tet order, so that they are the same at any thread
+  // count); it runs beside the rest of the report, whose passes are parallel, rather than before it.
+  const auto rest_of_report = [&] {
+    qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
+    const ImageGeometry& source = p.rig.labels.geometry();
+    const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
+    for (const SegmentRigidity& s : qr.rigidity)
+      qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
+    qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
+    std::vector<std::pair<std::string, Eigen::Vector3d>> moved_joints;
+    for (const JointRotation& rotation : pose.joints) {
+      const int j = skeleton.joint_index(rotation.joint);
+      const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
+      const Eigen::Matrix3d turn = pose::joint_rotation_in_lps(joint, rotation);
+      if (turn.isIdentity(1e-12)) continue;
+      moved_joints.emplace_back(joint.name, joint.centre_mm);
+      const auto [flexion, abduction] = flexion_and_abduction(joint, rotation, turn);
+      for (const rig::MotionRange& range : joint.ranges) {
+        const double angle = range.motion == "abduction" ? abduction : flexion;
+        constexpr double kSlackDeg = 0.5;
+        if ((range.positive_stopped && angle > range.positive_deg + kSlackDeg) ||
+            (range.negative_stopped && angle < -range.negative_deg - kSlackDeg)) {
+          qr.past_range.push_back({joint.name, range.motion, angle, range.negative_deg, range.positive_deg});
+        }
       }
     }
-  }
-  const std::vector<double> radii{50.0, 100.0};
-  qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
-  std::vector<Eigen::Vector3d> centres;
-  for (const auto& [name, centre] : moved_joints) centres.push_back(centre);
-  const std::vector<std::vector<fem::Penetration>> inside =
-      fem::penetration(mesh, result.posed_vertices, skin_of(p), centres, radii);
-  for (size_t j = 0; j < moved_joints.size(); ++j) {
-    for (size_t r = 0; r < radii.size(); ++r) {
-      JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
-      change.skin_vertices = inside[j][r].skin_vertices;
-      change.skin_inside_tissue = inside[j][r].inside_tissue;
-      change.skin_inside_bone = inside[j][r].inside_bone;
+    const std::vector<double> radii{50.0, 100.0};
+    qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
+    std::vector<Eigen::Vector3d> centres;
+    for (const auto& [name, centre] : moved_joints) centres.push_back(centre);
+    const std::vector<std::vector<fem::Penetration>> inside =
+        fem::penetration(mesh, result.posed_vertices, skin_of(p), centres, radii);
+    for (size_t j = 0; j < moved_joints.size(); ++j) {
+      for (size_t r = 0; r < radii.size(); ++r) {
+        JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
+        change.skin_vertices = inside[j][r].skin_vertices;
+        change.skin_inside_tissue = inside[j][r].inside_tissue;
+        change.skin_inside_bone = inside[j][r].inside_bone;
+      }
     }
-  }
+  };
+  parallel_for(0, 2, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t part = begin; part < end; ++part) {
+      if (part == 0) {
+        qr.mesh = report::mesh_change(mesh, det, p.frames.rest_volume);
+      } else {
+        rest_of_report();
+      }
+    }
+  });
 }
 
 // Step 4: each surface vertex follows its rest tet's barycentric combination of posed tet vertices.
