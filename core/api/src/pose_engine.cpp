@@ -2,7 +2,9 @@
 // A pose runs as numbered steps (pose_unguarded), each a function of its own over what create() prepared.
 #include "posewarp/api/pose_engine.h"
 
+#include "engine_state.h"
 #include "engine_tables.h"
+#include "pose_report.h"
 #include "posewarp/common/exception_wall.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/common/stopwatch.h"
@@ -79,49 +81,24 @@ Result<Method> method_from_name(std::string_view name) {
   return invalid_argument_error("unknown method '" + std::string(name) + "'");
 }
 
-// The preview's share of the rig: the tets holding a surface vertex, on their own vertices, with those vertices'
-// weights and centres, and the surfaces embedded in them.
-struct PreviewRig {
-  TetMesh mesh;
-  std::vector<int32_t> rig_vertex;  // preview vertex -> the rig mesh's vertex
-  SkinWeights weights;
-  RotationCentres centres;
-  std::vector<mapping::Embedding> embeddings;
-};
-
-// The fem method's share (its mesh topology, the report's skin vertices, the last solve), made by the first request
-// that needs it and shared by copies of the engine.
-struct FemState {
-  std::once_flag once;
-  fem::Topology topology;
-  std::once_flag skin_once;
-  std::vector<uint8_t> skin;  // the mesh's skin vertices (skin_of), for the report and the topology
-  fem::SolveCache cache;      // the last solve's factored system: a slider's next pose frees the same vertices
-};
-
-struct PoseEngine::Prepared {
-  Rig rig;
-  skinning::RestTetFrames frames;
-  std::map<Label, int64_t> rest_label_counts;  // the report's "before" counts, once
-  std::vector<int32_t> rest_owner;   // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
-  resample::BoneVoxels bone_voxels;  // which source voxel is which bone: bones rigid at voxel level
-  std::vector<int16_t> region;       // per source voxel: nearest-bone region (skin contacts)
-  std::vector<int16_t> tet_region;   // per tet: the region at its rest centroid
-  std::vector<uint8_t> separated;    // regions that must not show each other's tissue
-  float ct_minimum = 0.0f;           // the CT's lowest value: the warp's background is never below it
-  // The preview's share (preview_of), made by the first preview: a command-line pose never needs it.
-  mutable std::once_flag preview_once;
-  mutable PreviewRig preview;
-  mutable FemState fem;
-};
-
 const Rig& PoseEngine::rig() const {
   return prepared_->rig;
 }
 
+namespace internal {
+
+const std::vector<uint8_t>& skin_of(const PoseEngine::Prepared& p) {
+  if (static_cast<int64_t>(p.rig.skin_vertex.size()) == p.rig.mesh.vertex_count()) return p.rig.skin_vertex;
+  std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(p.rig.mesh); });
+  return p.fem.skin;
+}
+
+}  // namespace internal
+
 namespace {
 
 using Prepared = PoseEngine::Prepared;
+using namespace internal;
 
 // The segments' rigid transforms as the skinning takes them.
 skinning::SegmentTransforms segment_transforms(const std::vector<pose::RigidTransform>& transforms) {
@@ -164,16 +141,6 @@ fem::NonlinearParams refine_params(int iterations) {
   params.region_rings = 2;
   params.star_below = 1.0;
   return params;
-}
-
-// A joint rotation's flexion and abduction in degrees: the pose's own angles when it gave them, else the rotation
-// `turn` (LPS) read in the joint's frame as x, then y, then z (rig::joint_rotation_from_angles's order).
-std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const pose::JointRotation& rotation,
-                                                const Eigen::Matrix3d& turn) {
-  if (rotation.angles_deg) return {rotation.angles_deg->x(), rotation.angles_deg->y()};
-  const Eigen::Matrix3d m = joint.frame.transpose() * turn * joint.frame;  // Rx(f) Ry(a) Rz(r)
-  constexpr double kDegrees = 180.0 / M_PI;
-  return {std::atan2(-m(1, 2), m(2, 2)) * kDegrees, std::asin(std::clamp(m(0, 2), -1.0, 1.0)) * kDegrees};
 }
 
 // The lowest voxel of a volume, over every thread.
@@ -238,14 +205,6 @@ Result<std::vector<RigidTransform>> kinematics(const Prepared& p, const Pose& po
   return transforms;
 }
 
-// The mesh's skin vertices (fem::skin_vertices): the report's penetration count and the fem topology share them. The
-// rig file keeps them (section SKIN); for a rig from before it, the first request that needs them makes them.
-const std::vector<uint8_t>& skin_of(const Prepared& p) {
-  if (static_cast<int64_t>(p.rig.skin_vertex.size()) == p.rig.mesh.vertex_count()) return p.rig.skin_vertex;
-  std::call_once(p.fem.skin_once, [&] { p.fem.skin = fem::skin_vertices(p.rig.mesh); });
-  return p.fem.skin;
-}
-
 // What a soft-tissue solve is for: a pose (its request's options, from the warm start) or a slider's preview.
 enum class SolveFor { kPose, kPreview };
 
@@ -285,66 +244,6 @@ Result<Eigen::MatrixXd> skinned(const Prepared& p, Method method, const skinning
   return skinning::skin(m, p.rig.mesh.vertices, p.rig.weights, p.rig.centres, segments);
 }
 
-// Step 3 of a pose: mesh quality (inversions, volume change, bone rigidity), joints past their range and the soft
-// tissue and skin around each moved joint.
-void report_mesh(const Prepared& p, const Pose& pose, const skinning::SegmentTransforms& segments,
-                 const std::vector<std::string>& names, PoseResult& result) {
-  const TetMesh& mesh = p.rig.mesh;
-  const rig::Skeleton& skeleton = p.rig.skeleton;
-  QualityReport& qr = result.report;
-  const Eigen::VectorXd det = skinning::tet_determinants(mesh, p.frames, result.posed_vertices);
-  // The mesh's volume change is one serial pass (its sums in tet order, so that they are the same at any thread
-  // count); it runs beside the rest of the report, whose passes are parallel, rather than before it.
-  const auto rest_of_report = [&] {
-    qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
-    const ImageGeometry& source = p.rig.labels.geometry();
-    const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
-    for (const SegmentRigidity& s : qr.rigidity)
-      qr.bone_rigidity_error_mm = std::max(qr.bone_rigidity_error_mm, s.max_error_mm);
-    qr.bone_rigidity_error_voxels = qr.bone_rigidity_error_mm / voxel;
-    std::vector<std::pair<std::string, Eigen::Vector3d>> moved_joints;
-    for (const JointRotation& rotation : pose.joints) {
-      const int j = skeleton.joint_index(rotation.joint);
-      const rig::Joint& joint = skeleton.joints[static_cast<size_t>(j)];
-      const Eigen::Matrix3d turn = pose::joint_rotation_in_lps(joint, rotation);
-      if (turn.isIdentity(1e-12)) continue;
-      moved_joints.emplace_back(joint.name, joint.centre_mm);
-      const auto [flexion, abduction] = flexion_and_abduction(joint, rotation, turn);
-      for (const rig::MotionRange& range : joint.ranges) {
-        const double angle = range.motion == "abduction" ? abduction : flexion;
-        constexpr double kSlackDeg = 0.5;
-        if ((range.positive_stopped && angle > range.positive_deg + kSlackDeg) ||
-            (range.negative_stopped && angle < -range.negative_deg - kSlackDeg)) {
-          qr.past_range.push_back({joint.name, range.motion, angle, range.negative_deg, range.positive_deg});
-        }
-      }
-    }
-    const std::vector<double> radii{50.0, 100.0};
-    qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
-    std::vector<Eigen::Vector3d> centres;
-    for (const auto& [name, centre] : moved_joints) centres.push_back(centre);
-    const std::vector<std::vector<fem::Penetration>> inside =
-        fem::penetration(mesh, result.posed_vertices, skin_of(p), centres, radii);
-    for (size_t j = 0; j < moved_joints.size(); ++j) {
-      for (size_t r = 0; r < radii.size(); ++r) {
-        JointRegionChange& change = qr.joint_regions[j * radii.size() + r];
-        change.skin_vertices = inside[j][r].skin_vertices;
-        change.skin_inside_tissue = inside[j][r].inside_tissue;
-        change.skin_inside_bone = inside[j][r].inside_bone;
-      }
-    }
-  };
-  parallel_for(0, 2, 1, [&](int64_t begin, int64_t end) {
-    for (int64_t part = begin; part < end; ++part) {
-      if (part == 0) {
-        qr.mesh = report::mesh_change(mesh, det, p.frames.rest_volume);
-      } else {
-        rest_of_report();
-      }
-    }
-  });
-}
-
 // Step 4: each surface vertex follows its rest tet's barycentric combination of posed tet vertices.
 Status pose_surfaces(const Prepared& p, const PoseRequest& request, PoseResult& result) {
   const TetMesh& mesh = p.rig.mesh;
@@ -364,45 +263,6 @@ Status pose_surfaces(const Prepared& p, const PoseRequest& request, PoseResult& 
     result.surfaces.push_back(std::move(posed));
   }
   return ok_status();
-}
-
-// The warp's figures in the report.
-void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& names, PoseResult& result) {
-  QualityReport& qr = result.report;
-  const resample::WarpStats& stats = warp.stats();
-  qr.covered_voxels = stats.covered_voxels;
-  qr.conflicted_voxels = stats.conflicted_voxels;
-  qr.extrapolated_voxels = stats.extrapolated_voxels;
-  qr.background_voxels = stats.background_voxels;
-  qr.degenerate_tets = stats.degenerate_tets;
-  qr.rasterized_tets = warp.rasterized_tets();
-  qr.bone_voxels = stats.bone_voxels;
-  qr.skin_contact_voxels = stats.contact_guarded_voxels;
-  const ImageGeometry& g = result.output_grid;
-  for (const auto& [pair, count] : stats.bone_overlap_voxels) {
-    qr.bone_overlaps.push_back({names[static_cast<size_t>(pair.first)], names[static_cast<size_t>(pair.second)], count,
-                                static_cast<double>(count) * g.spacing[0] * g.spacing[1] * g.spacing[2] / 1000.0});
-  }
-}
-
-// The label report, which needs only the posed labels: counts before and after, names, each bone's voxel deviation.
-void report_labels(const Prepared& p, const resample::TetWarp& warp, const LabelVolume& posed,
-                   const std::vector<std::pair<double, double>>& deviation, const std::vector<std::string>& names,
-                   QualityReport& qr) {
-  // The posed values are rest values or the background: their range is known.
-  std::optional<std::pair<Label, Label>> range;
-  if (!p.rest_label_counts.empty()) {
-    range.emplace(std::min(p.rest_label_counts.begin()->first, warp.label_background()),
-                  std::max(p.rest_label_counts.rbegin()->first, warp.label_background()));
-  }
-  qr.labels = report::label_change(p.rest_label_counts, report::label_counts(posed, range));
-  for (const auto& [value, counts] : qr.labels.voxels) {
-    if (const labels::LabelEntry* entry = p.rig.label_map.find(value)) qr.label_names[value] = entry->name;
-  }
-  for (size_t k = 0; k < deviation.size(); ++k) {
-    qr.voxel_rigidity.push_back({names[k], deviation[k].first, deviation[k].second});
-    qr.bone_voxel_deviation_mm = std::max(qr.bone_voxel_deviation_mm, deviation[k].first);
-  }
 }
 
 // The forward field on the source grid: each bone voxel moves with its bone, every other source voxel with the rest
@@ -444,13 +304,6 @@ void forward_field(const Prepared& p, const skinning::SegmentTransforms& segment
       }
     }
   });
-}
-
-// The segments' names, in the skeleton's order (the report's rows).
-std::vector<std::string> segment_names(const rig::Skeleton& skeleton) {
-  std::vector<std::string> names;
-  for (const rig::Segment& s : skeleton.segments) names.push_back(s.name);
-  return names;
 }
 
 // Per tet: the body region at its rest centroid (-1 outside the grid), for the warp's skin-contact guard.
