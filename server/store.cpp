@@ -329,6 +329,16 @@ Status RigStore::put_rig(RigRecord record, std::string_view bytes) {
   return index_->put_rig(record);
 }
 
+Status RigStore::rewrite_rig(RigRecord record, std::string_view bytes) {
+  if (!is_hex_id(record.id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
+  std::lock_guard<std::mutex> lock(write_mutex_);
+  if (bytes.size() > record.size_bytes) POSEWARP_RETURN_IF_ERROR(check_quota(bytes.size() - record.size_bytes));
+  const fs::path file = fs::path(directory_) / "rigs" / (record.id + ".rig");
+  POSEWARP_RETURN_IF_ERROR(write_file_atomically(file.string(), bytes, "rig file"));
+  record.size_bytes = bytes.size();
+  return index_->put_rig(record);
+}
+
 Result<RigRecord> RigStore::rig(const std::string& id) {
   if (!is_hex_id(id)) return invalid_argument_error("a rig id is 64 lowercase hex digits");
   POSEWARP_ASSIGN_OR_RETURN(std::optional<RigRecord> row, index_->rig(id));

@@ -149,6 +149,9 @@ class RigStore {
 
   // The rig file, then its row. `record.id` names it; size and created are filled in.
   Status put_rig(RigRecord record, std::string_view bytes);
+  // A stored rig's file written again with `bytes` (the same rig, completed by a newer version), its row keeping its
+  // name, volumes and dates with the new size. Only what the file grows by counts against the quota.
+  Status rewrite_rig(RigRecord record, std::string_view bytes);
   Result<RigRecord> rig(const std::string& id);
   Result<std::vector<RigRecord>> rigs(const std::string& after, int limit);
   // Notes a rig's use in the index at most once a minute per rig: a pose's hot path pays no index write.

@@ -475,6 +475,49 @@ TEST_F(ServerService, RigsDownloadUploadDeleteAndAssetsRoundTrip) {
   EXPECT_TRUE(pose_remote(*stub, bend(rig_id)).status.ok());
 }
 
+// A rig from an earlier posewarp (the format 1 fixture: no engine tables, no skin vertices) is completed on its first
+// load and written back to the store: the stored file then holds them under the same id, GetRig gives its new size,
+// and a restarted server poses it the same from what the first one wrote, adding nothing.
+TEST_F(ServerService, AnOlderRigIsCompletedOnItsFirstLoadAndKeptSoInTheStore) {
+  const std::string bytes = file_text(fs::path(POSEWARP_SOURCE_DIR) / "tests/data/rig_format_1/bar.rig");
+  const fs::path where = store("older");
+  std::string rig_id;
+  PoseAnswer first;
+  {
+    ServerProcess server(where);
+    auto stub = v1::Posewarp::NewStub(server.channel());
+    v1::Rig rig;
+    ASSERT_TRUE(upload_rig(*stub, bytes, sha256_hex(bytes), &rig, "older").ok());
+    rig_id = rig.id();
+    EXPECT_EQ(rig.size_bytes(), bytes.size());
+    first = pose_remote(*stub, bend(rig_id));
+    ASSERT_TRUE(first.status.ok()) << first.status.error_message();
+    EXPECT_NE(server.log().find("written back to the store"), std::string::npos) << server.log();
+  }
+  const fs::path file = where / "rigs" / (rig_id + ".rig");
+  Result<api::Rig> kept = api::load_rig(file.string());
+  ASSERT_TRUE(kept.ok()) << kept.status().to_string();
+  EXPECT_EQ(kept->id(), rig_id);
+  EXPECT_EQ(kept->rest_owner.size(), static_cast<size_t>(kept->labels.voxel_count()));
+  EXPECT_EQ(static_cast<int64_t>(kept->skin_vertex.size()), kept->mesh.vertex_count());
+  ServerProcess again(where, {}, {}, where.string() + "-again.log");
+  auto stub = v1::Posewarp::NewStub(again.channel());
+  {
+    grpc::ClientContext context;
+    v1::GetRigRequest get;
+    get.set_rig_id(rig_id);
+    v1::Rig info;
+    ASSERT_TRUE(stub->GetRig(&context, get, &info).ok());
+    EXPECT_EQ(info.size_bytes(), fs::file_size(file));
+    EXPECT_EQ(info.name(), "older");
+  }
+  const PoseAnswer second = pose_remote(*stub, bend(rig_id));
+  ASSERT_TRUE(second.status.ok()) << second.status.error_message();
+  EXPECT_EQ(second.labels, first.labels);
+  EXPECT_EQ(second.ct, first.ct);
+  EXPECT_EQ(again.log().find("written back"), std::string::npos) << again.log();
+}
+
 TEST_F(ServerService, RawSamplesUploadAsTheSameVolumeAsTheirFile) {
   ServerProcess server(store("raw"));
   auto stub = v1::Posewarp::NewStub(server.channel());
