@@ -53,7 +53,7 @@ struct RasterTet {
 struct RasterScratch {
   std::vector<RasterTet> raster;
   std::vector<int32_t> interior;        // per slab, in turn: the rasterized tets that meet it
-  std::vector<int64_t> interior_first;  // where each slab's begin in interior (one more: the end)
+  std::vector<int64_t> interior_first;  // where each slab's tets begin in interior (one more: the end)
   bool busy = false;
 };
 
