@@ -84,11 +84,11 @@ EngineCache::EngineResult EngineCache::load(const std::string& rig_id) {
   hooks.threads = pose_threads_;
   // A rig from an earlier posewarp lacks what this one keeps in a rig (the engine's tables, the skin vertices): made
   // here once and written back, so that a later load (a restart, another replica, an evicted engine) reads them.
+  const std::string missing = api::missing_from_rig(*rig);
   POSEWARP_ASSIGN_OR_RETURN(const bool completed, api::complete_rig(*rig, hooks));
   if (completed) {
     if (Status kept = store_.rewrite_rig(stored, api::rig_to_bytes(*rig)); kept.ok()) {
-      spdlog::info("rig={} completed with what this version keeps in a rig, and written back to the store",
-                   rig_id.substr(0, 16));
+      spdlog::info("rig={} completed with {}, and written back to the store", rig_id.substr(0, 16), missing);
     } else {
       spdlog::warn("rig={} completed for this load only; writing it back failed: {}", rig_id.substr(0, 16),
                    kept.message());

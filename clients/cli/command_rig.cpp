@@ -288,8 +288,7 @@ int run_upgrade(const std::string& path, const std::string& out) {
   if (Status s = refuse_directories({to}); !s.ok()) return report(s);
   Result<api::Rig> rig = api::load_rig(path);
   if (!rig.ok()) return report(rig.status());
-  const bool had_tables = !rig->rest_owner.empty() && !rig->body_region.empty() && rig->bone_substitute;
-  const bool had_skin = !rig->skin_vertex.empty();
+  const std::string what = api::missing_from_rig(*rig);
   Result<bool> added = api::complete_rig(*rig, progress_bar());
   if (!added.ok()) return report(added.status().with_context(path));
   if (!*added && out.empty()) {
@@ -297,8 +296,6 @@ int run_upgrade(const std::string& path, const std::string& out) {
     return 0;
   }
   if (Status saved = api::save_rig(*rig, to); !saved.ok()) return report(saved);
-  std::string what = had_tables ? "" : "the engine's per-voxel tables (OWNR, REGN, SUBS)";
-  if (!had_skin) what += std::string(what.empty() ? "" : " and ") + "the mesh's skin vertices (SKIN)";
   say((what.empty() ? std::string("nothing to add; ") : "added " + what + "; ") + "rig " + rig->id() + " written to " +
       to);
   return 0;

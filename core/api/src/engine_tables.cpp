@@ -31,13 +31,30 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
 }  // namespace posewarp::api::internal
 
 namespace posewarp::api {
+namespace {
+
+bool lacks_tables(const Rig& rig) {
+  return rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute;
+}
+
+bool lacks_skin(const Rig& rig) {
+  return rig.skin_vertex.empty();
+}
+
+}  // namespace
+
+std::string missing_from_rig(const Rig& rig) {
+  std::string what = lacks_tables(rig) ? "the engine's per-voxel tables (OWNR, REGN, SUBS)" : "";
+  if (lacks_skin(rig)) what += std::string(what.empty() ? "" : " and ") + "the mesh's skin vertices (SKIN)";
+  return what;
+}
 
 Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks) {
   if (rig.labels.empty()) {
     return failed_precondition_error("the rig holds no source volume to make its tables from; rebuild it");
   }
-  const bool tables = rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute;
-  const bool skin = rig.skin_vertex.empty();
+  const bool tables = lacks_tables(rig);
+  const bool skin = lacks_skin(rig);
   if (tables) POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
   if (skin) rig.skin_vertex = fem::skin_vertices(rig.mesh);
   return tables || skin;

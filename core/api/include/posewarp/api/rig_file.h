@@ -32,6 +32,9 @@ Result<Rig> load_rig(const std::string& path);
 // label volume (one from before rigs held their volumes: rebuild it).
 Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks = {});
 
+// What complete_rig would add to `rig`, for a person ("the mesh's skin vertices (SKIN)"); empty when it lacks nothing.
+std::string missing_from_rig(const Rig& rig);
+
 // The same artifact in memory: what save_rig writes and load_rig reads, for a store or a network stream that
 // holds rigs without files. `where` names the source in messages (a quoted path, "uploaded rig 3f2a...").
 std::string rig_to_bytes(const Rig& rig);
