@@ -4,7 +4,7 @@
 // real sample and of a mannequin.
 // Usage: posewarp_bench_pose [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M (0 = skip)]
 //                            [--body-mvoxels M (0 = skip)] [--repeats R] [--data-dir DIR] [--rig RIG --pose POSE]
-//                            [--quick]
+//                            [--quick] [--phases]
 // With several thread counts it prints the scaling table instead: per case, the whole pose, each stage and ITK on
 // the same warp at each count, and the parallel efficiency from the first count of at least 2 to the last (from the
 // first count when only the last is 2 or more).
@@ -12,7 +12,9 @@
 // exist (a bundle run on another machine).
 // --rig RIG --pose POSE.json benches that rig with that pose instead of the built-in cases (a rig of your own data, a
 // pose that moves the root), with the same rows. --quick gives only the whole pose and its stages (no surfaces, fem,
-// previews or ITK): what a change to a stage is measured by.
+// previews or ITK): what a change to a stage is measured by. --phases adds each stage's phases (the warp's maps,
+// select, prepare, split, raster, shell and classify; the mesh report's determinants and parts), best of the repeats,
+// printed after the stages and, in a sweep, as rows of the table.
 #include <nlohmann/json.hpp>
 
 #include <Eigen/Geometry>
@@ -28,6 +30,7 @@
 #include <map>
 #include <random>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "posewarp/api/files.h"
@@ -57,6 +60,50 @@ double best_of(int repeats, const std::function<void()>& work) {
   }
   return best;
 }
+
+// Each stage's phases (ProgressHooks::on_phase: the warp's select, raster, shell, ...; the mesh report's parts), best
+// seconds over the runs, in the order they first ran. Asked for with --phases.
+class PhaseTimes {
+ public:
+  // Points `hooks` at this: each phase a run reports adds to that run's figure.
+  void attach(ProgressHooks& hooks) {
+    hooks.on_phase = [this](std::string_view stage, std::string_view phase, double seconds) {
+      const std::string key = std::string(stage) + ": " + std::string(phase);
+      if (!run_.count(key) && !best_.count(key)) order_.push_back(key);
+      run_[key] += seconds;
+    };
+  }
+  // Ends a run: each phase keeps its best.
+  void end_run() {
+    for (const auto& [key, seconds] : run_) best_[key] = best_.count(key) ? std::min(best_[key], seconds) : seconds;
+    run_.clear();
+  }
+  const std::vector<std::string>& phases() const { return order_; }
+  double best_ms(const std::string& key) const { return best_.count(key) ? 1000.0 * best_.at(key) : 0.0; }
+  // A line per stage: "<indent>phases of warp-prepare: maps 0.01 ms select 1.20 ms ...".
+  void print(const char* indent) const {
+    std::string stage;
+    for (const std::string& key : order_) {
+      const size_t colon = key.find(": ");
+      if (stage.empty() || key.compare(0, colon, stage) != 0) {
+        if (!stage.empty()) std::printf("\n");
+        stage = key.substr(0, colon);
+        std::printf("%sphases of %s:", indent, stage.c_str());
+      }
+      std::printf(" %s %.2f ms", key.c_str() + colon + 2, best_ms(key));
+    }
+    if (!order_.empty()) std::printf("\n");
+  }
+  nlohmann::json json() const {
+    nlohmann::json out = nlohmann::json::object();
+    for (const std::string& key : order_) out[key] = best_ms(key);
+    return out;
+  }
+
+ private:
+  std::vector<std::string> order_;
+  std::map<std::string, double> run_, best_;
+};
 
 nlohmann::json bench_skinning(int repeats) {
   // 1M vertices with four influences over 20 segments, blended weights and centres: the cost of skinning does not
@@ -102,7 +149,8 @@ nlohmann::json bench_skinning(int repeats) {
   return row;
 }
 
-nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pose& pose, int repeats, bool quick) {
+nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pose& pose, int repeats, bool quick,
+                          bool phases) {
   // Once per rig: rest tet frames, rest ownership, bone voxels and body regions.
   const auto created = std::chrono::steady_clock::now();
   Result<api::PoseEngine> engine = api::PoseEngine::create(std::move(rig));
@@ -152,8 +200,12 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   whole.pose = pose;
   // Each stage's best time over the repeats (the whole pose's best is its own figure).
   std::vector<std::pair<std::string, double>> stages;
+  PhaseTimes whole_phases;
+  ProgressHooks whole_hooks;
+  if (phases) whole_phases.attach(whole_hooks);
   const double whole_s = best_of(repeats, [&] {
-    const api::PoseResult result = std::move(engine->pose(whole)).value();
+    const api::PoseResult result = std::move(engine->pose(whole, whole_hooks)).value();
+    whole_phases.end_run();
     if (stages.empty()) stages = result.report.stage_seconds;
     for (size_t i = 0; i < stages.size() && i < result.report.stage_seconds.size(); ++i) {
       stages[i].second = std::min(stages[i].second, result.report.stage_seconds[i].second);
@@ -161,10 +213,12 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   });
   row["whole_pose_ms"] = 1000.0 * whole_s;
   for (const auto& [stage, seconds] : stages) row["stages_ms"][stage] = 1000.0 * seconds;
+  if (phases) row["phases_ms"] = whole_phases.json();
   if (quick) {
     std::printf("%-14s %9.0f voxels: whole pose %7.1f ms; stages:", name.c_str(), voxels, 1000.0 * whole_s);
     for (const auto& [stage, seconds] : stages) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
     std::printf("\n");
+    whole_phases.print("               ");
     return row;
   }
 
@@ -222,6 +276,9 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
   const api::Rig& engine_rig = engine->rig();
   const size_t root = static_cast<size_t>(engine_rig.skeleton.root);
   double all_tets_parts[3] = {1e300, 1e300, 1e300};  // best build, labels, CT
+  PhaseTimes all_tets_phases;
+  ProgressHooks all_tets_hooks;
+  if (phases) all_tets_phases.attach(all_tets_hooks);
   const double all_tets_s = best_of(repeats, [&] {
     const auto t0 = std::chrono::steady_clock::now();
     const resample::TetWarp warp =
@@ -230,8 +287,10 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
                                             .source = engine_rig.labels.geometry(),
                                             .output = with_fields.output_grid,
                                             .background_rotation = with_fields.segment_rotation[root],
-                                            .background_translation = with_fields.segment_translation[root]}))
+                                            .background_translation = with_fields.segment_translation[root]},
+                                           all_tets_hooks))
             .value();
+    all_tets_phases.end_run();
     const auto t1 = std::chrono::steady_clock::now();
     (void)warp.warp_labels(engine_rig.labels);
     const auto t2 = std::chrono::steady_clock::now();
@@ -258,11 +317,14 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
       "(best build %.1f, labels %.1f, CT %.1f ms)\n",
       1000.0 * all_tets_s, 2.0 * voxels / all_tets_s / 1e6, itk_ms / (1000.0 * all_tets_s), 1000.0 * all_tets_parts[0],
       1000.0 * all_tets_parts[1], 1000.0 * all_tets_parts[2]);
+  all_tets_phases.print("               every tet rasterized: ");
+  if (phases) row["warp_all_tets_phases_ms"] = all_tets_phases.json();
   std::printf("               rasterized tets %lld of %lld; stages:",
               static_cast<long long>(with_fields.report.rasterized_tets),
               static_cast<long long>(engine->rig().mesh.tet_count()));
   for (const auto& [stage, seconds] : stages) std::printf(" %s %.1f ms", stage.c_str(), 1000.0 * seconds);
   std::printf("\n");
+  whole_phases.print("               ");
   std::fflush(stdout);
   return row;
 }
@@ -270,7 +332,7 @@ nlohmann::json bench_pose(const std::string& name, api::Rig rig, const pose::Pos
 // One case's scaling: the engine made once, then per thread count the best whole pose, each stage's best and ITK's
 // resampler on the same warp (labels + CT; not with `quick`), printed as a table with each row's efficiency.
 nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::Pose& pose,
-                             const std::vector<int>& counts, int repeats, bool quick) {
+                             const std::vector<int>& counts, int repeats, bool quick, bool phases) {
   const api::PoseEngine engine = std::move(api::PoseEngine::create(std::move(rig))).value();
   api::PoseRequest request;
   request.pose = pose;
@@ -281,12 +343,16 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
   for (const auto& [stage, seconds] : with_fields.report.stage_seconds) rows.push_back(stage);
   if (!quick) rows.push_back("ITK warp labels + CT");
   std::map<std::string, std::vector<double>> ms;  // row -> per count
-  for (const int threads : counts) {
+  std::vector<PhaseTimes> phase_times(counts.size());
+  for (size_t at = 0; at < counts.size(); ++at) {
+    const int threads = counts[at];
     ProgressHooks hooks;
     hooks.threads = threads;
+    if (phases) phase_times[at].attach(hooks);
     std::map<std::string, double> best;
     const double whole_s = best_of(repeats, [&] {
       const api::PoseResult result = std::move(engine.pose(request, hooks)).value();
+      phase_times[at].end_run();
       double warp = 0.0;
       for (const auto& [stage, seconds] : result.report.stage_seconds) {
         best[stage] = best.count(stage) ? std::min(best[stage], seconds) : seconds;
@@ -306,6 +372,11 @@ nlohmann::json bench_scaling(const std::string& name, api::Rig rig, const pose::
       });
     }
     for (const std::string& row : rows) ms[row].push_back(1000.0 * best[row]);
+  }
+  // Each stage's phases (--phases) as rows of their own, after the stages.
+  for (const std::string& phase : phase_times.front().phases()) {
+    rows.push_back(phase);
+    for (const PhaseTimes& times : phase_times) ms[phase].push_back(times.best_ms(phase));
   }
   // Efficiency from the first count of at least 2 threads (a 2-core machine's figure) to the last; from the first
   // count when only the last is 2 or more.
@@ -377,7 +448,7 @@ int main(int argc, char** argv) {
   double mannequin_mvoxels = 20.0, body_mvoxels = 20.0;
   std::string dir = POSEWARP_SAMPLE_DIR;
   std::string rig_path, pose_path;
-  bool quick = false;
+  bool quick = false, phases = false;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--threads") && i + 1 < argc) {
       counts = thread_counts(argv[++i]);
@@ -391,6 +462,8 @@ int main(int argc, char** argv) {
       dir = argv[++i];
     } else if (!std::strcmp(argv[i], "--quick")) {
       quick = true;
+    } else if (!std::strcmp(argv[i], "--phases")) {
+      phases = true;
     } else if (!std::strcmp(argv[i], "--rig") && i + 1 < argc) {
       rig_path = argv[++i];
     } else if (!std::strcmp(argv[i], "--pose") && i + 1 < argc) {
@@ -401,7 +474,7 @@ int main(int argc, char** argv) {
     if (counts.empty()) {
       std::fprintf(stderr,
                    "usage: %s [--threads N | --threads 1,2,4,8,16] [--mannequin-mvoxels M] [--body-mvoxels M] "
-                   "[--repeats R] [--data-dir DIR] [--rig RIG --pose POSE.json] [--quick]\n",
+                   "[--repeats R] [--data-dir DIR] [--rig RIG --pose POSE.json] [--quick] [--phases]\n",
                    argv[0]);
       return 2;
     }
@@ -418,9 +491,9 @@ int main(int argc, char** argv) {
   auto bench = [&](const std::string& name, Result<api::Rig> rig, const pose::Pose& pose) {
     if (!rig.ok()) return false;
     if (sweep) {
-      out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats, quick));
+      out["scaling"].push_back(bench_scaling(name, std::move(rig).value(), pose, counts, repeats, quick, phases));
     } else {
-      out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats, quick));
+      out["poses"].push_back(bench_pose(name, std::move(rig).value(), pose, repeats, quick, phases));
     }
     return true;
   };

@@ -553,7 +553,7 @@ Result<PoseResult> pose_unguarded(const Prepared& p, const PoseRequest& request,
   }
 
   const std::vector<std::string> names = segment_names(p.rig.skeleton);
-  report_mesh(p, request.pose, segments, names, result);
+  report_mesh(p, request.pose, segments, names, hooks, result);
   clock.lap("report-mesh");
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "pose").check_cancel());
 

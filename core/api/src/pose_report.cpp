@@ -8,6 +8,7 @@
 #include <optional>
 
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/stopwatch.h"
 #include "posewarp/fem/soft_tissue.h"
 #include "posewarp/labels/label_map.h"
 #include "posewarp/pose/forward_kinematics.h"
@@ -29,14 +30,19 @@ std::pair<double, double> flexion_and_abduction(const rig::Joint& joint, const p
 }  // namespace
 
 void report_mesh(const PoseEngine::Prepared& p, const Pose& pose, const skinning::SegmentTransforms& segments,
-                 const std::vector<std::string>& names, PoseResult& result) {
+                 const std::vector<std::string>& names, const ProgressHooks& hooks, PoseResult& result) {
   const TetMesh& mesh = p.rig.mesh;
   const rig::Skeleton& skeleton = p.rig.skeleton;
   QualityReport& qr = result.report;
+  PhaseClock phases(hooks, "report-mesh");
   const Eigen::VectorXd det = skinning::tet_determinants(mesh, p.frames, result.posed_vertices);
+  phases.mark("determinants");
   // The mesh's volume change is one serial pass (its sums in tet order, so that they are the same at any thread
-  // count); it runs beside the rest of the report, whose passes are parallel, rather than before it.
+  // count); it runs beside the rest of the report, whose passes are parallel, rather than before it. Each side's
+  // phases are timed on its own clock and handed to the hook once both are done.
+  double volume_change_s = 0.0, rigidity_s = 0.0, regions_s = 0.0, penetration_s = 0.0;
   const auto rest_of_report = [&] {
+    Stopwatch clock;
     qr.rigidity = report::bone_rigidity(mesh, result.posed_vertices, segments.rotation, segments.translation, names);
     const ImageGeometry& source = p.rig.labels.geometry();
     const double voxel = std::min({source.spacing[0], source.spacing[1], source.spacing[2]});
@@ -60,8 +66,10 @@ void report_mesh(const PoseEngine::Prepared& p, const Pose& pose, const skinning
         }
       }
     }
+    rigidity_s = clock.lap();
     const std::vector<double> radii{50.0, 100.0};
     qr.joint_regions = report::joint_region_changes(mesh, det, p.frames.rest_volume, moved_joints, radii);
+    regions_s = clock.lap();
     std::vector<Eigen::Vector3d> centres;
     for (const auto& [name, centre] : moved_joints) centres.push_back(centre);
     const std::vector<std::vector<fem::Penetration>> inside =
@@ -74,16 +82,23 @@ void report_mesh(const PoseEngine::Prepared& p, const Pose& pose, const skinning
         change.skin_inside_bone = inside[j][r].inside_bone;
       }
     }
+    penetration_s = clock.lap();
   };
   parallel_for(0, 2, 1, [&](int64_t begin, int64_t end) {
     for (int64_t part = begin; part < end; ++part) {
       if (part == 0) {
+        Stopwatch clock;
         qr.mesh = report::mesh_change(mesh, det, p.frames.rest_volume);
+        volume_change_s = clock.seconds();
       } else {
         rest_of_report();
       }
     }
   });
+  phases.report("volume-change (beside the rest)", volume_change_s);
+  phases.report("rigidity", rigidity_s);
+  phases.report("joint-regions", regions_s);
+  phases.report("penetration", penetration_s);
 }
 
 void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& names, PoseResult& result) {

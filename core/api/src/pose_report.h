@@ -14,9 +14,9 @@
 namespace posewarp::api::internal {
 
 // Step 3 of a pose: mesh quality (inversions, volume change, bone rigidity), joints past their range and the soft
-// tissue and skin around each moved joint, into result.report.
+// tissue and skin around each moved joint, into result.report. Its phases go to hooks.on_phase.
 void report_mesh(const PoseEngine::Prepared& p, const Pose& pose, const skinning::SegmentTransforms& segments,
-                 const std::vector<std::string>& names, PoseResult& result);
+                 const std::vector<std::string>& names, const ProgressHooks& hooks, PoseResult& result);
 
 // The warp's figures in the report.
 void report_warp(const resample::TetWarp& warp, const std::vector<std::string>& names, PoseResult& result);

@@ -25,10 +25,13 @@ Result<TetWarp> TetWarp::Builder::run() {
   warp_.label_background_ = in_.params.label_background;
   warp_.intensity_background_ = in_.params.intensity_background;
   const Status prepared = guarded("preparing the warp onto " + in_.output.describe(), [&]() -> Status {
+    PhaseClock phases(hooks_, "warp-prepare");
     out_space_ = index_space(in_.output);
     src_space_ = index_space(in_.source);
     prepare_maps();
+    phases.mark("maps");
     select_tets();
+    phases.mark("select");
     // The raster data and slab lists live in buffers this thread keeps between warps: on a 2-core VM, faulting in
     // tens of MB of fresh pages per pose costs as much as the raster itself. A warp started on this thread while
     // another is in flight on it (a task stolen inside a parallel loop), or one larger than kKeptScratchBytes,
@@ -39,14 +42,19 @@ Result<TetWarp> TetWarp::Builder::run() {
     scratch_ = keep ? &kept : &own;
     const ScratchLease lease(*scratch_);
     prepare_raster();
+    phases.mark("prepare");
     POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
     progress_->update(0.2);
     split_into_slabs();
+    phases.mark("split");
     in_slabs([this](int64_t s) { rasterize_slab(s); });  // pass 1
+    phases.mark("raster");
     POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
     offsets_ = shell_offsets(in_.output, shell_, reach_);
-    in_slabs([this](int64_t s) { find_shell(s); });     // pass 2
+    in_slabs([this](int64_t s) { find_shell(s); });  // pass 2
+    phases.mark("shell");
     in_slabs([this](int64_t s) { classify_slab(s); });  // pass 3
+    phases.mark("classify");
     POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
     for (const WarpStats& slab : slab_stats_) warp_.stats_ += slab;
     return ok_status();

@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 #include <map>
 #include <set>
@@ -390,6 +391,41 @@ TEST(Posing, CancellationAndDeadlinesEndAPoseMidWarp) {
   ProgressHooks two_threads;
   two_threads.threads = 2;
   EXPECT_TRUE(engine.pose(request, two_threads).ok());
+}
+
+// With ProgressHooks::on_phase, a pose hands over the warp's and the mesh report's phases (what the bench's --phases
+// prints), each once, in the order they run, each within the stage's own time; the outputs are the same bytes.
+TEST(Posing, PhasesReachTheHookInOrderAndChangeNothing) {
+  const PoseEngine& engine = bar_engine();
+  PoseRequest request;
+  request.pose = joint_pose("joint_2_3", 60.0, 0.0);
+  std::vector<std::pair<std::string, std::string>> phases;
+  std::map<std::string, double> stage_sum;
+  ProgressHooks hooks;
+  hooks.on_phase = [&](std::string_view stage, std::string_view phase, double seconds) {
+    phases.emplace_back(stage, phase);
+    EXPECT_TRUE(std::isfinite(seconds) && seconds >= 0.0) << stage << ": " << phase << " " << seconds;
+    if (phase.find("beside") == std::string_view::npos) stage_sum[std::string(stage)] += seconds;
+  };
+  const Result<PoseResult> timed = engine.pose(request, hooks);
+  ASSERT_TRUE(timed.ok()) << timed.status().to_string();
+  const std::vector<std::pair<std::string, std::string>> expected{
+      {"report-mesh", "determinants"},  {"report-mesh", "volume-change (beside the rest)"},
+      {"report-mesh", "rigidity"},      {"report-mesh", "joint-regions"},
+      {"report-mesh", "penetration"},   {"warp-prepare", "maps"},
+      {"warp-prepare", "select"},       {"warp-prepare", "prepare"},
+      {"warp-prepare", "split"},        {"warp-prepare", "raster"},
+      {"warp-prepare", "shell"},        {"warp-prepare", "classify"}};
+  EXPECT_EQ(phases, expected);
+  for (const auto& [stage, seconds] : timed->report.stage_seconds) {
+    if (stage_sum.count(stage)) {
+      EXPECT_LE(stage_sum[stage], seconds + 1e-6) << stage;
+    }
+  }
+  const Result<PoseResult> plain = engine.pose(request);
+  ASSERT_TRUE(plain.ok());
+  EXPECT_EQ(timed->labels->voxels(), plain->labels->voxels());
+  EXPECT_EQ(timed->ct->voxels(), plain->ct->voxels());
 }
 
 // Sixteen threads posing one engine at once get byte-identical outputs (the engine is immutable after create()).

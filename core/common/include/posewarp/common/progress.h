@@ -27,6 +27,10 @@ struct ProgressHooks {
   // Worker threads of the call, in a task arena of its own (build_rig, PoseEngine::create and pose run their work
   // in one); 0 = the arena of the caller.
   int threads = 0;
+  // Called as each phase of a stage ends (the warp's select, raster, shell, ...; the mesh report's parts), with the
+  // stage, the phase and its seconds, from the thread that runs the stage, never concurrently: what a bench's
+  // --phases prints. Empty: the phases are not timed.
+  std::function<void(std::string_view stage, std::string_view phase, double seconds)> on_phase;
 
   bool past_deadline() const { return deadline && std::chrono::steady_clock::now() >= *deadline; }
 };
@@ -42,6 +46,32 @@ class CancelFlag {
 
  private:
   std::shared_ptr<std::atomic<bool>> cancelled_ = std::make_shared<std::atomic<bool>>(false);
+};
+
+// Times a stage's phases for ProgressHooks::on_phase: mark(phase) ends the phase begun at the last mark (or at the
+// clock's making) and hands its seconds to the hook. Without the hook it reads no clock.
+class PhaseClock {
+ public:
+  using Clock = std::chrono::steady_clock;
+
+  PhaseClock(const ProgressHooks& hooks, std::string_view stage)
+      : hooks_(hooks), stage_(stage), last_(hooks.on_phase ? Clock::now() : Clock::time_point{}) {}
+
+  void mark(std::string_view phase) {
+    if (!hooks_.on_phase) return;
+    const Clock::time_point now = Clock::now();
+    hooks_.on_phase(stage_, phase, std::chrono::duration<double>(now - last_).count());
+    last_ = now;
+  }
+  // Hands a phase timed elsewhere (one of several that ran side by side) to the hook.
+  void report(std::string_view phase, double seconds) const {
+    if (hooks_.on_phase) hooks_.on_phase(stage_, phase, seconds);
+  }
+
+ private:
+  const ProgressHooks& hooks_;
+  std::string_view stage_;
+  Clock::time_point last_;
 };
 
 // Reports one stage's progress through the hooks, throttled to 1% steps, thread-safe.
