@@ -5,6 +5,7 @@
 #include "warp_builder.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -203,16 +204,42 @@ void TetWarp::Builder::select_tets() {
 }
 
 // Step 3: per rasterized tet, densely (a pose that moves a few tets touches only theirs), the output-index ->
-// source-index map, the raster data and the output k it spans; a tet with no volume once posed is skipped.
+// source-index map, the raster data and the output k it spans; a tet with no volume once posed is skipped, and one
+// whose index box holds no voxel centre gets none of them.
 void TetWarp::Builder::prepare_raster() {
   const int64_t nm = warp_.rasterized_tets_;
-  warp_.maps_ = std::shared_ptr<double[]>(new double[static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12]);
+  // The maps' block comes from the voxel memory, its size rounded up to an eighth of the next power of two: a pose
+  // like the last one takes the pages its maps had (a first touch of fresh pages costs as much as the maps' making).
+  const size_t map_bytes = static_cast<size_t>(std::max<int64_t>(nm, 1)) * 12 * sizeof(double);
+  const size_t step = std::max<size_t>(std::bit_ceil(map_bytes) / 8, 1);
+  const size_t kept_bytes = (map_bytes + step - 1) / step * step;
+  warp_.maps_ = std::shared_ptr<double[]>(static_cast<double*>(allocate_voxels(kept_bytes)),
+                                          [kept_bytes](double* p) { free_voxels(p, kept_bytes); });
   if (scratch_->raster.size() < static_cast<size_t>(nm)) scratch_->raster.resize(static_cast<size_t>(nm));
   raster_ = scratch_->raster.data();
   std::vector<uint8_t> usable(static_cast<size_t>(nm), 0);
   k_range_.assign(static_cast<size_t>(nm), {1, 0});
+  // Rasterized tets are in the order of their lowest k, so their corners and vertices are scattered through the
+  // mesh: each tet's corners are asked for 2 kAhead tets before it, their vertices kAhead before it (a tet waited on
+  // both in turn, and the loads of several tets did not overlap).
+  constexpr int64_t kAhead = 8;
+  const TetMesh& rest = in_.rest;
   parallel_for(0, nm, 2048, [&](int64_t begin, int64_t end) {
-    for (int64_t c = begin; c < end; ++c) usable[static_cast<size_t>(c)] = prepare_tet(c);
+    for (int64_t c = begin; c < end; ++c) {
+      if (c + 2 * kAhead < end) {
+        const int64_t t = warp_.tets_[static_cast<size_t>(c + 2 * kAhead)];
+        for (int q = 0; q < 4; ++q) __builtin_prefetch(&rest.tets(t, q));
+      }
+      if (c + kAhead < end) {
+        const int64_t t = warp_.tets_[static_cast<size_t>(c + kAhead)];
+        for (int q = 0; q < 4; ++q) {
+          const size_t v = static_cast<size_t>(rest.tets(t, q)) * 3;
+          __builtin_prefetch(posed_index_.data() + v);
+          __builtin_prefetch(rest_index_.data() + v);
+        }
+      }
+      usable[static_cast<size_t>(c)] = prepare_tet(c);
+    }
   });
   for (const uint8_t ok : usable) warp_.stats_.degenerate_tets += ok ? 0 : 1;
 }
@@ -230,6 +257,20 @@ inline bool TetWarp::Builder::prepare_tet(int64_t c) {
   for (int q = 0; q < 3; ++q) ue.col(q) = u[q + 1] - u[0], se.col(q) = s[q + 1] - s[0];
   const double det = ue.determinant();
   if (!(std::abs(det) > 1e-12) || !std::isfinite(det)) return false;
+  // The index box, clamped in double to just outside the grid so that no later cast can overflow (a root
+  // translated by 1e9 mm is finite, and valid). A box with no voxel centre of the grid inside (a tet smaller than a
+  // voxel, between centres; the mesh is finer than the image) covers nothing: the tet goes to no slab, and its raster
+  // data and map, which nothing would read, are not made.
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    const double top = static_cast<double>(n_[static_cast<size_t>(a)]);
+    lo[a] = std::clamp(std::min({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
+    hi[a] = std::clamp(std::max({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
+    if (std::max<int64_t>(0, static_cast<int64_t>(fast_ceil(lo[a]))) >
+        std::min<int64_t>(n_[static_cast<size_t>(a)] - 1, static_cast<int64_t>(fast_floor(hi[a])))) {
+      return true;
+    }
+  }
   const Eigen::Matrix3d inverse = ue.inverse();
   RasterTet& r = raster_[static_cast<size_t>(c)];
   const Eigen::Vector3d origin = -(inverse * u[0]);
@@ -243,13 +284,7 @@ inline bool TetWarp::Builder::prepare_tet(int64_t c) {
     r.dj[m] = inverse(m - 1, 1);
     r.dk[m] = inverse(m - 1, 2);
   }
-  // The index box, clamped in double to just outside the grid so that no later cast can overflow (a root
-  // translated by 1e9 mm is finite, and valid).
-  for (int a = 0; a < 3; ++a) {
-    const double top = static_cast<double>(n_[static_cast<size_t>(a)]);
-    r.lo[a] = std::clamp(std::min({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
-    r.hi[a] = std::clamp(std::max({u[0](a), u[1](a), u[2](a), u[3](a)}), -2.0, top + 1.0);
-  }
+  for (int a = 0; a < 3; ++a) r.lo[a] = lo[a], r.hi[a] = hi[a];
   const Eigen::Matrix3d a = se * inverse;
   const Eigen::Vector3d b = s[0] - a * u[0];
   double* m = warp_.maps_.get() + 12 * c;
