@@ -11,6 +11,7 @@
 #include <string_view>
 
 #include "posewarp/common/status.h"
+#include "posewarp/common/stopwatch.h"
 
 namespace posewarp {
 
@@ -49,19 +50,13 @@ class CancelFlag {
 };
 
 // Times a stage's phases for ProgressHooks::on_phase: mark(phase) ends the phase begun at the last mark (or at the
-// clock's making) and hands its seconds to the hook. Without the hook it reads no clock.
+// clock's making), a Stopwatch lap, and hands its seconds to the hook; without the hook it does nothing.
 class PhaseClock {
  public:
-  using Clock = std::chrono::steady_clock;
-
-  PhaseClock(const ProgressHooks& hooks, std::string_view stage)
-      : hooks_(hooks), stage_(stage), last_(hooks.on_phase ? Clock::now() : Clock::time_point{}) {}
+  PhaseClock(const ProgressHooks& hooks, std::string_view stage) : hooks_(hooks), stage_(stage) {}
 
   void mark(std::string_view phase) {
-    if (!hooks_.on_phase) return;
-    const Clock::time_point now = Clock::now();
-    hooks_.on_phase(stage_, phase, std::chrono::duration<double>(now - last_).count());
-    last_ = now;
+    if (hooks_.on_phase) hooks_.on_phase(stage_, phase, stopwatch_.lap());
   }
   // Hands a phase timed elsewhere (one of several that ran side by side) to the hook.
   void report(std::string_view phase, double seconds) const {
@@ -71,7 +66,7 @@ class PhaseClock {
  private:
   const ProgressHooks& hooks_;
   std::string_view stage_;
-  Clock::time_point last_;
+  Stopwatch stopwatch_;
 };
 
 // Reports one stage's progress through the hooks, throttled to 1% steps, thread-safe.
