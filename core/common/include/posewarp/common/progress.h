@@ -50,7 +50,7 @@ class CancelFlag {
 };
 
 // Times a stage's phases for ProgressHooks::on_phase: mark(phase) ends the phase begun at the last mark (or at the
-// clock's making), a Stopwatch lap, and hands its seconds to the hook; without the hook it does nothing.
+// clock's making), a Stopwatch lap, and hands its seconds to the hook; without the hook it hands on nothing.
 class PhaseClock {
  public:
   PhaseClock(const ProgressHooks& hooks, std::string_view stage) : hooks_(hooks), stage_(stage) {}
