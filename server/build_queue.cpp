@@ -135,9 +135,15 @@ void BuildQueue::set_operation(const std::shared_ptr<Job>& job, const std::funct
                                bool persist) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    const v1::Operation before = job->operation;
     change(job->operation);
     job->operation.set_elapsed_s(
         job->started.seconds());
+    if (!before.stage().empty() && before.stage() != job->operation.stage()) {
+      v1::Operation& ended = job->passed.emplace_back(before);
+      ended.set_stage_fraction(1.0);
+      ended.set_elapsed_s(job->operation.elapsed_s());
+    }
     if (persist) this->persist(*job);
   }
   changed_.notify_all();
@@ -292,7 +298,15 @@ Status BuildQueue::watch(const std::string& id, const std::function<bool(const v
   if (!job) return watch_row(id, write, cancelled);
   std::unique_lock<std::mutex> lock(mutex_);
   std::string last;
+  size_t sent = 0;  // of job->passed
   for (;;) {
+    while (sent < job->passed.size()) {
+      const v1::Operation ended = job->passed[sent++];
+      lock.unlock();
+      const bool written = write(ended);
+      lock.lock();
+      if (!written) return client_gone();
+    }
     const v1::Operation now = job->operation;
     const std::string serialized = now.SerializeAsString();
     if (serialized != last) {

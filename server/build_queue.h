@@ -58,6 +58,9 @@ class BuildQueue {
  private:
   struct Job {
     v1::Operation operation;  // guarded by mutex_
+    // The operation as each stage it has left ended (its fraction 1), in order, guarded by mutex_: a watch sends
+    // every stage, also one that passed between two of its writes or before it opened.
+    std::vector<v1::Operation> passed;
     v1::BuildRigRequest request;
     std::string key;  // the request without its name: identical builds share one operation
     CancelFlag cancel;

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cstdio>
+#include <string_view>
 
 #include "status_map.h"
 
@@ -30,13 +31,33 @@ std::string request_id_of(const grpc::ServerContext* context, uint64_t counter) 
 
 }  // namespace
 
+void Answering::enter() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++calls_;
+}
+
+void Answering::leave() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    --calls_;
+  }
+  idle_.notify_all();
+}
+
+bool Answering::wait_idle(std::chrono::steady_clock::time_point until) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  return idle_.wait_until(lock, until, [this] { return calls_ == 0; });
+}
+
 Call::Call(CallFrame& frame, grpc::ServerContext* context, const char* method, std::string rig_id)
     : frame_(frame),
       context_(context),
       method_(method),
       rig_id_(std::move(rig_id)),
       request_id_(request_id_of(context, frame.next_request++)),
-      stream_(frame.stall_watch.watch(context)) {
+      stream_(frame.stall_watch.watch(context)),
+      answering_(std::string_view(method) != "Preview") {
+  if (answering_) frame_.answering.enter();
   if (!frame_.tokens.enabled()) return;
   const auto& metadata = context->client_metadata();
   const auto it = metadata.find("authorization");
@@ -47,6 +68,10 @@ Call::Call(CallFrame& frame, grpc::ServerContext* context, const char* method, s
                                     "CLI's --token-file)"
                                   : "the bearer token is not one this server accepts; check your token file (tokens "
                                     "are re-read by the server on SIGHUP)");
+}
+
+Call::~Call() {
+  if (answering_) frame_.answering.leave();
 }
 
 ProgressHooks Call::hooks(int threads) const {

@@ -7,8 +7,10 @@
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 
@@ -20,6 +22,21 @@
 
 namespace posewarp::server {
 
+// The calls whose answers are on their way: every call but a preview's, whose stream stays open as long as its
+// client wants. A stop waits for them before it closes the connections, so that no answer is cut off on the wire.
+class Answering {
+ public:
+  void enter();
+  void leave();
+  // True once no call is answering, false if one still is at `until`.
+  bool wait_idle(std::chrono::steady_clock::time_point until);
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable idle_;
+  int calls_ = 0;
+};
+
 // What every call of one service shares.
 struct CallFrame {
   StallWatch& stall_watch;
@@ -27,6 +44,7 @@ struct CallFrame {
   Metrics& metrics;
   std::string store_directory;  // named in no message a client gets
   std::atomic<uint64_t> next_request{1};
+  Answering answering;
 };
 
 // The status of a call whose client went away (or stalled: Call::done makes that DEADLINE_EXCEEDED).
@@ -39,6 +57,7 @@ class Call {
   Call(CallFrame& frame, grpc::ServerContext* context, const char* method, std::string rig_id = "");
   Call(const Call&) = delete;
   Call& operator=(const Call&) = delete;
+  ~Call();
 
   // The token was missing or not one this server accepts: the call ends with refusal().
   bool refused() const { return !refusal_.ok(); }
@@ -79,6 +98,7 @@ class Call {
   Stopwatch start_;
   std::unique_ptr<StallWatch::Stream> stream_;
   Status refusal_;
+  bool answering_;
 };
 
 }  // namespace posewarp::server

@@ -8,10 +8,13 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <memory>
 #include <string>
+#include <thread>
 
 #include "auth.h"
 #include "metrics.h"
@@ -129,8 +132,19 @@ int run(const ServerConfig& config) {
   spdlog::info("{}: stopping (running poses get {:.0f} s)", received == SIGTERM ? "SIGTERM" : "SIGINT", config.grace_s);
   server->GetHealthCheckService()->SetServingStatus(false);
   service.shutdown();  // builds are cancelled and marked; new requests are refused
+  // The calls answering finish before gRPC's shutdown closes each connection as its last stream ends: closed
+  // then, a connection whose client was still reading a large answer (and acknowledging it) could be reset under
+  // the answer's last bytes. A moment after the last call returns its trailers are on the wire.
+  const auto grace = std::chrono::milliseconds(static_cast<int64_t>(config.grace_s * 1000.0));
+  const auto until = std::chrono::steady_clock::now() + grace;
+  if (service.wait_for_answers(until)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  } else {
+    spdlog::warn("calls still answering after {:.0f} s (--shutdown-grace-s): they are cancelled", config.grace_s);
+  }
   server->Shutdown(std::chrono::system_clock::now() +
-                   std::chrono::milliseconds(static_cast<int64_t>(config.grace_s * 1000.0)));
+                   std::max(std::chrono::milliseconds(0), std::chrono::duration_cast<std::chrono::milliseconds>(
+                                                              until - std::chrono::steady_clock::now())));
   server->Wait();
   spdlog::info("stopped");
   return 0;

@@ -6,6 +6,7 @@
 // poses and previews (pose_stream.h, preview_session.h).
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -98,6 +99,8 @@ class PosewarpService final : public v1::Posewarp::Service {
   // Refuses new work, cancels queued and running builds (marked CANCELLED) and waits for the build workers; poses
   // in flight finish.
   void shutdown();
+  // Waits until every call but a preview has returned its answer, or until `until`: false if one still had not.
+  bool wait_for_answers(std::chrono::steady_clock::time_point until) { return frame_.answering.wait_idle(until); }
 
  private:
   RequestLimits request_limits() const;
