@@ -39,6 +39,8 @@ struct PoseEngine::Prepared {
   skinning::RestTetFrames frames;
   std::map<Label, int64_t> rest_label_counts;  // the report's "before" counts, once
   std::vector<int32_t> rest_owner;   // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
+  // Per source row, where rest_owner and the labels differ from -1 and 0: a turned background's lookups skip the air.
+  resample::RowSpans rest_owner_spans, label_spans;
   resample::BoneVoxels bone_voxels;  // which source voxel is which bone: bones rigid at voxel level
   std::vector<int16_t> region;       // per source voxel: nearest-bone region (skin contacts)
   std::vector<int16_t> tet_region;   // per tet: the region at its rest centroid

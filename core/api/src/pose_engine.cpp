@@ -344,6 +344,8 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       }
       p->rest_owner = std::move(rig.rest_owner);
       p->region = std::move(rig.body_region);
+      p->rest_owner_spans = resample::row_spans(p->rest_owner.data(), rig.labels.size(), -1);
+      p->label_spans = resample::row_spans(rig.labels.data(), rig.labels.size(), 0);
       std::vector<std::vector<Label>> segment_labels;
       for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
       POSEWARP_ASSIGN_OR_RETURN(p->bone_voxels,
@@ -483,6 +485,7 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
                                                       .background_rotation = root.rotation,
                                                       .background_translation = root.translation,
                                                       .rest_owner = &p.rest_owner,
+                                                      .rest_owner_spans = &p.rest_owner_spans,
                                                       .params = params,
                                                       .bones = &bones},
                                                      hooks));
@@ -492,7 +495,7 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
   const LabelVolume* posed_labels = nullptr;
   std::vector<std::pair<double, double>> bone_deviation;  // per segment, found with the labels, for their report
   if (request.want_labels) {
-    POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(p.rig.labels, &bone_deviation));
+    POSEWARP_ASSIGN_OR_RETURN(LabelVolume labels, warp.warp_labels(p.rig.labels, &bone_deviation, &p.label_spans));
     clock.lap("warp-labels");
     if (request.labels_ready) {
       handed_out = std::make_shared<const LabelVolume>(std::move(labels));

@@ -180,6 +180,18 @@ inline int64_t round_index(double x) {
   return r - (y < static_cast<double>(r));
 }
 
+// The box of source voxels that the nearest-voxel lookups at s0 + c ds for c in [c0, c1] land on: each index is
+// round_index(s0 + c ds), every operation of which is monotone in c, so the two ends bound all the lookups between
+// them, exactly (the arithmetic is the lookups' own; far values are clamped, which keeps them off any grid).
+inline void lookup_box(const double s0[3], const double ds[3], int64_t c0, int64_t c1, int64_t lo[3], int64_t hi[3]) {
+  for (int a = 0; a < 3; ++a) {
+    const int64_t first = round_index(std::clamp(s0[a] + double(c0) * ds[a], -1e15, 1e15));
+    const int64_t last = round_index(std::clamp(s0[a] + double(c1) * ds[a], -1e15, 1e15));
+    lo[a] = std::min(first, last);
+    hi[a] = std::max(first, last);
+  }
+}
+
 // Nearest integer of x when x is one to within 1e-9, else false.
 inline bool integral(double x, int64_t& n) {
   n = round_index(x);

@@ -71,16 +71,15 @@ std::pair<int64_t, int64_t> inside_span(const double s0[3], const double ds[3], 
   return {first, last + 1};
 }
 
-// The nearest voxels of `in` (grid m) at s0 + c ds for c in [first, end), each in the grid, to out[c]. The run's
-// values are copied to locals, so that the compiler keeps them in registers across out's stores.
+// The nearest voxels of `in` (grid m) at s0 + c ds for c in [c, end), each in the grid, to out[c]. The run's values
+// are copied to locals, so that the compiler keeps them in registers across out's stores.
 template <typename T>
-void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
-                    int64_t end, T* __restrict out) {
+void nearest_run(const T* __restrict in, const Index3& m, const double s0[3], const double ds[3], int64_t c,
+                 int64_t end, T* __restrict out) {
   const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
   const int64_t sy = m[0], sz = m[0] * m[1];
   // round_index of a sample in the grid: x + 0.5 >= 0 there, where truncation is the floor it takes.
   auto rounded = [](double x) { return static_cast<int64_t>(x + 0.5); };
-  int64_t c = first;
 #if defined(__x86_64__)
   if constexpr (sizeof(T) == 4) {
     if (avx2_gathers(m)) {
@@ -92,6 +91,29 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
     const double dc = double(c);
     out[c] = in[rounded(a0 + dc * d0) + sy * rounded(a1 + dc * d1) + sz * rounded(a2 + dc * d2)];
   }
+}
+
+// nearest_run over [first, end), where with `spans` (RowSpans of `in`, or null) the stretches of a run across the
+// source rows that land off them (a body's air) take the spans' fill without a load.
+template <typename T>
+void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
+                    int64_t end, T* __restrict out, const RowSpans* spans) {
+  if (!spans || (ds[1] == 0.0 && ds[2] == 0.0)) {  // along a source row the loads are a stream
+    nearest_run(in, m, s0, ds, first, end, out);
+    return;
+  }
+  constexpr int64_t kStretch = 64;  // voxels whose landing box is looked up at once
+  int64_t looked_up = first;        // where the voxels not yet written begin
+  for (int64_t c = first; c < end; c += kStretch) {
+    const int64_t stretch_end = std::min(end, c + kStretch);
+    int64_t lo[3], hi[3];
+    lookup_box(s0, ds, c, stretch_end - 1, lo, hi);
+    if (!spans->only_fill(lo, hi)) continue;
+    nearest_run(in, m, s0, ds, looked_up, c, out);  // the stretches before it that land on the body, in one run
+    std::fill(out + c, out + stretch_end, static_cast<T>(spans->fill));
+    looked_up = stretch_end;
+  }
+  nearest_run(in, m, s0, ds, looked_up, end, out);
 }
 
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
@@ -194,6 +216,9 @@ Status check(const WarpInputs& in) {
   }
   if (in.rest_owner && static_cast<int64_t>(in.rest_owner->size()) != in.source.voxel_count()) {
     return invalid_argument_error("the rest ownership does not match the source grid");
+  }
+  if (in.rest_owner_spans && (!in.rest_owner || in.rest_owner_spans->size != in.source.size)) {
+    return invalid_argument_error("the rest ownership's row spans do not match the source grid");
   }
   return ok_status();
 }
@@ -411,10 +436,15 @@ class TetWarp::BoneTally {
 };
 
 Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels,
-                                         std::vector<std::pair<double, double>>* bone_deviation_mm) const {
+                                         std::vector<std::pair<double, double>>* bone_deviation_mm,
+                                         const RowSpans* spans) const {
   if (!labels.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the label volume is not on the grid the rig was built from");
   }
+  if (spans && spans->size != labels.size()) {
+    return invalid_argument_error("the labels' row spans are not of the labels' grid");
+  }
+  if (spans && spans->empty()) spans = nullptr;
   POSEWARP_ASSIGN_OR_RETURN(LabelVolume out,
                             guarded("for the output labels (" + output_.describe() + ")",
                                     [&]() -> Result<LabelVolume> { return LabelVolume(output_, label_background_); }));
@@ -460,7 +490,7 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels,
       return x >= 0 && y >= 0 && z >= 0 && x < m[0] && y < m[1] && z < m[2];
     });
     sample(0, first);
-    nearest_inside(in, m, s0, ds, first, end, dst + v);
+    nearest_inside(in, m, s0, ds, first, end, dst + v, spans);
     sample(std::max(first, end), count);
   };
   for_each_mapped_run([&](int64_t v, int64_t count, const double s0[3], const double ds[3], bool soft) {

@@ -223,12 +223,23 @@ inline int64_t TetWarp::Builder::classify_uncovered_mapped(int32_t* row, int64_t
   const double* bg = warp_.background_map_;
   const double step[3] = {bg[0], bg[3], bg[6]};
   const int32_t* rest_owner = in_.rest_owner->data();
+  // The rest owners' row spans, when they fill with "no tet" (as the source's voxels off the grid do).
+  const RowSpans* spans = in_.rest_owner_spans && in_.rest_owner_spans->fill == -1 ? in_.rest_owner_spans : nullptr;
   // A turned map crosses a source row every few voxels, and each crossing may miss the cache: the voxels are taken
   // a batch at a time, their rest owners fetched in a loop of independent loads, so that the misses overlap.
   constexpr int64_t kBatch = 32;
   int32_t ro[kBatch];
   while (i < stop) {
     const int64_t n = std::min(kBatch, stop - i);
+    int64_t lo[3], hi[3];
+    if (spans && (lookup_box(start, step, i, i + n - 1, lo, hi), spans->only_fill(lo, hi))) {
+      // The batch lands off the body (its source rows' spans): no tet there, nothing to load.
+      for (const int64_t batch_end = i + n; i < batch_end; ++i) {
+        if (row[i] != -1) return i;
+        classify_uncovered(row[i], -1, stats);
+      }
+      continue;
+    }
     int64_t c = 0;
 #if defined(__x86_64__)
     if (wide_source_lookup_) c = rest_owners_avx2(rest_owner, in_.source.size, start, step, i, n, ro);

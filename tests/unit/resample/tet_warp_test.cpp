@@ -186,6 +186,102 @@ TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
   EXPECT_EQ(warp->stats().background_voxels, g.voxel_count() - covered - extrapolated);
 }
 
+// Row spans (row_spans): outside each row's span every voxel holds the fill, the span's ends do not; a box is only
+// fill where none of its rows' spans meets it.
+TEST(RowSpans, BoundEachRowsOtherValuesAndAnswerForBoxes) {
+  const Scene& s = bar_scene();
+  const LabelVolume& labels = s.phantom.labels;
+  const Index3& m = labels.size();
+  const RowSpans spans = row_spans(labels.data(), m, 0);
+  ASSERT_EQ(spans.span.size(), static_cast<size_t>(m[1] * m[2]));
+  int64_t on = 0, empty_rows = 0;
+  for (int64_t z = 0; z < m[2]; ++z) {
+    for (int64_t y = 0; y < m[1]; ++y) {
+      const uint32_t span = spans.span[static_cast<size_t>(y + m[1] * z)];
+      const int64_t lo = span & 0xffff, hi = span >> 16;
+      ASSERT_LE(lo, hi);
+      ASSERT_LE(hi, m[0]);
+      empty_rows += lo == hi ? 1 : 0;
+      on += hi - lo;
+      if (lo < hi) {
+        EXPECT_NE(labels.at(lo, y, z), 0);
+        EXPECT_NE(labels.at(hi - 1, y, z), 0);
+      }
+      for (int64_t x = 0; x < m[0]; ++x) {
+        if (x < lo || x >= hi) {
+          ASSERT_EQ(labels.at(x, y, z), 0) << x << " " << y << " " << z;
+        }
+      }
+      const int64_t row_lo[3] = {0, y, z}, row_hi[3] = {m[0] - 1, y, z};
+      EXPECT_EQ(spans.only_fill(row_lo, row_hi), lo == hi);
+      if (lo > 0) {
+        const int64_t before_hi[3] = {lo - 1, y, z};
+        EXPECT_TRUE(spans.only_fill(row_lo, before_hi));
+      }
+    }
+  }
+  // The bar lies in air: the spans leave most of the grid out, so the warp's skipping is exercised below.
+  EXPECT_GT(empty_rows, 0);
+  EXPECT_LT(on, labels.voxel_count() / 2);
+  const int64_t off_lo[3] = {-5, -5, -5}, off_hi[3] = {-1, -1, -1};
+  EXPECT_TRUE(spans.only_fill(off_lo, off_hi));  // off the grid
+  const int64_t all_lo[3] = {0, 0, 0}, all_hi[3] = {m[0] - 1, m[1] - 1, m[2] - 1};
+  EXPECT_FALSE(spans.only_fill(all_lo, all_hi));
+  EXPECT_FALSE(RowSpans{}.only_fill(all_lo, all_hi));  // no spans: nothing is known
+}
+
+// Where the root moved, the warp with row spans of the rest owners and of the labels is the warp without them,
+// owner for owner and label for label; spans that lie (every row empty) are followed, so they are used; spans of
+// another grid are refused.
+TEST(TetWarp, RowSpansChangeNothingButTheLoadsWhereTheRootMoved) {
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(7.0 * M_PI / 180.0, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(6.3, -4.1, 2.7);
+  const Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
+  const RowSpans owner_spans = row_spans(s.rest_owner.data(), g.size, -1);
+  const RowSpans label_spans = row_spans(s.phantom.labels.data(), g.size, 0);
+  auto warp_with = [&](const RowSpans* spans) {
+    return TetWarp::build({.rest = s.mesh,
+                           .posed = posed,
+                           .source = g,
+                           .output = g,
+                           .background_rotation = r,
+                           .background_translation = t,
+                           .rest_owner = &s.rest_owner,
+                           .rest_owner_spans = spans});
+  };
+  Result<TetWarp> plain = warp_with(nullptr), spanned = warp_with(&owner_spans);
+  ASSERT_TRUE(plain.ok() && spanned.ok());
+  EXPECT_EQ(plain->owner(), spanned->owner());
+  EXPECT_EQ(plain->stats().background_voxels, spanned->stats().background_voxels);
+  EXPECT_EQ(plain->stats().covered_voxels, spanned->stats().covered_voxels);
+  EXPECT_EQ(plain->stats().extrapolated_voxels, spanned->stats().extrapolated_voxels);
+  Result<LabelVolume> labels = plain->warp_labels(s.phantom.labels);
+  Result<LabelVolume> labels_spanned = spanned->warp_labels(s.phantom.labels, nullptr, &label_spans);
+  ASSERT_TRUE(labels.ok() && labels_spanned.ok());
+  EXPECT_EQ(labels->voxels(), labels_spanned->voxels());
+
+  RowSpans lying = label_spans;  // every row said to be all background
+  std::fill(lying.span.begin(), lying.span.end(), 0u);
+  Result<LabelVolume> lied = plain->warp_labels(s.phantom.labels, nullptr, &lying);
+  ASSERT_TRUE(lied.ok());
+  EXPECT_NE(labels->voxels(), lied->voxels());
+  RowSpans lying_owners = owner_spans;
+  std::fill(lying_owners.span.begin(), lying_owners.span.end(), 0u);
+  Result<TetWarp> lied_warp = warp_with(&lying_owners);
+  ASSERT_TRUE(lied_warp.ok());
+  EXPECT_GT(lied_warp->stats().background_voxels, plain->stats().background_voxels);
+
+  RowSpans other = label_spans;
+  other.size = {g.size[0], g.size[1], g.size[2] + 1};
+  EXPECT_EQ(plain->warp_labels(s.phantom.labels, nullptr, &other).status().code(), StatusCode::kInvalidArgument);
+  other = owner_spans;
+  other.size = {g.size[0] + 1, g.size[1], g.size[2]};
+  EXPECT_EQ(warp_with(&other).status().code(), StatusCode::kInvalidArgument);
+}
+
 TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();

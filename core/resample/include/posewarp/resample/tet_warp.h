@@ -16,6 +16,7 @@
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/resample/rigid_bones.h"
+#include "posewarp/resample/row_spans.h"
 
 namespace posewarp::resample {
 
@@ -88,6 +89,9 @@ struct WarpInputs {
   // that follow the background are not rasterized, and source voxels owned by moving tets are never copied by the
   // background transform (so a moved limb leaves no ghost). Null: every tet is rasterized.
   const std::vector<int32_t>* rest_owner = nullptr;
+  // Optional, row_spans(rest_owner, source size, -1): the classification's lookups along a turned background skip
+  // the source voxels off them (a body's air). Spans of other values than rest_owner's give a wrong warp.
+  const RowSpans* rest_owner_spans = nullptr;
   ResampleParams params = {};
   // Bones rigid at voxel level (may be null). An output voxel that bone segment k's rigid inverse maps onto a source
   // voxel of segment k takes that map, whatever tet covers it; a voxel a moving tet or the skin shell maps onto a
@@ -127,9 +131,11 @@ class TetWarp {
   // Labels by nearest neighbour: every output value is a value of the source. With `bone_deviation_mm` (filled with
   // RigidBones, left empty without), found in the same walk: per bone segment, how far (mm) the output voxels that
   // end up holding a value of that bone sample from where the bone's own rigid inverse would (0 for every voxel a bone
-  // owns), {max, 99th percentile}.
+  // owns), {max, 99th percentile}. With `spans` (row_spans of `source`'s voxels, computed once per source), the lookups
+  // along a turned background skip the voxels off them; spans of other values than source's give wrong labels.
   Result<LabelVolume> warp_labels(const LabelVolume& source,
-                                  std::vector<std::pair<double, double>>* bone_deviation_mm = nullptr) const;
+                                  std::vector<std::pair<double, double>>* bone_deviation_mm = nullptr,
+                                  const RowSpans* spans = nullptr) const;
   // Intensities, trilinear or nearest; the result keeps the source's type on disk.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
   // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
