@@ -38,11 +38,12 @@ struct PoseEngine::Prepared {
   Rig rig;
   skinning::RestTetFrames frames;
   std::map<Label, int64_t> rest_label_counts;  // the report's "before" counts, once
-  std::vector<int32_t> rest_owner;   // TetWarp::owner() of the identity warp: the warp's lookups, forward fields
-  // Per source row, where rest_owner and the labels differ from -1 and 0: a turned background's lookups skip the air.
-  resample::RowSpans rest_owner_spans, label_spans;
+  // TetWarp::owner() of the identity warp, packed on its rows' spans (-1 off them): the warp's lookups, forward fields.
+  RowPacked<int32_t> rest_owner;
+  // Per source row, where the labels differ from 0: a turned background's lookups skip the air.
+  resample::RowSpans label_spans;
   resample::BoneVoxels bone_voxels;  // which source voxel is which bone: bones rigid at voxel level
-  std::vector<int16_t> region;       // per source voxel: nearest-bone region (skin contacts)
+  RowPacked<int16_t> region;         // per source voxel: nearest-bone region, -1 off the body (skin contacts)
   std::vector<int16_t> tet_region;   // per tet: the region at its rest centroid
   std::vector<uint8_t> separated;    // regions that must not show each other's tissue
   float ct_minimum = 0.0f;           // the CT's lowest value: the warp's background is never below it

@@ -15,12 +15,12 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
   POSEWARP_ASSIGN_OR_RETURN(
       resample::TetWarp identity,
       resample::TetWarp::build({.rest = rig.mesh, .posed = rig.mesh.vertices, .source = g, .output = g}, hooks));
-  rig.rest_owner = identity.owner();
+  rig.rest_owner = RowPacked<int32_t>::pack(identity.owner().data(), g.size, -1);
   // Body regions for the skin-contact guard: the body as a build with the default body parameters makes it.
   POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
                             labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
   POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
-  rig.body_region = std::move(regions.segment);
+  rig.body_region = RowPacked<int16_t>::pack(regions.segment.data(), g.size, int16_t{-1});
   std::vector<std::vector<Label>> segment_labels;
   for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
   POSEWARP_ASSIGN_OR_RETURN(resample::BoneVoxels bones, resample::bone_voxels(rig.labels, segment_labels));

@@ -280,7 +280,7 @@ void forward_field(const Prepared& p, const skinning::SegmentTransforms& segment
           const int64_t v = source.offset(i, j, k);
           const Vec3 at = source.index_to_physical({double(i), double(j), double(k)});
           const Eigen::Vector3d x(at[0], at[1], at[2]);
-          int32_t t = p.rest_owner[static_cast<size_t>(v)];
+          int32_t t = p.rest_owner.at(i, j, k);
           if (t <= -2) t = -2 - t;
           Eigen::Vector3d moved;
           const int16_t bone = p.bone_voxels.segment_of(v);
@@ -307,7 +307,7 @@ void forward_field(const Prepared& p, const skinning::SegmentTransforms& segment
 }
 
 // Per tet: the body region at its rest centroid (-1 outside the grid), for the warp's skin-contact guard.
-std::vector<int16_t> tet_regions(const Rig& rig, const std::vector<int16_t>& region) {
+std::vector<int16_t> tet_regions(const Rig& rig, const RowPacked<int16_t>& region) {
   const ImageGeometry& g = rig.labels.geometry();
   const PhysicalToIndex to_index(g);
   std::vector<int16_t> tet_region(static_cast<size_t>(rig.mesh.tet_count()), -1);
@@ -320,8 +320,7 @@ std::vector<int16_t> tet_regions(const Rig& rig, const std::vector<int16_t>& reg
       // undefined; such a centre lies in no voxel.
       auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
       const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
-      if (rig.labels.contains(i, j, k))
-        tet_region[static_cast<size_t>(t)] = region[static_cast<size_t>(g.offset(i, j, k))];
+      if (rig.labels.contains(i, j, k)) tet_region[static_cast<size_t>(t)] = region.at(i, j, k);
     }
   });
   return tet_region;
@@ -344,7 +343,6 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       }
       p->rest_owner = std::move(rig.rest_owner);
       p->region = std::move(rig.body_region);
-      p->rest_owner_spans = resample::row_spans(p->rest_owner.data(), rig.labels.size(), -1);
       p->label_spans = resample::row_spans(rig.labels.data(), rig.labels.size(), 0);
       std::vector<std::vector<Label>> segment_labels;
       for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
@@ -485,7 +483,6 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
                                                       .background_rotation = root.rotation,
                                                       .background_translation = root.translation,
                                                       .rest_owner = &p.rest_owner,
-                                                      .rest_owner_spans = &p.rest_owner_spans,
                                                       .params = params,
                                                       .bones = &bones},
                                                      hooks));

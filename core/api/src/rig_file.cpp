@@ -371,8 +371,9 @@ Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32
   if (t == kLabelVolume) return internal::read_volume_section(payload, name, format, rig.labels);
   if (t == kCtVolume) return internal::read_volume_section(payload, name, format, *rig.ct);
   const int64_t voxels = grid_voxels(rig);  // GEOM was read before the bulk sections
-  if (t == kRestOwner) return internal::read_owner_section(payload, voxels, rig.rest_owner);
-  if (t == kBodyRegion) return internal::read_region_section(payload, voxels, rig.body_region);
+  const Index3 grid = voxels >= 0 ? rig.source_geometry.size : Index3{0, 0, 0};
+  if (t == kRestOwner) return internal::read_owner_section(payload, grid, rig.rest_owner);
+  if (t == kBodyRegion) return internal::read_region_section(payload, grid, rig.body_region);
   return internal::read_substitute_section(payload, voxels, *rig.bone_substitute);
 }
 

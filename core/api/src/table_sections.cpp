@@ -21,25 +21,30 @@ Status check_engine_tables(const Rig& rig) {
   }
   if (rig.rest_owner.empty() && rig.body_region.empty() && !rig.bone_substitute) return ok_status();
   const auto voxels = static_cast<size_t>(rig.labels.voxel_count());
-  if (rig.rest_owner.size() != voxels || rig.body_region.size() != voxels || !rig.bone_substitute ||
+  if (rig.rest_owner.size() != rig.labels.size() || rig.body_region.size() != rig.labels.size() ||
+      rig.rest_owner.fill() != -1 || rig.body_region.fill() != -1 || !rig.bone_substitute ||
       rig.bone_substitute->voxel.size() != rig.bone_substitute->substitute.size()) {
     return data_loss_error("rig's owner, region and substitute tables (sections OWNR, REGN, SUBS) do not hold one "
                            "value per voxel of its volumes; the file is damaged. Rebuild the rig");
   }
   const int64_t tets = rig.mesh.tet_count();
   const auto segments = static_cast<int64_t>(rig.skeleton.segments.size());
+  // The values the tables keep (every voxel off them holds -1, which both allow).
   std::atomic<bool> in_range{true};
-  parallel_for(0, static_cast<int64_t>(voxels), int64_t{1} << 20, [&](int64_t begin, int64_t end) {
+  const int32_t* owners = rig.rest_owner.values();
+  parallel_for(0, static_cast<int64_t>(rig.rest_owner.stored()), int64_t{1} << 20, [&](int64_t begin, int64_t end) {
     bool ok = true;
     for (int64_t v = begin; v < end; ++v) {
       // A tet (>= 0), a tet's skin shell (-2 - tet), the background (-1) or nothing (kNoSample).
-      const int64_t owner = rig.rest_owner[static_cast<size_t>(v)];
-      const int16_t region = rig.body_region[static_cast<size_t>(v)];
-      ok &= ((owner >= -1 - tets && owner < tets) || owner == resample::TetWarp::kNoSample) && region >= -1 &&
-            region < segments;
+      const int64_t owner = owners[v];
+      ok &= (owner >= -1 - tets && owner < tets) || owner == resample::TetWarp::kNoSample;
     }
     if (!ok) in_range = false;
   });
+  const int16_t* regions = rig.body_region.values();
+  for (size_t v = 0; v < rig.body_region.stored(); ++v) {
+    if (regions[v] < -1 || regions[v] >= segments) in_range = false;
+  }
   bool ascending = true;
   const BoneSubstitutes& substitutes = *rig.bone_substitute;
   for (size_t e = 0; e < substitutes.voxel.size(); ++e) {
@@ -137,12 +142,29 @@ Result<Runs<T>> read_runs(std::string_view payload, const char* name, int64_t vo
   return out;
 }
 
+// A table kept on its rows' spans as runs: each row's leading fill, its span's values, its trailing fill.
 template <typename T>
-Status read_runs_section(std::string_view payload, const char* name, int64_t voxels, std::vector<T>& values) {
+std::string runs_section(const RowPacked<T>& table) {
+  Runs<T> runs;
+  const Index3& m = table.size();
+  for (int64_t z = 0; z < m[2]; ++z) {
+    for (int64_t y = 0; y < m[1]; ++y) {
+      int64_t lo = 0, hi = 0;
+      const T* span = table.row(y, z, lo, hi);
+      runs.extend(table.fill(), static_cast<uint32_t>(lo));
+      for (int64_t x = lo; x < hi; ++x) runs.extend(span[x - lo], 1);
+      runs.extend(table.fill(), static_cast<uint32_t>(m[0] - hi));
+    }
+  }
+  return runs.packed(static_cast<uint64_t>(table.voxel_count()));
+}
+
+// A runs section read straight onto the rows' spans of grid m (fill -1): the whole grid is never expanded.
+template <typename T>
+Status read_runs_section(std::string_view payload, const char* name, const Index3& m, RowPacked<T>& table) {
+  const int64_t voxels = m[0] > 0 && m[1] > 0 && m[2] > 0 ? m[0] * m[1] * m[2] : -1;
   POSEWARP_ASSIGN_OR_RETURN(const Runs<T> runs, read_runs<T>(payload, name, voxels));
-  values.resize(static_cast<size_t>(voxels));
-  T* out = values.data();
-  for (size_t r = 0; r < runs.values.size(); ++r) out = std::fill_n(out, runs.lengths[r], runs.values[r]);
+  table = RowPacked<T>::from_runs(runs.values.data(), runs.lengths.data(), runs.values.size(), m, T{-1});
   return ok_status();
 }
 
@@ -156,9 +178,13 @@ bool inflate_exactly(std::string_view packed, void* out, size_t out_bytes) {
          LIBDEFLATE_SUCCESS;
 }
 
-std::string owner_section(const std::vector<int32_t>& owner) { return runs_section(owner); }
+std::string owner_section(const RowPacked<int32_t>& owner) {
+  return runs_section(owner);
+}
 
-std::string region_section(const std::vector<int16_t>& region) { return runs_section(region); }
+std::string region_section(const RowPacked<int16_t>& region) {
+  return runs_section(region);
+}
 
 // Each substitute is stored as its offset from its own voxel: 0 but at the bones listed.
 std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxels) {
@@ -174,12 +200,12 @@ std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxel
   return runs.packed(static_cast<uint64_t>(voxels));
 }
 
-Status read_owner_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& owner) {
-  return read_runs_section(payload, "OWNR", voxels, owner);
+Status read_owner_section(std::string_view payload, const Index3& grid, RowPacked<int32_t>& owner) {
+  return read_runs_section(payload, "OWNR", grid, owner);
 }
 
-Status read_region_section(std::string_view payload, int64_t voxels, std::vector<int16_t>& region) {
-  return read_runs_section(payload, "REGN", voxels, region);
+Status read_region_section(std::string_view payload, const Index3& grid, RowPacked<int16_t>& region) {
+  return read_runs_section(payload, "REGN", grid, region);
 }
 
 Status read_substitute_section(std::string_view payload, int64_t voxels, BoneSubstitutes& substitutes) {

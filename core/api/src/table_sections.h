@@ -15,13 +15,15 @@ namespace posewarp::api::internal {
 // grid: the warp indexes with them.
 Status check_engine_tables(const Rig& rig);
 
-// The tables as rig file sections (runs of equal values, deflated) and back. `voxels` is the rig's grid
-// (source_geometry): a table of another size, or a damaged payload, is DATA_LOSS before anything large is allocated.
-std::string owner_section(const std::vector<int32_t>& owner);
-std::string region_section(const std::vector<int16_t>& region);
+// The tables as rig file sections (runs of equal values, deflated) and back. `grid` and `voxels` are the rig's grid
+// (source_geometry; voxels -1 and a size of 0 for a grid that is not one): a table of another size, or a damaged
+// payload, is DATA_LOSS before anything large is allocated. The owner and region tables are read straight onto their
+// rows' spans (fill -1).
+std::string owner_section(const RowPacked<int32_t>& owner);
+std::string region_section(const RowPacked<int16_t>& region);
 std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxels);  // as offsets, 0 but at bones
-Status read_owner_section(std::string_view payload, int64_t voxels, std::vector<int32_t>& owner);
-Status read_region_section(std::string_view payload, int64_t voxels, std::vector<int16_t>& region);
+Status read_owner_section(std::string_view payload, const Index3& grid, RowPacked<int32_t>& owner);
+Status read_region_section(std::string_view payload, const Index3& grid, RowPacked<int16_t>& region);
 Status read_substitute_section(std::string_view payload, int64_t voxels, BoneSubstitutes& substitutes);
 
 // zlib-format data inflated into `out` (exactly out_bytes), as libdeflate does it: twice zlib's speed, for the rig's

@@ -114,21 +114,23 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
   return c;
 }
 
-// rest_owner at the nearest source voxel of start + c step, for c in [c0, c0 + n), to ro[c - c0] (-1 off the grid m),
-// four voxels at a time in AVX2, without FMA: each lane does source_voxel's IEEE operations (round_index(x) is
-// floor(x + 0.5)), so it finds the same voxel. The grid must hold fewer than 2^31 voxels (the offsets are int32).
-// Returns how many it did (a whole number of fours).
-__attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_owner, const Index3& m,
-                                                         const double start[3], const double step[3], int64_t c0,
-                                                         int64_t n, int32_t* ro) {
+// rest_owner at the nearest source voxel of start + c step, for c in [c0, c0 + n), to ro[c - c0] (-1 off the grid or
+// off its row's span), four voxels at a time in AVX2, without FMA: each lane does source_voxel's IEEE operations
+// (round_index(x) is floor(x + 0.5)), so it finds the same voxel; then its row's entry (base | lo << 32 | hi << 48)
+// and, on the span, its value. The grid must hold fewer than 2^31 voxels and be packed (rows() not empty). No lines
+// are asked for ahead: the packed values are a sixth of the grid's on a body, and asking (a row entry read per lane
+// ahead) cost more than it saved. Returns how many it did (a whole number of fours).
+__attribute__((target("avx2"))) int64_t rest_owners_avx2(const RowPacked<int32_t>& rest_owner, const double start[3],
+                                                         const double step[3], int64_t c0, int64_t n, int32_t* ro) {
+  const Index3& m = rest_owner.size();
+  const long long* rows = reinterpret_cast<const long long*>(rest_owner.rows().data());
+  const int32_t* values = rest_owner.values();
   const __m256d zero = _mm256_setzero_pd();
   const __m256d mx = _mm256_set1_pd(double(m[0])), my = _mm256_set1_pd(double(m[1])), mz = _mm256_set1_pd(double(m[2]));
   const __m256d s0[3] = {_mm256_set1_pd(start[0]), _mm256_set1_pd(start[1]), _mm256_set1_pd(start[2])};
   const __m256d ds[3] = {_mm256_set1_pd(step[0]), _mm256_set1_pd(step[1]), _mm256_set1_pd(step[2])};
   const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
-  constexpr int64_t kAhead = 64;
-  const bool across_rows = step[1] != 0.0 || step[2] != 0.0;  // along a row, the hardware's prefetcher sees them coming
-  const __m256d last = _mm256_set1_pd(double(m[0] * m[1] * m[2] - 1));
+  const __m256i span_bits = _mm256_set1_epi64x(0xffff);
   int64_t c = 0;
   for (; c + 4 <= n; c += 4) {
     const double at = double(c0 + c);
@@ -139,17 +141,20 @@ __attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_own
         _mm256_and_pd(_mm256_and_pd(_mm256_cmp_pd(u[0], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[0], mx, _CMP_LT_OQ)),
                       _mm256_and_pd(_mm256_cmp_pd(u[1], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[1], my, _CMP_LT_OQ))),
         _mm256_and_pd(_mm256_cmp_pd(u[2], zero, _CMP_GE_OQ), _mm256_cmp_pd(u[2], mz, _CMP_LT_OQ)));
-    // Under 2^31 in every lane inside; the lanes outside gather nothing.
-    const __m128i index = _mm256_cvttpd_epi32(_mm256_and_pd(offset_x4(u, mx, my), inside));
-    const __m128i mask = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(inside), low_halves));
-    if (across_rows) {  // the lines kAhead voxels on, asked for now: a batch's loads alone leave too few in flight
-      __m256d a[3];
-      nearest_x4(s0, ds, _mm256_add_pd(cc, _mm256_set1_pd(double(kAhead))), a);
-      const __m128i ai = _mm256_cvttpd_epi32(_mm256_min_pd(_mm256_max_pd(offset_x4(a, mx, my), zero), last));
-      _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_cvtsi128_si32(ai)), _MM_HINT_T0);
-      _mm_prefetch(reinterpret_cast<const char*>(rest_owner + _mm_extract_epi32(ai, 2)), _MM_HINT_T0);
-    }
-    const __m128i found = _mm_mask_i32gather_epi32(_mm_set1_epi32(-1), rest_owner, index, mask, 4);
+    // Each lane's row y + m1 z and x, under 2^31 inside; the lanes outside look nothing up.
+    const __m128i row = _mm256_cvttpd_epi32(_mm256_and_pd(_mm256_add_pd(u[1], _mm256_mul_pd(my, u[2])), inside));
+    const __m128i x = _mm256_cvttpd_epi32(_mm256_and_pd(u[0], inside));
+    const __m256i entry =
+        _mm256_mask_i32gather_epi64(_mm256_setzero_si256(), rows, row, _mm256_castpd_si256(inside), 8);
+    // On the span: lo <= x < hi, in 64-bit lanes (an empty row's lo == hi == 0 holds no x).
+    const __m256i x64 = _mm256_cvtepi32_epi64(x);
+    const __m256i lo = _mm256_and_si256(_mm256_srli_epi64(entry, 32), span_bits), hi = _mm256_srli_epi64(entry, 48);
+    const __m256i on_span = _mm256_andnot_si256(_mm256_cmpgt_epi64(lo, x64), _mm256_cmpgt_epi64(hi, x64));
+    const __m256i found_mask = _mm256_and_si256(on_span, _mm256_castpd_si256(inside));
+    const __m128i mask = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(found_mask, low_halves));
+    const __m128i base = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(entry, low_halves));
+    const __m128i index = _mm_and_si128(_mm_add_epi32(base, x), mask);
+    const __m128i found = _mm_mask_i32gather_epi32(_mm_set1_epi32(-1), values, index, mask, 4);
     _mm_storeu_si128(reinterpret_cast<__m128i*>(ro + c), found);
   }
   return c;

@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "posewarp/common/image_geometry.h"
+#include "posewarp/common/row_packed.h"
 
 namespace posewarp::resample::internal {
 
@@ -31,12 +32,11 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
                                                        const double ds[3], int64_t c, int64_t end,
                                                        float* __restrict out);
 
-// The classification's lookups along a turned background (warp_builder.cpp): rest_owner at the nearest source voxel
-// of start + c step for c in [c0, c0 + n), to ro[c - c0], -1 off the grid m (fewer than 2^31 voxels); the lines 64
-// voxels on asked for ahead. Returns how many it did (a whole number of fours).
-__attribute__((target("avx2"))) int64_t rest_owners_avx2(const int32_t* rest_owner, const Index3& m,
-                                                         const double start[3], const double step[3], int64_t c0,
-                                                         int64_t n, int32_t* ro);
+// The classification's lookups along a turned background (warp_builder.cpp): rest_owner (packed rows, a grid of
+// fewer than 2^31 voxels) at the nearest source voxel of start + c step for c in [c0, c0 + n), to ro[c - c0], -1 off
+// the grid or off its row's span. Returns how many it did (a whole number of fours).
+__attribute__((target("avx2"))) int64_t rest_owners_avx2(const RowPacked<int32_t>& rest_owner, const double start[3],
+                                                         const double step[3], int64_t c0, int64_t n, int32_t* ro);
 #endif
 
 }  // namespace posewarp::resample::internal

@@ -197,10 +197,9 @@ Status check(const WarpInputs& in) {
         bones->rotation.size() > static_cast<size_t>(TetWarp::kMaxBoneSegments)) {
       return invalid_argument_error("the bone transforms do not match the bone segments");
     }
-    if (bones->region &&
-        (static_cast<int64_t>(bones->region->size()) != in.source.voxel_count() || !bones->tet_region ||
-         static_cast<int64_t>(bones->tet_region->size()) != in.rest.tet_count() || !bones->separated ||
-         bones->separated->size() != bones->rotation.size() * bones->rotation.size())) {
+    if (bones->region && (bones->region->size() != in.source.size || !bones->tet_region ||
+                          static_cast<int64_t>(bones->tet_region->size()) != in.rest.tet_count() || !bones->separated ||
+                          bones->separated->size() != bones->rotation.size() * bones->rotation.size())) {
       return invalid_argument_error("the body regions do not match the source grid, the mesh or the segments");
     }
   }
@@ -214,11 +213,8 @@ Status check(const WarpInputs& in) {
     return resource_exhausted_error("the output grid has " + std::to_string(in.output.voxel_count()) +
                                     " voxels, over the limit of " + std::to_string(in.params.max_output_voxels));
   }
-  if (in.rest_owner && static_cast<int64_t>(in.rest_owner->size()) != in.source.voxel_count()) {
+  if (in.rest_owner && (in.rest_owner->size() != in.source.size || in.rest_owner->fill() != -1)) {
     return invalid_argument_error("the rest ownership does not match the source grid");
-  }
-  if (in.rest_owner_spans && (!in.rest_owner || in.rest_owner_spans->size != in.source.size)) {
-    return invalid_argument_error("the rest ownership's row spans do not match the source grid");
   }
   return ok_status();
 }

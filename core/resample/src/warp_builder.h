@@ -88,8 +88,8 @@ class TetWarp::Builder {
   static bool row_in_source_box(const double* map, int64_t j, int64_t k, const std::array<int64_t, 6>& box, double& lo,
                                 double& hi);
   void classify_slab(int64_t s);
-  int64_t classify_uncovered_run(int32_t* row, int64_t i, int64_t stop, int64_t x0, const int32_t* rest_row,
-                                 WarpStats& stats) const;
+  int64_t classify_uncovered_run(int32_t* row, int64_t i, int64_t stop, int64_t x0, const int32_t* span, int64_t lo,
+                                 int64_t hi, WarpStats& stats) const;
   int64_t classify_uncovered_mapped(int32_t* row, int64_t i, int64_t stop, const double start[3],
                                     WarpStats& stats) const;
   void classify_uncovered(int32_t& o, int32_t ro, WarpStats& stats) const;

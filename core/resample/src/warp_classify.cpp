@@ -19,8 +19,10 @@ inline int64_t TetWarp::Builder::source_voxel(const double s[3]) const {
 
 // The tet (rest owner code) that holds source index s in the rest pose; -1 when none or outside the grid.
 inline int32_t TetWarp::Builder::rest_owner_at(const double s[3]) const {
-  const int64_t v = source_voxel(s);
-  return v < 0 ? -1 : (*in_.rest_owner)[static_cast<size_t>(v)];
+  const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
+  const Index3& m = in_.source.size;
+  if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return -1;
+  return in_.rest_owner->at(x, y, z);
 }
 
 // The bone segment of the source voxel `map` takes output voxel (i, j, k) to; -1 for none or outside the grid.
@@ -39,9 +41,10 @@ inline void TetWarp::Builder::guard_contact(int32_t& o, int64_t i, int64_t j, in
   const int rt = (*in_.bones->tet_region)[static_cast<size_t>(warp_.tets_[static_cast<size_t>(c)])];
   double src[3];
   apply_map(warp_.maps_.get() + 12 * c, double(i), double(j), double(k), src);
-  const int64_t v = source_voxel(src);
-  if (rt < 0 || v < 0) return;
-  const int rs = (*in_.bones->region)[static_cast<size_t>(v)];
+  const int64_t x = round_index(src[0]), y = round_index(src[1]), z = round_index(src[2]);
+  const Index3& m = in_.source.size;
+  if (rt < 0 || x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return;
+  const int rs = in_.bones->region->at(x, y, z);
   if (rs < 0 || rs == rt ||
       !(*in_.bones->separated)[static_cast<size_t>(rt) * segment_count_ + static_cast<size_t>(rs)])
     return;
@@ -146,11 +149,13 @@ void TetWarp::Builder::classify_slab(int64_t s) {
       // Where the background map runs along one source row (the root does not move and the grid is the input's),
       // a row's rest owners are one row of rest_owner.
       double row[3];
-      const int32_t* rest_row = nullptr;  // rest_owner at source x = i + x0 for this output row
-      int64_t x0 = 0, y = 0, z = 0;
+      // The rest owners at source x = i + x0 for this output row: rest_span[x - span_lo] for x in [span_lo,
+      // span_hi), -1 elsewhere.
+      const int32_t* rest_span = nullptr;
+      int64_t x0 = 0, y = 0, z = 0, span_lo = 0, span_hi = 0;
       const bool fast = along_source_row(bg, double(j), double(k), row, x0, y, z) && in_.rest_owner;
       if (fast && y >= 0 && z >= 0 && y < in_.source.size[1] && z < in_.source.size[2]) {
-        rest_row = in_.rest_owner->data() + in_.source.offset(0, y, z);
+        rest_span = in_.rest_owner->row(y, z, span_lo, span_hi);
       }
       // The moving bones' reach on this row: outside it, and off the shell, a voxel no moving tet covers is
       // classified by its rest owner alone (no fold, no contact to guard, no bone to claim).
@@ -166,7 +171,7 @@ void TetWarp::Builder::classify_slab(int64_t s) {
           // it, a moving bone reaches it, or it is in the shell), in one loop.
           const int64_t shell_at = next_shell < found.size() ? found[next_shell].first - local_begin : n_[0];
           const int64_t stop = std::min({n_[0], shell_at, i < bones_lo ? bones_lo : n_[0]});
-          i = (fast ? classify_uncovered_run(owner_ + row_begin, i, stop, x0, rest_row, stats)
+          i = (fast ? classify_uncovered_run(owner_ + row_begin, i, stop, x0, rest_span, span_lo, span_hi, stats)
                     : classify_uncovered_mapped(owner_ + row_begin, i, stop, row, stats)) -
               1;
           continue;
@@ -185,7 +190,7 @@ void TetWarp::Builder::classify_slab(int64_t s) {
           int32_t ro = -1;
           if (fast) {
             const int64_t x = x0 + i;
-            if (rest_row && x >= 0 && x < in_.source.size[0]) ro = rest_row[x];
+            if (x >= span_lo && x < span_hi) ro = rest_span[x - span_lo];
           } else {
             const double di = double(i);
             const double sb[3] = {row[0] + di * bg[0], row[1] + di * bg[3], row[2] + di * bg[6]};
@@ -204,14 +209,14 @@ void TetWarp::Builder::classify_slab(int64_t s) {
 }
 
 // classify_uncovered for voxels i.. of an output row (`row`: their owners) up to `stop` or the first that a moving
-// tet covers, whose rest owners are rest_row[x0 + i] (none where rest_row is null or x is off the source grid).
+// tet covers, whose rest owners are span[x0 + i - lo] where x0 + i is in [lo, hi) (a source row's span), -1 elsewhere.
 // Returns where it stopped.
 inline int64_t TetWarp::Builder::classify_uncovered_run(int32_t* row, int64_t i, int64_t stop, int64_t x0,
-                                                        const int32_t* rest_row, WarpStats& stats) const {
-  const int64_t width = in_.source.size[0];
+                                                        const int32_t* span, int64_t lo, int64_t hi,
+                                                        WarpStats& stats) const {
   for (; i < stop && row[i] == -1; ++i) {
     const int64_t x = x0 + i;
-    classify_uncovered(row[i], rest_row && x >= 0 && x < width ? rest_row[x] : -1, stats);
+    classify_uncovered(row[i], x >= lo && x < hi ? span[x - lo] : -1, stats);
   }
   return i;
 }
@@ -222,9 +227,7 @@ inline int64_t TetWarp::Builder::classify_uncovered_mapped(int32_t* row, int64_t
                                                            WarpStats& stats) const {
   const double* bg = warp_.background_map_;
   const double step[3] = {bg[0], bg[3], bg[6]};
-  const int32_t* rest_owner = in_.rest_owner->data();
-  // The rest owners' row spans, when they fill with "no tet" (as the source's voxels off the grid do).
-  const RowSpans* spans = in_.rest_owner_spans && in_.rest_owner_spans->fill == -1 ? in_.rest_owner_spans : nullptr;
+  const RowPacked<int32_t>& rest_owner = *in_.rest_owner;  // filled with "no tet", as the source's voxels off the grid
   // A turned map crosses a source row every few voxels, and each crossing may miss the cache: the voxels are taken
   // a batch at a time, their rest owners fetched in a loop of independent loads, so that the misses overlap.
   constexpr int64_t kBatch = 32;
@@ -232,7 +235,7 @@ inline int64_t TetWarp::Builder::classify_uncovered_mapped(int32_t* row, int64_t
   while (i < stop) {
     const int64_t n = std::min(kBatch, stop - i);
     int64_t lo[3], hi[3];
-    if (spans && (lookup_box(start, step, i, i + n - 1, lo, hi), spans->only_fill(lo, hi))) {
+    if (lookup_box(start, step, i, i + n - 1, lo, hi), rest_owner.only_fill(lo, hi)) {
       // The batch lands off the body (its source rows' spans): no tet there, nothing to load.
       for (const int64_t batch_end = i + n; i < batch_end; ++i) {
         if (row[i] != -1) return i;
@@ -242,13 +245,12 @@ inline int64_t TetWarp::Builder::classify_uncovered_mapped(int32_t* row, int64_t
     }
     int64_t c = 0;
 #if defined(__x86_64__)
-    if (wide_source_lookup_) c = rest_owners_avx2(rest_owner, in_.source.size, start, step, i, n, ro);
+    if (wide_source_lookup_ && !rest_owner.rows().empty()) c = rest_owners_avx2(rest_owner, start, step, i, n, ro);
 #endif
     for (; c < n; ++c) {
       const double di = double(i + c);
       const double sb[3] = {start[0] + di * step[0], start[1] + di * step[1], start[2] + di * step[2]};
-      const int64_t at = source_voxel(sb);
-      ro[c] = at < 0 ? -1 : rest_owner[at];
+      ro[c] = rest_owner_at(sb);
     }
     for (c = 0; c < n; ++c, ++i) {
       if (row[i] != -1) return i;

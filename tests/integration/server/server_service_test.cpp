@@ -498,7 +498,7 @@ TEST_F(ServerService, AnOlderRigIsCompletedOnItsFirstLoadAndKeptSoInTheStore) {
   Result<api::Rig> kept = api::load_rig(file.string());
   ASSERT_TRUE(kept.ok()) << kept.status().to_string();
   EXPECT_EQ(kept->id(), rig_id);
-  EXPECT_EQ(kept->rest_owner.size(), static_cast<size_t>(kept->labels.voxel_count()));
+  EXPECT_EQ(kept->rest_owner.size(), kept->labels.size());
   EXPECT_EQ(static_cast<int64_t>(kept->skin_vertex.size()), kept->mesh.vertex_count());
   ServerProcess again(where, {}, {}, where.string() + "-again.log");
   auto stub = v1::Posewarp::NewStub(again.channel());

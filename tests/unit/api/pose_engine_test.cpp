@@ -434,8 +434,8 @@ TEST(Posing, PhasesReachTheHookInOrderAndChangeNothing) {
 TEST(Posing, ARigWithoutItsEngineTablesPosesTheSame) {
   Rig old = shared_bar_rig();
   ASSERT_FALSE(old.rest_owner.empty());
-  old.rest_owner.clear();
-  old.body_region.clear();
+  old.rest_owner = {};
+  old.body_region = {};
   old.bone_substitute.reset();
   Result<PoseEngine> engine = PoseEngine::create(std::move(old));
   ASSERT_TRUE(engine.ok()) << engine.status().to_string();
@@ -489,7 +489,7 @@ TEST(Posing, ACompletedOldRigHoldsWhatItsEngineMadeAndPosesTheSame) {
   Result<bool> added = complete_rig(completed);
   ASSERT_TRUE(added.ok()) << added.status().to_string();
   EXPECT_TRUE(*added);
-  EXPECT_EQ(completed.rest_owner.size(), static_cast<size_t>(completed.labels.voxel_count()));
+  EXPECT_EQ(completed.rest_owner.size(), completed.labels.size());
   EXPECT_EQ(static_cast<int64_t>(completed.skin_vertex.size()), completed.mesh.vertex_count());
   EXPECT_EQ(completed.id(), old->id());
   Rig again = completed;

@@ -46,7 +46,7 @@ TEST(RigFile, RoundTripKeepsEverySection) {
   EXPECT_EQ(content_hash(*back), content_hash(rig));
   EXPECT_EQ(back->provenance.stage_seconds.size(), rig.provenance.stage_seconds.size());
   // The engine's tables, made at build: one value per source voxel, as built.
-  ASSERT_EQ(rig.rest_owner.size(), static_cast<size_t>(rig.labels.voxel_count()));
+  ASSERT_EQ(rig.rest_owner.size(), rig.labels.size());
   EXPECT_EQ(back->rest_owner, rig.rest_owner);
   EXPECT_EQ(back->body_region, rig.body_region);
   EXPECT_EQ(back->bone_substitute, rig.bone_substitute);
@@ -178,7 +178,9 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
   }
   {
     Rig rig = posewarp::testing::shared_bar_rig();
-    rig.rest_owner[rig.rest_owner.size() / 2] = static_cast<int32_t>(rig.mesh.tet_count());
+    std::vector<int32_t> owner = rig.rest_owner.unpacked();
+    owner[owner.size() / 2] = static_cast<int32_t>(rig.mesh.tet_count());
+    rig.rest_owner = RowPacked<int32_t>::pack(owner.data(), rig.labels.size(), -1);
     refused(std::move(rig), "OWNR");
   }
   {
@@ -189,7 +191,9 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
   }
   {
     Rig rig = posewarp::testing::shared_bar_rig();
-    rig.body_region.pop_back();
+    const std::vector<int16_t> region = rig.body_region.unpacked();  // as if of a grid one slice thinner
+    const Index3& m = rig.labels.size();
+    rig.body_region = RowPacked<int16_t>::pack(region.data(), {m[0], m[1], m[2] - 1}, int16_t{-1});
     refused(std::move(rig), "one value per voxel");
   }
   {

@@ -24,7 +24,8 @@ namespace {
 struct Scene {
   phantom::Phantom phantom;
   TetMesh mesh;
-  std::vector<int32_t> rest_owner;  // as a rig's engine keeps it
+  std::vector<int32_t> rest_owner;  // the identity warp's owner(), as a rig file holds it
+  RowPacked<int32_t> packed_owner;  // as a rig's engine keeps it
 };
 
 // The bar phantom, meshed, with its rest ownership computed once (as a rig does).
@@ -47,6 +48,7 @@ const Scene& bar_scene() {
     const ImageGeometry& g = s.phantom.labels.geometry();
     Result<TetWarp> identity = TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g});
     s.rest_owner = identity->owner();
+    s.packed_owner = RowPacked<int32_t>::pack(s.rest_owner.data(), g.size, -1);
     return s;
   }();
   return scene;
@@ -56,7 +58,7 @@ TEST(TetWarp, IdentityPoseGivesBackTheInputVoxelForVoxel) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
   // With the rest owner no tet moves and nothing is rasterized; without it every tet is.
-  for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
+  for (const RowPacked<int32_t>* rest_owner : {&s.packed_owner, static_cast<const RowPacked<int32_t>*>(nullptr)}) {
     SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
     Result<TetWarp> warp =
         TetWarp::build({.rest = s.mesh, .posed = s.mesh.vertices, .source = g, .output = g, .rest_owner = rest_owner});
@@ -89,7 +91,7 @@ TEST(TetWarp, RigidRootMotionAgreesWithItksResampler) {
   for (int i = 0; i < 9; ++i) rotation[static_cast<size_t>(i)] = r(i / 3, i % 3);
   Result<LabelVolume> itk = io::itk_resample_rigid_labels(s.phantom.labels, rotation, {t(0), t(1), t(2)}, *out);
   ASSERT_TRUE(itk.ok()) << itk.status().to_string();
-  for (const std::vector<int32_t>* rest_owner : {&s.rest_owner, static_cast<const std::vector<int32_t>*>(nullptr)}) {
+  for (const RowPacked<int32_t>* rest_owner : {&s.packed_owner, static_cast<const RowPacked<int32_t>*>(nullptr)}) {
     SCOPED_TRACE(rest_owner ? "with rest owner" : "every tet rasterized");
     Result<TetWarp> warp = TetWarp::build({.rest = s.mesh,
                                            .posed = posed,
@@ -134,7 +136,7 @@ TEST(TetWarp, AMovedRootSamplesEveryVoxelWhereItsMapTakesIt) {
                                          .output = g,
                                          .background_rotation = r,
                                          .background_translation = t,
-                                         .rest_owner = &s.rest_owner,
+                                         .rest_owner = &s.packed_owner,
                                          .params = params});
   ASSERT_TRUE(warp.ok()) << warp.status().to_string();
   EXPECT_EQ(warp->rasterized_tets(), 0);
@@ -230,9 +232,54 @@ TEST(RowSpans, BoundEachRowsOtherValuesAndAnswerForBoxes) {
   EXPECT_FALSE(RowSpans{}.only_fill(all_lo, all_hi));  // no spans: nothing is known
 }
 
-// Where the root moved, the warp with row spans of the rest owners and of the labels is the warp without them,
-// owner for owner and label for label; spans that lie (every row empty) are followed, so they are used; spans of
-// another grid are refused.
+// A table packed on its rows' spans answers for every voxel as the grid it packs, in a fraction of its bytes (the bar
+// lies in air), and so does one kept in whole rows; each row's span is the stretch between its first and last value
+// other than the fill.
+TEST(RowPacked, AnswersForEveryVoxelAsTheGridItPacks) {
+  const Scene& s = bar_scene();
+  const Index3& m = s.phantom.labels.size();
+  const RowPacked<int32_t> packed = RowPacked<int32_t>::pack(s.rest_owner.data(), m, -1);
+  const RowPacked<int32_t> whole = RowPacked<int32_t>::pack(s.rest_owner.data(), m, -1, true);
+  EXPECT_EQ(packed.unpacked(), s.rest_owner);
+  EXPECT_EQ(whole.unpacked(), s.rest_owner);
+  EXPECT_LT(packed.bytes(), s.rest_owner.size() * sizeof(int32_t) / 2);
+  EXPECT_FALSE(packed == whole);
+  const RowSpans spans = row_spans(s.rest_owner.data(), m, -1);
+  for (int64_t z = 0; z < m[2]; ++z) {
+    for (int64_t y = 0; y < m[1]; ++y) {
+      int64_t lo = 0, hi = 0, whole_lo = 0, whole_hi = 0;
+      const int32_t* span = packed.row(y, z, lo, hi);
+      (void)whole.row(y, z, whole_lo, whole_hi);
+      EXPECT_EQ(whole_lo, 0);
+      EXPECT_EQ(whole_hi, m[0]);
+      const uint32_t expected = spans.span[static_cast<size_t>(y + m[1] * z)];
+      if (expected == 0) {
+        EXPECT_EQ(lo, hi);
+      } else {
+        EXPECT_EQ(lo, expected & 0xffff);
+        EXPECT_EQ(hi, expected >> 16);
+      }
+      for (int64_t x = 0; x < m[0]; ++x) {
+        const int32_t value = s.rest_owner[static_cast<size_t>(x + m[0] * (y + m[1] * z))];
+        ASSERT_EQ(packed.at(x, y, z), value) << x << " " << y << " " << z;
+        ASSERT_EQ(whole.at(x, y, z), value);
+        if (x >= lo && x < hi) {
+          ASSERT_EQ(span[x - lo], value);
+        }
+      }
+      const int64_t row_lo[3] = {0, y, z}, row_hi[3] = {m[0] - 1, y, z};
+      EXPECT_EQ(packed.only_fill(row_lo, row_hi), lo == hi);
+    }
+  }
+  const std::vector<int16_t> regions(static_cast<size_t>(m[0] * m[1] * m[2]), int16_t{-1});
+  const RowPacked<int16_t> nothing = RowPacked<int16_t>::pack(regions.data(), m, int16_t{-1});
+  EXPECT_EQ(nothing.bytes(), static_cast<size_t>(m[1] * m[2]) * sizeof(uint64_t));  // the rows' entries alone
+  EXPECT_EQ(nothing.at(m[0] / 2, m[1] / 2, m[2] / 2), -1);
+}
+
+// Where the root moved, the warp with the rest owners packed on their rows' spans, and the labels' row spans, is the
+// warp with every row kept whole and no spans, owner for owner and label for label; label spans that lie (every row
+// empty) are followed, so they are used; tables of another grid or fill are refused.
 TEST(TetWarp, RowSpansChangeNothingButTheLoadsWhereTheRootMoved) {
   const Scene& s = bar_scene();
   const ImageGeometry& g = s.phantom.labels.geometry();
@@ -240,19 +287,18 @@ TEST(TetWarp, RowSpansChangeNothingButTheLoadsWhereTheRootMoved) {
       Eigen::AngleAxisd(7.0 * M_PI / 180.0, Eigen::Vector3d(0.2, 0.3, 1).normalized()).toRotationMatrix();
   const Eigen::Vector3d t(6.3, -4.1, 2.7);
   const Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
-  const RowSpans owner_spans = row_spans(s.rest_owner.data(), g.size, -1);
+  const RowPacked<int32_t> whole_rows = RowPacked<int32_t>::pack(s.rest_owner.data(), g.size, -1, true);
   const RowSpans label_spans = row_spans(s.phantom.labels.data(), g.size, 0);
-  auto warp_with = [&](const RowSpans* spans) {
+  auto warp_with = [&](const RowPacked<int32_t>* owners) {
     return TetWarp::build({.rest = s.mesh,
                            .posed = posed,
                            .source = g,
                            .output = g,
                            .background_rotation = r,
                            .background_translation = t,
-                           .rest_owner = &s.rest_owner,
-                           .rest_owner_spans = spans});
+                           .rest_owner = owners});
   };
-  Result<TetWarp> plain = warp_with(nullptr), spanned = warp_with(&owner_spans);
+  Result<TetWarp> plain = warp_with(&whole_rows), spanned = warp_with(&s.packed_owner);
   ASSERT_TRUE(plain.ok() && spanned.ok());
   EXPECT_EQ(plain->owner(), spanned->owner());
   EXPECT_EQ(plain->stats().background_voxels, spanned->stats().background_voxels);
@@ -268,18 +314,16 @@ TEST(TetWarp, RowSpansChangeNothingButTheLoadsWhereTheRootMoved) {
   Result<LabelVolume> lied = plain->warp_labels(s.phantom.labels, nullptr, &lying);
   ASSERT_TRUE(lied.ok());
   EXPECT_NE(labels->voxels(), lied->voxels());
-  RowSpans lying_owners = owner_spans;
-  std::fill(lying_owners.span.begin(), lying_owners.span.end(), 0u);
-  Result<TetWarp> lied_warp = warp_with(&lying_owners);
-  ASSERT_TRUE(lied_warp.ok());
-  EXPECT_GT(lied_warp->stats().background_voxels, plain->stats().background_voxels);
 
   RowSpans other = label_spans;
   other.size = {g.size[0], g.size[1], g.size[2] + 1};
   EXPECT_EQ(plain->warp_labels(s.phantom.labels, nullptr, &other).status().code(), StatusCode::kInvalidArgument);
-  other = owner_spans;
-  other.size = {g.size[0] + 1, g.size[1], g.size[2]};
-  EXPECT_EQ(warp_with(&other).status().code(), StatusCode::kInvalidArgument);
+  const std::vector<int32_t> longer(s.rest_owner.size() + static_cast<size_t>(g.size[0] * g.size[1]), -1);
+  const RowPacked<int32_t> another_grid =
+      RowPacked<int32_t>::pack(longer.data(), {g.size[0], g.size[1], g.size[2] + 1}, -1);
+  EXPECT_EQ(warp_with(&another_grid).status().code(), StatusCode::kInvalidArgument);
+  const RowPacked<int32_t> another_fill = RowPacked<int32_t>::pack(s.rest_owner.data(), g.size, 0);
+  EXPECT_EQ(warp_with(&another_fill).status().code(), StatusCode::kInvalidArgument);
 }
 
 TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
@@ -289,7 +333,7 @@ TEST(TetWarp, WarpedLabelsAreAlwaysInputLabels) {
   Eigen::MatrixXd posed = s.mesh.vertices;
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
   Result<TetWarp> warp =
-      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.rest_owner});
+      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.packed_owner});
   ASSERT_TRUE(warp.ok());
   Result<LabelVolume> labels = warp->warp_labels(s.phantom.labels);
   const std::set<Label> before(s.phantom.labels.voxels().begin(), s.phantom.labels.voxels().end());
@@ -344,7 +388,7 @@ TEST(TetWarp, AMovingSoftTetFoldedOntoAStillBoneLosesAndLeavesNoGhost) {
   const LabelVolume labels = soft_and_bone_labels(g);
   Result<TetWarp> identity = TetWarp::build({.rest = mesh, .posed = mesh.vertices, .source = g, .output = g});
   ASSERT_TRUE(identity.ok());
-  const std::vector<int32_t> rest_owner = identity->owner();
+  const RowPacked<int32_t> rest_owner = RowPacked<int32_t>::pack(identity->owner().data(), g.size, -1);
   Eigen::MatrixXd posed = mesh.vertices;
   posed.topRows(4).rowwise() += Eigen::RowVector3d(10, 10, 10);
   Result<TetWarp> warp =
@@ -365,7 +409,7 @@ TEST(TetWarp, SkippingStillTetsChangesNothingButTheWork) {
   for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.2 * std::max(0.0, posed(v, 2) - 60.0);
   Result<TetWarp> full = TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g});
   Result<TetWarp> lean =
-      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.rest_owner});
+      TetWarp::build({.rest = s.mesh, .posed = posed, .source = g, .output = g, .rest_owner = &s.packed_owner});
   ASSERT_TRUE(full.ok() && lean.ok());
   EXPECT_GT(lean->rasterized_tets(), 0);
   EXPECT_LT(lean->rasterized_tets(), s.mesh.tet_count());
@@ -433,7 +477,7 @@ Deviations expect_bone_deviation_as_reference(double background_turn) {
                                          .output = g,
                                          .background_rotation = root,
                                          .background_translation = root_shift,
-                                         .rest_owner = &s.rest_owner,
+                                         .rest_owner = &s.packed_owner,
                                          .bones = &bones});
   EXPECT_TRUE(warp.ok());
   if (!warp.ok()) return {};
@@ -601,7 +645,7 @@ TEST(TetWarp, TheSkinShellKeepsBodyVoxelsOutsideTheMeshAndRefusesAnAbsurdWidth) 
                                            .source = g,
                                            .output = g,
                                            .background_translation = root,
-                                           .rest_owner = &s.rest_owner});
+                                           .rest_owner = &s.packed_owner});
     ASSERT_TRUE(away.ok());
     EXPECT_EQ(away->rasterized_tets(), root.isZero() ? s.mesh.tet_count() : 0);
     EXPECT_EQ(away->stats().covered_voxels, 0);
@@ -670,7 +714,7 @@ TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
   };
   auto warp_labels = [&](double shear) {
     Result<TetWarp> warp = TetWarp::build(
-        {.rest = s.mesh, .posed = posed_by(shear), .source = g, .output = g, .rest_owner = &s.rest_owner});
+        {.rest = s.mesh, .posed = posed_by(shear), .source = g, .output = g, .rest_owner = &s.packed_owner});
     return std::move(warp->warp_labels(s.phantom.labels)).value().voxels();
   };
   constexpr int kWarps = 8;

@@ -11,6 +11,7 @@
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/rig_params.h"
+#include "posewarp/common/row_packed.h"
 #include "posewarp/common/skeleton.h"
 #include "posewarp/common/surface_mesh.h"
 #include "posewarp/common/tet_mesh.h"
@@ -79,9 +80,10 @@ struct Rig {
   // What a pose engine would otherwise compute when it opens the rig (a second or more on a whole body): per source
   // voxel the tet that owns it at rest (the identity warp's owner) and the nearest-bone region of the skin-contact
   // guard, and the soft-tissue voxel a bone voxel's value is replaced by where soft tissue maps onto the bone. Made
-  // by build_rig; empty (no substitutes) in a rig from before them, whose engine computes them.
-  std::vector<int32_t> rest_owner;
-  std::vector<int16_t> body_region;
+  // by build_rig; empty (no substitutes) in a rig from before them, whose engine computes them. The owner and region
+  // tables are kept on their rows' spans (-1, no tet and no region, off them): a body's air takes no bytes.
+  RowPacked<int32_t> rest_owner;
+  RowPacked<int16_t> body_region;
   std::optional<BoneSubstitutes> bone_substitute;
   // Per tet-mesh vertex, 1 where it lies on the mesh's skin (fem::skin_vertices: the report's skin penetration and the
   // soft tissue's contacts), which costs a whole body a tenth of a second; made by build_rig, empty in a rig from

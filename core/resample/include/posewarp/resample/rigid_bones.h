@@ -11,6 +11,7 @@
 
 #include "posewarp/common/bone_substitutes.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/row_packed.h"
 #include "posewarp/common/volume.h"
 
 namespace posewarp::resample {
@@ -70,7 +71,7 @@ struct RigidBones {
   std::vector<Eigen::Vector3d> translation;  // per segment, mm
   // Optional, body parts cut apart at skin contacts (rig/skin_contacts.h): a tet, or the skin shell it extends over,
   // never shows tissue of a region separated from its own (the thigh's skin under a hand that rises with the arm).
-  const std::vector<int16_t>* region = nullptr;      // per source voxel: nearest-bone region, -1 outside the body
+  const RowPacked<int16_t>* region = nullptr;        // per source voxel: nearest-bone region, -1 outside the body
   const std::vector<int16_t>* tet_region = nullptr;  // per tet
   const std::vector<uint8_t>* separated = nullptr;   // segment_count x segment_count
 };

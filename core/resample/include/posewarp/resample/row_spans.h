@@ -1,6 +1,7 @@
 // Per row of a volume, the stretch outside which every voxel holds one value: a lookup that crosses the source rows
 // (the background's map where the root moved) needs no load for a voxel it already knows, and most of a body's grid
 // is air around it (the body phantom's labels: 14% of each row's voxels lie between its first and last non-zero).
+// A per-voxel table can be kept on its spans alone (posewarp/common/row_packed.h).
 #pragma once
 
 #include <cstdint>

@@ -13,6 +13,7 @@
 
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
+#include "posewarp/common/row_packed.h"
 #include "posewarp/common/tet_mesh.h"
 #include "posewarp/common/volume.h"
 #include "posewarp/resample/rigid_bones.h"
@@ -85,13 +86,11 @@ struct WarpInputs {
   // The rigid transform (rest -> posed) of everything outside the mesh, normally the root segment's.
   Eigen::Matrix3d background_rotation = Eigen::Matrix3d::Identity();
   Eigen::Vector3d background_translation = Eigen::Vector3d::Zero();
-  // owner() of the identity warp on the source grid (built without one, which rasterizes every tet). With it, tets
-  // that follow the background are not rasterized, and source voxels owned by moving tets are never copied by the
-  // background transform (so a moved limb leaves no ghost). Null: every tet is rasterized.
-  const std::vector<int32_t>* rest_owner = nullptr;
-  // Optional, row_spans(rest_owner, source size, -1): the classification's lookups along a turned background skip
-  // the source voxels off them (a body's air). Spans of other values than rest_owner's give a wrong warp.
-  const RowSpans* rest_owner_spans = nullptr;
+  // owner() of the identity warp on the source grid (built without one, which rasterizes every tet), packed around
+  // -1 (RowPacked<int32_t>::pack(owner, size, -1)). With it, tets that follow the background are not rasterized, and
+  // source voxels owned by moving tets are never copied by the background transform (so a moved limb leaves no
+  // ghost); the lookups along a turned background skip the rows' air. Null: every tet is rasterized.
+  const RowPacked<int32_t>* rest_owner = nullptr;
   ResampleParams params = {};
   // Bones rigid at voxel level (may be null). An output voxel that bone segment k's rigid inverse maps onto a source
   // voxel of segment k takes that map, whatever tet covers it; a voxel a moving tet or the skin shell maps onto a
