@@ -8,7 +8,7 @@
 namespace posewarp {
 
 template <typename T>
-RowPacked<T> RowPacked<T>::pack(const T* values, const Index3& m, T fill, bool whole_rows) {
+RowPacked<T> RowPacked<T>::pack(const T* values, const Index3& m, T fill, bool whole_rows, const uint32_t* spans) {
   RowPacked packed;
   packed.size_ = m;
   packed.fill_ = fill;
@@ -26,7 +26,9 @@ RowPacked<T> RowPacked<T>::pack(const T* values, const Index3& m, T fill, bool w
     for (int64_t r = begin; r < end; ++r) {
       const T* row = values + r * m[0];
       int64_t lo = 0, hi = m[0];
-      if (!whole_rows) {
+      if (spans && !whole_rows) {
+        lo = spans[r] & 0xffff, hi = spans[r] >> 16;
+      } else if (!whole_rows) {
         while (lo < hi && row[lo] == fill) ++lo;
         while (hi > lo && row[hi - 1] == fill) --hi;
         if (lo == hi) lo = hi = 0;

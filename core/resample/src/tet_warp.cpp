@@ -231,36 +231,44 @@ const double* TetWarp::map_of(int32_t o) const {
 template <typename Sample>
 void TetWarp::for_each_mapped_run(const Sample& sample) const {
   const Index3& n = output_.size;
-  const int32_t* owner = owner_.get();
+  const RowPacked<int32_t>& owner = *owner_;
   const double* maps = maps_.get();
   constexpr int64_t kMapLookahead = 16;
   parallel_for(0, n[2], 1, [&](int64_t k0, int64_t k1) {
     for (int64_t k = k0; k < k1; ++k) {
       for (int64_t j = 0; j < n[1]; ++j) {
         const int64_t row = output_.offset(0, j, k);
-        for (int64_t i = 0; i < n[0];) {
-          const int32_t o = owner[row + i];
+        auto run = [&](int64_t i, int64_t end, int32_t o) {
+          if (o == kNoSample) return;
+          const double* m = map_of(o);
+          double s[3];
+          apply_map(m, double(i), double(j), double(k), s);
+          const double ds[3] = {m[0], m[3], m[6]};
+          const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
+          sample(row + i, end - i, s, ds, soft);
+        };
+        // Off the row's span every voxel takes the background's map (-1): a run before the span and one after it;
+        // the span's first and last voxels hold other owners, so its runs are those of the whole row.
+        int64_t lo = 0, hi = 0;
+        const int32_t* span = owner.row(j, k, lo, hi);
+        if (lo > 0) run(0, lo, -1);
+        for (int64_t i = lo; i < hi;) {
+          const int32_t o = span[i - lo];
           // Asks for the map of the tet 16 voxels on: maps lie in the raster's tet order, not along a row, and a
           // short run (1-2 voxels where every tet moves) would otherwise wait for its map's cache lines.
-          if (i + kMapLookahead < n[0]) {
-            const int32_t ahead = owner[row + i + kMapLookahead];
+          if (i + kMapLookahead < hi) {
+            const int32_t ahead = span[i + kMapLookahead - lo];
             if (ahead >= 0) {
               __builtin_prefetch(maps + 12 * ahead);
               __builtin_prefetch(maps + 12 * ahead + 8);
             }
           }
           int64_t end = i + 1;
-          while (end < n[0] && owner[row + end] == o) ++end;
-          if (o != kNoSample) {
-            const double* m = map_of(o);
-            double s[3];
-            apply_map(m, double(i), double(j), double(k), s);
-            const double ds[3] = {m[0], m[3], m[6]};
-            const bool soft = o >= 0 || (o <= -2 && !is_bone_owner(o));
-            sample(row + i, end - i, s, ds, soft);
-          }
+          while (end < hi && span[end - lo] == o) ++end;
+          run(i, end, o);
           i = end;
         }
+        if (hi < n[0]) run(hi, n[0], -1);
       }
     }
   });
@@ -297,9 +305,9 @@ class TetWarp::BoneTally {
   // warp_labels' run of `count` output voxels from v, whose labels are the source's at s0 + c ds, mapped by a bone
   // or the background (a soft map puts no bone value: it samples the substitute). `written`: the run's labels.
   void run(int64_t v, int64_t count, const double s0[3], const double ds[3], const Label* written) {
-    const int32_t o = warp_.owner_[v];
     const Index3& n = warp_.output_.size;
     const int64_t i0 = v % n[0], j = (v / n[0]) % n[1], k = v / (n[0] * n[1]);
+    const int32_t o = warp_.owner_->at(i0, j, k);
     Slice& slice = found_[static_cast<size_t>(k)];
     const int own = is_bone_owner(o) ? o - kBoneOwner : -1;  // -1: the background's run
     if (own >= 0 && warp_.claimed_by_own_map_[static_cast<size_t>(own)]) {
@@ -581,7 +589,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
 }
 
 std::vector<int32_t> TetWarp::owner() const {
-  std::vector<int32_t> tet_owner(owner_.get(), owner_.get() + output_.voxel_count());
+  std::vector<int32_t> tet_owner = owner_->unpacked();
   for (int32_t& o : tet_owner) {
     if (o >= 0) {
       o = tets_[static_cast<size_t>(o)];
@@ -601,7 +609,7 @@ std::vector<float> TetWarp::inverse_displacement() const {
         for (int64_t i = 0; i < n[0]; ++i) {
           const int64_t v = output_.offset(i, j, k);
           double s[3];
-          apply_map(map_of(owner_[v]), double(i), double(j), double(k), s);
+          apply_map(map_of(owner_->at(i, j, k)), double(i), double(j), double(k), s);
           const Vec3 from = output_.index_to_physical({double(i), double(j), double(k)});
           const Vec3 to = source_.index_to_physical({s[0], s[1], s[2]});
           for (int a = 0; a < 3; ++a) field[static_cast<size_t>(3 * v + a)] = static_cast<float>(to[a] - from[a]);

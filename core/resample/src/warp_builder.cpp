@@ -57,6 +57,12 @@ Result<TetWarp> TetWarp::Builder::run() {
     in_slabs([this](int64_t s) { classify_slab(s); });  // pass 3
     phases.mark("classify");
     POSEWARP_RETURN_IF_ERROR(progress_->check_cancel());
+    // The owners kept on their rows' spans, the grid's block given back (the voxel memory hands it to the labels).
+    warp_.owner_ = std::make_shared<const RowPacked<int32_t>>(
+        RowPacked<int32_t>::pack(owner_, n_, -1, false, owner_spans_.empty() ? nullptr : owner_spans_.data()));
+    owner_ = nullptr;
+    dense_owner_.reset();
+    phases.mark("pack");
     for (const WarpStats& slab : slab_stats_) warp_.stats_ += slab;
     return ok_status();
   });
@@ -314,13 +320,14 @@ void TetWarp::Builder::split_into_slabs() {
       },
       scratch_->interior, scratch_->interior_first);
   const size_t owner_bytes = static_cast<size_t>(in_.output.voxel_count()) * sizeof(int32_t);
-  warp_.owner_ = std::shared_ptr<int32_t[]>(static_cast<int32_t*>(allocate_voxels(owner_bytes)),
+  dense_owner_ = std::shared_ptr<int32_t[]>(static_cast<int32_t*>(allocate_voxels(owner_bytes)),
                                             [owner_bytes](int32_t* p) { free_voxels(p, owner_bytes); });
-  owner_ = warp_.owner_.get();
+  owner_ = dense_owner_.get();
   const int64_t row_count = n_[1] * n_[2];
   row_first_.resize(static_cast<size_t>(row_count));
   row_last_.resize(static_cast<size_t>(row_count));
   row_words_ = (n_[0] + 63) / 64;
+  if (n_[0] <= RowPacked<int32_t>::kMaxRow) owner_spans_.assign(static_cast<size_t>(row_count), 0);
   covered_bits_.resize(static_cast<size_t>(row_count * row_words_));
   conflicts_.resize(static_cast<size_t>(slab_count_));
   shells_.resize(static_cast<size_t>(slab_count_));

@@ -121,6 +121,8 @@ class TetWarp::Builder {
   std::vector<std::array<int32_t, 2>> k_range_;
   // The slabs, and what the passes leave per slab: folded voxels, shell voxels found, statistics.
   int64_t slab_count_ = 0, slab_depth_ = 0;
+  std::shared_ptr<int32_t[]> dense_owner_;  // the owner map as the passes write it, every voxel (then packed)
+  std::vector<uint32_t> owner_spans_;       // per output row, lo | hi << 16 of its owners other than -1 (pass 3)
   int32_t* owner_ = nullptr;
   std::vector<int32_t> row_first_, row_last_;
   int64_t row_words_ = 0;                        // 64-bit words per output row in covered_bits_

@@ -202,6 +202,15 @@ void TetWarp::Builder::classify_slab(int64_t s) {
         if (guard_contacts) guard_contact(o, i, j, k, stats);
         if (segment_count_ > 0) claim_bone(o, i, j, k, row_bones, stats);
       }
+      // The row's span for the packed owners, while the row is in the cache: where its owners differ from -1.
+      if (!owner_spans_.empty()) {
+        const int32_t* owners = owner_ + row_begin;
+        int64_t lo = 0, hi = n_[0];
+        while (lo < hi && owners[lo] == -1) ++lo;
+        while (hi > lo && owners[hi - 1] == -1) --hi;
+        owner_spans_[static_cast<size_t>(j + n_[1] * k)] =
+            lo < hi ? static_cast<uint32_t>(lo) | static_cast<uint32_t>(hi) << 16 : 0;
+      }
     }
   }
   std::vector<int64_t>().swap(conflicts);

@@ -245,6 +245,19 @@ TEST(RowPacked, AnswersForEveryVoxelAsTheGridItPacks) {
   EXPECT_LT(packed.bytes(), s.rest_owner.size() * sizeof(int32_t) / 2);
   EXPECT_FALSE(packed == whole);
   const RowSpans spans = row_spans(s.rest_owner.data(), m, -1);
+  // The spans found before (as the warp's classification finds them) and the runs of a rig file give the same table.
+  EXPECT_EQ(RowPacked<int32_t>::pack(s.rest_owner.data(), m, -1, false, spans.span.data()), packed);
+  std::vector<int32_t> run_values;
+  std::vector<uint32_t> run_lengths;
+  for (const int32_t v : s.rest_owner) {
+    if (!run_values.empty() && run_values.back() == v) {
+      ++run_lengths.back();
+    } else {
+      run_values.push_back(v);
+      run_lengths.push_back(1);
+    }
+  }
+  EXPECT_EQ(RowPacked<int32_t>::from_runs(run_values.data(), run_lengths.data(), run_values.size(), m, -1), packed);
   for (int64_t z = 0; z < m[2]; ++z) {
     for (int64_t y = 0; y < m[1]; ++y) {
       int64_t lo = 0, hi = 0, whole_lo = 0, whole_hi = 0;

@@ -35,8 +35,10 @@ class RowPacked {
     return *this;
   }
   // `values` (grid m) packed around `fill`, rows in parallel. With whole_rows every row is kept whole, as packed
-  // rows (a table whose lookups never skip: for tests).
-  static RowPacked pack(const T* values, const Index3& m, T fill, bool whole_rows = false);
+  // rows (a table whose lookups never skip: for tests). `spans`, when given, are the rows' spans already found (per
+  // row lo | hi << 16, 0 for a row all fill, as RowSpans holds them): they are not looked for again.
+  static RowPacked pack(const T* values, const Index3& m, T fill, bool whole_rows = false,
+                        const uint32_t* spans = nullptr);
   // The same table from runs of equal values over the grid in order (run q: lengths[q] voxels of values[q]), which
   // must add up to the grid's voxels: two walks over the runs, never the whole grid.
   static RowPacked from_runs(const T* values, const uint32_t* lengths, size_t runs, const Index3& m, T fill);

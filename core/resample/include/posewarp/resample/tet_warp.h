@@ -158,7 +158,9 @@ class TetWarp {
 
   ImageGeometry source_;
   ImageGeometry output_;
-  std::shared_ptr<int32_t[]> owner_;       // per output voxel, as owner() but holding rasterized indices
+  // Per output voxel, as owner() but holding rasterized indices, kept on its rows' spans: off them every voxel holds
+  // -1 (the background's map), most of a grid whose root did not move.
+  std::shared_ptr<const RowPacked<int32_t>> owner_;
   std::vector<int32_t> tets_;              // rasterized index -> tet
   std::shared_ptr<double[]> maps_;         // 12 per rasterized tet: output index -> source index, s = A u + b
   double background_map_[12] = {};         // the same for the background transform
