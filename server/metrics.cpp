@@ -9,6 +9,8 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cmath>
+#include <cstdint>
 #include <cstring>
 
 #include <cstdio>
@@ -16,6 +18,20 @@
 #include <sstream>
 
 namespace posewarp::server {
+namespace {
+
+// A gauge's value as the text format wants it, exactly: a whole number (bytes, counts) in all its digits, anything
+// else in as many as round-trip a double (the stream's default six digits printed 16777216 bytes as 1.67772e+07).
+std::string gauge_value(double value) {
+  if (std::abs(value) < 9007199254740992.0 && value == std::floor(value)) {
+    return std::to_string(static_cast<int64_t>(value));
+  }
+  char text[32];
+  std::snprintf(text, sizeof text, "%.17g", value);
+  return text;
+}
+
+}  // namespace
 
 void Metrics::observe(const std::string& method, const std::string& code, double seconds) {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -73,7 +89,7 @@ std::string Metrics::text() const {
   }
   if (gauges) {
     for (const auto& [name, value] : gauges()) {
-      out << "# TYPE posewarp_" << name << " gauge\nposewarp_" << name << " " << value << "\n";
+      out << "# TYPE posewarp_" << name << " gauge\nposewarp_" << name << " " << gauge_value(value) << "\n";
     }
   }
   out << "# TYPE process_resident_memory_bytes gauge\nprocess_resident_memory_bytes " << resident_bytes() << "\n";

@@ -45,7 +45,7 @@ RowPacked<T> RowPacked<T>::pack(const T* values, const Index3& m, T fill, bool w
       const int64_t lo = static_cast<int64_t>(e >> 32 & 0xffff), hi = static_cast<int64_t>(e >> 48);
       const int64_t at = first[static_cast<size_t>(r)];
       std::copy(values + r * m[0] + lo, values + r * m[0] + hi, packed.values_.begin() + at);
-      e |= static_cast<uint32_t>(static_cast<int32_t>(at - lo));  // |at - lo| < 2^31: the grid's voxels are
+      e |= static_cast<uint32_t>(static_cast<int32_t>(at - lo));  // fits: the grid holds fewer than 2^31 voxels
     }
   });
   return packed;

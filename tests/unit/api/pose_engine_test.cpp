@@ -410,12 +410,13 @@ TEST(Posing, PhasesReachTheHookInOrderAndChangeNothing) {
   const Result<PoseResult> timed = engine.pose(request, hooks);
   ASSERT_TRUE(timed.ok()) << timed.status().to_string();
   const std::vector<std::pair<std::string, std::string>> expected{
-      {"report-mesh", "determinants"},  {"report-mesh", "volume-change (beside the rest)"},
-      {"report-mesh", "rigidity"},      {"report-mesh", "joint-regions"},
-      {"report-mesh", "penetration"},   {"warp-prepare", "maps"},
-      {"warp-prepare", "select"},       {"warp-prepare", "prepare"},
-      {"warp-prepare", "split"},        {"warp-prepare", "raster"},
-      {"warp-prepare", "shell"},        {"warp-prepare", "classify"}};
+      {"report-mesh", "determinants"}, {"report-mesh", "volume-change (beside the rest)"},
+      {"report-mesh", "rigidity"},     {"report-mesh", "joint-regions"},
+      {"report-mesh", "penetration"},  {"warp-prepare", "maps"},
+      {"warp-prepare", "select"},      {"warp-prepare", "prepare"},
+      {"warp-prepare", "split"},       {"warp-prepare", "raster"},
+      {"warp-prepare", "shell"},       {"warp-prepare", "classify"},
+      {"warp-prepare", "pack"}};
   EXPECT_EQ(phases, expected);
   for (const auto& [stage, seconds] : timed->report.stage_seconds) {
     if (stage_sum.count(stage)) {

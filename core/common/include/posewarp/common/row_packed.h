@@ -14,8 +14,8 @@
 namespace posewarp {
 
 // A per-voxel table (a grid's values, x fastest) that keeps each row's span only: every voxel off it holds fill().
-// Rows whose voxels can be counted in int32 and are at most kMaxRow long are packed; any other grid keeps
-// every voxel (the same answers, the grid's bytes).
+// A grid of fewer than 2^31 voxels whose rows are at most kMaxRow long is packed; any other keeps every voxel (the
+// same answers, the grid's bytes).
 template <typename T>
 class RowPacked {
  public:
