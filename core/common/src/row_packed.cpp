@@ -24,14 +24,11 @@ RowPacked<T> RowPacked<T>::pack(const T* values, const Index3& m, T fill, bool w
   packed.rows_.resize(static_cast<size_t>(rows));
   parallel_for(0, rows, 1024, [&](int64_t begin, int64_t end) {
     for (int64_t r = begin; r < end; ++r) {
-      const T* row = values + r * m[0];
       int64_t lo = 0, hi = m[0];
       if (spans && !whole_rows) {
         lo = spans[r] & 0xffff, hi = spans[r] >> 16;
       } else if (!whole_rows) {
-        while (lo < hi && row[lo] == fill) ++lo;
-        while (hi > lo && row[hi - 1] == fill) --hi;
-        if (lo == hi) lo = hi = 0;
+        row_span(values + r * m[0], m[0], fill, lo, hi);
       }
       packed.rows_[static_cast<size_t>(r)] = static_cast<uint64_t>(lo) << 32 | static_cast<uint64_t>(hi) << 48;
       first[static_cast<size_t>(r) + 1] = hi - lo;
@@ -115,17 +112,10 @@ RowPacked<T> RowPacked<T>::from_runs(const T* values, const uint32_t* lengths, s
 template <typename T>
 bool RowPacked<T>::only_fill(const int64_t lo[3], const int64_t hi[3]) const {
   if (rows_.empty() && !empty()) return false;
-  const int64_t x0 = std::max<int64_t>(lo[0], 0), x1 = std::min(hi[0], size_[0] - 1);
-  const int64_t y0 = std::max<int64_t>(lo[1], 0), y1 = std::min(hi[1], size_[1] - 1);
-  const int64_t z0 = std::max<int64_t>(lo[2], 0), z1 = std::min(hi[2], size_[2] - 1);
-  if (x0 > x1) return true;
-  for (int64_t z = z0; z <= z1; ++z) {
-    for (int64_t y = y0; y <= y1; ++y) {
-      const uint64_t e = rows_[static_cast<size_t>(y + size_[1] * z)];
-      if (static_cast<int64_t>(e >> 32 & 0xffff) <= x1 && static_cast<int64_t>(e >> 48) > x0) return false;
-    }
-  }
-  return true;
+  return box_off_spans(size_, lo, hi, [&](int64_t r) {
+    const uint64_t e = rows_[static_cast<size_t>(r)];
+    return std::pair{static_cast<int64_t>(e >> 32 & 0xffff), static_cast<int64_t>(e >> 48)};
+  });
 }
 
 template <typename T>

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "posewarp/common/parallel.h"
+#include "posewarp/common/row_packed.h"
 
 namespace posewarp::resample {
 
@@ -15,11 +16,9 @@ RowSpans row_spans(const int32_t* values, const Index3& m, int32_t fill) {
   spans.span.assign(static_cast<size_t>(rows), 0);
   parallel_for(0, rows, 1024, [&](int64_t begin, int64_t end) {
     for (int64_t r = begin; r < end; ++r) {
-      const int32_t* row = values + r * m[0];
-      int64_t lo = 0, hi = m[0];
-      while (lo < hi && row[lo] == fill) ++lo;
-      while (hi > lo && row[hi - 1] == fill) --hi;
-      if (lo < hi) spans.span[static_cast<size_t>(r)] = static_cast<uint32_t>(lo) | static_cast<uint32_t>(hi) << 16;
+      int64_t lo = 0, hi = 0;
+      row_span(values + r * m[0], m[0], fill, lo, hi);
+      spans.span[static_cast<size_t>(r)] = static_cast<uint32_t>(lo) | static_cast<uint32_t>(hi) << 16;
     }
   });
   return spans;
@@ -27,16 +26,10 @@ RowSpans row_spans(const int32_t* values, const Index3& m, int32_t fill) {
 
 bool RowSpans::only_fill(const int64_t lo[3], const int64_t hi[3]) const {
   if (empty()) return false;
-  const int64_t x0 = std::max<int64_t>(lo[0], 0), x1 = std::min(hi[0], size[0] - 1);
-  const int64_t y0 = std::max<int64_t>(lo[1], 0), y1 = std::min(hi[1], size[1] - 1);
-  const int64_t z0 = std::max<int64_t>(lo[2], 0), z1 = std::min(hi[2], size[2] - 1);
-  for (int64_t z = z0; z <= z1; ++z) {
-    for (int64_t y = y0; y <= y1; ++y) {
-      const uint32_t s = span[static_cast<size_t>(y + size[1] * z)];
-      if (x0 <= x1 && static_cast<int64_t>(s & 0xffff) <= x1 && static_cast<int64_t>(s >> 16) > x0) return false;
-    }
-  }
-  return true;
+  return box_off_spans(size, lo, hi, [&](int64_t r) {
+    const uint32_t s = span[static_cast<size_t>(r)];
+    return std::pair{static_cast<int64_t>(s & 0xffff), static_cast<int64_t>(s >> 16)};
+  });
 }
 
 }  // namespace posewarp::resample

@@ -78,6 +78,7 @@ class TetWarp::Builder {
   static void widen_by_one(std::vector<uint64_t>& bits, std::vector<uint64_t>& scratch);
 
   // Pass 3, every voxel classified and the bones' claims (warp_classify.cpp).
+  bool source_index(const double s[3], int64_t& x, int64_t& y, int64_t& z) const;
   int64_t source_voxel(const double s[3]) const;
   int32_t rest_owner_at(const double s[3]) const;
   int bone_at(const double* map, double i, double j, double k) const;

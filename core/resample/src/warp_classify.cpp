@@ -9,20 +9,23 @@ namespace posewarp::resample {
 
 using namespace internal;
 
+// The nearest source voxel (x, y, z) to source index s; false outside the source grid.
+inline bool TetWarp::Builder::source_index(const double s[3], int64_t& x, int64_t& y, int64_t& z) const {
+  x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
+  const Index3& m = in_.source.size;
+  return x >= 0 && y >= 0 && z >= 0 && x < m[0] && y < m[1] && z < m[2];
+}
+
 // The source voxel at source index s, or -1 outside the source grid.
 inline int64_t TetWarp::Builder::source_voxel(const double s[3]) const {
-  const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-  const Index3& m = in_.source.size;
-  if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return -1;
-  return in_.source.offset(x, y, z);
+  int64_t x = 0, y = 0, z = 0;
+  return source_index(s, x, y, z) ? in_.source.offset(x, y, z) : -1;
 }
 
 // The tet (rest owner code) that holds source index s in the rest pose; -1 when none or outside the grid.
 inline int32_t TetWarp::Builder::rest_owner_at(const double s[3]) const {
-  const int64_t x = round_index(s[0]), y = round_index(s[1]), z = round_index(s[2]);
-  const Index3& m = in_.source.size;
-  if (x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return -1;
-  return in_.rest_owner->at(x, y, z);
+  int64_t x = 0, y = 0, z = 0;
+  return source_index(s, x, y, z) ? in_.rest_owner->at(x, y, z) : -1;
 }
 
 // The bone segment of the source voxel `map` takes output voxel (i, j, k) to; -1 for none or outside the grid.
@@ -41,9 +44,8 @@ inline void TetWarp::Builder::guard_contact(int32_t& o, int64_t i, int64_t j, in
   const int rt = (*in_.bones->tet_region)[static_cast<size_t>(warp_.tets_[static_cast<size_t>(c)])];
   double src[3];
   apply_map(warp_.maps_.get() + 12 * c, double(i), double(j), double(k), src);
-  const int64_t x = round_index(src[0]), y = round_index(src[1]), z = round_index(src[2]);
-  const Index3& m = in_.source.size;
-  if (rt < 0 || x < 0 || y < 0 || z < 0 || x >= m[0] || y >= m[1] || z >= m[2]) return;
+  int64_t x = 0, y = 0, z = 0;
+  if (rt < 0 || !source_index(src, x, y, z)) return;
   const int rs = in_.bones->region->at(x, y, z);
   if (rs < 0 || rs == rt ||
       !(*in_.bones->separated)[static_cast<size_t>(rt) * segment_count_ + static_cast<size_t>(rs)])
@@ -204,12 +206,9 @@ void TetWarp::Builder::classify_slab(int64_t s) {
       }
       // The row's span for the packed owners, while the row is in the cache: where its owners differ from -1.
       if (!owner_spans_.empty()) {
-        const int32_t* owners = owner_ + row_begin;
-        int64_t lo = 0, hi = n_[0];
-        while (lo < hi && owners[lo] == -1) ++lo;
-        while (hi > lo && owners[hi - 1] == -1) --hi;
-        owner_spans_[static_cast<size_t>(j + n_[1] * k)] =
-            lo < hi ? static_cast<uint32_t>(lo) | static_cast<uint32_t>(hi) << 16 : 0;
+        int64_t lo = 0, hi = 0;
+        row_span(owner_ + row_begin, n_[0], -1, lo, hi);
+        owner_spans_[static_cast<size_t>(j + n_[1] * k)] = static_cast<uint32_t>(lo) | static_cast<uint32_t>(hi) << 16;
       }
     }
   }

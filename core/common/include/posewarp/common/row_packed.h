@@ -4,6 +4,7 @@
 // phantom's rest owners: 15% of their voxels), and a lookup that lands off a row's span needs no load.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <utility>
@@ -12,6 +13,33 @@
 #include "posewarp/common/image_geometry.h"
 
 namespace posewarp {
+
+// The span of a row of n values around `fill`: [lo, hi) from its first to past its last other value; lo == hi == 0
+// for a row of the fill alone.
+template <typename T>
+inline void row_span(const T* row, int64_t n, T fill, int64_t& lo, int64_t& hi) {
+  lo = 0, hi = n;
+  while (lo < hi && row[lo] == fill) ++lo;
+  while (hi > lo && row[hi - 1] == fill) --hi;
+  if (lo == hi) lo = hi = 0;
+}
+
+// Whether the index box [lo, hi] (inclusive, axes x y z) meets no span of the rows of grid m it lies on (true for a
+// box off the grid): span_of(row) gives row y + m[1] z's span as a pair [lo, hi).
+template <typename SpanOf>
+bool box_off_spans(const Index3& m, const int64_t lo[3], const int64_t hi[3], const SpanOf& span_of) {
+  const int64_t x0 = std::max<int64_t>(lo[0], 0), x1 = std::min(hi[0], m[0] - 1);
+  const int64_t y0 = std::max<int64_t>(lo[1], 0), y1 = std::min(hi[1], m[1] - 1);
+  const int64_t z0 = std::max<int64_t>(lo[2], 0), z1 = std::min(hi[2], m[2] - 1);
+  if (x0 > x1) return true;
+  for (int64_t z = z0; z <= z1; ++z) {
+    for (int64_t y = y0; y <= y1; ++y) {
+      const auto [a, b] = span_of(y + m[1] * z);
+      if (a <= x1 && b > x0) return false;
+    }
+  }
+  return true;
+}
 
 // A per-voxel table (a grid's values, x fastest) that keeps each row's span only: every voxel off it holds fill().
 // A grid of fewer than 2^31 voxels whose rows are at most kMaxRow long is packed; any other keeps every voxel (the
