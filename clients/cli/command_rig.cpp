@@ -411,7 +411,8 @@ void add_rig_upgrade(CLI::App* group) {
   CLI::App* cmd = group->add_subcommand(
       "upgrade",
       "Write a rig from an earlier posewarp again with what this version keeps in a rig and it lacks (the engine's "
-      "per-voxel tables, the mesh's skin vertices), made from the rig itself, so that opening it and its first pose "
+      "per-voxel tables and its summary of them, the mesh's skin vertices), made from the rig itself, so that opening "
+      "it and its first pose "
       "compute nothing; its mesh, weights and volumes stay as they are (no rebuild, the same rig id)");
   cmd->add_option("rig", *path, "Rig file")->required();
   cmd->add_option("-o,--out", *out, "Where to write it (default: replace the rig file, atomically)");

@@ -46,7 +46,8 @@ int64_t Rig::footprint_bytes() const {
            static_cast<int64_t>(centres.rigid.size());
   for (const surface::SurfaceMesh& m : surfaces) total += bytes(m.vertices) + bytes(m.triangles);
   for (const mapping::Embedding& e : embeddings) total += bytes(e.tet) + bytes(e.barycentric);
-  total += static_cast<int64_t>(rest_owner.bytes() + body_region.bytes() + skin_vertex.size());
+  total += static_cast<int64_t>(rest_owner.bytes() + body_region.bytes() + skin_vertex.size() +
+                                tet_region.size() * sizeof(int16_t));
   if (bone_substitute) {
     total +=
         static_cast<int64_t>((bone_substitute->voxel.size() + bone_substitute->substitute.size()) * sizeof(int32_t));

@@ -13,4 +13,9 @@ namespace posewarp::api::internal {
 // and mesh). complete_rig (rig_file.h) adds the skin vertices to them.
 Status make_engine_tables(Rig& rig, const ProgressHooks& hooks);
 
+// Whether the engine's summary of the tables and volumes (rig.tet_region, rest_label_counts, ct_lowest) is missing
+// or does not fit the mesh; make_engine_summary fills in what is (from the region table, the labels and the CT).
+bool lacks_summary(const Rig& rig);
+void make_engine_summary(Rig& rig);
+
 }  // namespace posewarp::api::internal

@@ -143,18 +143,6 @@ fem::NonlinearParams refine_params(int iterations) {
   return params;
 }
 
-// The lowest voxel of a volume, over every thread.
-float lowest_value(const IntensityVolume& volume) {
-  std::mutex merge;
-  float lowest = std::numeric_limits<float>::max();
-  parallel_for(0, volume.voxel_count(), int64_t{1} << 20, [&](int64_t begin, int64_t end) {
-    const float low = *std::min_element(volume.data() + begin, volume.data() + end);
-    const std::lock_guard<std::mutex> lock(merge);
-    lowest = std::min(lowest, low);
-  });
-  return lowest;
-}
-
 // Restricts the rig to what its surfaces need: their tets, renumbered, on their vertices, renumbered.
 void prepare_preview(const Rig& rig, PreviewRig& preview) {
   // New numbers in the order of first use (-1: not used yet).
@@ -306,26 +294,6 @@ void forward_field(const Prepared& p, const skinning::SegmentTransforms& segment
   });
 }
 
-// Per tet: the body region at its rest centroid (-1 outside the grid), for the warp's skin-contact guard.
-std::vector<int16_t> tet_regions(const Rig& rig, const RowPacked<int16_t>& region) {
-  const ImageGeometry& g = rig.labels.geometry();
-  const PhysicalToIndex to_index(g);
-  std::vector<int16_t> tet_region(static_cast<size_t>(rig.mesh.tet_count()), -1);
-  parallel_for(0, rig.mesh.tet_count(), 4096, [&](int64_t begin, int64_t end) {
-    for (int64_t t = begin; t < end; ++t) {
-      Eigen::Vector3d c = Eigen::Vector3d::Zero();
-      for (int q = 0; q < 4; ++q) c += rig.mesh.vertices.row(rig.mesh.tets(t, q)).transpose();
-      const Vec3 u = to_index({c.x() / 4, c.y() / 4, c.z() / 4});
-      // Rounded only within the grid's reach: llround of a value beyond int64 (a damaged rig's far vertex) is
-      // undefined; such a centre lies in no voxel.
-      auto voxel = [](double x) { return std::abs(x) < 1e15 ? std::llround(x) : int64_t{-1}; };
-      const int64_t i = voxel(u[0]), j = voxel(u[1]), k = voxel(u[2]);
-      if (rig.labels.contains(i, j, k)) tet_region[static_cast<size_t>(t)] = region.at(i, j, k);
-    }
-  });
-  return tet_region;
-}
-
 }  // namespace
 
 Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
@@ -337,12 +305,17 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       }
       auto p = std::make_shared<Prepared>();
       p->frames = skinning::rest_tet_frames(rig.mesh);
-      // A rig file holds its owner and region tables; a rig from an earlier version gets them made here.
+      // A rig file holds its owner and region tables and the engine's summary of them; a rig from an earlier
+      // version gets them made here.
       if (rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute) {
         POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
       }
+      if (internal::lacks_summary(rig)) internal::make_engine_summary(rig);
       p->rest_owner = std::move(rig.rest_owner);
       p->region = std::move(rig.body_region);
+      p->tet_region = std::move(rig.tet_region);
+      p->rest_label_counts = std::move(rig.rest_label_counts);
+      if (rig.ct) p->ct_minimum = std::min(0.0f, *rig.ct_lowest);
       p->label_spans = resample::row_spans(rig.labels.data(), rig.labels.size(), 0);
       std::vector<std::vector<Label>> segment_labels;
       for (const rig::Segment& segment : rig.skeleton.segments) segment_labels.push_back(segment.labels);
@@ -350,9 +323,6 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
                                 resample::bone_voxels(rig.labels, segment_labels, &*rig.bone_substitute));
       rig.bone_substitute.reset();  // the engine keeps them as the bone voxels' own
       p->separated = rig::separated_segments(rig.skeleton);
-      p->tet_region = tet_regions(rig, p->region);
-      p->rest_label_counts = report::label_counts(rig.labels);
-      if (rig.ct) p->ct_minimum = std::min(0.0f, lowest_value(*rig.ct));
       p->rig = std::move(rig);
       return PoseEngine(std::move(p));
     });

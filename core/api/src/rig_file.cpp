@@ -54,14 +54,24 @@ constexpr uint32_t kRestOwner = tag("OWNR");
 constexpr uint32_t kBodyRegion = tag("REGN");
 constexpr uint32_t kBoneSubstitute = tag("SUBS");
 constexpr uint32_t kSkinVertices = tag("SKIN");
+constexpr uint32_t kEngineSummary = tag("ENGN");
 constexpr uint32_t kEnd = tag("END!");
 
-// Sections holding a volume's worth of values: read in parallel, after the others.
+// Sections holding a volume's worth of values: read after the checks that bound their sizes.
 bool is_bulk(uint32_t t) {
   return t == kLabelVolume || t == kCtVolume || t == kRestOwner || t == kBodyRegion || t == kBoneSubstitute;
 }
 
-uint64_t checksum(const std::string& payload) {
+// The sections this version reads into the rig's members (any other is kept as it is).
+bool is_known(uint32_t t) {
+  for (const uint32_t known : {kGeometry, kLabelMap, kSkeleton, kParams, kVertices, kTets, kTetClass, kWeights,
+                               kCentres, kProvenance, kSurfaces, kSkinVertices, kEngineSummary}) {
+    if (t == known) return true;
+  }
+  return is_bulk(t);
+}
+
+uint64_t checksum(std::string_view payload) {
   return std::stoull(hash_bytes(payload.data(), payload.size()), nullptr, 16);
 }
 
@@ -249,6 +259,7 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
     w.put_string(packed);
     sections.emplace_back(kSkinVertices, w.take());
   }
+  if (!rig.tet_region.empty()) sections.emplace_back(kEngineSummary, internal::summary_section(rig));
   for (const auto& unknown : rig.unknown_sections) sections.push_back(unknown);
   {
     nlohmann::json prov;
@@ -275,7 +286,7 @@ std::string hash_of_sections(const std::vector<std::pair<uint32_t, std::string>>
 }
 
 // Reads the GEOM section: the source grid and the hashes of the label and CT volumes it came from.
-Status read_geometry_section(const std::string& payload, const std::string& name, Rig& rig) {
+Status read_geometry_section(std::string_view payload, const std::string& name, Rig& rig) {
   Reader r(payload, name);
   ImageGeometry& g = rig.source_geometry;
   for (int a = 0; a < 3; ++a) POSEWARP_RETURN_IF_ERROR(r.get(g.size[static_cast<size_t>(a)]));
@@ -287,7 +298,7 @@ Status read_geometry_section(const std::string& payload, const std::string& name
 }
 
 // Reads the CORS section: every vertex's centre of rotation and whether one segment moves it rigidly.
-Status read_centres_section(const std::string& payload, const std::string& name, Rig& rig) {
+Status read_centres_section(std::string_view payload, const std::string& name, Rig& rig) {
   Reader r(payload, name);
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> centres;
   POSEWARP_RETURN_IF_ERROR(r.get_matrix(centres));
@@ -300,7 +311,7 @@ Status read_centres_section(const std::string& payload, const std::string& name,
 }
 
 // Reads the SURF section: each rest surface with its embedding in the rest tets, appended to the rig.
-Status read_surfaces_section(const std::string& payload, const std::string& name, Rig& rig) {
+Status read_surfaces_section(std::string_view payload, const std::string& name, Rig& rig) {
   Reader r(payload, name);
   uint64_t count = 0;
   POSEWARP_RETURN_IF_ERROR(r.get(count));
@@ -333,7 +344,7 @@ Status read_surfaces_section(const std::string& payload, const std::string& name
 }
 
 // Reads the PROV section: software version, sources, stage timings and statistics, as JSON.
-Status read_provenance_section(const std::string& payload, Rig& rig) {
+Status read_provenance_section(std::string_view payload, Rig& rig) {
   const Result<nlohmann::json> parsed = parse_json<nlohmann::json>(payload, "rig provenance section");
   if (!parsed.ok()) return data_loss_error(parsed.status().message());
   try {
@@ -378,7 +389,7 @@ Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32
 }
 
 // Reads one section's payload into the rig; a section of an unknown tag is kept as it is.
-Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
+Status parse_section(Rig& rig, uint32_t t, std::string_view payload) {
   const std::string name = tag_name(t);
   if (t == kGeometry) return read_geometry_section(payload, name, rig);
   if (t == kLabelMap) {
@@ -388,11 +399,11 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
     return ok_status();
   }
   if (t == kSkeleton) {
-    POSEWARP_ASSIGN_OR_RETURN(rig.skeleton, detail::skeleton_from_json(payload));
+    POSEWARP_ASSIGN_OR_RETURN(rig.skeleton, detail::skeleton_from_json(std::string(payload)));
     return ok_status();
   }
   if (t == kParams) {
-    rig.params_json = payload;
+    rig.params_json = std::string(payload);
     return ok_status();
   }
   if (t == kSkinVertices) {
@@ -434,7 +445,8 @@ Status parse_section(Rig& rig, uint32_t t, const std::string& payload) {
   if (t == kCentres) return read_centres_section(payload, name, rig);
   if (t == kSurfaces) return read_surfaces_section(payload, name, rig);
   if (t == kProvenance) return read_provenance_section(payload, rig);
-  rig.unknown_sections.emplace_back(t, payload);
+  if (t == kEngineSummary) return internal::read_summary_section(payload, rig);
+  rig.unknown_sections.emplace_back(t, std::string(payload));
   return ok_status();
 }
 
@@ -586,7 +598,11 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     std::string_view payload;
     uint64_t sum;
   };
-  std::vector<Bulk> bulk;  // the large sections, checked and parsed in parallel after the others
+  // GEOM (which the tables' sizes depend on) and sections of an unknown tag (kept in file order) are read in turn;
+  // every other section is checked and parsed on every thread after the end marker, each into its own member of the
+  // rig, the large ones (a volume's worth of values) after the checks that bound what they allocate.
+  std::vector<Bulk> small, bulk;
+  bool content_checked = true;
   while (offset < file.size()) {
     if (offset + 24 > file.size()) break;
     uint32_t t = 0;
@@ -597,9 +613,7 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     offset += 24;
     if (t == kEnd) {
       ended = true;
-      if (std::stoull(hash_bytes(digest.data(), digest.size()), nullptr, 16) != sum) {
-        return data_loss_error(where + " fails its content check; the file is damaged. Rebuild the rig");
-      }
+      content_checked = std::stoull(hash_bytes(digest.data(), digest.size()), nullptr, 16) == sum;
       break;
     }
     if (size > file.size() - offset) break;
@@ -610,18 +624,17 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
       std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(sum));
       digest += tag_name(t) + hex;
     }
-    if (is_bulk(t)) {
-      if (std::any_of(bulk.begin(), bulk.end(), [t](const Bulk& section) { return section.tag == t; })) {
-        return data_loss_error(where + " holds section " + tag_name(t) +
-                               " twice; the file is damaged. Rebuild the rig");
-      }
-      bulk.push_back({t, bytes, sum});
+    if (t == kGeometry || !is_known(t)) {
+      if (checksum(bytes) != sum) return section_damaged(where, t);
+      Status parsed = parse_section(rig, t, bytes);
+      if (!parsed.ok()) return parsed.with_context(where);
       continue;
     }
-    const std::string payload(bytes);
-    if (checksum(payload) != sum) return section_damaged(where, t);
-    Status parsed = parse_section(rig, t, payload);
-    if (!parsed.ok()) return parsed.with_context(where);
+    std::vector<Bulk>& later = is_bulk(t) ? bulk : small;
+    if (std::any_of(later.begin(), later.end(), [t](const Bulk& section) { return section.tag == t; })) {
+      return data_loss_error(where + " holds section " + tag_name(t) + " twice; the file is damaged. Rebuild the rig");
+    }
+    later.push_back({t, bytes, sum});
   }
   // The tables hold one value per voxel of the grid GEOM names; that grid is the label volume's, whose section can
   // hold at most 1032 voxels per compressed byte: a grid beyond that is damage, refused before any table is made.
@@ -630,30 +643,41 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
   };
   const bool tables = has(kRestOwner) != bulk.end() || has(kBodyRegion) != bulk.end() ||
                       has(kBoneSubstitute) != bulk.end();
-  if (tables && has(kLabelVolume) == bulk.end()) {
-    return data_loss_error(where + ": rig has no label volume (section LVOL is missing)");
-  }
-  const uint64_t most = tables ? (has(kLabelVolume)->payload.size() + 64) * 1032 : 0;  // 1-byte samples at best
+  Status bounded = ok_status();
   const int64_t voxels = grid_voxels(rig);
-  if (tables && (voxels < 0 || static_cast<uint64_t>(voxels) > most)) {
-    return data_loss_error(where + ": its grid has more voxels than its label volume can hold; the file is "
-                           "damaged. Rebuild the rig");
+  if (tables && has(kLabelVolume) == bulk.end()) {
+    bounded = data_loss_error(where + ": rig has no label volume (section LVOL is missing)");
+  } else if (tables && (voxels < 0 || static_cast<uint64_t>(voxels) >
+                                          (has(kLabelVolume)->payload.size() + 64) * 1032)) {  // 1-byte samples at best
+    bounded = data_loss_error(where +
+                              ": its grid has more voxels than its label volume can hold; the file is "
+                              "damaged. Rebuild the rig");
   }
-  // The volumes and tables are checked and inflated on every thread, each into its own member of the rig.
-  if (has(kCtVolume) != bulk.end()) rig.ct.emplace();
-  if (has(kBoneSubstitute) != bulk.end()) rig.bone_substitute.emplace();
-  std::vector<Status> parsed(bulk.size(), ok_status());
-  parallel_for(0, static_cast<int64_t>(bulk.size()), 1, [&](int64_t begin, int64_t end) {
+  // A damaged file is reported as before the sections were read in parallel: the first small section that fails,
+  // then the content check, then the tables' bounds, then the first large section that fails.
+  const bool read_bulk = content_checked && bounded.ok();
+  if (read_bulk && has(kCtVolume) != bulk.end()) rig.ct.emplace();
+  if (read_bulk && has(kBoneSubstitute) != bulk.end()) rig.bone_substitute.emplace();
+  std::vector<Bulk> sections = small;
+  if (read_bulk) sections.insert(sections.end(), bulk.begin(), bulk.end());
+  std::vector<Status> parsed(sections.size(), ok_status());
+  parallel_for(0, static_cast<int64_t>(sections.size()), 1, [&](int64_t begin, int64_t end) {
     for (int64_t b = begin; b < end; ++b) {
-      const Bulk& section = bulk[static_cast<size_t>(b)];
-      const std::string checked = hash_bytes(section.payload.data(), section.payload.size());
-      parsed[static_cast<size_t>(b)] = std::stoull(checked, nullptr, 16) != section.sum
-                                           ? section_damaged(where, section.tag)
-                                           : parse_bulk_section(rig, section.tag, section.payload, version);
+      const Bulk& section = sections[static_cast<size_t>(b)];
+      parsed[static_cast<size_t>(b)] = checksum(section.payload) != section.sum ? section_damaged(where, section.tag)
+                                       : is_bulk(section.tag)
+                                           ? parse_bulk_section(rig, section.tag, section.payload, version)
+                                           : parse_section(rig, section.tag, section.payload);
     }
   });
-  for (const Status& status : parsed) {
-    if (!status.ok()) return status.with_context(where);
+  for (size_t b = 0; b < small.size(); ++b) {
+    if (!parsed[b].ok()) return parsed[b].with_context(where);
+  }
+  if (!content_checked)
+    return data_loss_error(where + " fails its content check; the file is damaged. Rebuild the rig");
+  if (!bounded.ok()) return bounded;
+  for (size_t b = small.size(); b < parsed.size(); ++b) {
+    if (!parsed[b].ok()) return parsed[b].with_context(where);
   }
   if (!ended) {
     return data_loss_error(where + " is truncated (" + std::to_string(file.size()) +

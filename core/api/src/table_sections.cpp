@@ -2,8 +2,9 @@
 
 #include <libdeflate.h>
 
-#include <atomic>
 #include <algorithm>
+#include <atomic>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <memory>
@@ -12,6 +13,28 @@
 #include "posewarp/resample/tet_warp.h"
 
 namespace posewarp::api::internal {
+namespace {
+
+Status check_summary(const Rig& rig) {
+  if (rig.tet_region.empty() && rig.rest_label_counts.empty() && !rig.ct_lowest) return ok_status();
+  const auto segments = static_cast<int64_t>(rig.skeleton.segments.size());
+  bool fits = static_cast<int64_t>(rig.tet_region.size()) == rig.mesh.tet_count() &&
+              rig.ct_lowest.has_value() == rig.ct.has_value();
+  for (const int16_t region : rig.tet_region) fits &= region >= -1 && region < segments;
+  int64_t counted = 0;
+  for (const auto& [label, count] : rig.rest_label_counts) {
+    fits &= count > 0 && count <= rig.labels.voxel_count() - counted;
+    counted += fits ? count : 0;
+  }
+  if (!fits || counted != rig.labels.voxel_count()) {
+    return data_loss_error(
+        "rig's engine summary (section ENGN) does not fit its mesh, skeleton and volumes; the "
+        "file is damaged. Rebuild the rig");
+  }
+  return ok_status();
+}
+
+}  // namespace
 
 Status check_engine_tables(const Rig& rig) {
   if (!rig.skin_vertex.empty() && static_cast<int64_t>(rig.skin_vertex.size()) != rig.mesh.vertex_count()) {
@@ -19,6 +42,7 @@ Status check_engine_tables(const Rig& rig) {
         "rig's skin table (section SKIN) does not hold one value per mesh vertex; the file is "
         "damaged. Rebuild the rig");
   }
+  POSEWARP_RETURN_IF_ERROR(check_summary(rig));
   if (rig.rest_owner.empty() && rig.body_region.empty() && !rig.bone_substitute) return ok_status();
   const auto voxels = static_cast<size_t>(rig.labels.voxel_count());
   if (rig.rest_owner.size() != rig.labels.size() || rig.body_region.size() != rig.labels.size() ||
@@ -198,6 +222,59 @@ std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxel
   }
   runs.extend(0, static_cast<uint32_t>(voxels) - at);
   return runs.packed(static_cast<uint64_t>(voxels));
+}
+
+std::string summary_section(const Rig& rig) {
+  std::string section;
+  put<uint64_t>(section, rig.rest_label_counts.size());
+  for (const auto& [label, count] : rig.rest_label_counts) {
+    put<int32_t>(section, label);
+    put<int64_t>(section, count);
+  }
+  put<uint8_t>(section, rig.ct_lowest ? 1 : 0);
+  put<float>(section, rig.ct_lowest.value_or(0.0f));
+  const std::string regions = deflated(rig.tet_region.data(), rig.tet_region.size() * sizeof(int16_t));
+  put<uint64_t>(section, rig.tet_region.size());
+  put<uint64_t>(section, regions.size());
+  return section + regions;
+}
+
+Status read_summary_section(std::string_view payload, Rig& rig) {
+  auto damaged = [](const std::string& what) {
+    return data_loss_error("rig section ENGN " + what + "; the file is damaged. Rebuild the rig");
+  };
+  size_t at = 0;
+  auto get = [&](auto& value) {
+    if (payload.size() - at < sizeof(value)) return false;
+    std::memcpy(&value, payload.data() + at, sizeof(value));
+    at += sizeof(value);
+    return true;
+  };
+  uint64_t labels = 0;
+  if (!get(labels) || labels > payload.size() / 12) return damaged("ends early");
+  rig.rest_label_counts.clear();
+  for (uint64_t e = 0; e < labels; ++e) {
+    int32_t label = 0;
+    int64_t count = 0;
+    if (!get(label) || !get(count)) return damaged("ends early");
+    if (!rig.rest_label_counts.emplace(label, count).second) return damaged("counts a label twice");
+  }
+  uint8_t has_ct = 0;
+  float lowest = 0.0f;
+  uint64_t tets = 0, packed = 0;
+  if (!get(has_ct) || !get(lowest) || !get(tets) || !get(packed) || packed != payload.size() - at) {
+    return damaged("ends early");
+  }
+  if (has_ct > 1 || std::isnan(lowest)) return damaged("holds a value out of its range");
+  rig.ct_lowest.reset();
+  if (has_ct) rig.ct_lowest = lowest;
+  // Deflate packs at most 1032:1: more regions than that is damage, refused before they are allocated.
+  if (tets / 1032 > (packed + 64) / sizeof(int16_t)) return damaged("claims more tets than it holds");
+  rig.tet_region.resize(static_cast<size_t>(tets));
+  if (!inflate_exactly(payload.substr(at), rig.tet_region.data(), rig.tet_region.size() * sizeof(int16_t))) {
+    return damaged("does not decompress");
+  }
+  return ok_status();
 }
 
 Status read_owner_section(std::string_view payload, const Index3& grid, RowPacked<int32_t>& owner) {

@@ -12,7 +12,8 @@ namespace posewarp::api::internal {
 
 // DATA_LOSS unless the tables a rig file gave are one value per source voxel, each within its range (a tet of the
 // mesh, its shell or none; a segment of the skeleton or -1), and substitutes of ascending voxels by voxels of the
-// grid: the warp indexes with them.
+// grid: the warp indexes with them. Likewise the engine's summary, when the file has one: a region per tet of the
+// mesh (a segment or -1), label counts that add up to the labels' voxels, and a lowest value where there is a CT.
 Status check_engine_tables(const Rig& rig);
 
 // The tables as rig file sections (runs of equal values, deflated) and back. `grid` and `voxels` are the rig's grid
@@ -25,6 +26,13 @@ std::string substitute_section(const BoneSubstitutes& substitutes, int64_t voxel
 Status read_owner_section(std::string_view payload, const Index3& grid, RowPacked<int32_t>& owner);
 Status read_region_section(std::string_view payload, const Index3& grid, RowPacked<int16_t>& region);
 Status read_substitute_section(std::string_view payload, int64_t voxels, BoneSubstitutes& substitutes);
+
+// The engine's summary (rig.tet_region, rest_label_counts, ct_lowest) as a rig file section (ENGN) and back: the
+// label counts as (value, count) pairs, the CT's lowest value when the rig has a CT, then the tets' regions, deflated.
+// A damaged payload is DATA_LOSS before anything large is allocated; check_engine_tables checks the summary against
+// the mesh and volumes once every section is read.
+std::string summary_section(const Rig& rig);
+Status read_summary_section(std::string_view payload, Rig& rig);
 
 // zlib-format data inflated into `out` (exactly out_bytes), as libdeflate does it: twice zlib's speed, for the rig's
 // volume sections too. False when the data is damaged or does not fill `out` exactly.

@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -480,8 +481,9 @@ TEST(Posing, ARigWithoutItsSkinVerticesReportsTheSame) {
   EXPECT_GT(skin, 0);
 }
 
-// An older rig completed (what `posewarp rig upgrade` does): the format 1 fixture gains the engine's tables and the
-// skin vertices, a second completion adds nothing, and the completed rig poses as the one whose engine made them.
+// An older rig completed (what `posewarp rig upgrade` does): the format 1 fixture gains the engine's tables, its
+// summary and the skin vertices, a second completion adds nothing, and the completed rig poses as the one whose
+// engine made them.
 TEST(Posing, ACompletedOldRigHoldsWhatItsEngineMadeAndPosesTheSame) {
   Result<Rig> old = load_rig(std::string(POSEWARP_SOURCE_DIR) + "/tests/data/rig_format_1/bar.rig");
   ASSERT_TRUE(old.ok()) << old.status().to_string();
@@ -492,6 +494,16 @@ TEST(Posing, ACompletedOldRigHoldsWhatItsEngineMadeAndPosesTheSame) {
   EXPECT_TRUE(*added);
   EXPECT_EQ(completed.rest_owner.size(), completed.labels.size());
   EXPECT_EQ(static_cast<int64_t>(completed.skin_vertex.size()), completed.mesh.vertex_count());
+  // And the engine's summary: a region per tet, the labels' counts, the CT's floor.
+  ASSERT_EQ(static_cast<int64_t>(completed.tet_region.size()), completed.mesh.tet_count());
+  EXPECT_GT(std::count_if(completed.tet_region.begin(), completed.tet_region.end(), [](int16_t r) { return r >= 0; }),
+            0);
+  int64_t counted = 0;
+  for (const auto& [label, count] : completed.rest_label_counts) counted += count;
+  EXPECT_EQ(counted, completed.labels.voxel_count());
+  ASSERT_TRUE(completed.ct && completed.ct_lowest);
+  EXPECT_EQ(*completed.ct_lowest,
+            *std::min_element(completed.ct->data(), completed.ct->data() + completed.ct->voxel_count()));
   EXPECT_EQ(completed.id(), old->id());
   Rig again = completed;
   EXPECT_FALSE(*complete_rig(again));
@@ -500,6 +512,14 @@ TEST(Posing, ACompletedOldRigHoldsWhatItsEngineMadeAndPosesTheSame) {
   only_skin.skin_vertex.clear();
   EXPECT_TRUE(*complete_rig(only_skin));
   EXPECT_EQ(only_skin.skin_vertex, completed.skin_vertex);
+  Rig only_summary = completed;  // a rig from before ENGN
+  only_summary.tet_region.clear();
+  only_summary.rest_label_counts.clear();
+  only_summary.ct_lowest.reset();
+  EXPECT_TRUE(*complete_rig(only_summary));
+  EXPECT_EQ(only_summary.tet_region, completed.tet_region);
+  EXPECT_EQ(only_summary.rest_label_counts, completed.rest_label_counts);
+  EXPECT_EQ(only_summary.ct_lowest, completed.ct_lowest);
   Rig empty;
   EXPECT_EQ(complete_rig(empty).status().code(), StatusCode::kFailedPrecondition);
   Result<PoseEngine> from_old = PoseEngine::create(std::move(old).value());

@@ -54,6 +54,13 @@ TEST(RigFile, RoundTripKeepsEverySection) {
   ASSERT_EQ(static_cast<int64_t>(rig.skin_vertex.size()), rig.mesh.vertex_count());
   EXPECT_GT(std::count(rig.skin_vertex.begin(), rig.skin_vertex.end(), 1), 0);
   EXPECT_EQ(back->skin_vertex, rig.skin_vertex);
+  // And the engine's summary (ENGN): a region per tet, the labels' counts, the CT's lowest value.
+  ASSERT_EQ(static_cast<int64_t>(rig.tet_region.size()), rig.mesh.tet_count());
+  EXPECT_EQ(back->tet_region, rig.tet_region);
+  ASSERT_FALSE(rig.rest_label_counts.empty());
+  EXPECT_EQ(back->rest_label_counts, rig.rest_label_counts);
+  ASSERT_TRUE(rig.ct_lowest);
+  EXPECT_EQ(back->ct_lowest, rig.ct_lowest);
 }
 
 TEST(RigFile, TruncatedFileIsDataLoss) {
@@ -201,6 +208,59 @@ TEST(RigFile, IndicesOutOfRangeAreRefusedEvenWithValidChecksums) {
     rig.skin_vertex.pop_back();
     refused(std::move(rig), "SKIN");
   }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.tet_region[0] = static_cast<int16_t>(rig.skeleton.segments.size());
+    refused(std::move(rig), "ENGN");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.tet_region.pop_back();
+    refused(std::move(rig), "ENGN");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.rest_label_counts.begin()->second += 1;  // more voxels than the labels hold
+    refused(std::move(rig), "ENGN");
+  }
+  {
+    Rig rig = posewarp::testing::shared_bar_rig();
+    rig.ct_lowest.reset();  // a CT without its floor
+    refused(std::move(rig), "ENGN");
+  }
+}
+
+// The engine's summary claiming far more tets than its deflated bytes can hold (checksums recomputed) is refused
+// before the regions are allocated.
+TEST(RigFile, ASummaryClaimingHugeCountsIsRefusedBeforeAllocating) {
+  const Rig& rig = shared_bar_rig();
+  std::string bytes = rig_to_bytes(rig);
+  const size_t at = bytes.find("ENGN");
+  ASSERT_NE(at, std::string::npos);
+  // After the label count, its (label, count) pairs, the CT flag and its lowest value: the tet count.
+  const size_t tets_at = at + 24 + 8 + 12 * rig.rest_label_counts.size() + 1 + 4;
+  uint64_t tets = 0;
+  std::memcpy(&tets, bytes.data() + tets_at, 8);
+  ASSERT_EQ(tets, static_cast<uint64_t>(rig.mesh.tet_count()));
+  const uint64_t huge = uint64_t{1} << 40;
+  std::memcpy(bytes.data() + tets_at, &huge, 8);
+  const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(bytes), "crafted rig").status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("more tets than it holds"), std::string::npos) << status.to_string();
+}
+
+// A section the reader knows appearing twice (checksums recomputed) is damage, not a second copy to append.
+TEST(RigFile, AKnownSectionTwiceIsRefused) {
+  const std::string bytes = rig_to_bytes(shared_bar_rig());
+  const size_t at = bytes.find("SKEL");
+  ASSERT_NE(at, std::string::npos);
+  uint64_t size = 0;
+  std::memcpy(&size, bytes.data() + at + 8, 8);
+  const std::string section = bytes.substr(at, 24 + size);
+  const std::string doubled = bytes.substr(0, at) + section + bytes.substr(at);
+  const Status status = rig_from_bytes(posewarp::testing::with_rig_checksums(doubled), "crafted rig").status();
+  EXPECT_EQ(status.code(), StatusCode::kDataLoss) << status.to_string();
+  EXPECT_NE(status.message().find("holds section SKEL twice"), std::string::npos) << status.to_string();
 }
 
 // A label volume section whose geometry claims far more voxels than its compressed bytes can hold (deflate packs at

@@ -85,6 +85,13 @@ struct Rig {
   RowPacked<int32_t> rest_owner;
   RowPacked<int16_t> body_region;
   std::optional<BoneSubstitutes> bone_substitute;
+  // And what the engine reads of the tables and volumes, which creating it would otherwise cost a whole body a tenth
+  // of a second: per tet the body region at its rest centroid (-1 outside the grid; the warp's skin-contact guard),
+  // the labels' voxels per value (the report's counts before the pose), and the CT's lowest value (the posed CT's
+  // floor). Made by build_rig (complete_rig); empty in a rig from before them, whose engine makes them.
+  std::vector<int16_t> tet_region;
+  std::map<Label, int64_t> rest_label_counts;
+  std::optional<float> ct_lowest;
   // Per tet-mesh vertex, 1 where it lies on the mesh's skin (fem::skin_vertices: the report's skin penetration and the
   // soft tissue's contacts), which costs a whole body a tenth of a second; made by build_rig, empty in a rig from
   // before it (its engine makes it on first use).
