@@ -4,6 +4,7 @@
 #include "posewarp/resample/rigid_bones.h"
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <limits>
 #include <mutex>
@@ -13,40 +14,6 @@
 namespace posewarp::resample {
 
 namespace {
-
-// The rank index over the bone voxels of `segment_table` (a segment per source voxel; BoneVoxels::bone_bits,
-// bones_before), their segments in rank order, and room for their substitutes.
-void index_bone_voxels(const std::vector<int16_t>& segment_table, BoneVoxels& bones) {
-  const int64_t n = static_cast<int64_t>(segment_table.size()), words = (n + 63) / 64;
-  bones.voxel_count = n;
-  bones.bone_bits.assign(static_cast<size_t>(words), 0);
-  bones.bones_before.resize(static_cast<size_t>(words));
-  const int16_t* segment = segment_table.data();
-  parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
-    for (int64_t w = w0; w < w1; ++w) {
-      uint64_t bits = 0;
-      for (int64_t v = 64 * w, end = std::min(n, v + 64); v < end; ++v) {
-        if (segment[v] != BoneVoxels::kNone) bits |= uint64_t{1} << (v & 63);
-      }
-      bones.bone_bits[static_cast<size_t>(w)] = bits;
-    }
-  });
-  int32_t before = 0;
-  for (int64_t w = 0; w < words; ++w) {
-    bones.bones_before[static_cast<size_t>(w)] = before;
-    before += count_bits(bones.bone_bits[static_cast<size_t>(w)]);
-  }
-  bones.substitute.assign(static_cast<size_t>(before), -1);
-  bones.bone_segment.resize(static_cast<size_t>(before));
-  parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
-    for (int64_t w = w0; w < w1; ++w) {
-      auto rank = static_cast<size_t>(bones.bones_before[static_cast<size_t>(w)]);
-      for (uint64_t bits = bones.bone_bits[static_cast<size_t>(w)]; bits != 0; bits &= bits - 1) {
-        bones.bone_segment[rank++] = segment[64 * w + std::countr_zero(bits)];
-      }
-    }
-  });
-}
 
 // Calls visit(v, rank) for each bone voxel v in voxel order, rank its entry of `substitute`.
 template <typename Visit>
@@ -120,25 +87,37 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
       return it == hashed.end() ? BoneVoxels::kNone : it->second;
     };
     const ImageGeometry& g = labels.geometry();
-    const int64_t n = labels.voxel_count();
-    // A segment per voxel while the bones are found and their substitutes searched; kept per bone voxel after.
-    std::vector<int16_t> segment_table(static_cast<size_t>(n), BoneVoxels::kNone);
+    const int64_t n = labels.voxel_count(), words = (n + 63) / 64;
+    // The rank index first (a bit per bone voxel; no table per voxel), with each segment's box: slabs of slices in
+    // parallel, each with its own boxes and count, merged after. A slab's first and last words may be shared with the
+    // next slab's, so words are or-ed in.
+    bones.voxel_count = n;
+    bones.bone_bits.assign(static_cast<size_t>(words), 0);
     using Box = std::array<int64_t, 6>;
     const Box empty{std::numeric_limits<int64_t>::max(), std::numeric_limits<int64_t>::max(),
                     std::numeric_limits<int64_t>::max(), -1, -1, -1};
     bones.box.assign(segment_labels.size(), empty);
     const Label* data = labels.data();
-    // Slabs of slices in parallel, each with its own boxes and count, merged after.
     std::mutex merge;
     parallel_for(0, g.size[2], 1, [&](int64_t k0, int64_t k1) {
       std::vector<Box> boxes(segment_labels.size(), empty);
       int64_t count = 0;
+      uint64_t bits = 0;
+      int64_t word = g.offset(0, 0, k0) >> 6;
+      auto flush = [&] {
+        if (bits != 0) std::atomic_ref<uint64_t>(bones.bone_bits[static_cast<size_t>(word)]).fetch_or(bits);
+        bits = 0;
+      };
       for (int64_t k = k0; k < k1; ++k) {
         for (int64_t j = 0; j < g.size[1]; ++j) {
           for (int64_t i = 0, v = g.offset(0, j, k); i < g.size[0]; ++i, ++v) {
             const int16_t segment = segment_of(data[v]);
             if (segment == BoneVoxels::kNone) continue;
-            segment_table[static_cast<size_t>(v)] = segment;
+            if ((v >> 6) != word) {
+              flush();
+              word = v >> 6;
+            }
+            bits |= uint64_t{1} << (v & 63);
             ++count;
             Box& box = boxes[static_cast<size_t>(segment)];
             box[0] = std::min(box[0], i), box[1] = std::min(box[1], j), box[2] = std::min(box[2], k);
@@ -146,6 +125,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
           }
         }
       }
+      flush();
       const std::lock_guard<std::mutex> lock(merge);
       bones.bone_voxels += count;
       for (size_t s = 0; s < boxes.size(); ++s) {
@@ -157,7 +137,23 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
         }
       }
     });
-    index_bone_voxels(segment_table, bones);
+    bones.bones_before.resize(static_cast<size_t>(words));
+    int32_t before = 0;
+    for (int64_t w = 0; w < words; ++w) {
+      bones.bones_before[static_cast<size_t>(w)] = before;
+      before += count_bits(bones.bone_bits[static_cast<size_t>(w)]);
+    }
+    // Then each bone voxel's segment, in rank order, and room for its substitute.
+    bones.substitute.assign(static_cast<size_t>(before), -1);
+    bones.bone_segment.resize(static_cast<size_t>(before));
+    parallel_for(0, words, 4096, [&](int64_t w0, int64_t w1) {
+      for (int64_t w = w0; w < w1; ++w) {
+        auto rank = static_cast<size_t>(bones.bones_before[static_cast<size_t>(w)]);
+        for (uint64_t bits = bones.bone_bits[static_cast<size_t>(w)]; bits != 0; bits &= bits - 1) {
+          bones.bone_segment[rank++] = segment_of(data[64 * w + std::countr_zero(bits)]);
+        }
+      }
+    });
     if (substitutes) {
       POSEWARP_RETURN_IF_ERROR(take_substitutes(*substitutes, bones));
       return bones;
@@ -180,7 +176,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
     for_each_bone_voxel(bones, [&](int64_t v, int32_t rank) {
       int32_t& mine = bones.substitute[static_cast<size_t>(rank)];
       for_neighbours(v, [&](int64_t w) {
-        if (mine < 0 && segment_table[static_cast<size_t>(w)] == BoneVoxels::kNone) mine = static_cast<int32_t>(w);
+        if (mine < 0 && !bones.is_bone(w)) mine = static_cast<int32_t>(w);
       });
       if (mine >= 0) front.push_back(v);
     });
@@ -189,7 +185,7 @@ Result<BoneVoxels> bone_voxels(const LabelVolume& labels, const std::vector<std:
       for (const int64_t v : front) {
         const int32_t mine = substitute(v);
         for_neighbours(v, [&](int64_t w) {
-          if (segment_table[static_cast<size_t>(w)] != BoneVoxels::kNone && substitute(w) < 0) {
+          if (bones.is_bone(w) && substitute(w) < 0) {
             substitute(w) = mine;
             next.push_back(w);
           }
