@@ -5,6 +5,8 @@
 
 #include <libdeflate.h>
 
+#include <atomic>
+
 #include <algorithm>
 #include <cstring>
 #include <memory>
@@ -153,6 +155,7 @@ Status write_nifti(const ImageGeometry& g, PixelType type, const ConvertVoxels& 
   // Members are made a batch at a time, in parallel, and written in order: memory stays a few members per thread.
   const int64_t batch = 2 * static_cast<int64_t>(std::max(1, thread_count()));
   std::vector<std::string> packed;
+  std::atomic<bool> fits{true};
   for (int64_t first = 0; first < members; first += batch) {
     const int64_t count = std::min(batch, members - first);
     packed.assign(static_cast<size_t>(count), std::string());
@@ -162,10 +165,12 @@ Status write_nifti(const ImageGeometry& g, PixelType type, const ConvertVoxels& 
         const int64_t from = (first + m) * member_voxels;
         const int64_t n = std::min(member_voxels, voxels - from);
         raw.resize(static_cast<size_t>(n * bytes_per_voxel));
-        convert(from, n, raw.data());
+        if (!convert(from, n, raw.data())) fits = false;
         packed[static_cast<size_t>(m)] = pack(raw.data(), raw.size(), gzip);
       }
     });
+    // The values are checked as they are converted: a file with one that does not fit is never committed.
+    if (!fits) return out_of_range_error("values of the volume do not fit " + std::string(pixel_type_name(type)));
     for (const std::string& member : packed) POSEWARP_RETURN_IF_ERROR(file.write(member));
   }
   return file.commit();

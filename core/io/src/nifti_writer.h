@@ -16,8 +16,9 @@
 
 namespace posewarp::io::detail {
 
-// Writes voxels [first, first + count) of the volume, converted to the file's voxel type, to `out`.
-using ConvertVoxels = std::function<void(int64_t first, int64_t count, char* out)>;
+// Writes voxels [first, first + count) of the volume, converted to the file's voxel type, to `out`; false where a
+// value does not fit that type.
+using ConvertVoxels = std::function<bool(int64_t first, int64_t count, char* out)>;
 
 // The 352 bytes in front of the voxels (header and an empty extension block), as ITK 5.2 writes them.
 std::string nifti_header(const ImageGeometry& geometry, PixelType type);
@@ -25,7 +26,8 @@ std::string nifti_header(const ImageGeometry& geometry, PixelType type);
 // `bytes` as a multi-member gzip, its members deflated in parallel.
 std::string gzip_members(std::string_view bytes);
 
-// Writes a scalar volume of `type` to `path` (.nii, or .nii.gz when `gzip`) through an AtomicFile.
+// Writes a scalar volume of `type` to `path` (.nii, or .nii.gz when `gzip`) through an AtomicFile; OUT_OF_RANGE,
+// and nothing written, where `convert` finds a value that does not fit.
 Status write_nifti(const ImageGeometry& geometry, PixelType type, const ConvertVoxels& convert, const std::string& path,
                    bool gzip);
 

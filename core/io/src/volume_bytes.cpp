@@ -1,11 +1,13 @@
 // Volumes as the bytes of a NIfTI-1 or NRRD file, made in memory (the NIfTI header is ITK's, nifti_writer.h).
 #include <zlib.h>
 
+#include <atomic>
 #include <cstdio>
 #include <cstring>
 #include <string>
 
 #include "nifti_writer.h"
+#include "posewarp/common/parallel.h"
 #include "posewarp/io/volume_io.h"
 
 namespace posewarp::io {
@@ -76,7 +78,13 @@ Result<std::string> encode(const Volume<In>& volume, VolumeFormat format, bool g
   std::string raw = whole_file || !gzip ? std::move(header) : std::string();
   const size_t at = raw.size();
   raw.resize(at + static_cast<size_t>(n * pixel_type_bytes(type)));
-  if (!convert_samples(volume.data(), n, type, raw.data() + at)) {
+  // Converted on every thread, as the file writer does (a CT's 20M voxels are 90 ms on one).
+  std::atomic<bool> fits{true};
+  const int64_t sample = pixel_type_bytes(type);
+  parallel_for(0, n, int64_t{1} << 20, [&](int64_t begin, int64_t end) {
+    if (!convert_samples(volume.data() + begin, end - begin, type, raw.data() + at + begin * sample)) fits = false;
+  });
+  if (!fits) {
     return out_of_range_error("the volume's values do not fit " + std::string(pixel_type_name(type)) +
                               "; choose a wider voxel type");
   }

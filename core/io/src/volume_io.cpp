@@ -474,16 +474,23 @@ Status write_any(const Volume<In>& volume, const std::string& path, const WriteO
   POSEWARP_RETURN_IF_ERROR(volume.geometry().validate().with_context("writing " + in_quotes(path)));
   POSEWARP_ASSIGN_OR_RETURN(const VolumeFormat format, format_from_path(path));
   const PixelType type = options.pixel_type.value_or(volume.source_type());
-  // Values must fit the type on disk; clipping would silently change labels or intensities.
-  if (!is_floating(type)) {
+  // Values must fit the type on disk; clipping would silently change labels or intensities. NIfTI checks them as it
+  // converts them (one pass less over the volume), the other writers before.
+  auto does_not_fit = [&]() -> Status {
     const auto [lo, hi] = value_range(volume);
-    const double rounded_lo = std::round(lo);
-    const double rounded_hi = std::round(hi);
-    if (rounded_lo < pixel_type_min(type) || rounded_hi > pixel_type_max(type)) {
+    if (std::round(lo) < pixel_type_min(type) || std::round(hi) > pixel_type_max(type)) {
       return out_of_range_error("values of the volume span " + format_number(lo) + ".." + format_number(hi) +
                                 ", which does not fit " + std::string(pixel_type_name(type)) + " for " +
                                 in_quotes(path) + "; choose a wider voxel type (--pixel-type)");
     }
+    return out_of_range_error("the volume holds values that are not numbers (NaN), which " +
+                              std::string(pixel_type_name(type)) + " cannot hold, for " + in_quotes(path) +
+                              "; write it as float32 (--pixel-type float32)");
+  };
+  const bool nifti = format == VolumeFormat::kNifti && (ends_with(path, ".nii") || ends_with(path, ".nii.gz"));
+  if (!is_floating(type) && !nifti) {
+    const auto [lo, hi] = value_range(volume);
+    if (std::round(lo) < pixel_type_min(type) || std::round(hi) > pixel_type_max(type)) return does_not_fit();
   }
   if (format == VolumeFormat::kDicomSeries && (is_floating(type) || type == PixelType::kUInt64 ||
                                                type == PixelType::kInt64)) {
@@ -491,11 +498,12 @@ Status write_any(const Volume<In>& volume, const std::string& path, const WriteO
                                   std::string(pixel_type_name(type)) + " cannot be written to " + in_quotes(path) +
                                   ". Write NIfTI/NRRD/MetaImage, or choose an integer --pixel-type");
   }
-  if (format == VolumeFormat::kNifti && (ends_with(path, ".nii") || ends_with(path, ".nii.gz"))) {
+  if (nifti) {
     const detail::ConvertVoxels convert = [&](int64_t first, int64_t count, char* out) {
-      convert_samples(volume.data() + first, count, type, out);  // the range was checked above
+      return convert_samples(volume.data() + first, count, type, out);
     };
-    return detail::write_nifti(volume.geometry(), type, convert, path, ends_with(path, ".gz"));
+    Status written = detail::write_nifti(volume.geometry(), type, convert, path, ends_with(path, ".gz"));
+    return written.code() == StatusCode::kOutOfRange ? does_not_fit() : written;
   }
   const std::string modality = options.dicom_modality.empty() ? default_modality : options.dicom_modality;
   switch (type) {

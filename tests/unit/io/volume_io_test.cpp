@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "test_support.h"
@@ -138,7 +139,24 @@ TEST(VolumeIo, OutputTypeCanBeChosenAndValuesThatDoNotFitAreRefused) {
   const Status refused = write_volume(labels, dir.file("l.nii.gz"), as_uint8);
   EXPECT_EQ(refused.code(), StatusCode::kOutOfRange);
   EXPECT_NE(refused.message().find("uint8"), std::string::npos);
+  EXPECT_NE(refused.message().find("span 0..300"), std::string::npos) << refused.to_string();
   EXPECT_FALSE(std::filesystem::exists(dir.file("l.nii.gz")));
+  // NIfTI checks the values as it converts them: a refused write leaves no partial file behind, in either form,
+  // and the other writers refuse the same way before they write.
+  for (const char* name : {"l.nii", "l.nrrd"}) {
+    const Status also = write_volume(labels, dir.file(name), as_uint8);
+    EXPECT_EQ(also.code(), StatusCode::kOutOfRange) << name;
+    EXPECT_NE(also.message().find("span 0..300"), std::string::npos) << also.to_string();
+  }
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+  IntensityVolume ct = patterned_intensities(small_oblique_grid(), -1000.0f, 1000.0f, false);
+  ct.data()[ct.voxel_count() / 2] = std::nanf("");
+  WriteOptions as_int16;
+  as_int16.pixel_type = PixelType::kInt16;
+  const Status not_a_number = write_volume(ct, dir.file("c.nii.gz"), as_int16);
+  EXPECT_EQ(not_a_number.code(), StatusCode::kOutOfRange);
+  EXPECT_NE(not_a_number.message().find("NaN"), std::string::npos) << not_a_number.to_string();
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
   WriteOptions as_uint16;
   as_uint16.pixel_type = PixelType::kUInt16;
   ASSERT_TRUE(write_volume(labels, dir.file("l.nii.gz"), as_uint16).ok());
