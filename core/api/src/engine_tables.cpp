@@ -91,10 +91,6 @@ bool lacks_tables(const Rig& rig) {
   return rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute;
 }
 
-bool lacks_summary(const Rig& rig) {
-  return lacks_tables(rig) || internal::lacks_summary(rig);
-}
-
 bool lacks_skin(const Rig& rig) {
   return rig.skin_vertex.empty();
 }
@@ -103,7 +99,7 @@ bool lacks_skin(const Rig& rig) {
 
 std::string missing_from_rig(const Rig& rig) {
   std::string what = lacks_tables(rig) ? "the engine's per-voxel tables (OWNR, REGN, SUBS)" : "";
-  if (lacks_summary(rig)) what += std::string(what.empty() ? "" : " and ") + "the engine's summary (ENGN)";
+  if (internal::lacks_summary(rig)) what += std::string(what.empty() ? "" : " and ") + "the engine's summary (ENGN)";
   if (lacks_skin(rig)) what += std::string(what.empty() ? "" : " and ") + "the mesh's skin vertices (SKIN)";
   return what;
 }
@@ -113,7 +109,7 @@ Result<bool> complete_rig(Rig& rig, const ProgressHooks& hooks) {
     return failed_precondition_error("the rig holds no source volume to make its tables from; rebuild it");
   }
   const bool tables = lacks_tables(rig);
-  const bool summary = lacks_summary(rig);
+  const bool summary = internal::lacks_summary(rig);
   const bool skin = lacks_skin(rig);
   if (tables) POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
   if (summary) internal::make_engine_summary(rig);

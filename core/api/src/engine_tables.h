@@ -14,7 +14,8 @@ namespace posewarp::api::internal {
 Status make_engine_tables(Rig& rig, const ProgressHooks& hooks);
 
 // Whether the engine's summary of the tables and volumes (rig.tet_region, rest_label_counts, ct_lowest) is missing
-// or does not fit the mesh; make_engine_summary fills in what is (from the region table, the labels and the CT).
+// or does not fit the mesh; make_engine_summary fills in what is (from the region table, the labels and the CT) and
+// leaves the rest.
 bool lacks_summary(const Rig& rig);
 void make_engine_summary(Rig& rig);
 

@@ -310,7 +310,7 @@ Result<PoseEngine> PoseEngine::create(Rig rig, const ProgressHooks& hooks) {
       if (rig.rest_owner.empty() || rig.body_region.empty() || !rig.bone_substitute) {
         POSEWARP_RETURN_IF_ERROR(internal::make_engine_tables(rig, hooks));
       }
-      if (internal::lacks_summary(rig)) internal::make_engine_summary(rig);
+      internal::make_engine_summary(rig);  // what the rig file lacks of it
       p->rest_owner = std::move(rig.rest_owner);
       p->region = std::move(rig.body_region);
       p->tet_region = std::move(rig.tet_region);
