@@ -562,11 +562,24 @@ Status save_rig(const Rig& rig, const std::string& path) {
                  [&] { return write_file_atomically(path, rig_to_bytes(rig), "rig file"); });
 }
 
+// A rig holds the source volumes: a 20M-voxel study is a few hundred MB; 8 GB is far beyond any.
+constexpr int64_t kMaxRigBytes = int64_t{8} << 30;
+
 Result<Rig> load_rig(const std::string& path) {
-  // A rig holds the source volumes: a 20M-voxel study is a few hundred MB; 8 GB is far beyond any.
-  constexpr int64_t kMaxRigBytes = int64_t{8} << 30;
   POSEWARP_ASSIGN_OR_RETURN(const std::string file, read_text_input(path, "rig file", kMaxRigBytes));
   return rig_from_bytes(file, "'" + path + "'");
+}
+
+Result<Rig> load_rig(const std::string& path, std::string& stored_content_hash) {
+  POSEWARP_ASSIGN_OR_RETURN(const std::string file, read_text_input(path, "rig file", kMaxRigBytes));
+  POSEWARP_ASSIGN_OR_RETURN(Rig rig, rig_from_bytes(file, "'" + path + "'"));
+  // A rig that reads ends with its end marker (tag, flags, size 0, the hash where a section's checksum is).
+  uint64_t hash = 0;
+  std::memcpy(&hash, file.data() + file.size() - 8, 8);
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(hash));
+  stored_content_hash = hex;
+  return rig;
 }
 
 namespace {
