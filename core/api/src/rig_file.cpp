@@ -75,6 +75,13 @@ uint64_t checksum(std::string_view payload) {
   return std::stoull(hash_bytes(payload.data(), payload.size()), nullptr, 16);
 }
 
+// A 64-bit hash as the rig file writes it in hex (hash_bytes, the content hash).
+std::string hex64(uint64_t value) {
+  char hex[17];
+  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(value));
+  return hex;
+}
+
 std::string tag_name(uint32_t t) {
   std::string name(4, ' ');
   for (int i = 0; i < 4; ++i) name[static_cast<size_t>(i)] = static_cast<char>((t >> (8 * i)) & 0xff);
@@ -529,9 +536,7 @@ std::string hash_bytes(const void* data, size_t size, uint64_t seed) {
   h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ULL;
   h = (h ^ (h >> 27)) * 0x94d049bb133111ebULL;
   h ^= h >> 31;
-  char hex[17];
-  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(h));
-  return hex;
+  return hex64(h);
 }
 
 std::string content_hash(const Rig& rig) { return hash_of_sections(sections_of(rig)); }
@@ -566,8 +571,8 @@ Status save_rig(const Rig& rig, const std::string& path) {
 constexpr int64_t kMaxRigBytes = int64_t{8} << 30;
 
 Result<Rig> load_rig(const std::string& path) {
-  POSEWARP_ASSIGN_OR_RETURN(const std::string file, read_text_input(path, "rig file", kMaxRigBytes));
-  return rig_from_bytes(file, "'" + path + "'");
+  std::string unused;
+  return load_rig(path, unused);
 }
 
 Result<Rig> load_rig(const std::string& path, std::string& stored_content_hash) {
@@ -576,9 +581,7 @@ Result<Rig> load_rig(const std::string& path, std::string& stored_content_hash) 
   // A rig that reads ends with its end marker (tag, flags, size 0, the hash where a section's checksum is).
   uint64_t hash = 0;
   std::memcpy(&hash, file.data() + file.size() - 8, 8);
-  char hex[17];
-  std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(hash));
-  stored_content_hash = hex;
+  stored_content_hash = hex64(hash);
   return rig;
 }
 
@@ -633,9 +636,7 @@ static Result<Rig> rig_from_bytes_unguarded(std::string_view file, const std::st
     const std::string_view bytes = file.substr(offset, size);
     offset += size;
     if (t != kProvenance) {
-      char hex[17];
-      std::snprintf(hex, sizeof(hex), "%016llx", static_cast<unsigned long long>(sum));
-      digest += tag_name(t) + hex;
+      digest += tag_name(t) + hex64(sum);
     }
     if (t == kGeometry || !is_known(t)) {
       if (checksum(bytes) != sum) return section_damaged(where, t);
