@@ -39,8 +39,7 @@ std::string Rig::id() const {
 
 int64_t Rig::footprint_bytes() const {
   auto bytes = [](const auto& matrix) { return static_cast<int64_t>(matrix.size() * sizeof(*matrix.data())); };
-  int64_t total = labels.voxel_count() * static_cast<int64_t>(sizeof(Label)) +
-                  (ct ? ct->voxel_count() * static_cast<int64_t>(sizeof(float)) : 0);
+  int64_t total = labels.voxel_count() * static_cast<int64_t>(sizeof(Label)) + (ct ? ct->voxel_bytes() : 0);
   total += bytes(mesh.vertices) + bytes(mesh.tets) + bytes(mesh.tet_class);
   total += bytes(weights.segment) + bytes(weights.weight) + bytes(centres.centre) +
            static_cast<int64_t>(centres.rigid.size());
@@ -302,7 +301,7 @@ static Result<Rig> build_rig_unguarded(const BuildInputs& inputs, const BuildPar
   });
   if (!built.ok()) return built;
   rig.labels = inputs.labels;
-  rig.ct = inputs.ct;
+  if (inputs.ct) rig.ct.emplace(*inputs.ct);
   // Each joint's range of motion on this study (`rig info`, GetRig): how far a pose may turn it before bones meet.
   POSEWARP_RETURN_IF_ERROR(StageProgress(hooks, "ranges").check_cancel());
   POSEWARP_ASSIGN_OR_RETURN(const std::vector<JointRange> ranges, joint_ranges(rig));

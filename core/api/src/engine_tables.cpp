@@ -40,11 +40,12 @@ std::vector<int16_t> tet_regions(const Rig& rig) {
 }
 
 // The lowest voxel of a volume, over every thread.
-float lowest_value(const IntensityVolume& volume) {
+template <typename T>
+float lowest_value(const Volume<T>& volume) {
   std::mutex merge;
   float lowest = std::numeric_limits<float>::max();
   parallel_for(0, volume.voxel_count(), int64_t{1} << 20, [&](int64_t begin, int64_t end) {
-    const float low = *std::min_element(volume.data() + begin, volume.data() + end);
+    const float low = static_cast<float>(*std::min_element(volume.data() + begin, volume.data() + end));
     const std::lock_guard<std::mutex> lock(merge);
     lowest = std::min(lowest, low);
   });
@@ -61,7 +62,9 @@ bool lacks_summary(const Rig& rig) {
 void make_engine_summary(Rig& rig) {
   if (static_cast<int64_t>(rig.tet_region.size()) != rig.mesh.tet_count()) rig.tet_region = tet_regions(rig);
   if (rig.rest_label_counts.empty()) rig.rest_label_counts = report::label_counts(rig.labels);
-  if (rig.ct && !rig.ct_lowest) rig.ct_lowest = rig.ct->empty() ? 0.0f : lowest_value(*rig.ct);
+  if (rig.ct && !rig.ct_lowest) {
+    rig.ct_lowest = rig.ct->empty() ? 0.0f : rig.ct->visit([](const auto& ct) { return lowest_value(ct); });
+  }
 }
 
 Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
@@ -71,8 +74,9 @@ Status make_engine_tables(Rig& rig, const ProgressHooks& hooks) {
       resample::TetWarp::build({.rest = rig.mesh, .posed = rig.mesh.vertices, .source = g, .output = g}, hooks));
   rig.rest_owner = RowPacked<int32_t>::pack(identity.owner().data(), g.size, -1);
   // Body regions for the skin-contact guard: the body as a build with the default body parameters makes it.
-  POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body,
-                            labels::body_mask(rig.label_map, rig.labels, rig.ct ? &*rig.ct : nullptr));
+  // (A rig without these tables is one from before them: its CT in floats for the mask, for a moment.)
+  const std::optional<IntensityVolume> ct = rig.ct ? std::optional<IntensityVolume>(rig.ct->to_float()) : std::nullopt;
+  POSEWARP_ASSIGN_OR_RETURN(const LabelVolume body, labels::body_mask(rig.label_map, rig.labels, ct ? &*ct : nullptr));
   POSEWARP_ASSIGN_OR_RETURN(rig::BodyRegions regions, rig::body_regions(rig.skeleton, rig.labels, body));
   rig.body_region = RowPacked<int16_t>::pack(regions.segment.data(), g.size, int16_t{-1});
   std::vector<std::vector<Label>> segment_labels;

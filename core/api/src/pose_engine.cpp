@@ -476,7 +476,9 @@ Status warp_volumes(const Prepared& p, const PoseRequest& request, const skinnin
     const resample::Interpolation interpolation = request.ct_interpolation == Interpolation::kNearest
                                                       ? resample::Interpolation::kNearest
                                                       : resample::Interpolation::kLinear;
-    POSEWARP_ASSIGN_OR_RETURN(IntensityVolume ct, warp.warp_intensities(*p.rig.ct, interpolation));
+    POSEWARP_ASSIGN_OR_RETURN(IntensityVolume ct, p.rig.ct->visit([&](const auto& source) {
+      return warp.warp_intensities(source, interpolation);
+    }));
     clock.lap("warp-ct");
     if (request.ct_ready) {
       request.ct_ready(std::make_shared<const IntensityVolume>(std::move(ct)));

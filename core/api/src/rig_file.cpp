@@ -249,7 +249,7 @@ std::vector<std::pair<uint32_t, std::string>> sections_of(const Rig& rig) {
     sections.emplace_back(kSurfaces, w.take());
   }
   if (!rig.labels.empty()) sections.emplace_back(kLabelVolume, internal::volume_section(rig.labels));
-  if (rig.ct) sections.emplace_back(kCtVolume, internal::volume_section(*rig.ct));
+  if (rig.ct) sections.emplace_back(kCtVolume, internal::intensity_section(*rig.ct));
   if (!rig.rest_owner.empty()) sections.emplace_back(kRestOwner, internal::owner_section(rig.rest_owner));
   if (!rig.body_region.empty()) sections.emplace_back(kBodyRegion, internal::region_section(rig.body_region));
   if (rig.bone_substitute) {
@@ -387,7 +387,7 @@ int64_t grid_voxels(const Rig& rig) {
 Status parse_bulk_section(Rig& rig, uint32_t t, std::string_view payload, uint32_t format) {
   const std::string name = tag_name(t);
   if (t == kLabelVolume) return internal::read_volume_section(payload, name, format, rig.labels);
-  if (t == kCtVolume) return internal::read_volume_section(payload, name, format, *rig.ct);
+  if (t == kCtVolume) return internal::read_intensity_section(payload, name, format, *rig.ct);
   const int64_t voxels = grid_voxels(rig);  // GEOM was read before the bulk sections
   const Index3 grid = voxels >= 0 ? rig.source_geometry.size : Index3{0, 0, 0};
   if (t == kRestOwner) return internal::read_owner_section(payload, grid, rig.rest_owner);

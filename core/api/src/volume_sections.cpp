@@ -22,7 +22,15 @@ constexpr size_t kGridBytes = 3 * 8 + 3 * 8 + 3 * 8 + 9 * 8 + 4;
 // The type a volume's samples are read into.
 template <typename T>
 constexpr PixelType native_type() {
-  return std::is_same_v<T, float> ? PixelType::kFloat32 : PixelType::kInt32;
+  if constexpr (std::is_same_v<T, float>) return PixelType::kFloat32;
+  if constexpr (std::is_same_v<T, int16_t>) return PixelType::kInt16;
+  return PixelType::kInt32;
+}
+// The type its samples are stored in where its source's will not do: int16 intensities as the float volume of the
+// same values would store them, so that the section's bytes do not depend on which of the two holds them.
+template <typename T>
+constexpr PixelType fallback_type() {
+  return std::is_same_v<T, int16_t> ? PixelType::kFloat32 : native_type<T>();
 }
 
 void put_grid(std::string& out, const ImageGeometry& g, PixelType source) {
@@ -87,8 +95,14 @@ bool deflate_chunks(const Volume<T>& volume, PixelType type, std::vector<std::st
       if (type != native_type<T>()) {
         stored.resize(static_cast<size_t>(n * bytes));
         back.resize(static_cast<size_t>(n));
-        if (!convert_samples(values, n, type, stored.data()) || !read_samples(stored.data(), n, type, back.data()) ||
-            !std::equal(back.begin(), back.end(), values)) {
+        // From int16 a conversion that fits is exact (the other types hold the value or refuse it); from int32 or
+        // float it is checked by reading the samples back.
+        bool fits = convert_samples(values, n, type, stored.data());
+        if constexpr (!std::is_same_v<T, int16_t>) {
+          fits =
+              fits && read_samples(stored.data(), n, type, back.data()) && std::equal(back.begin(), back.end(), values);
+        }
+        if (!fits) {
           exact = false;
           break;
         }
@@ -187,9 +201,9 @@ std::string volume_section(const Volume<T>& volume) {
   // The source's type when every value comes back from it exactly (64-bit types are never read as samples).
   const PixelType source = volume.source_type();
   std::vector<std::string> chunks;
-  PixelType stored = pixel_type_bytes(source) < 8 ? source : native_type<T>();
+  PixelType stored = pixel_type_bytes(source) < 8 ? source : fallback_type<T>();
   if (!deflate_chunks(volume, stored, chunks)) {
-    stored = native_type<T>();
+    stored = fallback_type<T>();
     deflate_chunks(volume, stored, chunks);
   }
   auto put = [&section](const auto& value) { section.append(reinterpret_cast<const char*>(&value), sizeof(value)); };
@@ -215,9 +229,36 @@ Status read_volume_section(std::string_view payload, const std::string& name, ui
   return ok_status();
 }
 
+std::string intensity_section(const CompactIntensities& intensities) {
+  return intensities.visit([](const auto& volume) { return volume_section(volume); });
+}
+
+Status read_intensity_section(std::string_view payload, const std::string& name, uint32_t format,
+                              CompactIntensities& intensities) {
+  Cursor in(payload);
+  ImageGeometry g;
+  int32_t source = 0, stored = 0;
+  const bool narrow =
+      format == 2 && get_grid(in, g, source) && in.get(stored) &&
+      (stored == static_cast<int32_t>(PixelType::kInt16) || stored == static_cast<int32_t>(PixelType::kUInt8) ||
+       stored == static_cast<int32_t>(PixelType::kInt8));
+  if (narrow) {
+    Volume<int16_t> volume;
+    POSEWARP_RETURN_IF_ERROR(read_volume_section(payload, name, format, volume));
+    intensities = CompactIntensities(std::move(volume));
+    return ok_status();
+  }
+  IntensityVolume volume;
+  POSEWARP_RETURN_IF_ERROR(read_volume_section(payload, name, format, volume));
+  intensities = CompactIntensities(std::move(volume));
+  return ok_status();
+}
+
 template std::string volume_section(const Volume<Label>&);
 template std::string volume_section(const Volume<float>&);
+template std::string volume_section(const Volume<int16_t>&);
 template Status read_volume_section(std::string_view, const std::string&, uint32_t, Volume<Label>&);
 template Status read_volume_section(std::string_view, const std::string&, uint32_t, Volume<float>&);
+template Status read_volume_section(std::string_view, const std::string&, uint32_t, Volume<int16_t>&);
 
 }  // namespace posewarp::api::internal

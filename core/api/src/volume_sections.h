@@ -11,6 +11,7 @@
 #include <string>
 #include <string_view>
 
+#include "posewarp/common/compact_intensities.h"
 #include "posewarp/common/result.h"
 #include "posewarp/common/volume.h"
 
@@ -23,5 +24,12 @@ std::string volume_section(const Volume<T>& volume);
 // grid claims more voxels than its bytes can hold.
 template <typename T>
 Status read_volume_section(std::string_view payload, const std::string& name, uint32_t format, Volume<T>& volume);
+
+// The CT's section: written as the float volume it holds the values of would be (the same bytes, so the same rig
+// hash), read into int16 when its samples are int16, uint8 or int8 (no float copy on the way), else into float,
+// narrowed when every value fits.
+std::string intensity_section(const CompactIntensities& intensities);
+Status read_intensity_section(std::string_view payload, const std::string& name, uint32_t format,
+                              CompactIntensities& intensities);
 
 }  // namespace posewarp::api::internal

@@ -167,8 +167,15 @@ bool read_any(const char* in, int64_t n, PixelType type, Out* out) {
 
 bool read_samples(const char* in, int64_t n, PixelType type, int32_t* out) { return read_any(in, n, type, out); }
 bool read_samples(const char* in, int64_t n, PixelType type, float* out) { return read_any(in, n, type, out); }
+bool read_samples(const char* in, int64_t n, PixelType type, int16_t* out) {
+  const bool fits = type == PixelType::kUInt8 || type == PixelType::kInt8 || type == PixelType::kInt16;
+  return fits && read_any(in, n, type, out);
+}
 
 bool convert_samples(const int32_t* in, int64_t n, PixelType type, char* out) { return convert_any(in, n, type, out); }
 bool convert_samples(const float* in, int64_t n, PixelType type, char* out) { return convert_any(in, n, type, out); }
+bool convert_samples(const int16_t* in, int64_t n, PixelType type, char* out) {
+  return convert_any(in, n, type, out);
+}
 
 }  // namespace posewarp

@@ -4,6 +4,8 @@
 #if defined(__x86_64__)
 #include <immintrin.h>
 
+#include <cstring>
+
 namespace posewarp::resample::internal {
 
 bool has_avx2() {
@@ -31,12 +33,28 @@ inline __m128 float_pair(const float* at) {
   return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at)));
 }
 
-// p[l][at] + fx[l] (p[l][at + 1] - p[l][at]) for the four lanes l.
-__attribute__((target("avx2"), always_inline)) inline __m256d lerp_x4(const float* const p[4], int64_t at, __m256d fx) {
+// p[l][at] and p[l][at + 1] for the four lanes l, as floats (exact from int16): low and high.
+__attribute__((target("avx2"), always_inline)) inline void pairs_x4(const float* const p[4], int64_t at, __m128& low,
+                                                                    __m128& high) {
   const __m128 a = _mm_movelh_ps(float_pair(p[0] + at), float_pair(p[1] + at));  // p0[at] p0[at+1] p1[at] p1[at+1]
   const __m128 b = _mm_movelh_ps(float_pair(p[2] + at), float_pair(p[3] + at));
-  const __m128 low = _mm_shuffle_ps(a, b, _MM_SHUFFLE(2, 0, 2, 0)),
-               high = _mm_shuffle_ps(a, b, _MM_SHUFFLE(3, 1, 3, 1));
+  low = _mm_shuffle_ps(a, b, _MM_SHUFFLE(2, 0, 2, 0));
+  high = _mm_shuffle_ps(a, b, _MM_SHUFFLE(3, 1, 3, 1));
+}
+__attribute__((target("avx2"), always_inline)) inline void pairs_x4(const int16_t* const p[4], int64_t at, __m128& low,
+                                                                    __m128& high) {
+  int32_t both[4];
+  for (int l = 0; l < 4; ++l) std::memcpy(&both[l], p[l] + at, sizeof(int32_t));
+  const __m128i x = _mm_loadu_si128(reinterpret_cast<const __m128i*>(both));  // lane l: p[l][at] | p[l][at+1] << 16
+  low = _mm_cvtepi32_ps(_mm_srai_epi32(_mm_slli_epi32(x, 16), 16));
+  high = _mm_cvtepi32_ps(_mm_srai_epi32(x, 16));
+}
+
+// p[l][at] + fx[l] (p[l][at + 1] - p[l][at]) for the four lanes l.
+template <typename T>
+__attribute__((target("avx2"), always_inline)) inline __m256d lerp_x4(const T* const p[4], int64_t at, __m256d fx) {
+  __m128 low, high;
+  pairs_x4(p, at, low, high);
   return _mm256_add_pd(_mm256_cvtps_pd(low), _mm256_mul_pd(fx, _mm256_cvtps_pd(_mm_sub_ps(high, low))));
 }
 
@@ -70,12 +88,15 @@ __attribute__((target("avx2"))) int64_t nearest_avx2(const int32_t* __restrict i
   return c;
 }
 
+namespace {
+
 // trilinear_inside's loop four voxels at a time in AVX2, without FMA: each lane does the scalar code's IEEE operations
 // on the same values, so the same bits. From c up to the last whole four; returns where it stopped. For machines that
 // have AVX2 (x86-64's baseline stops at SSE2): the body's moved root, warp-ct 88-95 -> 75-76 ms.
-__attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict in, const Index3& m, const double s0[3],
-                                                       const double ds[3], int64_t c, int64_t end,
-                                                       float* __restrict out) {
+template <typename T>
+__attribute__((target("avx2"))) int64_t trilinear_x4(const T* __restrict in, const Index3& m, const double s0[3],
+                                                     const double ds[3], int64_t c, int64_t end,
+                                                     float* __restrict out) {
   const int64_t sy = m[0], sz = m[0] * m[1];
   // A run across the source rows (a turned map) asks for its lines ahead; along a row the hardware's prefetcher sees
   // them coming.
@@ -94,12 +115,12 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
     _mm_store_si128(reinterpret_cast<__m128i*>(ix), bx);
     _mm_store_si128(reinterpret_cast<__m128i*>(iy), by);
     _mm_store_si128(reinterpret_cast<__m128i*>(iz), bz);
-    const float* p[4];
+    const T* p[4];
     for (int l = 0; l < 4; ++l) p[l] = in + int64_t{ix[l]} + int64_t{iy[l]} * sy + int64_t{iz[l]} * sz;
     if (across_rows && c + 4 + kAheadCt < end) {
       const double da = double(c + kAheadCt);
-      const float* q = in + static_cast<int64_t>(s0[0] + da * ds[0]) + static_cast<int64_t>(s0[1] + da * ds[1]) * sy +
-                       static_cast<int64_t>(s0[2] + da * ds[2]) * sz;
+      const T* q = in + static_cast<int64_t>(s0[0] + da * ds[0]) + static_cast<int64_t>(s0[1] + da * ds[1]) * sy +
+                   static_cast<int64_t>(s0[2] + da * ds[2]) * sz;
       __builtin_prefetch(q);
       __builtin_prefetch(q + sy);
       __builtin_prefetch(q + sz);
@@ -112,6 +133,19 @@ __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict i
     _mm_storeu_ps(out + c, _mm256_cvtpd_ps(_mm256_add_pd(e0, _mm256_mul_pd(fz, _mm256_sub_pd(e1, e0)))));
   }
   return c;
+}
+
+}  // namespace
+
+__attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict in, const Index3& m, const double s0[3],
+                                                       const double ds[3], int64_t c, int64_t end,
+                                                       float* __restrict out) {
+  return trilinear_x4(in, m, s0, ds, c, end, out);
+}
+__attribute__((target("avx2"))) int64_t trilinear_avx2(const int16_t* __restrict in, const Index3& m,
+                                                       const double s0[3], const double ds[3], int64_t c, int64_t end,
+                                                       float* __restrict out) {
+  return trilinear_x4(in, m, s0, ds, c, end, out);
 }
 
 // rest_owner at the nearest source voxel of start + c step, for c in [c0, c0 + n), to ro[c - c0] (-1 off the grid or

@@ -31,6 +31,10 @@ __attribute__((target("avx2"))) int64_t nearest_avx2(const int32_t* __restrict i
 __attribute__((target("avx2"))) int64_t trilinear_avx2(const float* __restrict in, const Index3& m, const double s0[3],
                                                        const double ds[3], int64_t c, int64_t end,
                                                        float* __restrict out);
+// The same from int16 samples (each a float exactly, so the same bits as from the float volume of their values).
+__attribute__((target("avx2"))) int64_t trilinear_avx2(const int16_t* __restrict in, const Index3& m,
+                                                       const double s0[3], const double ds[3], int64_t c, int64_t end,
+                                                       float* __restrict out);
 
 // The classification's lookups along a turned background (warp_builder.cpp): rest_owner (packed rows, a grid of
 // fewer than 2^31 voxels) at the nearest source voxel of start + c step for c in [c0, c0 + n), to ro[c - c0], -1 off

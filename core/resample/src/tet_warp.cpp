@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <mutex>
 #include <new>
@@ -34,8 +35,8 @@ namespace {
 constexpr int64_t kSpanFrom = 16;
 
 // Copies `count` source voxels from whole index (x0, y, z) along x to dst, the part that lies in the grid m.
-template <typename T>
-inline void copy_source_row(const T* in, const Index3& m, int64_t x0, int64_t y, int64_t z, int64_t count, T* dst) {
+template <typename T, typename Out>
+inline void copy_source_row(const T* in, const Index3& m, int64_t x0, int64_t y, int64_t z, int64_t count, Out* dst) {
   if (y < 0 || z < 0 || y >= m[1] || z >= m[2]) return;
   const int64_t c0 = std::max<int64_t>(0, -x0), c1 = std::min<int64_t>(count, m[0] - x0);
   const T* row = in + m[0] * (y + m[1] * z) + x0;
@@ -116,10 +117,25 @@ void nearest_inside(const T* __restrict in, const Index3& m, const double s0[3],
   nearest_run(in, m, s0, ds, looked_up, end, out);
 }
 
+#if defined(__SSE2__)
+// Samples at[0] and at[1] as floats in the two low lanes (exact: an int16 is a float).
+inline __m128 pair_of(const float* at) {
+  return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at)));
+}
+inline __m128 pair_of(const int16_t* at) {
+  int32_t both = 0;
+  std::memcpy(&both, at, sizeof(both));
+  const __m128i x = _mm_cvtsi32_si128(both);
+  return _mm_cvtepi32_ps(_mm_srai_epi32(_mm_unpacklo_epi16(x, x), 16));  // each int16 sign-extended to int32
+}
+#endif
+
 // Trilinear samples of `in` (grid m, two voxels or more on every axis) at s0 + c ds for c in [first, end), each with
-// its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop.
-void trilinear_inside(const float* __restrict in, const Index3& m, const double s0[3], const double ds[3],
-                      int64_t first, int64_t end, float* __restrict out) {
+// its 8 neighbours in the grid (no clamping), to out[c]: the arithmetic of warp_intensities' checked loop. From int16
+// samples each difference p[1] - p[0] is the float one exactly (under 2^24), so the bits are those of the floats.
+template <typename T>
+void trilinear_inside(const T* __restrict in, const Index3& m, const double s0[3], const double ds[3], int64_t first,
+                      int64_t end, float* __restrict out) {
   const double a0 = s0[0], a1 = s0[1], a2 = s0[2], d0 = ds[0], d1 = ds[1], d2 = ds[2];
   const int64_t sy = m[0], sz = m[0] * m[1];
   int64_t c = first;
@@ -132,7 +148,6 @@ void trilinear_inside(const float* __restrict in, const Index3& m, const double 
   const __m128d x0 = _mm_set1_pd(a0), y0 = _mm_set1_pd(a1), z0 = _mm_set1_pd(a2);
   const __m128d dx = _mm_set1_pd(d0), dy = _mm_set1_pd(d1), dz = _mm_set1_pd(d2);
   auto lane = [](__m128i v, int l) { return static_cast<int64_t>(_mm_cvtsi128_si32(l ? _mm_shuffle_epi32(v, 1) : v)); };
-  auto pair = [](const float* at) { return _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(at))); };
   __m128d cc = _mm_set_pd(double(c + 1), double(c));
   for (; c + 1 < end; c += 2, cc = _mm_add_pd(cc, _mm_set1_pd(2.0))) {
     const __m128d x = _mm_add_pd(x0, _mm_mul_pd(cc, dx)), y = _mm_add_pd(y0, _mm_mul_pd(cc, dy)),
@@ -140,10 +155,10 @@ void trilinear_inside(const float* __restrict in, const Index3& m, const double 
     const __m128i bx = _mm_cvttpd_epi32(x), by = _mm_cvttpd_epi32(y), bz = _mm_cvttpd_epi32(z);
     const __m128d fx = _mm_sub_pd(x, _mm_cvtepi32_pd(bx)), fy = _mm_sub_pd(y, _mm_cvtepi32_pd(by)),
                   fz = _mm_sub_pd(z, _mm_cvtepi32_pd(bz));
-    const float* p = in + lane(bx, 0) + lane(by, 0) * sy + lane(bz, 0) * sz;
-    const float* q = in + lane(bx, 1) + lane(by, 1) * sy + lane(bz, 1) * sz;
-    auto along_x = [&](int64_t at) {                                  // p[at] + f0 (p[at + 1] - p[at]) | the same at q
-      const __m128 both = _mm_movelh_ps(pair(p + at), pair(q + at));  // p0 p1 q0 q1
+    const T* p = in + lane(bx, 0) + lane(by, 0) * sy + lane(bz, 0) * sz;
+    const T* q = in + lane(bx, 1) + lane(by, 1) * sy + lane(bz, 1) * sz;
+    auto along_x = [&](int64_t at) {                                           // p[at] + f0 (p[at + 1] - p[at]) | at q
+      const __m128 both = _mm_movelh_ps(pair_of(p + at), pair_of(q + at));     // p0 p1 q0 q1
       const __m128 low = _mm_shuffle_ps(both, both, _MM_SHUFFLE(3, 1, 2, 0));  // p0 q0 p1 q1
       const __m128 diff = _mm_sub_ps(_mm_movehl_ps(low, low), low);            // p1 - p0, q1 - q0
       return _mm_add_pd(_mm_cvtps_pd(low), _mm_mul_pd(fx, _mm_cvtps_pd(diff)));
@@ -159,7 +174,7 @@ void trilinear_inside(const float* __restrict in, const Index3& m, const double 
     const double x = a0 + dc * d0, y = a1 + dc * d1, z = a2 + dc * d2;
     const int64_t b0 = static_cast<int64_t>(x), b1 = static_cast<int64_t>(y), b2 = static_cast<int64_t>(z);
     const double f0 = x - static_cast<double>(b0), f1 = y - static_cast<double>(b1), f2 = z - static_cast<double>(b2);
-    const float* p = in + b0 + b1 * sy + b2 * sz;
+    const T* p = in + b0 + b1 * sy + b2 * sz;
     const double c00 = p[0] + f0 * (p[1] - p[0]);
     const double c10 = p[sy] + f0 * (p[sy + 1] - p[sy]);
     const double c01 = p[sz] + f0 * (p[sz + 1] - p[sz]);
@@ -506,6 +521,15 @@ Result<LabelVolume> TetWarp::warp_labels(const LabelVolume& labels,
 }
 
 Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source, Interpolation interpolation) const {
+  return warp_intensities_from(source, interpolation);
+}
+
+Result<IntensityVolume> TetWarp::warp_intensities(const Volume<int16_t>& source, Interpolation interpolation) const {
+  return warp_intensities_from(source, interpolation);
+}
+
+template <typename T>
+Result<IntensityVolume> TetWarp::warp_intensities_from(const Volume<T>& source, Interpolation interpolation) const {
   if (!source.geometry().same_grid(source_, 1e-3)) {
     return invalid_argument_error("the intensity volume is not on the grid the rig was built from");
   }
@@ -515,7 +539,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
                                                          }));
   out.set_source_type(source.source_type());
   const Index3& m = source_.size;
-  const float* in = source.data();
+  const T* in = source.data();
   float* dst = out.data();
   const int64_t sy = m[0], sz = m[0] * m[1];
   const int64_t dx = m[0] > 1 ? 1 : 0, dy = m[1] > 1 ? sy : 0, dz = m[2] > 1 ? sz : 0;
@@ -571,7 +595,7 @@ Result<IntensityVolume> TetWarp::warp_intensities(const IntensityVolume& source,
           base[a] = std::min<int64_t>(static_cast<int64_t>(x), base_max[a]);  // x >= 0
           f[a] = m[a] > 1 ? x - static_cast<double>(base[a]) : 0.0;
         }
-        const float* p = in + base[0] + base[1] * sy + base[2] * sz;
+        const T* p = in + base[0] + base[1] * sy + base[2] * sz;
         const double c00 = p[0] + f[0] * (p[dx] - p[0]);
         const double c10 = p[dy] + f[0] * (p[dy + dx] - p[dy]);
         const double c01 = p[dz] + f[0] * (p[dz + dx] - p[dz]);

@@ -11,6 +11,7 @@
 #include <map>
 #include <set>
 
+#include "posewarp/common/compact_intensities.h"
 #include "posewarp/common/parallel.h"
 #include "posewarp/io/itk_reference.h"
 #include "posewarp/labels/body.h"
@@ -738,6 +739,48 @@ TEST(TetWarp, WarpsInsideAParallelLoopGiveWhatOneWarpGives) {
   });
   for (int w = 0; w < kWarps; ++w)
     EXPECT_EQ(got[static_cast<size_t>(w)], expected[static_cast<size_t>(w)]) << "warp " << w;
+}
+
+TEST(TetWarp, Int16IntensitiesWarpToTheBitsOfTheirFloats) {
+  // The CT as a rig holds it (CompactIntensities: int16 where it fits) against the same values in floats, through a
+  // turned and shifted root (runs across the source rows: the SSE2 and AVX2 loops, and the checked one at the
+  // edges) with the upper half sheared on top (tet maps), trilinear and nearest.
+  const Scene& s = bar_scene();
+  const ImageGeometry& g = s.phantom.labels.geometry();
+  IntensityVolume floats = s.phantom.ct;
+  for (int64_t v = 0; v < floats.voxel_count(); ++v) floats.data()[v] = std::round(floats.data()[v]) + 0.0f;
+  const CompactIntensities held(floats);
+  ASSERT_NE(held.as_int16(), nullptr);
+  const Eigen::Matrix3d r =
+      Eigen::AngleAxisd(9.0 * M_PI / 180.0, Eigen::Vector3d(0.3, -0.2, 1).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(3.7, -2.2, 4.1);
+  Eigen::MatrixXd posed = (s.mesh.vertices * r.transpose()).rowwise() + t.transpose();
+  for (int64_t v = 0; v < posed.rows(); ++v) posed(v, 0) += 0.15 * std::max(0.0, s.mesh.vertices(v, 2) - 60.0);
+  Result<TetWarp> warp = TetWarp::build({.rest = s.mesh,
+                                         .posed = posed,
+                                         .source = g,
+                                         .output = g,
+                                         .background_rotation = r,
+                                         .background_translation = t,
+                                         .rest_owner = &s.packed_owner});
+  ASSERT_TRUE(warp.ok()) << warp.status().to_string();
+  EXPECT_GT(warp->rasterized_tets(), 0);
+  for (const Interpolation interpolation : {Interpolation::kLinear, Interpolation::kNearest}) {
+    Result<IntensityVolume> a = warp->warp_intensities(floats, interpolation);
+    Result<IntensityVolume> b = warp->warp_intensities(*held.as_int16(), interpolation);
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_EQ(a->voxel_count(), b->voxel_count());
+    int64_t differ = 0, fractional = 0;
+    for (int64_t v = 0; v < a->voxel_count(); ++v) {
+      differ += std::bit_cast<uint32_t>(a->data()[v]) != std::bit_cast<uint32_t>(b->data()[v]);
+      fractional += a->data()[v] != std::round(a->data()[v]);
+    }
+    EXPECT_EQ(differ, 0) << (interpolation == Interpolation::kLinear ? "trilinear" : "nearest");
+    if (interpolation == Interpolation::kLinear) {
+      EXPECT_GT(fractional, 1000);  // interpolated, not copied
+    }
+    EXPECT_EQ(b->source_type(), floats.source_type());
+  }
 }
 
 TEST(OutputGrid, GrowsToHoldTheBodyAndRefusesAbsurdGrids) {

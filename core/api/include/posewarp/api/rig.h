@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "posewarp/common/bone_substitutes.h"
+#include "posewarp/common/compact_intensities.h"
 #include "posewarp/common/label_map.h"
 #include "posewarp/common/progress.h"
 #include "posewarp/common/result.h"
@@ -71,9 +72,10 @@ struct Rig {
   RotationCentres centres;
   std::string params_json;
   Provenance provenance;
-  // The source volumes posing warps (kept in the rig so a pose needs nothing else).
+  // The source volumes posing warps (kept in the rig so a pose needs nothing else); the CT in int16 where its values
+  // fit (CompactIntensities: half a float volume's bytes).
   LabelVolume labels;
-  std::optional<IntensityVolume> ct;
+  std::optional<CompactIntensities> ct;
   // Surfaces at rest (one per bone label, the skin, optionally tissues) and their embedding in the rest tets.
   std::vector<SurfaceMesh> surfaces;
   std::vector<Embedding> embeddings;

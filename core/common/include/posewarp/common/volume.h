@@ -32,9 +32,12 @@ int pixel_type_bytes(PixelType type);
 // the caller reports it, nothing is clipped silently.
 bool convert_samples(const int32_t* in, int64_t n, PixelType type, char* out);
 bool convert_samples(const float* in, int64_t n, PixelType type, char* out);
+bool convert_samples(const int16_t* in, int64_t n, PixelType type, char* out);
 // The other way: n little-endian samples of `type` read into out. False for 64-bit integer types (not read).
 bool read_samples(const char* in, int64_t n, PixelType type, int32_t* out);
 bool read_samples(const char* in, int64_t n, PixelType type, float* out);
+// Into int16 only from the types int16 holds every value of (uint8, int8, int16); false for the others.
+bool read_samples(const char* in, int64_t n, PixelType type, int16_t* out);
 
 // The allocator of a volume's voxels: blocks from allocate_voxels (a pose's outputs reuse the last pose's pages).
 // Elements it constructs without a value are left uninitialised: a Volume fills its voxels itself on every thread, so

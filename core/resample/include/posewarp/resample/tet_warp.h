@@ -135,8 +135,10 @@ class TetWarp {
   Result<LabelVolume> warp_labels(const LabelVolume& source,
                                   std::vector<std::pair<double, double>>* bone_deviation_mm = nullptr,
                                   const RowSpans* spans = nullptr) const;
-  // Intensities, trilinear or nearest; the result keeps the source's type on disk.
+  // Intensities, trilinear or nearest; the result keeps the source's type on disk. From int16 samples (a CT as
+  // CompactIntensities holds it) the result is that of the float volume of the same values, bit for bit.
   Result<IntensityVolume> warp_intensities(const IntensityVolume& source, Interpolation interpolation) const;
+  Result<IntensityVolume> warp_intensities(const Volume<int16_t>& source, Interpolation interpolation) const;
   // Per output voxel: the covering rasterized tet (>= 0), -2 - tet for a skin-shell voxel, -1 for a voxel mapped by
   // the background transform (inside a tet that follows it, or outside the body), kBoneOwner + k for a voxel of bone
   // segment k (with RigidBones), kNoSample where nothing maps.
@@ -154,6 +156,8 @@ class TetWarp {
   // `soft` tells whether the run is mapped by a tet or the skin shell (its bone samples take substitutes).
   template <typename Sample>
   void for_each_mapped_run(const Sample& sample) const;
+  template <typename T>
+  Result<IntensityVolume> warp_intensities_from(const Volume<T>& source, Interpolation interpolation) const;
   const double* map_of(int32_t owner) const;
 
   ImageGeometry source_;
