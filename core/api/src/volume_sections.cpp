@@ -94,11 +94,11 @@ bool deflate_chunks(const Volume<T>& volume, PixelType type, std::vector<std::st
       const T* values = volume.data() + first;
       if (type != native_type<T>()) {
         stored.resize(static_cast<size_t>(n * bytes));
-        back.resize(static_cast<size_t>(n));
         // From int16 a conversion that fits is exact (the other types hold the value or refuse it); from int32 or
         // float it is checked by reading the samples back.
         bool fits = convert_samples(values, n, type, stored.data());
         if constexpr (!std::is_same_v<T, int16_t>) {
+          back.resize(static_cast<size_t>(n));
           fits =
               fits && read_samples(stored.data(), n, type, back.data()) && std::equal(back.begin(), back.end(), values);
         }
@@ -242,16 +242,12 @@ Status read_intensity_section(std::string_view payload, const std::string& name,
       format == 2 && get_grid(in, g, source) && in.get(stored) &&
       (stored == static_cast<int32_t>(PixelType::kInt16) || stored == static_cast<int32_t>(PixelType::kUInt8) ||
        stored == static_cast<int32_t>(PixelType::kInt8));
-  if (narrow) {
-    Volume<int16_t> volume;
+  auto read_into = [&](auto volume) -> Status {
     POSEWARP_RETURN_IF_ERROR(read_volume_section(payload, name, format, volume));
     intensities = CompactIntensities(std::move(volume));
     return ok_status();
-  }
-  IntensityVolume volume;
-  POSEWARP_RETURN_IF_ERROR(read_volume_section(payload, name, format, volume));
-  intensities = CompactIntensities(std::move(volume));
-  return ok_status();
+  };
+  return narrow ? read_into(Volume<int16_t>()) : read_into(IntensityVolume());
 }
 
 template std::string volume_section(const Volume<Label>&);
